@@ -1,0 +1,150 @@
+/**
+ * @file imu_arith.h
+ * @brief The arithmetic layer: one filter source, two builds.
+ *
+ * Every filter in firmware/core is written once against the types and macros of
+ * this header. Compiled with `IMU_FIXED` the types are `int32_t` holding the Q
+ * format named on the type and the macros are integer operations (this is the
+ * firmware build). Compiled with `IMU_FLOAT` the types are `double` holding the
+ * real value and the macros are plain floating-point operations (the float twin,
+ * the reference model). Q formats are therefore annotations in the float build:
+ * `IMU_MUL(a, b, s)` is `a * b` there and `(a * b) >> s` (rounded) in fixed point.
+ *
+ * Q formats (fixed build, all `int32_t`, "m.n" = sign+m integer bits, n fraction):
+ *  - imu_q30_t   2.30   dimensionless: quaternion and unit-vector components,
+ *                       sines, cosines, gains in [0, 2), time step in s
+ *  - imu_angle_t 3.29   angle in rad, range +-4 (covers +-pi)
+ *  - imu_rate_t  8.24   angular rate in rad/s, range +-128 rad/s
+ *  - imu_q16_t   16.16  settings and physical values near one: gains in 1/s,
+ *                       acceleration in m/s^2, magnetic field in uT, rates in Hz
+ *  - imu_real_t  int32  any other Q format, named where the value is declared
+ *
+ * Rounding: every right shift of a product rounds to nearest (ties toward +inf).
+ * Overflow: plain macros (IMU_MUL, IMU_ADD) require the caller to prove the bound
+ * (each use says why it holds); the `_SAT` variants saturate to the int32 range
+ * and count the event in a caller-supplied counter. In the float build the
+ * saturating variants do not clamp (double has the range) and count nothing.
+ *
+ * Right shifts of negative values and int64 products are used; both are
+ * implementation-defined/defined on every compiler we target (arithmetic shift).
+ * Left shifts of negative values are never used (undefined behaviour): scaling up
+ * multiplies by a power of two instead.
+ */
+#ifndef IMU_ARITH_H
+#define IMU_ARITH_H
+
+#include <stdint.h>
+
+#if defined(IMU_FIXED) && defined(IMU_FLOAT)
+#error "define exactly one of IMU_FIXED and IMU_FLOAT, not both"
+#elif !defined(IMU_FIXED) && !defined(IMU_FLOAT)
+#error "define IMU_FIXED (firmware, integer only) or IMU_FLOAT (double twin)"
+#endif
+
+#ifdef IMU_FIXED
+
+typedef int32_t imu_q30_t;   /**< 2.30 dimensionless */
+typedef int32_t imu_angle_t; /**< 3.29 rad */
+typedef int32_t imu_rate_t;  /**< 8.24 rad/s */
+typedef int32_t imu_q16_t;   /**< 16.16 */
+typedef int32_t imu_real_t;  /**< Q format written where the value is declared */
+
+/** Fraction bits of each format (used to convert between formats). */
+#define IMU_Q30 30
+#define IMU_QANGLE 29
+#define IMU_QRATE 24
+#define IMU_Q16 16
+
+/** Compile-time constant x (a real literal) in Q`q`: folded by the compiler. */
+#define IMU_QCONST(x, q) ((int32_t)((x) * (double)(1LL << (q)) + ((x) >= 0 ? 0.5 : -0.5)))
+
+/** int32 saturation of an int64 value; increments *sat when clamping. */
+static inline int32_t imu_sat32(int64_t v, uint32_t *sat)
+{
+    if (v > INT32_MAX) {
+        ++*sat;
+        return INT32_MAX;
+    }
+    if (v < INT32_MIN) {
+        ++*sat;
+        return INT32_MIN;
+    }
+    return (int32_t)v;
+}
+
+/** (v >> s) rounded to nearest for s in [1, 62]. */
+static inline int64_t imu_rshift_round64(int64_t v, int s)
+{
+    return (v + ((int64_t)1 << (s - 1))) >> s;
+}
+
+/** a*b >> s, rounded. Caller guarantees the result fits in int32. */
+static inline int32_t imu_mul(int32_t a, int32_t b, int s)
+{
+    return (int32_t)imu_rshift_round64((int64_t)a * b, s);
+}
+
+/** a*b >> s, rounded and saturated. */
+static inline int32_t imu_mul_sat(int32_t a, int32_t b, int s, uint32_t *sat)
+{
+    return imu_sat32(imu_rshift_round64((int64_t)a * b, s), sat);
+}
+
+/** a * 2^s / b, truncated toward zero and saturated; b != 0 required (callers check).
+ *  |a| * 2^s must stay below 2^63: s <= 31 for any int32 a. */
+static inline int32_t imu_div_sat(int32_t a, int32_t b, int s, uint32_t *sat)
+{
+    return imu_sat32(((int64_t)a * ((int64_t)1 << s)) / b, sat);
+}
+
+#define IMU_MUL(a, b, s) imu_mul((a), (b), (s))
+#define IMU_MUL_SAT(a, b, s, sat) imu_mul_sat((a), (b), (s), (sat))
+#define IMU_DIV_SAT(a, b, s, sat) imu_div_sat((a), (b), (s), (sat))
+#define IMU_ADD(a, b) ((a) + (b))
+#define IMU_SUB(a, b) ((a) - (b))
+#define IMU_ADD_SAT(a, b, sat) imu_sat32((int64_t)(a) + (b), (sat))
+#define IMU_SUB_SAT(a, b, sat) imu_sat32((int64_t)(a) - (b), (sat))
+/** Drop s fraction bits (Qn to Q(n-s)), rounded. */
+#define IMU_SHR(a, s) ((int32_t)imu_rshift_round64((a), (s)))
+/** Half of a value, same format, rounded. */
+#define IMU_HALF(a) ((int32_t)imu_rshift_round64((a), 1))
+/** Add s fraction bits (Qn to Q(n+s)), saturated. */
+#define IMU_SHL_SAT(a, s, sat) imu_sat32((int64_t)(a) * ((int64_t)1 << (s)), (sat))
+/** Integer value (counts, sample numbers) to a real in Q`q`; saturated. */
+#define IMU_FROM_INT_SAT(i, q, sat) imu_sat32((int64_t)(i) * ((int64_t)1 << (q)), (sat))
+/** A real in Q`q` to the nearest integer. */
+#define IMU_TO_INT(a, q) ((int32_t)imu_rshift_round64((a), (q)))
+/** Nearest integer to the product of reals a and b whose Q formats add up to q (result below 2^31). */
+#define IMU_MUL_TO_INT(a, b, q) ((int32_t)imu_rshift_round64((int64_t)(a) * (b), (q)))
+
+#else /* IMU_FLOAT */
+
+typedef double imu_q30_t;
+typedef double imu_angle_t;
+typedef double imu_rate_t;
+typedef double imu_q16_t;
+typedef double imu_real_t;
+
+#define IMU_QCONST(x, q) ((double)(x))
+#define IMU_MUL(a, b, s) ((a) * (b))
+#define IMU_MUL_SAT(a, b, s, sat) ((void)(sat), (a) * (b))
+#define IMU_DIV_SAT(a, b, s, sat) ((void)(sat), (a) / (b))
+#define IMU_ADD(a, b) ((a) + (b))
+#define IMU_SUB(a, b) ((a) - (b))
+#define IMU_ADD_SAT(a, b, sat) ((void)(sat), (a) + (b))
+#define IMU_SUB_SAT(a, b, sat) ((void)(sat), (a) - (b))
+#define IMU_SHR(a, s) (a)
+#define IMU_HALF(a) (0.5 * (a))
+#define IMU_SHL_SAT(a, s, sat) ((void)(sat), (a))
+#define IMU_FROM_INT_SAT(i, q, sat) ((void)(sat), (double)(i))
+#define IMU_TO_INT(a, q) ((int32_t)((a) >= 0 ? (a) + 0.5 : (a) - 0.5))
+#define IMU_MUL_TO_INT(a, b, q) IMU_TO_INT((a) * (b), 0)
+
+#endif
+
+/** Frequently used constants. */
+#define IMU_ONE_Q30 IMU_QCONST(1.0, 30)
+#define IMU_PI_ANGLE IMU_QCONST(3.14159265358979323846, 29)
+#define IMU_HALF_PI_ANGLE IMU_QCONST(1.57079632679489661923, 29)
+
+#endif /* IMU_ARITH_H */

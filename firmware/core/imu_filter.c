@@ -1,0 +1,102 @@
+/**
+ * @file imu_filter.c
+ * @brief Dispatch to the selected filter (see imu_filter.h).
+ */
+#include "imu_filter.h"
+
+imu_status_t imu_filter_init(imu_filter_t *f, int id)
+{
+    f->sensor = imu_sensor_default_settings;
+    switch (id) {
+    case IMU_FILTER_EECF:
+        imu_eecf_init(&f->u.eecf);
+        break;
+    case IMU_FILTER_KF1D:
+        imu_kf1d_init(&f->u.kf1d);
+        break;
+    default:
+        return IMU_ERR_UNKNOWN;
+    }
+    f->id = (imu_filter_id_t)id;
+    return IMU_OK;
+}
+
+imu_status_t imu_filter_set_settings(imu_filter_t *f, const void *settings)
+{
+    switch (f->id) {
+    case IMU_FILTER_EECF:
+        return imu_eecf_set_settings(&f->u.eecf, (const imu_eecf_settings_t *)settings);
+    case IMU_FILTER_KF1D:
+        return imu_kf1d_set_settings(&f->u.kf1d, (const imu_kf1d_settings_t *)settings);
+    }
+    return IMU_ERR_UNKNOWN;
+}
+
+void imu_filter_set_sensor(imu_filter_t *f, const imu_sensor_settings_t *sensor)
+{
+    f->sensor = *sensor;
+}
+
+static uint32_t *saturation_counter(imu_filter_t *f)
+{
+    return f->id == IMU_FILTER_EECF ? &f->u.eecf.saturations : &f->u.kf1d.saturations;
+}
+
+void imu_filter_update_raw(imu_filter_t *f, const imu_raw_sample_t *raw)
+{
+    imu_sample_t sample;
+    imu_sample_from_raw(&f->sensor, raw, &sample, saturation_counter(f));
+    switch (f->id) {
+    case IMU_FILTER_EECF:
+        imu_eecf_update(&f->u.eecf, &sample);
+        break;
+    case IMU_FILTER_KF1D:
+        imu_kf1d_update(&f->u.kf1d, &sample);
+        break;
+    }
+}
+
+void imu_filter_get(const imu_filter_t *f, imu_output_t *out)
+{
+    switch (f->id) {
+    case IMU_FILTER_EECF:
+        imu_eecf_get(&f->u.eecf, out);
+        break;
+    case IMU_FILTER_KF1D:
+        imu_kf1d_get(&f->u.kf1d, out);
+        break;
+    }
+}
+
+uint32_t imu_filter_saturations(const imu_filter_t *f)
+{
+    return f->id == IMU_FILTER_EECF ? f->u.eecf.saturations : f->u.kf1d.saturations;
+}
+
+void imu_filter_run(imu_filter_t *f, const int16_t *gyr, const int16_t *acc, const int16_t *mag, size_t n,
+                    imu_q30_t *quat, imu_angle_t *euler, imu_rate_t *gyro_bias)
+{
+    size_t i, k;
+    for (i = 0; i < n; ++i) {
+        imu_raw_sample_t raw;
+        imu_output_t out;
+        for (k = 0; k < 3; ++k) {
+            raw.gyr[k] = gyr[3 * i + k];
+            raw.acc[k] = acc[3 * i + k];
+            raw.mag[k] = mag[3 * i + k];
+        }
+        imu_filter_update_raw(f, &raw);
+        imu_filter_get(f, &out);
+        for (k = 0; k < 4 && quat != 0; ++k) {
+            quat[4 * i + k] = out.quat[k];
+        }
+        for (k = 0; k < 3; ++k) {
+            if (euler != 0) {
+                euler[3 * i + k] = out.euler[k];
+            }
+            if (gyro_bias != 0) {
+                gyro_bias[3 * i + k] = out.gyro_bias[k];
+            }
+        }
+    }
+}

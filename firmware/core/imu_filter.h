@@ -1,0 +1,59 @@
+/**
+ * @file imu_filter.h
+ * @brief One handle for every filter: select by id, feed raw samples, read outputs.
+ *
+ * This is what the firmware main loop and the host bindings use; each filter's
+ * own header documents its settings and behaviour.
+ */
+#ifndef IMU_FILTER_H
+#define IMU_FILTER_H
+
+#include "imu_common.h"
+#include "imu_eecf.h"
+#include "imu_kf1d.h"
+#include "imu_sensor.h"
+
+/** Filter identifiers (stable: they travel in the frame protocol). */
+typedef enum {
+    IMU_FILTER_EECF = 1,
+    IMU_FILTER_KF1D = 2,
+} imu_filter_id_t;
+
+/** A filter of any kind. All members are private. */
+typedef struct {
+    imu_filter_id_t id;
+    imu_sensor_settings_t sensor;
+    union {
+        imu_eecf_t eecf;
+        imu_kf1d_t kf1d;
+    } u;
+} imu_filter_t;
+
+/** @brief Initialise filter `id` with default settings; IMU_ERR_UNKNOWN for an unknown id. */
+imu_status_t imu_filter_init(imu_filter_t *f, int id);
+
+/** @brief Apply the filter's settings struct (the type matching its id) and restart it. */
+imu_status_t imu_filter_set_settings(imu_filter_t *f, const void *settings);
+
+/** @brief Set the sensor sensitivities. */
+void imu_filter_set_sensor(imu_filter_t *f, const imu_sensor_settings_t *sensor);
+
+/** @brief Convert one raw sample and update the filter. */
+void imu_filter_update_raw(imu_filter_t *f, const imu_raw_sample_t *raw);
+
+/** @brief Current estimate. */
+void imu_filter_get(const imu_filter_t *f, imu_output_t *out);
+
+/** @brief Saturation events counted since the last (re)start. */
+uint32_t imu_filter_saturations(const imu_filter_t *f);
+
+/**
+ * @brief Run n samples (int16 counts, n x 3 arrays row-major) and store each output.
+ * @param quat      n x 4 output, Q30 (may be NULL)
+ * @param euler     n x 3 output, Q29 rad (may be NULL)
+ * @param gyro_bias n x 3 output, Q24 rad/s (may be NULL)
+ */
+void imu_filter_run(imu_filter_t *f, const int16_t *gyr, const int16_t *acc, const int16_t *mag, size_t n,
+                    imu_q30_t *quat, imu_angle_t *euler, imu_rate_t *gyro_bias);
+
+#endif /* IMU_FILTER_H */

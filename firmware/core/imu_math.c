@@ -1,0 +1,484 @@
+/**
+ * @file imu_math.c
+ * @brief Vector, quaternion and angle helpers (see imu_math.h).
+ *
+ * The fixed build uses integer square roots and CORDIC (31 iterations in int64,
+ * about 1e-9 rad resolution) for atan2 and sin/cos; the float build calls the C
+ * library. Both builds share the formulas above that level.
+ */
+#include "imu_math.h"
+
+#ifdef IMU_FLOAT
+#include <math.h>
+#endif
+
+#ifdef IMU_FIXED
+
+/** floor(sqrt(v)). */
+static uint32_t isqrt64(uint64_t v)
+{
+    uint64_t root = 0;
+    uint64_t bit = (uint64_t)1 << 62;
+    while (bit > v) {
+        bit >>= 2;
+    }
+    while (bit != 0) {
+        if (v >= root + bit) {
+            v -= root + bit;
+            root = (root >> 1) + bit;
+        } else {
+            root >>= 1;
+        }
+        bit >>= 2;
+    }
+    return (uint32_t)root;
+}
+
+static int64_t abs64(int64_t v)
+{
+    return v < 0 ? -v : v;
+}
+
+/** Number of left shifts that bring max(|a|,|b|,|c|) (int32 range) to at least 2^29. */
+static int headroom_shift(int64_t a, int64_t b, int64_t c)
+{
+    int64_t m = abs64(a);
+    int shift = 0;
+    if (abs64(b) > m) {
+        m = abs64(b);
+    }
+    if (abs64(c) > m) {
+        m = abs64(c);
+    }
+    if (m == 0) {
+        return 0;
+    }
+    while (m < ((int64_t)1 << 29)) {
+        m *= 2;
+        ++shift;
+    }
+    return shift;
+}
+
+int imu_vec3_normalize(const imu_real_t v[3], imu_q30_t unit[3], imu_real_t *norm)
+{
+    /* Scaled so the largest component is in [2^29, 2^31]: the sum of squares is
+     * below 3 * 2^62 < 2^64 and the root below 2^32. */
+    const int shift = headroom_shift(v[0], v[1], v[2]);
+    const int64_t scale = (int64_t)1 << shift;
+    int64_t s[3];
+    uint64_t sum = 0;
+    uint32_t n;
+    int i;
+    for (i = 0; i < 3; ++i) {
+        s[i] = (int64_t)v[i] * scale;
+        sum += (uint64_t)(s[i] * s[i]);
+    }
+    n = isqrt64(sum);
+    if (n == 0) {
+        return 0;
+    }
+    for (i = 0; i < 3; ++i) {
+        /* |s| <= n so the quotient is within [-2^30, 2^30]. */
+        unit[i] = (imu_q30_t)((s[i] * ((int64_t)1 << 30)) / (int64_t)n);
+    }
+    if (norm != 0) {
+        const uint64_t unscaled = ((uint64_t)n + (((uint64_t)1 << shift) >> 1)) >> shift;
+        *norm = unscaled > INT32_MAX ? INT32_MAX : (imu_real_t)unscaled;
+    }
+    return 1;
+}
+
+imu_real_t imu_hypot(imu_real_t a, imu_real_t b)
+{
+    const uint64_t sum = (uint64_t)((int64_t)a * a) + (uint64_t)((int64_t)b * b);
+    const uint32_t n = isqrt64(sum);
+    return n > INT32_MAX ? INT32_MAX : (imu_real_t)n;
+}
+
+void imu_quat_normalize(imu_q30_t q[4])
+{
+    uint64_t sum = 0;
+    uint32_t n;
+    int64_t inv;
+    int i;
+    for (i = 0; i < 4; ++i) {
+        sum += (uint64_t)((int64_t)q[i] * q[i]); /* |q| near 1: sum near 2^60 */
+    }
+    n = isqrt64(sum); /* |q| in Q30 */
+    if (n == 0) {
+        q[0] = IMU_ONE_Q30;
+        q[1] = q[2] = q[3] = 0;
+        return;
+    }
+    inv = ((int64_t)1 << 60) / (int64_t)n; /* 1/|q| in Q30, near 2^30 */
+    for (i = 0; i < 4; ++i) {
+        q[i] = (imu_q30_t)imu_rshift_round64((int64_t)q[i] * inv, 30);
+    }
+}
+
+/** atan(2^-i) in rad, Q30: round(atan(2^-i) * 2^30), i = 0..30. */
+static const int32_t cordic_atan_q30[31] = {
+    843314857, 497837829, 263043837, 133525159, 67021687, 33543516, 16775851, 8388437,
+    4194283,   2097149,   1048576,   524288,    262144,   131072,   65536,    32768,
+    16384,     8192,      4096,      2048,      1024,     512,      256,      128,
+    64,        32,        16,        8,         4,        2,        1};
+
+/** 1/K, K = prod sqrt(1 + 2^-2i) for i = 0..30 (CORDIC gain), Q40. */
+#define CORDIC_INV_GAIN_Q40 INT64_C(667681663043)
+
+/** 2*pi in Q29 (does not fit int32). */
+#define TWO_PI_ANGLE64 INT64_C(3373259426)
+
+imu_angle_t imu_atan2(imu_real_t y, imu_real_t x)
+{
+    int64_t vx = x;
+    int64_t vy = y;
+    int64_t z = 0; /* Q30 rad */
+    int64_t offset = 0; /* Q29 rad */
+    int i;
+    if (vx == 0 && vy == 0) {
+        return 0;
+    }
+    /* Rotate into the right half plane by +-pi/2. */
+    if (vx < 0) {
+        const int64_t t = vx;
+        if (vy >= 0) {
+            vx = vy;
+            vy = -t;
+            offset = IMU_HALF_PI_ANGLE;
+        } else {
+            vx = -vy;
+            vy = t;
+            offset = -(int64_t)IMU_HALF_PI_ANGLE;
+        }
+    }
+    /* Scale up to 2^40..2^41 for resolution; CORDIC growth (1.65) keeps it < 2^43. */
+    while (abs64(vx) < ((int64_t)1 << 40) && abs64(vy) < ((int64_t)1 << 40)) {
+        vx *= 2;
+        vy *= 2;
+    }
+    for (i = 0; i < 31; ++i) {
+        const int64_t dx = vy >> i;
+        const int64_t dy = vx >> i;
+        if (vy > 0) {
+            vx += dx;
+            vy -= dy;
+            z += cordic_atan_q30[i];
+        } else {
+            vx -= dx;
+            vy += dy;
+            z -= cordic_atan_q30[i];
+        }
+    }
+    return imu_wrap_angle((imu_angle_t)(imu_rshift_round64(z, 1) + offset));
+}
+
+imu_angle_t imu_wrap_angle(imu_angle_t a)
+{
+    int64_t v = a;
+    while (v > IMU_PI_ANGLE) {
+        v -= TWO_PI_ANGLE64;
+    }
+    while (v <= -(int64_t)IMU_PI_ANGLE) {
+        v += TWO_PI_ANGLE64;
+    }
+    return (imu_angle_t)v;
+}
+
+void imu_sincos(imu_angle_t angle, imu_q30_t *s, imu_q30_t *c)
+{
+    int64_t a = imu_wrap_angle(angle); /* Q29 */
+    int negate = 0;
+    int64_t vx = CORDIC_INV_GAIN_Q40;
+    int64_t vy = 0;
+    int64_t z;
+    int i;
+    if (a > IMU_HALF_PI_ANGLE) {
+        a -= IMU_PI_ANGLE;
+        negate = 1;
+    } else if (a < -IMU_HALF_PI_ANGLE) {
+        a += IMU_PI_ANGLE;
+        negate = 1;
+    }
+    z = a * 2; /* Q30, |z| <= pi/2 */
+    for (i = 0; i < 31; ++i) {
+        const int64_t dx = vy >> i;
+        const int64_t dy = vx >> i;
+        if (z >= 0) {
+            vx -= dx;
+            vy += dy;
+            z -= cordic_atan_q30[i];
+        } else {
+            vx += dx;
+            vy -= dy;
+            z += cordic_atan_q30[i];
+        }
+    }
+    vx = imu_rshift_round64(vx, 10);
+    vy = imu_rshift_round64(vy, 10);
+    *c = (imu_q30_t)(negate ? -vx : vx);
+    *s = (imu_q30_t)(negate ? -vy : vy);
+}
+
+void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3])
+{
+    /* x = |theta| / 2; x2 = x^2 in Q30 from the Q60 sum of squares shifted by 32. */
+    const int64_t sum = (int64_t)theta[0] * theta[0] + (int64_t)theta[1] * theta[1] +
+                        (int64_t)theta[2] * theta[2];
+    const int32_t x2 = (int32_t)imu_rshift_round64(sum, 32);
+    const int32_t x4 = imu_mul(x2, x2, 30);
+    /* cos x = 1 - x^2/2 + x^4/24; sin(x)/x = 1 - x^2/6 + x^4/120 (Q30). */
+    const int32_t cos_x = IMU_ONE_Q30 - x2 / 2 + x4 / 24;
+    const int32_t sinc_x = IMU_ONE_Q30 - x2 / 6 + x4 / 120;
+    imu_q30_t dq[4];
+    imu_q30_t out[4];
+    int i;
+    dq[0] = cos_x;
+    for (i = 0; i < 3; ++i) {
+        dq[i + 1] = imu_mul(sinc_x, theta[i], 31); /* sinc * theta / 2 */
+    }
+    imu_quat_mul(q, dq, out);
+    for (i = 0; i < 4; ++i) {
+        q[i] = out[i];
+    }
+    imu_quat_normalize(q);
+}
+
+/** Sum of two Q30 products (Q60 in int64). */
+#define P2(a, b, c, d) ((int64_t)(a) * (b) + (int64_t)(c) * (d))
+
+void imu_quat_matrix_row(const imu_q30_t q[4], int row, imu_q30_t out[3])
+{
+    const int64_t one = (int64_t)1 << 60;
+    int64_t r[3];
+    switch (row) {
+    case 0:
+        r[0] = one - 2 * P2(q[2], q[2], q[3], q[3]);
+        r[1] = 2 * P2(q[1], q[2], -q[0], q[3]);
+        r[2] = 2 * P2(q[1], q[3], q[0], q[2]);
+        break;
+    case 1:
+        r[0] = 2 * P2(q[1], q[2], q[0], q[3]);
+        r[1] = one - 2 * P2(q[1], q[1], q[3], q[3]);
+        r[2] = 2 * P2(q[2], q[3], -q[0], q[1]);
+        break;
+    default:
+        r[0] = 2 * P2(q[1], q[3], -q[0], q[2]);
+        r[1] = 2 * P2(q[2], q[3], q[0], q[1]);
+        r[2] = one - 2 * P2(q[1], q[1], q[2], q[2]);
+        break;
+    }
+    out[0] = (imu_q30_t)imu_rshift_round64(r[0], 30);
+    out[1] = (imu_q30_t)imu_rshift_round64(r[1], 30);
+    out[2] = (imu_q30_t)imu_rshift_round64(r[2], 30);
+}
+
+#undef P2
+
+#else /* IMU_FLOAT */
+
+int imu_vec3_normalize(const imu_real_t v[3], imu_q30_t unit[3], imu_real_t *norm)
+{
+    const double n = sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+    int i;
+    if (n == 0.0) {
+        return 0;
+    }
+    for (i = 0; i < 3; ++i) {
+        unit[i] = v[i] / n;
+    }
+    if (norm != 0) {
+        *norm = n;
+    }
+    return 1;
+}
+
+imu_real_t imu_hypot(imu_real_t a, imu_real_t b)
+{
+    return sqrt(a * a + b * b);
+}
+
+void imu_quat_normalize(imu_q30_t q[4])
+{
+    const double n = sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    int i;
+    if (n == 0.0) {
+        q[0] = 1.0;
+        q[1] = q[2] = q[3] = 0.0;
+        return;
+    }
+    for (i = 0; i < 4; ++i) {
+        q[i] /= n;
+    }
+}
+
+imu_angle_t imu_atan2(imu_real_t y, imu_real_t x)
+{
+    return (x == 0.0 && y == 0.0) ? 0.0 : imu_wrap_angle(atan2(y, x));
+}
+
+imu_angle_t imu_wrap_angle(imu_angle_t a)
+{
+    const double pi = 3.14159265358979323846;
+    while (a > pi) {
+        a -= 2.0 * pi;
+    }
+    while (a <= -pi) {
+        a += 2.0 * pi;
+    }
+    return a;
+}
+
+void imu_sincos(imu_angle_t angle, imu_q30_t *s, imu_q30_t *c)
+{
+    *s = sin(angle);
+    *c = cos(angle);
+}
+
+void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3])
+{
+    const double x = 0.5 * sqrt(theta[0] * theta[0] + theta[1] * theta[1] + theta[2] * theta[2]);
+    const double half_sinc = x > 1e-9 ? 0.5 * sin(x) / x : 0.5 * (1.0 - x * x / 6.0);
+    const double dq[4] = {cos(x), half_sinc * theta[0], half_sinc * theta[1], half_sinc * theta[2]};
+    imu_q30_t out[4];
+    int i;
+    imu_quat_mul(q, dq, out);
+    for (i = 0; i < 4; ++i) {
+        q[i] = out[i];
+    }
+    imu_quat_normalize(q);
+}
+
+void imu_quat_matrix_row(const imu_q30_t q[4], int row, imu_q30_t out[3])
+{
+    switch (row) {
+    case 0:
+        out[0] = 1.0 - 2.0 * (q[2] * q[2] + q[3] * q[3]);
+        out[1] = 2.0 * (q[1] * q[2] - q[0] * q[3]);
+        out[2] = 2.0 * (q[1] * q[3] + q[0] * q[2]);
+        break;
+    case 1:
+        out[0] = 2.0 * (q[1] * q[2] + q[0] * q[3]);
+        out[1] = 1.0 - 2.0 * (q[1] * q[1] + q[3] * q[3]);
+        out[2] = 2.0 * (q[2] * q[3] - q[0] * q[1]);
+        break;
+    default:
+        out[0] = 2.0 * (q[1] * q[3] - q[0] * q[2]);
+        out[1] = 2.0 * (q[2] * q[3] + q[0] * q[1]);
+        out[2] = 1.0 - 2.0 * (q[1] * q[1] + q[2] * q[2]);
+        break;
+    }
+}
+
+#endif
+
+/* ---- Shared formulas: identical source for both builds below this line. ---- */
+
+void imu_vec3_cross(const imu_q30_t a[3], const imu_q30_t b[3], imu_q30_t out[3])
+{
+    /* Differences of two Q30 products; |a x b| <= |a||b| <= 1. */
+    out[0] = IMU_SUB(IMU_MUL(a[1], b[2], 30), IMU_MUL(a[2], b[1], 30));
+    out[1] = IMU_SUB(IMU_MUL(a[2], b[0], 30), IMU_MUL(a[0], b[2], 30));
+    out[2] = IMU_SUB(IMU_MUL(a[0], b[1], 30), IMU_MUL(a[1], b[0], 30));
+}
+
+void imu_quat_mul(const imu_q30_t a[4], const imu_q30_t b[4], imu_q30_t out[4])
+{
+    /* Each output component is bounded by |a||b| (near 1); partial sums of the
+     * rounded products stay within +-4 < Q30 range only in int64, so sum there. */
+#ifdef IMU_FIXED
+    const int64_t w = (int64_t)a[0] * b[0] - (int64_t)a[1] * b[1] - (int64_t)a[2] * b[2] - (int64_t)a[3] * b[3];
+    const int64_t x = (int64_t)a[0] * b[1] + (int64_t)a[1] * b[0] + (int64_t)a[2] * b[3] - (int64_t)a[3] * b[2];
+    const int64_t y = (int64_t)a[0] * b[2] - (int64_t)a[1] * b[3] + (int64_t)a[2] * b[0] + (int64_t)a[3] * b[1];
+    const int64_t z = (int64_t)a[0] * b[3] + (int64_t)a[1] * b[2] - (int64_t)a[2] * b[1] + (int64_t)a[3] * b[0];
+    out[0] = (imu_q30_t)imu_rshift_round64(w, 30);
+    out[1] = (imu_q30_t)imu_rshift_round64(x, 30);
+    out[2] = (imu_q30_t)imu_rshift_round64(y, 30);
+    out[3] = (imu_q30_t)imu_rshift_round64(z, 30);
+#else
+    out[0] = a[0] * b[0] - a[1] * b[1] - a[2] * b[2] - a[3] * b[3];
+    out[1] = a[0] * b[1] + a[1] * b[0] + a[2] * b[3] - a[3] * b[2];
+    out[2] = a[0] * b[2] - a[1] * b[3] + a[2] * b[0] + a[3] * b[1];
+    out[3] = a[0] * b[3] + a[1] * b[2] - a[2] * b[1] + a[3] * b[0];
+#endif
+}
+
+void imu_quat_rotate(const imu_q30_t q[4], const imu_q30_t v[3], imu_q30_t out[3])
+{
+    imu_q30_t row[3];
+    int r;
+    for (r = 0; r < 3; ++r) {
+        imu_quat_matrix_row(q, r, row);
+        out[r] = IMU_ADD(IMU_ADD(IMU_MUL(row[0], v[0], 30), IMU_MUL(row[1], v[1], 30)),
+                         IMU_MUL(row[2], v[2], 30));
+    }
+}
+
+void imu_quat_to_euler(const imu_q30_t q[4], imu_angle_t euler[3])
+{
+    imu_q30_t east[3];
+    imu_q30_t north[3];
+    imu_q30_t up[3];
+    imu_quat_matrix_row(q, 0, east);
+    imu_quat_matrix_row(q, 1, north);
+    imu_quat_matrix_row(q, 2, up);
+    /* Column 1 of R is the y axis in the earth frame: (east[1], north[1], up[1]). */
+    euler[0] = imu_atan2(-up[0], up[2]);
+    euler[1] = imu_atan2(up[1], imu_hypot(east[1], north[1]));
+    euler[2] = imu_atan2(east[1], north[1]);
+}
+
+void imu_euler_to_quat(const imu_angle_t euler[3], imu_q30_t q[4])
+{
+    /* q = qz(-heading) (x) qx(pitch) (x) qy(roll), each an axis rotation by half angles. */
+    imu_q30_t sr, cr, sp, cp, sh, ch;
+    imu_q30_t qz[4], qx[4], qy[4], t[4];
+    imu_sincos(IMU_HALF(euler[0]), &sr, &cr);
+    imu_sincos(IMU_HALF(euler[1]), &sp, &cp);
+    imu_sincos(IMU_HALF(euler[2]), &sh, &ch);
+    qz[0] = ch;
+    qz[1] = 0;
+    qz[2] = 0;
+    qz[3] = -sh;
+    qx[0] = cp;
+    qx[1] = sp;
+    qx[2] = 0;
+    qx[3] = 0;
+    qy[0] = cr;
+    qy[1] = 0;
+    qy[2] = sr;
+    qy[3] = 0;
+    imu_quat_mul(qz, qx, t);
+    imu_quat_mul(t, qy, q);
+    imu_quat_normalize(q);
+}
+
+int imu_tilt_from_acc(const imu_real_t acc[3], imu_angle_t *roll, imu_angle_t *pitch)
+{
+    if (acc[0] == 0 && acc[1] == 0 && acc[2] == 0) {
+        return 0;
+    }
+    /* Level reading is (-cos(p) sin(r), sin(p), cos(p) cos(r)) * g. */
+    *roll = imu_atan2(-acc[0], acc[2]);
+    *pitch = imu_atan2(acc[1], imu_hypot(acc[0], acc[2]));
+    return 1;
+}
+
+imu_angle_t imu_heading_from_mag(const imu_real_t mag[3], imu_angle_t roll, imu_angle_t pitch)
+{
+    /* Horizontal field h = Rx(pitch) Ry(roll) m; heading = atan2(-h_x, h_y).
+     * The field is normalised first so that products stay within Q30. */
+    imu_q30_t m[3];
+    imu_q30_t sr, cr, sp, cp;
+    imu_q30_t w, hx, hy;
+    if (!imu_vec3_normalize(mag, m, 0)) {
+        return 0;
+    }
+    imu_sincos(roll, &sr, &cr);
+    imu_sincos(pitch, &sp, &cp);
+    hx = IMU_ADD(IMU_MUL(cr, m[0], 30), IMU_MUL(sr, m[2], 30));
+    w = IMU_SUB(IMU_MUL(cr, m[2], 30), IMU_MUL(sr, m[0], 30));
+    hy = IMU_SUB(IMU_MUL(cp, m[1], 30), IMU_MUL(sp, w, 30));
+    return imu_atan2(-hx, hy);
+}

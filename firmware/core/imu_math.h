@@ -1,0 +1,89 @@
+/**
+ * @file imu_math.h
+ * @brief Vector, quaternion and angle helpers on the arithmetic layer's types.
+ *
+ * Conventions: quaternions are w-first, sensor-to-earth, earth frame ENU; the
+ * sensor (body) frame has x to the right, y forward, z up (seeds 000 and 004).
+ * Euler angles are [roll, pitch, heading] in rad with R = Rz(-heading) Rx(pitch)
+ * Ry(roll): pitch lifts the y axis above the horizon, roll turns about y (right
+ * side down positive), heading is the compass heading of the y axis (from north,
+ * clockwise positive), all wrapped to (-pi, pi].
+ *
+ * Fixed build: quaternion and unit-vector components are Q30 with magnitude at
+ * most 1 (+ rounding), so products of two of them and sums of up to four such
+ * products stay below 2^62 in int64 and below 2 (Q30's range) after the shift:
+ * the helpers below use non-saturating arithmetic for them. Functions that take
+ * vectors of unbounded magnitude say so.
+ */
+#ifndef IMU_MATH_H
+#define IMU_MATH_H
+
+#include "imu_arith.h"
+
+/**
+ * @brief Unit vector of v and its length.
+ * @param v     vector in any Q format (all three components the same format), any int32.
+ * @param unit  output, Q30; untouched when v is zero.
+ * @param norm  output (may be NULL), |v| in the format of v, saturated to int32.
+ * @return 1 on success, 0 when v is the zero vector.
+ */
+int imu_vec3_normalize(const imu_real_t v[3], imu_q30_t unit[3], imu_real_t *norm);
+
+/** @brief sqrt(a^2 + b^2) of two values of the same Q format; saturated to int32. */
+imu_real_t imu_hypot(imu_real_t a, imu_real_t b);
+
+/** @brief out = a x b for Q30 vectors of magnitude <= 1 (result Q30). */
+void imu_vec3_cross(const imu_q30_t a[3], const imu_q30_t b[3], imu_q30_t out[3]);
+
+/** @brief Normalise a quaternion in place (components Q30, magnitude near 1, at most 2). */
+void imu_quat_normalize(imu_q30_t q[4]);
+
+/** @brief out = a (x) b, Hamilton product of unit quaternions (Q30); out may alias neither. */
+void imu_quat_mul(const imu_q30_t a[4], const imu_q30_t b[4], imu_q30_t out[4]);
+
+/** @brief Row `row` (0: east, 1: north, 2: up) of the sensor-to-earth rotation matrix of q (Q30). */
+void imu_quat_matrix_row(const imu_q30_t q[4], int row, imu_q30_t out[3]);
+
+/** @brief out = R(q) v: a sensor-frame unit vector (Q30) expressed in the earth frame. */
+void imu_quat_rotate(const imu_q30_t q[4], const imu_q30_t v[3], imu_q30_t out[3]);
+
+/**
+ * @brief q <- normalize(q (x) exp(theta / 2)): advance the attitude by a body-frame
+ *        rotation vector.
+ * @param theta rotation vector in rad, Q30, |theta| < 1 rad (a step of the filter).
+ *
+ * Fixed build: cos and sin(x)/x of the half angle x = |theta|/2 by their Taylor
+ * series to x^4 (truncation below 2e-8 at x = 0.5, below 1e-11 at the 0.02 rad
+ * half steps of 200 deg/s at 100 Hz). Float build: exact cos and sin.
+ */
+void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3]);
+
+/** @brief atan2(y, x) in (-pi, pi] (Q29 rad); x and y in the same Q format. atan2(0, 0) = 0. */
+imu_angle_t imu_atan2(imu_real_t y, imu_real_t x);
+
+/** @brief sin and cos (Q30) of an angle in rad (Q29, any value of the type). */
+void imu_sincos(imu_angle_t angle, imu_q30_t *s, imu_q30_t *c);
+
+/** @brief Wrap an angle (Q29 rad, any value of the type) to (-pi, pi]. */
+imu_angle_t imu_wrap_angle(imu_angle_t a);
+
+/** @brief Euler angles [roll, pitch, heading] (Q29 rad) of a unit quaternion. */
+void imu_quat_to_euler(const imu_q30_t q[4], imu_angle_t euler[3]);
+
+/** @brief Unit quaternion of Euler angles [roll, pitch, heading] (Q29 rad). */
+void imu_euler_to_quat(const imu_angle_t euler[3], imu_q30_t q[4]);
+
+/**
+ * @brief Roll and pitch (Q29 rad) from a specific-force vector (any Q format),
+ *        as a level accelerometer reads +g on z. Leaves the angles untouched and
+ *        returns 0 when the vector is zero.
+ */
+int imu_tilt_from_acc(const imu_real_t acc[3], imu_angle_t *roll, imu_angle_t *pitch);
+
+/**
+ * @brief Compass heading (Q29 rad, clockwise from north) of the magnetic field
+ *        `mag` (any Q format) after removing roll and pitch (tilt compensation).
+ */
+imu_angle_t imu_heading_from_mag(const imu_real_t mag[3], imu_angle_t roll, imu_angle_t pitch);
+
+#endif /* IMU_MATH_H */

@@ -1,0 +1,22 @@
+/**
+ * @file imu_sensor.c
+ * @brief Conversion of raw counts (see imu_sensor.h).
+ */
+#include "imu_sensor.h"
+
+const imu_sensor_settings_t imu_sensor_default_settings = {
+    IMU_QCONST(1.0642251738473303e-3, 40), /* pi/180 / 16.4 */
+    IMU_QCONST(2.394201660156250e-3, 32),  /* 9.80665 / 4096 */
+    IMU_QCONST(9.174311926605504e-2, 24),  /* 100 / 1090 */
+};
+
+void imu_sample_from_raw(const imu_sensor_settings_t *settings, const imu_raw_sample_t *raw,
+                         imu_sample_t *out, uint32_t *sat)
+{
+    int i;
+    for (i = 0; i < 3; ++i) {
+        out->gyr[i] = IMU_MUL_SAT(IMU_FROM_INT_SAT(raw->gyr[i], 0, sat), settings->gyro_scale, 16, sat);
+        out->acc[i] = IMU_MUL_SAT(IMU_FROM_INT_SAT(raw->acc[i], 0, sat), settings->acc_scale, 16, sat);
+        out->mag[i] = IMU_MUL_SAT(IMU_FROM_INT_SAT(raw->mag[i], 0, sat), settings->mag_scale, 8, sat);
+    }
+}

@@ -1,0 +1,51 @@
+/**
+ * @file imu_sensor.h
+ * @brief Raw sensor samples and their conversion to the filters' units.
+ *
+ * The core consumes what the registers give: int16 counts of the MPU6050
+ * gyroscope and accelerometer and of the HMC5883L magnetometer, in the sensor
+ * frame (x right, y forward, z up). Scale settings turn them into rad/s, m/s^2
+ * and uT. The accelerometer reads specific force: +g on z when lying flat.
+ */
+#ifndef IMU_SENSOR_H
+#define IMU_SENSOR_H
+
+#include "imu_arith.h"
+
+/** One sample as read from the sensor registers. */
+typedef struct {
+    int16_t gyr[3]; /**< gyroscope counts */
+    int16_t acc[3]; /**< accelerometer counts */
+    int16_t mag[3]; /**< magnetometer counts */
+} imu_raw_sample_t;
+
+/** One sample in the filters' units. */
+typedef struct {
+    imu_rate_t gyr[3]; /**< angular rate, rad/s (Q24) */
+    imu_q16_t acc[3];  /**< specific force, m/s^2 (Q16) */
+    imu_q16_t mag[3];  /**< magnetic field, uT (Q16) */
+} imu_sample_t;
+
+/** Sensitivities of the three sensors. */
+typedef struct {
+    imu_real_t gyro_scale; /**< rad/s per LSB, Q40 (MPU6050 at +-2000 deg/s: 1.0642e-3) */
+    imu_real_t acc_scale;  /**< m/s^2 per LSB, Q32 (MPU6050 at +-8 g: 2.3943e-3) */
+    imu_real_t mag_scale;  /**< uT per LSB, Q24 (HMC5883L at its default gain: 9.1743e-2) */
+} imu_sensor_settings_t;
+
+/** MPU6050 at +-2000 deg/s and +-8 g, HMC5883L at 1090 LSB/gauss. */
+extern const imu_sensor_settings_t imu_sensor_default_settings;
+
+/**
+ * @brief Scale raw counts to rad/s, m/s^2 and uT.
+ *
+ * Fixed build, scaling and overflow: |count| <= 2^15 and each scale below 2^31
+ * give products below 2^46; after the shifts to Q24/Q16 the results are below
+ * 2^30 for any scale under 2^31 (gyro: 2^46 >> 16; acc: 2^46 >> 16; mag: 2^46 >> 8
+ * exceeds int32 only for mag_scale >= 2^23 in Q24, i.e. 0.5 uT/LSB, the
+ * HMC5883L's coarsest gain is 0.435: results saturate and count in *sat).
+ */
+void imu_sample_from_raw(const imu_sensor_settings_t *settings, const imu_raw_sample_t *raw,
+                         imu_sample_t *out, uint32_t *sat);
+
+#endif /* IMU_SENSOR_H */

@@ -1,0 +1,82 @@
+"""cffi build script: the C core compiled twice from the same sources.
+
+`imulink._core_fixed` is the firmware arithmetic (IMU_FIXED, integer only);
+`imulink._core_float` is the float twin (IMU_FLOAT, double). Both expose the same
+declarations; only the arithmetic-layer typedefs differ.
+"""
+from pathlib import Path
+
+from cffi import FFI
+
+ROOT = Path(__file__).resolve().parents[2]
+CORE_DIR = ROOT / "firmware" / "core"
+CORE_SOURCES = ["imu_math.c", "imu_sensor.c", "imu_eecf.c", "imu_kf1d.c", "imu_filter.c"]
+
+_TYPEDEFS = {
+    "fixed": """
+        typedef int32_t imu_q30_t; typedef int32_t imu_angle_t; typedef int32_t imu_rate_t;
+        typedef int32_t imu_q16_t; typedef int32_t imu_real_t;
+    """,
+    "float": """
+        typedef double imu_q30_t; typedef double imu_angle_t; typedef double imu_rate_t;
+        typedef double imu_q16_t; typedef double imu_real_t;
+    """,
+}
+
+_DECLARATIONS = """
+    typedef enum { IMU_OK = 0, IMU_ERR_RANGE = -1, IMU_ERR_UNKNOWN = -2 } imu_status_t;
+    typedef struct { int16_t gyr[3]; int16_t acc[3]; int16_t mag[3]; } imu_raw_sample_t;
+    typedef struct { imu_real_t gyro_scale; imu_real_t acc_scale; imu_real_t mag_scale; } imu_sensor_settings_t;
+    typedef struct { imu_q30_t quat[4]; imu_angle_t euler[3]; imu_rate_t gyro_bias[3]; } imu_output_t;
+    typedef struct { const char *name; size_t offset; int frac_bits; const char *unit; } imu_setting_desc_t;
+    typedef struct { ...; } imu_eecf_settings_t;
+    typedef struct { ...; } imu_kf1d_settings_t;
+    typedef struct { ...; } imu_filter_t;
+
+    extern const imu_sensor_settings_t imu_sensor_default_settings;
+    extern const imu_eecf_settings_t imu_eecf_default_settings;
+    extern const imu_setting_desc_t imu_eecf_setting_descs[];
+    extern const int imu_eecf_setting_count;
+    extern const imu_kf1d_settings_t imu_kf1d_default_settings;
+    extern const imu_setting_desc_t imu_kf1d_setting_descs[];
+    extern const int imu_kf1d_setting_count;
+
+    imu_status_t imu_filter_init(imu_filter_t *f, int id);
+    imu_status_t imu_filter_set_settings(imu_filter_t *f, const void *settings);
+    void imu_filter_set_sensor(imu_filter_t *f, const imu_sensor_settings_t *sensor);
+    void imu_filter_update_raw(imu_filter_t *f, const imu_raw_sample_t *raw);
+    void imu_filter_get(const imu_filter_t *f, imu_output_t *out);
+    uint32_t imu_filter_saturations(const imu_filter_t *f);
+    void imu_filter_run(imu_filter_t *f, const int16_t *gyr, const int16_t *acc, const int16_t *mag, size_t n,
+                        imu_q30_t *quat, imu_angle_t *euler, imu_rate_t *gyro_bias);
+
+    imu_angle_t imu_atan2(imu_real_t y, imu_real_t x);
+    void imu_sincos(imu_angle_t angle, imu_q30_t *s, imu_q30_t *c);
+    void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3]);
+    void imu_quat_to_euler(const imu_q30_t q[4], imu_angle_t euler[3]);
+    void imu_euler_to_quat(const imu_angle_t euler[3], imu_q30_t q[4]);
+"""
+
+
+def _make(arithmetic: str) -> FFI:
+    ffi = FFI()
+    ffi.cdef(_TYPEDEFS[arithmetic] + _DECLARATIONS)
+    rel = Path(__file__).resolve().parents[2]
+    ffi.set_source(
+        f"imulink._core_{arithmetic}",
+        '#include "imu_filter.h"\n#include "imu_math.h"\n',
+        sources=[str((CORE_DIR / s).relative_to(rel)) for s in CORE_SOURCES],
+        include_dirs=[str(CORE_DIR.relative_to(rel))],
+        define_macros=[("IMU_FIXED" if arithmetic == "fixed" else "IMU_FLOAT", "1")],
+        extra_compile_args=["-std=c99", "-O2", "-Wall", "-Wextra"],
+        libraries=["m"] if arithmetic == "float" else [],
+    )
+    return ffi
+
+
+ffi_fixed = _make("fixed")
+ffi_float = _make("float")
+
+if __name__ == "__main__":
+    ffi_fixed.compile(verbose=True)
+    ffi_float.compile(verbose=True)

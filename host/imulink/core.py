@@ -1,0 +1,218 @@
+"""Bindings to the C attitude core: the fixed-point build and its float twin.
+
+`run()` feeds whole (N,3) arrays to C in one call per batch: the per-sample loop
+never runs in Python. Settings travel as SI values (dicts keyed by the C field
+names); they are converted to each field's Q format for the fixed build from the
+descriptor table the C core exports, so the C header is the single definition.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import _core_fixed, _core_float
+from .counts import DEFAULT_PROFILE, SensorProfile, si_to_counts
+
+ARITHMETICS = ("fixed", "float")
+
+#: filter name -> (id in imu_filter_id_t, C prefix of its settings symbols)
+FILTERS = {"eecf": (1, "imu_eecf"), "kf1d": (2, "imu_kf1d")}
+
+#: Q formats of the fixed-build outputs.
+QUAT_FRAC_BITS = 30
+EULER_FRAC_BITS = 29
+RATE_FRAC_BITS = 24
+
+
+class SettingsError(ValueError):
+    """An unknown setting name or a value outside its documented range."""
+
+
+def _module(arithmetic: str):
+    if arithmetic == "fixed":
+        return _core_fixed
+    if arithmetic == "float":
+        return _core_float
+    raise ValueError(f"arithmetic must be one of {ARITHMETICS}, not {arithmetic!r}")
+
+
+def _check_filter(name: str) -> tuple[int, str]:
+    try:
+        return FILTERS[name]
+    except KeyError:
+        raise ValueError(f"unknown filter {name!r}; choose one of {sorted(FILTERS)}") from None
+
+
+@dataclass(frozen=True)
+class SettingField:
+    name: str
+    unit: str
+    frac_bits: int  # Q format in the fixed build
+    offset: int
+
+
+def settings_fields(filter_name: str, arithmetic: str = "fixed") -> list[SettingField]:
+    """The settings of a filter as the C core declares them (name, unit, Q format,
+    offset in that build's struct)."""
+    _, prefix = _check_filter(filter_name)
+    mod = _module(arithmetic)
+    descs = getattr(mod.lib, f"{prefix}_setting_descs")
+    count = getattr(mod.lib, f"{prefix}_setting_count")
+    return [
+        SettingField(
+            mod.ffi.string(descs[i].name).decode(),
+            mod.ffi.string(descs[i].unit).decode(),
+            descs[i].frac_bits,
+            descs[i].offset,
+        )
+        for i in range(count)
+    ]
+
+
+def default_settings(filter_name: str) -> dict[str, float]:
+    """Default settings of a filter in SI units (read from the float build's defaults)."""
+    _, prefix = _check_filter(filter_name)
+    mod = _core_float
+    struct = getattr(mod.lib, f"{prefix}_default_settings")
+    base = mod.ffi.cast("char *", mod.ffi.addressof(struct))
+    out = {}
+    for f in settings_fields(filter_name, "float"):
+        out[f.name] = float(mod.ffi.cast("double *", base + f.offset)[0])
+    return out
+
+
+def to_fixed(value: float, frac_bits: int, what: str = "value") -> int:
+    """Round a real to Q`frac_bits` int32; SettingsError when it does not fit."""
+    raw = int(np.rint(value * 2.0**frac_bits))
+    if not -(2**31) <= raw < 2**31:
+        raise SettingsError(f"{what}={value!r} does not fit the fixed-point format Q{frac_bits}")
+    return raw
+
+
+def _settings_struct(mod, arithmetic: str, filter_name: str, values: dict[str, float]):
+    _, prefix = _check_filter(filter_name)
+    ctype = f"{prefix}_settings_t"
+    buf = mod.ffi.new("char[]", mod.ffi.sizeof(ctype))
+    mod.ffi.memmove(buf, mod.ffi.addressof(getattr(mod.lib, f"{prefix}_default_settings")), mod.ffi.sizeof(ctype))
+    fields = {f.name: f for f in settings_fields(filter_name, arithmetic)}
+    for name, value in values.items():
+        f = fields[name]
+        if arithmetic == "fixed":
+            mod.ffi.cast("int32_t *", buf + f.offset)[0] = to_fixed(value, f.frac_bits, name)
+        else:
+            mod.ffi.cast("double *", buf + f.offset)[0] = float(value)
+    return buf
+
+
+def resolve_settings(filter_name: str, rate_hz: float, settings: dict | None) -> dict[str, float]:
+    """Defaults overlaid with `settings` and the sample rate; unknown names raise SettingsError."""
+    values = default_settings(filter_name)
+    for name, value in (settings or {}).items():
+        if name not in values:
+            raise SettingsError(
+                f"unknown setting {name!r} for filter {filter_name!r}; valid: {', '.join(sorted(values))}"
+            )
+        values[name] = float(value)
+    if settings and "sample_rate" in settings and float(settings["sample_rate"]) != float(rate_hz):
+        raise SettingsError("sample_rate in settings contradicts rate_hz")
+    values["sample_rate"] = float(rate_hz)
+    return values
+
+
+def sensor_struct(mod, arithmetic: str, profile: SensorProfile):
+    s = mod.ffi.new("imu_sensor_settings_t *")
+    if arithmetic == "fixed":
+        s.gyro_scale = to_fixed(profile.gyro_scale, 40, "gyro_scale")
+        s.acc_scale = to_fixed(profile.acc_scale, 32, "acc_scale")
+        s.mag_scale = to_fixed(profile.mag_scale, 24, "mag_scale")
+    else:
+        s.gyro_scale, s.acc_scale, s.mag_scale = profile.gyro_scale, profile.acc_scale, profile.mag_scale
+    return s
+
+
+@dataclass
+class RunResult:
+    """Filter outputs for every sample.
+
+    quat: (N,4) sensor-to-earth ENU quaternion, w first. euler: (N,3) [roll, pitch,
+    heading] in rad (heading clockwise from north). gyro_bias: (N,3) rad/s.
+    raw: the integer outputs of the fixed build (Q30 / Q29 / Q24), None for float.
+    """
+
+    filter_name: str
+    arithmetic: str
+    quat: np.ndarray
+    euler: np.ndarray
+    gyro_bias: np.ndarray
+    saturations: int
+    settings: dict = field(default_factory=dict)
+    raw: dict | None = None
+
+
+class Filter:
+    """A filter instance of the C core: feed count arrays batch after batch."""
+
+    def __init__(self, filter_name: str, rate_hz: float, arithmetic: str = "fixed", settings: dict | None = None,
+                 profile: SensorProfile = DEFAULT_PROFILE):
+        self.mod = _module(arithmetic)
+        self.arithmetic = arithmetic
+        self.filter_name = filter_name
+        filter_id, _ = _check_filter(filter_name)
+        self.settings = resolve_settings(filter_name, rate_hz, settings)
+        self._handle = self.mod.ffi.new("imu_filter_t *")
+        if self.mod.lib.imu_filter_init(self._handle, filter_id) != 0:
+            raise ValueError(f"the core does not know filter {filter_name!r}")
+        self.mod.lib.imu_filter_set_sensor(self._handle, sensor_struct(self.mod, arithmetic, profile))
+        status = self.mod.lib.imu_filter_set_settings(
+            self._handle, _settings_struct(self.mod, arithmetic, filter_name, self.settings)
+        )
+        if status != 0:
+            raise SettingsError(f"settings out of range for {filter_name!r}: {self.settings}")
+
+    def run_counts(self, gyr_counts, acc_counts, mag_counts) -> RunResult:
+        ffi, lib = self.mod.ffi, self.mod.lib
+        arrays = [np.ascontiguousarray(a, dtype=np.int16) for a in (gyr_counts, acc_counts, mag_counts)]
+        n = arrays[0].shape[0]
+        for a in arrays:
+            if a.ndim != 2 or a.shape != (n, 3):
+                raise ValueError(f"sensor arrays must all be (N,3); got {[x.shape for x in arrays]}")
+        out_type = np.int32 if self.arithmetic == "fixed" else np.float64
+        c_type = "int32_t *" if self.arithmetic == "fixed" else "double *"
+        quat = np.empty((n, 4), out_type)
+        euler = np.empty((n, 3), out_type)
+        bias = np.empty((n, 3), out_type)
+        lib.imu_filter_run(
+            self._handle,
+            *(ffi.cast("int16_t *", ffi.from_buffer(a)) for a in arrays),
+            n,
+            ffi.cast(c_type, ffi.from_buffer(quat)),
+            ffi.cast(c_type, ffi.from_buffer(euler)),
+            ffi.cast(c_type, ffi.from_buffer(bias)),
+        )
+        if self.arithmetic == "fixed":
+            raw = {"quat": quat, "euler": euler, "gyro_bias": bias}
+            quat_f = quat / 2.0**QUAT_FRAC_BITS
+            euler_f = euler / 2.0**EULER_FRAC_BITS
+            bias_f = bias / 2.0**RATE_FRAC_BITS
+        else:
+            raw, quat_f, euler_f, bias_f = None, quat, euler, bias
+        return RunResult(self.filter_name, self.arithmetic, quat_f, euler_f, bias_f,
+                         int(lib.imu_filter_saturations(self._handle)), dict(self.settings), raw)
+
+
+def run_counts(filter_name: str, gyr_counts, acc_counts, mag_counts, rate_hz: float, arithmetic: str = "fixed",
+               settings: dict | None = None, profile: SensorProfile = DEFAULT_PROFILE) -> RunResult:
+    """Run a filter on raw register counts ((N,3) int16 arrays)."""
+    return Filter(filter_name, rate_hz, arithmetic, settings, profile).run_counts(gyr_counts, acc_counts, mag_counts)
+
+
+def run(filter_name: str, gyr, acc, mag, rate_hz: float, arithmetic: str = "fixed", settings: dict | None = None,
+        profile: SensorProfile = DEFAULT_PROFILE) -> RunResult:
+    """Run a filter on SI arrays: gyr (N,3) rad/s, acc (N,3) m/s^2, mag (N,3) uT.
+
+    The arrays are first converted to counts with :func:`imulink.counts.si_to_counts`
+    and `profile`, so fixed and float runs see identical inputs.
+    """
+    g, a, m = si_to_counts(gyr, acc, mag, profile)
+    return run_counts(filter_name, g, a, m, rate_hz, arithmetic, settings, profile)

@@ -1,0 +1,110 @@
+"""Sensor profiles and the one conversion between SI arrays and raw sensor counts.
+
+The firmware core consumes integer register counts (what the MPU6050 and HMC5883L
+deliver); the host converts SI data to counts with :func:`si_to_counts` so that a
+fixed-point run and its float twin see identical inputs.
+
+Conventions (shared by every module of imulink):
+
+* sensor frame = body frame; the earth frame is ENU (x east, y north, z up);
+* gyroscope in rad/s, accelerometer **specific force** in m/s^2 (a board lying
+  flat reads +9.81 on z), magnetometer in microtesla (uT).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Standard gravity in m/s^2 (the MPU6050 data sheet's "g").
+STANDARD_GRAVITY = 9.80665
+
+
+@dataclass(frozen=True)
+class SensorProfile:
+    """Full-scale settings of the sensors, as register sensitivities.
+
+    Attributes:
+        gyro_lsb_per_dps: gyroscope sensitivity, LSB per deg/s (MPU6050 FS_SEL=3: 16.4).
+        acc_lsb_per_g: accelerometer sensitivity, LSB per g (MPU6050 AFS_SEL=2: 4096).
+        mag_lsb_per_gauss: magnetometer gain, LSB per gauss (HMC5883L GN=1, its
+            power-on default: 1090).
+        gyro_limits, acc_limits, mag_limits: (min, max) count of each output register.
+    """
+
+    name: str = "gy86-default"
+    gyro_lsb_per_dps: float = 16.4
+    acc_lsb_per_g: float = 4096.0
+    mag_lsb_per_gauss: float = 1090.0
+    gyro_limits: tuple[int, int] = (-32768, 32767)
+    acc_limits: tuple[int, int] = (-32768, 32767)
+    mag_limits: tuple[int, int] = (-2048, 2047)
+
+    @property
+    def gyro_scale(self) -> float:
+        """rad/s per LSB."""
+        return np.deg2rad(1.0) / self.gyro_lsb_per_dps
+
+    @property
+    def acc_scale(self) -> float:
+        """m/s^2 per LSB."""
+        return STANDARD_GRAVITY / self.acc_lsb_per_g
+
+    @property
+    def mag_scale(self) -> float:
+        """uT per LSB (1 gauss = 100 uT)."""
+        return 100.0 / self.mag_lsb_per_gauss
+
+    def ranges_si(self) -> dict[str, float]:
+        """Largest representable magnitude of each sensor, in SI units."""
+        return {
+            "gyro_rad_s": self.gyro_limits[1] * self.gyro_scale,
+            "acc_m_s2": self.acc_limits[1] * self.acc_scale,
+            "mag_uT": self.mag_limits[1] * self.mag_scale,
+        }
+
+
+#: MPU6050 at +-2000 deg/s and +-8 g, HMC5883L at its default gain (+-1.3 Ga).
+DEFAULT_PROFILE = SensorProfile()
+
+#: The BROAD recordings reach 155 m/s^2 (tapping trial) and 1446 deg/s: +-16 g and
+#: +-2000 deg/s keep every trial unsaturated (see docs/numerics.md).
+BROAD_PROFILE = SensorProfile(name="gy86-broad", acc_lsb_per_g=2048.0)
+
+
+def _to_counts(x: np.ndarray, scale: float, limits: tuple[int, int]) -> tuple[np.ndarray, int]:
+    counts = np.rint(np.asarray(x, dtype=np.float64) / scale)
+    saturated = int(np.count_nonzero((counts < limits[0]) | (counts > limits[1])))
+    return np.clip(counts, limits[0], limits[1]).astype(np.int16), saturated
+
+
+def si_to_counts(gyr, acc, mag, profile: SensorProfile = DEFAULT_PROFILE, return_saturation=False):
+    """Convert SI sensor arrays to raw register counts.
+
+    Args:
+        gyr: (N,3) angular rate in rad/s.
+        acc: (N,3) specific force in m/s^2.
+        mag: (N,3) magnetic field in uT.
+        profile: full-scale settings; values are rounded to the nearest count and
+            clipped to each register's range, like the real sensor saturates.
+        return_saturation: also return the number of clipped values per sensor.
+
+    Returns:
+        (gyr_counts, acc_counts, mag_counts) as (N,3) int16 arrays, plus a dict
+        {"gyr": n, "acc": n, "mag": n} of clipped values when requested.
+    """
+    g, sg = _to_counts(gyr, profile.gyro_scale, profile.gyro_limits)
+    a, sa = _to_counts(acc, profile.acc_scale, profile.acc_limits)
+    m, sm = _to_counts(mag, profile.mag_scale, profile.mag_limits)
+    if return_saturation:
+        return g, a, m, {"gyr": sg, "acc": sa, "mag": sm}
+    return g, a, m
+
+
+def counts_to_si(gyr_counts, acc_counts, mag_counts, profile: SensorProfile = DEFAULT_PROFILE):
+    """Inverse of :func:`si_to_counts` (without the clipping): counts to rad/s, m/s^2, uT."""
+    return (
+        np.asarray(gyr_counts, dtype=np.float64) * profile.gyro_scale,
+        np.asarray(acc_counts, dtype=np.float64) * profile.acc_scale,
+        np.asarray(mag_counts, dtype=np.float64) * profile.mag_scale,
+    )
