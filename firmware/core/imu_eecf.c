@@ -25,6 +25,10 @@ const imu_setting_desc_t imu_eecf_setting_descs[] = {
 #undef DESC
 const int imu_eecf_setting_count = (int)(sizeof imu_eecf_setting_descs / sizeof imu_eecf_setting_descs[0]);
 
+/** Largest spread (max - min) of each gyro axis over an alignment at rest: 10 deg/s in rad/s, Q24
+ *  (noise of a consumer MEMS gyro, e.g. seed 000: 0.5 deg/s rms at 100 Hz, stays well inside). */
+#define STILL_GYRO_SPAN IMU_QCONST(0.17453, 24)
+
 /** Below this horizontal share of the unit field (Q30) the heading is not observable. */
 #define MIN_HORIZONTAL_FIELD IMU_QCONST(0.05, 30)
 
@@ -64,6 +68,8 @@ imu_status_t imu_eecf_set_settings(imu_eecf_t *f, const imu_eecf_settings_t *s)
         f->integral[i] = 0;
         f->align_euler[i] = 0;
         f->align_gyro_mean[i] = 0;
+        f->align_gyro_min[i] = 0;
+        f->align_gyro_max[i] = 0;
     }
     return IMU_OK;
 }
@@ -98,6 +104,12 @@ static void align_step(imu_eecf_t *f, const imu_sample_t *s)
     for (k = 0; k < 3; ++k) {
         f->acc_window[slot][k] = s->acc[k];
         f->mag_window[slot][k] = s->mag[k];
+        if (f->sample_count == 0 || s->gyr[k] < f->align_gyro_min[k]) {
+            f->align_gyro_min[k] = s->gyr[k];
+        }
+        if (f->sample_count == 0 || s->gyr[k] > f->align_gyro_max[k]) {
+            f->align_gyro_max[k] = s->gyr[k];
+        }
         /* Running mean: the difference of two rates (< 2^31) over the sample number. */
         f->align_gyro_mean[k] = IMU_ADD(f->align_gyro_mean[k],
                                         IMU_SUB_SAT(s->gyr[k], f->align_gyro_mean[k], &f->saturations) /
@@ -114,39 +126,40 @@ static void align_step(imu_eecf_t *f, const imu_sample_t *s)
             f->align_euler[k] = meas[k];
         }
     } else {
-        /* Gyro propagation with the seed's small-angle rates (eq. 7): roll turns
-         * about y, pitch about x, heading (clockwise) about -z. The running gyro
-         * mean is removed first, else a bias tilts the angles and, through the
-         * tilt compensation, the heading. Rate (Q24) times dt (Q30) >> 25 gives
-         * Q29 rad. */
-        imu_rate_t w[3];
-        imu_rate_t rates[3];
-        for (k = 0; k < 3; ++k) {
-            w[k] = IMU_SUB_SAT(s->gyr[k], f->align_gyro_mean[k], &f->saturations);
-        }
-        rates[0] = w[1];
-        rates[1] = w[0];
-        rates[2] = -w[2];
+        /* Gyro propagation (eq. 7), with the running gyro mean removed (a bias
+         * would tilt the angles and, through the tilt compensation, the
+         * heading). Beyond the seed's small-angle rates, the attitude of the
+         * current angles is advanced exactly and read back, so an alignment
+         * under motion stays consistent. */
+        imu_q30_t theta[3];
         imu_angle_t pred[3];
         for (k = 0; k < 3; ++k) {
-            pred[k] = imu_wrap_angle(IMU_ADD_SAT(f->align_euler[k], IMU_MUL_SAT(rates[k], f->dt, 25, &f->saturations),
-                                                 &f->saturations));
+            const imu_rate_t w = IMU_SUB_SAT(s->gyr[k], f->align_gyro_mean[k], &f->saturations);
+            theta[k] = IMU_MUL_SAT(w, f->dt, 24, &f->saturations); /* Q24 * Q30 >> 24 -> rad Q30 */
         }
+        imu_quat_integrate(f->q, theta); /* f->q holds the quaternion of align_euler */
+        imu_quat_to_euler(f->q, pred);
         meas[0] = pred[0];
         meas[1] = pred[1];
         (void)imu_tilt_from_acc(acc, &meas[0], &meas[1]);
         meas[2] = imu_heading_from_mag(mag, pred[0], pred[1]);
-        /* Eq. 8: angle = pred + alpha * wrap(meas - pred); the wrapped difference
-         * is within +-pi and alpha <= 1, so the sum stays within +-2 pi < 4. */
+        /* Eq. 8: angle = pred + alpha * wrap(meas - pred), alpha in [0, 1]. */
         for (k = 0; k < 3; ++k) {
-            const imu_angle_t innovation = imu_wrap_angle(IMU_SUB(meas[k], pred[k]));
-            f->align_euler[k] = imu_wrap_angle(IMU_ADD(pred[k], IMU_MUL(f->align_alpha, innovation, 30)));
+            const imu_angle_t innovation = imu_angle_diff(meas[k], pred[k]);
+            f->align_euler[k] = imu_angle_add(pred[k], IMU_MUL(f->align_alpha, innovation, 30));
         }
     }
     imu_euler_to_quat(f->align_euler, f->q);
     if (f->sample_count + 1 == f->align_samples) {
+        /* A board that stayed still (every gyro axis within STILL_GYRO_SPAN)
+         * read its bias: start the integral there. After an alignment under
+         * motion the mean is no bias estimate, and the integral starts at zero. */
         const imu_q30_t limit = IMU_SHL_SAT(f->settings.bias_limit, 6, &f->saturations);
+        int still = 1;
         for (k = 0; k < 3; ++k) {
+            still = still && IMU_SUB_SAT(f->align_gyro_max[k], f->align_gyro_min[k], &f->saturations) < STILL_GYRO_SPAN;
+        }
+        for (k = 0; k < 3 && still; ++k) {
             imu_q30_t integral = -IMU_SHL_SAT(f->align_gyro_mean[k], 6, &f->saturations);
             f->integral[k] = integral > limit ? limit : (integral < -limit ? -limit : integral);
         }

@@ -7,9 +7,10 @@
  * samples, roll and pitch come from the averaged specific force, heading from the
  * tilt-compensated magnetic field, and a first-order complementary filter with
  * time constant `align_tau` blends them with the integrated gyroscope. The final
- * angles become the initial quaternion. Beyond the seed, the mean gyroscope
- * reading over the alignment initialises the bias estimate (the PI integral), so
- * a board aligned at rest starts without the slow integral convergence.
+ * angles become the initial quaternion. Beyond the seed: the gyro propagation
+ * during alignment is exact (quaternion) rather than small-angle, and when the
+ * board stayed still the mean gyroscope reading initialises the bias estimate
+ * (the PI integral), sparing the slow integral convergence.
  *
  * Filtering (eq. 20-30): the gravity error e_a = a x v (a: measured unit specific
  * force, v: estimated up direction in the sensor frame) and the heading error
@@ -57,6 +58,8 @@ typedef struct {
     imu_q30_t integral[3];        /**< PI integral = minus the gyro bias, rad/s, Q30 */
     imu_angle_t align_euler[3];   /**< alignment angles, rad, Q29 */
     imu_rate_t align_gyro_mean[3]; /**< mean gyroscope reading during alignment, rad/s, Q24 */
+    imu_rate_t align_gyro_min[3];  /**< smallest gyroscope reading during alignment, rad/s, Q24 */
+    imu_rate_t align_gyro_max[3];  /**< largest gyroscope reading during alignment, rad/s, Q24 */
     imu_q16_t acc_window[IMU_EECF_AVG_LEN][3]; /**< m/s^2, Q16 */
     imu_q16_t mag_window[IMU_EECF_AVG_LEN][3]; /**< uT, Q16 */
     uint32_t saturations;         /**< saturation events since initialisation */

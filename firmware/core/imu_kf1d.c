@@ -26,8 +26,6 @@ const int imu_kf1d_setting_count = (int)(sizeof imu_kf1d_setting_descs / sizeof 
 
 /** Initial bias variance: (0.5 deg/s)^2 in rad^2/s^2, Q42. */
 #define INITIAL_BIAS_VARIANCE IMU_QCONST(7.6e-5, 42)
-/** Smallest |cos(pitch)| used in the heading rate (Q30), near the gimbal lock. */
-#define MIN_COS_PITCH IMU_QCONST(0.02, 30)
 
 void imu_kf1d_init(imu_kf1d_t *f)
 {
@@ -49,8 +47,8 @@ imu_status_t imu_kf1d_set_settings(imu_kf1d_t *f, const imu_kf1d_settings_t *s)
     return IMU_OK;
 }
 
-/** Prediction of one axis: angle += rate dt, P = A P A^T + Q dt. */
-static void predict(imu_kf1d_t *f, imu_kf1d_axis_t *a, imu_rate_t rate, imu_real_t q_angle)
+/** Prediction of one axis: angle = predicted (the gyro-propagated angle), P = A P A^T + Q dt. */
+static void predict(imu_kf1d_t *f, imu_kf1d_axis_t *a, imu_angle_t predicted, imu_real_t q_angle)
 {
     uint32_t *sat = &f->saturations;
     const imu_q30_t dt = f->dt;
@@ -58,40 +56,34 @@ static void predict(imu_kf1d_t *f, imu_kf1d_axis_t *a, imu_rate_t rate, imu_real
     imu_real_t t = IMU_MUL_SAT(dt, a->p11, 32, sat);
     t = IMU_SUB_SAT(t, IMU_ADD_SAT(a->p01, a->p01, sat), sat);
     t = IMU_ADD_SAT(t, q_angle, sat);
-    /* rad/s Q24 * s Q30 >> 25 -> rad Q29. */
-    a->angle = imu_wrap_angle(IMU_ADD_SAT(a->angle, IMU_MUL_SAT(rate, dt, 25, sat), sat));
+    a->angle = predicted;
     a->p00 = IMU_ADD_SAT(a->p00, IMU_MUL_SAT(dt, t, 35, sat), sat);          /* Q30*Q40>>35 -> Q35 */
     a->p01 = IMU_SUB_SAT(a->p01, IMU_MUL_SAT(dt, a->p11, 32, sat), sat);     /* Q30*Q42>>32 -> Q40 */
     a->p11 = IMU_ADD_SAT(a->p11, IMU_MUL_SAT(f->settings.q_bias, dt, 36, sat), sat); /* Q48*Q30>>36 -> Q42 */
 }
 
-/** Measurement update of one axis with a measured angle (Q29) of variance r (Q35). */
-static void correct(imu_kf1d_t *f, imu_kf1d_axis_t *a, imu_angle_t measured, imu_real_t r)
+/**
+ * Measurement update of one axis with a measured angle (Q29) of variance r / w
+ * (r: rad^2 Q35; w: weight in [0, 1], Q30). The weight enters as
+ * K = w P H^T / (w P00 + r), which equals the update with variance r / w without
+ * ever forming r / w (no overflow as w goes to 0, where the update fades out).
+ */
+static void correct(imu_kf1d_t *f, imu_kf1d_axis_t *a, imu_angle_t measured, imu_real_t r, imu_q30_t w)
 {
     uint32_t *sat = &f->saturations;
-    const imu_real_t s = IMU_ADD_SAT(a->p00, r, sat);               /* rad^2, Q35, > 0 */
-    const imu_q30_t k0 = IMU_DIV_SAT(a->p00, s, 30, sat);           /* Q35/Q35 -> Q30, in [0, 1] */
-    const imu_q30_t k1 = IMU_DIV_SAT(a->p01, s, 25, sat);           /* 1/s: Q40/Q35 -> Q30 */
-    const imu_angle_t innovation = imu_wrap_angle(IMU_SUB(measured, a->angle));
+    const imu_real_t wp00 = IMU_MUL(w, a->p00, 30);                 /* rad^2, Q35 */
+    const imu_real_t wp01 = IMU_MUL(w, a->p01, 30);                 /* rad^2/s, Q40 */
+    const imu_real_t s = IMU_ADD_SAT(wp00, r, sat);                 /* rad^2, Q35, > 0 */
+    const imu_q30_t k0 = IMU_DIV_SAT(wp00, s, 30, sat);             /* Q35/Q35 -> Q30, in [0, 1] */
+    const imu_q30_t k1 = IMU_DIV_SAT(wp01, s, 25, sat);             /* 1/s: Q40/Q35 -> Q30 */
+    const imu_angle_t innovation = imu_angle_diff(measured, a->angle);
     const imu_real_t p00 = a->p00;
     const imu_real_t p01 = a->p01;
-    a->angle = imu_wrap_angle(IMU_ADD_SAT(a->angle, IMU_MUL_SAT(k0, innovation, 30, sat), sat));
+    a->angle = imu_angle_add(a->angle, IMU_MUL_SAT(k0, innovation, 30, sat));
     a->bias = IMU_ADD_SAT(a->bias, IMU_MUL_SAT(k1, innovation, 35, sat), sat); /* Q30*Q29>>35 -> Q24 */
     a->p00 = IMU_SUB_SAT(p00, IMU_MUL_SAT(k0, p00, 30, sat), sat);
     a->p01 = IMU_SUB_SAT(p01, IMU_MUL_SAT(k0, p01, 30, sat), sat);
     a->p11 = IMU_SUB_SAT(a->p11, IMU_MUL_SAT(k1, p01, 28, sat), sat);          /* Q30*Q40>>28 -> Q42 */
-}
-
-/** Keep pitch in [-pi/2, pi/2]: past the vertical the same attitude is
- *  (roll + pi, pi - pitch, heading + pi). */
-static void fold_pitch(imu_kf1d_t *f)
-{
-    imu_angle_t *pitch = &f->axis[PITCH].angle;
-    if (*pitch > IMU_HALF_PI_ANGLE || *pitch < -IMU_HALF_PI_ANGLE) {
-        *pitch = imu_wrap_angle(IMU_SUB(*pitch > 0 ? IMU_PI_ANGLE : -IMU_PI_ANGLE, *pitch));
-        f->axis[ROLL].angle = imu_wrap_angle(IMU_ADD(f->axis[ROLL].angle, IMU_PI_ANGLE));
-        f->axis[HEADING].angle = imu_wrap_angle(IMU_ADD(f->axis[HEADING].angle, IMU_PI_ANGLE));
-    }
 }
 
 void imu_kf1d_update(imu_kf1d_t *f, const imu_sample_t *s)
@@ -118,39 +110,42 @@ void imu_kf1d_update(imu_kf1d_t *f, const imu_sample_t *s)
     }
 
     {
-        /* Bias-corrected body rates (axis biases: roll ~ y, pitch ~ x, heading ~ -z). */
-        const imu_rate_t wx = IMU_SUB_SAT(s->gyr[0], f->axis[PITCH].bias, sat);
-        const imu_rate_t wy = IMU_SUB_SAT(s->gyr[1], f->axis[ROLL].bias, sat);
-        const imu_rate_t wz = IMU_ADD_SAT(s->gyr[2], f->axis[HEADING].bias, sat);
-        imu_q30_t sr, cr, sp, cp;
-        imu_rate_t u, heading_rate, pitch_rate, roll_rate;
-        imu_sincos(f->axis[ROLL].angle, &sr, &cr);
-        imu_sincos(f->axis[PITCH].angle, &sp, &cp);
-        if (cp < MIN_COS_PITCH) {
-            cp = MIN_COS_PITCH; /* pitch is folded into [-pi/2, pi/2]: cos >= 0 */
+        /* Prediction: the attitude of the current angles is advanced by the
+         * bias-corrected gyroscope (axis biases: roll ~ y, pitch ~ x, heading ~ -z)
+         * and read back as Euler angles. This is the exact kinematics, also
+         * through the gimbal lock where per-axis rate integration breaks down. */
+        imu_q30_t q[4], theta[3];
+        imu_angle_t predicted[3];
+        const imu_rate_t w[3] = {IMU_SUB_SAT(s->gyr[0], f->axis[PITCH].bias, sat),
+                                 IMU_SUB_SAT(s->gyr[1], f->axis[ROLL].bias, sat),
+                                 IMU_ADD_SAT(s->gyr[2], f->axis[HEADING].bias, sat)};
+        for (k = 0; k < 3; ++k) {
+            theta[k] = IMU_MUL_SAT(w[k], f->dt, 24, sat); /* rad/s Q24 * s Q30 >> 24 -> rad Q30 */
+            predicted[k] = f->axis[k].angle;
         }
-        /* Euler kinematics of R = Rz(-heading) Rx(pitch) Ry(roll):
-         * pitch' = wx cr + wz sr; heading' = (wx sr - wz cr) / cp; roll' = wy + heading' sp.
-         * The biases are already removed from the rates, so predict() adds rate dt
-         * while its A = [[1, -dt], [0, 1]] carries the bias uncertainty. */
-        pitch_rate = IMU_ADD_SAT(IMU_MUL_SAT(wx, cr, 30, sat), IMU_MUL_SAT(wz, sr, 30, sat), sat);
-        u = IMU_SUB_SAT(IMU_MUL_SAT(wx, sr, 30, sat), IMU_MUL_SAT(wz, cr, 30, sat), sat);
-        heading_rate = IMU_DIV_SAT(u, cp, 30, sat);
-        roll_rate = IMU_ADD_SAT(wy, IMU_MUL_SAT(heading_rate, sp, 30, sat), sat);
-        predict(f, &f->axis[ROLL], roll_rate, f->settings.q_angle);
-        predict(f, &f->axis[PITCH], pitch_rate, f->settings.q_angle);
-        predict(f, &f->axis[HEADING], heading_rate, f->settings.q_angle);
-        fold_pitch(f);
+        imu_euler_to_quat(predicted, q);
+        imu_quat_integrate(q, theta);
+        imu_quat_to_euler(q, predicted);
+        for (k = 0; k < 3; ++k) {
+            predict(f, &f->axis[k], predicted[k], f->settings.q_angle);
+        }
     }
 
+    /* Roll and heading are not separable near the gimbal lock: their
+     * measurements are weighted by cos^2(pitch), which fades them out smoothly
+     * (a hard threshold would let the fixed and float builds branch apart). */
     if (have_tilt) {
-        correct(f, &f->axis[ROLL], roll_m, f->settings.r_angle);
-        correct(f, &f->axis[PITCH], pitch_m, f->settings.r_angle);
-        fold_pitch(f);
+        imu_q30_t sp, cp, w;
+        imu_sincos(pitch_m, &sp, &cp);
+        w = IMU_MUL(cp, cp, 30);
+        correct(f, &f->axis[ROLL], roll_m, f->settings.r_angle, w);
+        correct(f, &f->axis[PITCH], pitch_m, f->settings.r_angle, IMU_ONE_Q30);
     }
     if (have_mag) {
+        imu_q30_t sp, cp;
+        imu_sincos(f->axis[PITCH].angle, &sp, &cp);
         const imu_angle_t heading_m = imu_heading_from_mag(s->mag, f->axis[ROLL].angle, f->axis[PITCH].angle);
-        correct(f, &f->axis[HEADING], heading_m, f->settings.r_heading);
+        correct(f, &f->axis[HEADING], heading_m, f->settings.r_heading, IMU_MUL(cp, cp, 30));
     }
 }
 

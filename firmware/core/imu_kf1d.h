@@ -9,9 +9,12 @@
  * tilt-compensated magnetometer, each with H = [1, 0]; innovations and angles are
  * wrapped to (-pi, pi].
  *
- * Deviation from the seeds (see docs/filters.md): the angle rates are the exact
- * Euler-angle kinematics of the bias-corrected gyroscope instead of the raw
- * per-axis rates, which only hold near level.
+ * Deviations from the seeds (see docs/filters.md): the prediction advances the
+ * attitude of the current angles by the bias-corrected gyroscope as a quaternion
+ * and reads the Euler angles back (exact kinematics, also at large tilt and
+ * through the gimbal lock, where the seeds' per-axis rates fail); roll and
+ * heading measurements are weighted by cos^2(pitch), as both become unobservable
+ * when the y axis points up or down.
  *
  * Fixed build, covariance formats: P00 rad^2 Q35 (range 0.0625), P01 rad^2/s Q40
  * (range 0.00195), P11 rad^2/s^2 Q42 (range 4.9e-4); all updates saturate and

@@ -174,9 +174,9 @@ imu_angle_t imu_atan2(imu_real_t y, imu_real_t x)
     return imu_wrap_angle((imu_angle_t)(imu_rshift_round64(z, 1) + offset));
 }
 
-imu_angle_t imu_wrap_angle(imu_angle_t a)
+/** Wrap an int64 Q29 angle within +-3 turns to (-pi, pi]. */
+static imu_angle_t wrap64(int64_t v)
 {
-    int64_t v = a;
     while (v > IMU_PI_ANGLE) {
         v -= TWO_PI_ANGLE64;
     }
@@ -184,6 +184,21 @@ imu_angle_t imu_wrap_angle(imu_angle_t a)
         v += TWO_PI_ANGLE64;
     }
     return (imu_angle_t)v;
+}
+
+imu_angle_t imu_wrap_angle(imu_angle_t a)
+{
+    return wrap64(a);
+}
+
+imu_angle_t imu_angle_add(imu_angle_t a, imu_angle_t b)
+{
+    return wrap64((int64_t)a + b);
+}
+
+imu_angle_t imu_angle_diff(imu_angle_t a, imu_angle_t b)
+{
+    return wrap64((int64_t)a - b);
 }
 
 void imu_sincos(imu_angle_t angle, imu_q30_t *s, imu_q30_t *c)
@@ -328,6 +343,16 @@ imu_angle_t imu_wrap_angle(imu_angle_t a)
         a += 2.0 * pi;
     }
     return a;
+}
+
+imu_angle_t imu_angle_add(imu_angle_t a, imu_angle_t b)
+{
+    return imu_wrap_angle(a + b);
+}
+
+imu_angle_t imu_angle_diff(imu_angle_t a, imu_angle_t b)
+{
+    return imu_wrap_angle(a - b);
 }
 
 void imu_sincos(imu_angle_t angle, imu_q30_t *s, imu_q30_t *c)

@@ -67,6 +67,12 @@ void imu_sincos(imu_angle_t angle, imu_q30_t *s, imu_q30_t *c);
 /** @brief Wrap an angle (Q29 rad, any value of the type) to (-pi, pi]. */
 imu_angle_t imu_wrap_angle(imu_angle_t a);
 
+/** @brief wrap(a + b) for any two angles (Q29 rad); the sum is formed without overflow. */
+imu_angle_t imu_angle_add(imu_angle_t a, imu_angle_t b);
+
+/** @brief wrap(a - b) for any two angles (Q29 rad); the difference is formed without overflow. */
+imu_angle_t imu_angle_diff(imu_angle_t a, imu_angle_t b);
+
 /** @brief Euler angles [roll, pitch, heading] (Q29 rad) of a unit quaternion. */
 void imu_quat_to_euler(const imu_q30_t q[4], imu_angle_t euler[3]);
 
