@@ -14,14 +14,29 @@
 
 #ifdef IMU_FIXED
 
-/** floor(sqrt(v)). */
+/** Number of significant bits of v (0 for v = 0), by binary search. */
+static int bit_length64(uint64_t v)
+{
+    int n = 0;
+    int step;
+    for (step = 32; step > 0; step >>= 1) {
+        if ((v >> step) != 0) {
+            v >>= step;
+            n += step;
+        }
+    }
+    return n + (int)v;
+}
+
+/** floor(sqrt(v)), digit by digit (no division: cheap on an MCU). */
 static uint32_t isqrt64(uint64_t v)
 {
     uint64_t root = 0;
-    uint64_t bit = (uint64_t)1 << 62;
-    while (bit > v) {
-        bit >>= 2;
+    uint64_t bit;
+    if (v == 0) {
+        return 0;
     }
+    bit = (uint64_t)1 << ((bit_length64(v) - 1) & ~1); /* highest power of 4 <= v */
     while (bit != 0) {
         if (v >= root + bit) {
             v -= root + bit;
@@ -43,21 +58,15 @@ static int64_t abs64(int64_t v)
 static int headroom_shift(int64_t a, int64_t b, int64_t c)
 {
     int64_t m = abs64(a);
-    int shift = 0;
+    int shift;
     if (abs64(b) > m) {
         m = abs64(b);
     }
     if (abs64(c) > m) {
         m = abs64(c);
     }
-    if (m == 0) {
-        return 0;
-    }
-    while (m < ((int64_t)1 << 29)) {
-        m *= 2;
-        ++shift;
-    }
-    return shift;
+    shift = 30 - bit_length64((uint64_t)m);
+    return m == 0 || shift < 0 ? 0 : shift;
 }
 
 int imu_vec3_normalize(const imu_real_t v[3], imu_q30_t unit[3], imu_real_t *norm)
@@ -78,9 +87,13 @@ int imu_vec3_normalize(const imu_real_t v[3], imu_q30_t unit[3], imu_real_t *nor
     if (n == 0) {
         return 0;
     }
-    for (i = 0; i < 3; ++i) {
-        /* |s| <= n so the quotient is within [-2^30, 2^30]. */
-        unit[i] = (imu_q30_t)((s[i] * ((int64_t)1 << 30)) / (int64_t)n);
+    {
+        /* 1/n in Q61 (n >= 2^29: at most 2^32); |s| <= n keeps s * inv below
+         * 2^63 and the Q30 result within [-2^30, 2^30]. */
+        const int64_t inv = (int64_t)(((uint64_t)1 << 61) / n);
+        for (i = 0; i < 3; ++i) {
+            unit[i] = (imu_q30_t)imu_rshift_round64(s[i] * inv, 31);
+        }
     }
     if (norm != 0) {
         const uint64_t unscaled = ((uint64_t)n + (((uint64_t)1 << shift) >> 1)) >> shift;
@@ -99,19 +112,28 @@ imu_real_t imu_hypot(imu_real_t a, imu_real_t b)
 void imu_quat_normalize(imu_q30_t q[4])
 {
     uint64_t sum = 0;
-    uint32_t n;
     int64_t inv;
     int i;
     for (i = 0; i < 4; ++i) {
-        sum += (uint64_t)((int64_t)q[i] * q[i]); /* |q| near 1: sum near 2^60 */
+        sum += (uint64_t)((int64_t)q[i] * q[i]); /* |q| at most 2: sum below 2^64 */
     }
-    n = isqrt64(sum); /* |q| in Q30 */
-    if (n == 0) {
-        q[0] = IMU_ONE_Q30;
-        q[1] = q[2] = q[3] = 0;
-        return;
+    {
+        /* |q|^2 - 1 in Q60. Within 2^-10 of unit norm (every step of a filter),
+         * one Newton step for 1/sqrt(x) around 1, (3 - x) / 2, is exact to
+         * ~1e-6 * (x - 1) and needs no square root. */
+        const int64_t excess = (int64_t)(sum - ((uint64_t)1 << 60));
+        if (excess < ((int64_t)1 << 50) && excess > -((int64_t)1 << 50)) {
+            inv = ((int64_t)1 << 30) - imu_rshift_round64(excess, 31); /* Q30 */
+        } else {
+            const uint32_t n = isqrt64(sum); /* |q| in Q30 */
+            if (n == 0) {
+                q[0] = IMU_ONE_Q30;
+                q[1] = q[2] = q[3] = 0;
+                return;
+            }
+            inv = ((int64_t)1 << 60) / (int64_t)n; /* 1/|q| in Q30 */
+        }
     }
-    inv = ((int64_t)1 << 60) / (int64_t)n; /* 1/|q| in Q30, near 2^30 */
     for (i = 0; i < 4; ++i) {
         q[i] = (imu_q30_t)imu_rshift_round64((int64_t)q[i] * inv, 30);
     }
@@ -153,10 +175,15 @@ imu_angle_t imu_atan2(imu_real_t y, imu_real_t x)
             offset = -(int64_t)IMU_HALF_PI_ANGLE;
         }
     }
-    /* Scale up to 2^40..2^41 for resolution; CORDIC growth (1.65) keeps it < 2^43. */
-    while (abs64(vx) < ((int64_t)1 << 40) && abs64(vy) < ((int64_t)1 << 40)) {
-        vx *= 2;
-        vy *= 2;
+    /* Scale the larger magnitude to 2^40..2^41 for resolution; CORDIC growth
+     * (1.65) keeps it below 2^43. */
+    {
+        const int64_t m = abs64(vx) > abs64(vy) ? abs64(vx) : abs64(vy);
+        const int shift = 41 - bit_length64((uint64_t)m);
+        if (shift > 0) {
+            vx *= (int64_t)1 << shift;
+            vy *= (int64_t)1 << shift;
+        }
     }
     for (i = 0; i < 31; ++i) {
         const int64_t dx = vy >> i;

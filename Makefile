@@ -1,0 +1,30 @@
+# imulink: set-up, main job and tests. Everything runs from a local virtualenv.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+
+.PHONY: setup demo test bench clean
+
+$(BIN)/imulink: pyproject.toml setup.py host/imulink/_build_core.py $(wildcard firmware/core/*.c firmware/core/*.h)
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[test]'
+	@touch $@
+
+## setup: create .venv and build the package with both C core builds
+setup: $(BIN)/imulink
+
+## demo: the main job (no hardware): simulated run through every filter, fixed and float
+demo: setup
+	$(BIN)/imulink simulate
+
+## test: the whole test suite
+test: setup
+	$(BIN)/python -m pytest -q
+
+## bench: throughput and agreement benchmarks (results in docs/performance.md)
+bench: setup
+	$(BIN)/python tools/bench_core.py
+
+clean:
+	rm -rf $(VENV) build host/*.egg-info host/imulink/_core_*.so host/imulink/_core_*.c

@@ -1,0 +1,315 @@
+#!/usr/bin/env python3
+"""Evaluate the imulink attitude filters on the BROAD subset with the dataset's own metric.
+
+For every trial (``*.mat`` in ``--data``) and every filter x arithmetic, the filter
+runs on the recorded IMU data through :func:`imulink.core.run` (with
+:data:`imulink.counts.BROAD_PROFILE`, so nothing saturates), and the error against
+the optical reference is computed as the dataset README defines it:
+
+* ``e = q_est ⊗ q_ref⁻¹`` (both w-first, sensor-to-earth, ENU), in the earth frame;
+* total error ``2·acos|e_w|``, heading error ``2·atan|e_z/e_w|``,
+  inclination error ``2·acos sqrt(e_w² + e_z²)``;
+* RMSE over the samples where ``movement`` is true and the reference is not NaN,
+  per trial, then the plain mean over the trials.
+
+No alignment of any kind is fitted. Results go to stdout, progress to stderr.
+
+Examples::
+
+    .venv/bin/python tools/eval_broad.py
+    .venv/bin/python tools/eval_broad.py --filters eecf --arithmetic float \\
+        --settings '{"eecf": {"kp": 0.5}}'
+    .venv/bin/python tools/eval_broad.py --markdown
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+REPO_ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_DATA = REPO_ROOT / ".." / "shared" / "data" / "broad"
+
+#: Exit code for a missing data directory or missing trial files.
+EXIT_NO_DATA = 2
+
+
+@dataclass
+class Trial:
+    """One BROAD recording (the fields of the .mat file the evaluation needs)."""
+
+    name: str
+    gyr: np.ndarray  # (N,3) rad/s
+    acc: np.ndarray  # (N,3) m/s^2
+    mag: np.ndarray  # (N,3) uT
+    quat_ref: np.ndarray  # (N,4) w-first sensor-to-earth ENU, NaN where lost
+    movement: np.ndarray  # (N,) bool
+    rate_hz: float
+
+    def __len__(self) -> int:
+        return self.gyr.shape[0]
+
+
+def load_trial(path) -> Trial:
+    """Load one BROAD trial (.mat, MATLAB 5) with scipy.io.loadmat."""
+    from scipy.io import loadmat
+
+    path = Path(path)
+    d = loadmat(str(path))
+    return Trial(
+        name=path.stem,
+        gyr=np.ascontiguousarray(d["imu_gyr"], dtype=np.float64),
+        acc=np.ascontiguousarray(d["imu_acc"], dtype=np.float64),
+        mag=np.ascontiguousarray(d["imu_mag"], dtype=np.float64),
+        quat_ref=np.ascontiguousarray(d["opt_quat"], dtype=np.float64),
+        movement=np.asarray(d["movement"]).ravel().astype(bool),
+        rate_hz=float(np.asarray(d["sampling_rate"]).ravel()[0]),
+    )
+
+
+def trial_paths(data_dir) -> list[Path]:
+    """Sorted .mat files of a BROAD directory; FileNotFoundError when there are none."""
+    data_dir = Path(data_dir)
+    if not data_dir.is_dir():
+        raise FileNotFoundError(f"BROAD data directory not found: {data_dir}")
+    paths = sorted(data_dir.glob("*.mat"))
+    if not paths:
+        raise FileNotFoundError(f"no BROAD trial files (*.mat) in {data_dir}")
+    return paths
+
+
+def load_trials(data_dir) -> list[Trial]:
+    """All trials of a BROAD directory, sorted by file name."""
+    return [load_trial(p) for p in trial_paths(data_dir)]
+
+
+def error_angles(q_est, q_ref) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per-sample (total, heading, inclination) errors in rad, BROAD's definition.
+
+    ``e = q_est ⊗ q_ref⁻¹``; total ``2 acos|e_w|``, heading ``2 atan|e_z/e_w|``,
+    inclination ``2 acos sqrt(e_w² + e_z²)``. NaN where q_ref is NaN.
+    """
+    q_est = np.asarray(q_est, dtype=np.float64)
+    q_ref = np.asarray(q_ref, dtype=np.float64)
+    q_est = q_est / np.linalg.norm(q_est, axis=-1, keepdims=True)
+    q_ref = q_ref / np.linalg.norm(q_ref, axis=-1, keepdims=True)
+    aw, ax, ay, az = np.moveaxis(q_est, -1, 0)
+    # q_ref^-1 = conjugate for unit quaternions: (bw, -bx, -by, -bz).
+    bw, bx, by, bz = np.moveaxis(q_ref, -1, 0)
+    bx, by, bz = -bx, -by, -bz
+    ew = aw * bw - ax * bx - ay * by - az * bz
+    ez = aw * bz + ax * by - ay * bx + az * bw
+    with np.errstate(invalid="ignore", divide="ignore"):
+        total = 2.0 * np.arccos(np.clip(np.abs(ew), 0.0, 1.0))
+        heading = 2.0 * np.arctan(np.abs(ez / ew))
+        inclination = 2.0 * np.arccos(np.clip(np.sqrt(ew * ew + ez * ez), 0.0, 1.0))
+    return total, heading, inclination
+
+
+def broad_errors(q_est, q_ref, movement) -> dict[str, float]:
+    """RMSE (degrees) of the total, heading and inclination errors of one trial.
+
+    Args:
+        q_est: (N,4) estimate, w-first, sensor-to-earth ENU.
+        q_ref: (N,4) reference in the same convention (NaN rows are skipped).
+        movement: (N,) mask of the samples to evaluate.
+
+    Returns:
+        {"total": deg, "heading": deg, "inclination": deg, "n": samples used}.
+    """
+    q_ref = np.asarray(q_ref, dtype=np.float64)
+    mask = np.asarray(movement).ravel().astype(bool) & np.all(np.isfinite(q_ref), axis=-1)
+    total, heading, inclination = error_angles(np.asarray(q_est)[mask], q_ref[mask])
+    out = {}
+    for key, e in (("total", total), ("heading", heading), ("inclination", inclination)):
+        out[key] = float(np.rad2deg(np.sqrt(np.mean(e * e)))) if e.size else float("nan")
+    out["n"] = int(mask.sum())
+    return out
+
+
+def fixed_float_difference(q_fixed, q_float) -> float:
+    """Largest rotation angle (deg) between two (N,4) quaternion series (sign-invariant)."""
+    from imulink.sim.quat import angle_between
+
+    return float(np.rad2deg(np.max(angle_between(q_fixed, q_float))))
+
+
+def run_filter(trial: Trial, filter_name: str, arithmetic: str, settings: dict | None = None):
+    """Run one filter on one trial with the BROAD register profile; returns a RunResult."""
+    from imulink import core
+    from imulink.counts import BROAD_PROFILE
+
+    return core.run(filter_name, trial.gyr, trial.acc, trial.mag, rate_hz=trial.rate_hz,
+                    arithmetic=arithmetic, profile=BROAD_PROFILE, settings=settings)
+
+
+def evaluate(trials, filters, arithmetics, settings=None, log=None) -> dict:
+    """Errors of every filter x arithmetic on every trial.
+
+    Returns {(filter, arithmetic): {"trials": {name: errors}, "mean": {...}}} and, when
+    both arithmetics ran, {(filter, "diff"): {name: max fixed-vs-float deg}}.
+    """
+    settings = settings or {}
+    results: dict = {}
+    for f in filters:
+        for arith in arithmetics:
+            results[(f, arith)] = {"trials": {}, "saturations": {}}
+        if len(arithmetics) == 2:
+            results[(f, "diff")] = {}
+        for trial in trials:
+            quats = {}
+            for arith in arithmetics:
+                t0 = time.perf_counter()
+                res = run_filter(trial, f, arith, settings.get(f))
+                err = broad_errors(res.quat, trial.quat_ref, trial.movement)
+                results[(f, arith)]["trials"][trial.name] = err
+                results[(f, arith)]["saturations"][trial.name] = res.saturations
+                quats[arith] = res.quat
+                if log:
+                    log(f"{f:5s} {arith:5s} {trial.name:40s} total {err['total']:7.3f} deg "
+                        f"({time.perf_counter() - t0:.2f} s)")
+            if len(arithmetics) == 2:
+                results[(f, "diff")][trial.name] = fixed_float_difference(quats["fixed"], quats["float"])
+        for arith in arithmetics:
+            per = results[(f, arith)]["trials"].values()
+            results[(f, arith)]["mean"] = {
+                k: float(np.mean([e[k] for e in per])) for k in ("total", "heading", "inclination")
+            }
+    return results
+
+
+def mean_total_rmse(trials, filter_name, arithmetic="float", settings=None) -> float:
+    """Mean over trials of the total-error RMSE (deg): the tuning objective."""
+    return float(np.mean([
+        broad_errors(run_filter(t, filter_name, arithmetic, settings).quat, t.quat_ref, t.movement)["total"]
+        for t in trials
+    ]))
+
+
+
+def format_text(results, trials, filters, arithmetics) -> str:
+    lines = []
+    names = [t.name for t in trials]
+    width = max(len(n) for n in names + ["mean"])
+    for f in filters:
+        for arith in arithmetics:
+            r = results[(f, arith)]
+            lines.append(f"{f} ({arith}) RMSE, deg")
+            hdr = f"  {'trial':{width}s}  {'total':>8s} {'heading':>8s} {'inclin.':>8s} {'samples':>8s} {'sat':>5s}"
+            if len(arithmetics) == 2:
+                hdr += f" {'fix-flt max':>12s}"
+            lines.append(hdr)
+            for n in names:
+                e = r["trials"][n]
+                row = (f"  {n:{width}s}  {e['total']:8.3f} {e['heading']:8.3f} {e['inclination']:8.3f}"
+                       f" {e['n']:8d} {r['saturations'][n]:5d}")
+                if len(arithmetics) == 2:
+                    row += f" {results[(f, 'diff')][n]:12.4f}"
+                lines.append(row)
+            m = r["mean"]
+            lines.append(f"  {'mean':{width}s}  {m['total']:8.3f} {m['heading']:8.3f} {m['inclination']:8.3f}")
+            lines.append("")
+    return "\n".join(lines)
+
+
+def format_markdown(results, trials, filters, arithmetics) -> str:
+    cols = [(f, a) for f in filters for a in arithmetics]
+    head = "| trial | " + " | ".join(f"{f.upper()} {a} total / heading / incl." for f, a in cols)
+    sep = "|---|" + "---|" * len(cols)
+    diff_cols = [f for f in filters if (f, "diff") in results]
+    if diff_cols:
+        head += " | " + " | ".join(f"{f.upper()} fixed-vs-float max" for f in diff_cols)
+        sep += "---|" * len(diff_cols)
+    lines = [head + " |", sep]
+
+    def cell(e):
+        return f"{e['total']:.2f} / {e['heading']:.2f} / {e['inclination']:.2f}"
+
+    for t in trials:
+        row = f"| {t.name} | " + " | ".join(cell(results[c]["trials"][t.name]) for c in cols)
+        if diff_cols:
+            row += " | " + " | ".join(f"{results[(f, 'diff')][t.name]:.4f}" for f in diff_cols)
+        lines.append(row + " |")
+    row = "| **mean** | " + " | ".join(f"**{cell(results[c]['mean'])}**" for c in cols)
+    if diff_cols:
+        row += " | " + " | ".join(f"{max(results[(f, 'diff')].values()):.4f} (max)" for f in diff_cols)
+    lines.append(row + " |")
+    lines.append("")
+    lines.append("RMSE in degrees over the movement phase (NaN reference samples skipped); "
+                 "fixed-vs-float: largest angle between the two builds' quaternions over the whole trial, deg.")
+    return "\n".join(lines)
+
+
+def _csv_choice(value: str, allowed, what: str) -> list[str]:
+    items = [v.strip() for v in value.split(",") if v.strip()]
+    bad = [v for v in items if v not in allowed]
+    if bad or not items:
+        raise argparse.ArgumentTypeError(f"unknown {what} {bad or value!r}; choose from {', '.join(allowed)}")
+    return items
+
+
+def main(argv=None) -> int:
+    from imulink import core
+
+    p = argparse.ArgumentParser(
+        description="RMSE of the imulink filters on the BROAD subset (the dataset's own metric).")
+    p.add_argument("--data", type=Path, default=DEFAULT_DATA,
+                   help="directory with the BROAD .mat files (default: ../shared/data/broad "
+                        "relative to the repository root)")
+    p.add_argument("--filters", default=",".join(core.FILTERS),
+                   type=lambda v: _csv_choice(v, list(core.FILTERS), "filter"),
+                   help=f"comma-separated filters (default: {','.join(core.FILTERS)})")
+    p.add_argument("--arithmetic", default="fixed,float",
+                   type=lambda v: _csv_choice(v, list(core.ARITHMETICS), "arithmetic"),
+                   help="comma-separated arithmetics: fixed, float (default: fixed,float)")
+    p.add_argument("--settings", default=None,
+                   help='JSON settings overrides per filter, e.g. \'{"eecf": {"kp": 0.5}}\'')
+    p.add_argument("--markdown", action="store_true", help="print a markdown table instead of text")
+    p.add_argument("--json", action="store_true", help="print the results as JSON")
+    args = p.parse_args(argv)
+
+    settings = {}
+    if args.settings:
+        try:
+            settings = json.loads(args.settings)
+        except json.JSONDecodeError as exc:
+            p.error(f"--settings is not valid JSON: {exc}")
+        if not isinstance(settings, dict) or not all(isinstance(v, dict) for v in settings.values()):
+            p.error('--settings must be an object of objects, e.g. {"eecf": {"kp": 0.5}}')
+        unknown = sorted(set(settings) - set(core.FILTERS))
+        if unknown:
+            p.error(f"--settings names unknown filters {unknown}")
+
+    try:
+        paths = trial_paths(args.data)
+    except FileNotFoundError as exc:
+        print(f"error: {exc}\n(pass the BROAD subset directory with --data DIR)", file=sys.stderr)
+        return EXIT_NO_DATA
+
+    def log(msg):
+        print(msg, file=sys.stderr, flush=True)
+
+    log(f"loading {len(paths)} trials from {args.data.resolve()}")
+    trials = [load_trial(x) for x in paths]
+    try:
+        results = evaluate(trials, args.filters, args.arithmetic, settings, log)
+    except core.SettingsError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_NO_DATA
+    if args.json:
+        out = {f"{k[0]}/{k[1]}": v for k, v in results.items()}
+        print(json.dumps(out, indent=1))
+    elif args.markdown:
+        print(format_markdown(results, trials, args.filters, args.arithmetic))
+    else:
+        print(format_text(results, trials, args.filters, args.arithmetic))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
