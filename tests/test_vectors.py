@@ -9,6 +9,7 @@ and output field are reported. The files are regenerated only on purpose with
 from __future__ import annotations
 
 import importlib.util
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +24,7 @@ VECTOR_DIR = ROOT / "shared" / "vectors"
 def _load_gen_vectors():
     spec = importlib.util.spec_from_file_location("gen_vectors", ROOT / "tools" / "gen_vectors.py")
     mod = importlib.util.module_from_spec(spec)
+    sys.modules["gen_vectors"] = mod  # dataclasses look the module up while it executes
     spec.loader.exec_module(mod)
     return mod
 

@@ -110,7 +110,28 @@ class Scenario:
             suite.mag.hard_iron = (4.0, -3.0, 2.0)
             return sim.simulate(traj, suite, seed=self.seed, free_fall=[(3.0, 3.6)],
                                 acc_spikes=[(1.0, 120.0), (4.5, 200.0), (6.0, 60.0)])
+        if self.name == "extremes":
+            return extreme_counts(500, self.seed)
         raise ValueError(f"unknown scenario {self.name!r}")
+
+
+def extreme_counts(n: int, seed: int) -> SimpleNamespace:
+    """Register counts that no motion produces: uniform over the whole int16 range (magnetometer
+    over its 12-bit range), with zero accelerometer and magnetometer vectors and gyroscope
+    readings at the rails mixed in. Sample 0 has non-zero vectors (a filter starting from a
+    zero vector would read its uninitialised state). Pins the saturating and degenerate paths."""
+    rng = np.random.default_rng(seed)
+    gyr = rng.integers(-(2**15), 2**15, size=(n, 3))
+    acc = rng.integers(-(2**15), 2**15, size=(n, 3))
+    mag = rng.integers(-2048, 2048, size=(n, 3))
+    acc[rng.random(n) < 0.2] = 0
+    mag[rng.random(n) < 0.2] = 0
+    rails = rng.random(n) < 0.2
+    gyr[rails] = rng.choice([-(2**15), 2**15 - 1], size=(int(rails.sum()), 3))
+    acc[0] = (100, -200, 4000)
+    mag[0] = (150, 200, -400)
+    return SimpleNamespace(gyr_counts=gyr.astype(np.int16), acc_counts=acc.astype(np.int16),
+                           mag_counts=mag.astype(np.int16))
 
 
 SCENARIOS = (
@@ -122,6 +143,8 @@ SCENARIOS = (
              BROAD_PROFILE),
     Scenario("disturbed", "8 s fast motion, free fall, taps, magnetic disturbance, no alignment", 100.0, 15,
              "no_align"),
+    Scenario("extremes", "5 s of random full-range counts with zero vectors and gyro rails", 100.0, 16,
+             "standard"),
 )
 
 

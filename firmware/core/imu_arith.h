@@ -104,6 +104,7 @@ static inline int32_t imu_div_sat(int32_t a, int32_t b, int s, uint32_t *sat)
 #define IMU_SUB(a, b) ((a) - (b))
 #define IMU_ADD_SAT(a, b, sat) imu_sat32((int64_t)(a) + (b), (sat))
 #define IMU_SUB_SAT(a, b, sat) imu_sat32((int64_t)(a) - (b), (sat))
+#define IMU_NEG_SAT(a, sat) imu_sat32(-(int64_t)(a), (sat))
 /** Drop s fraction bits (Qn to Q(n-s)), rounded. */
 #define IMU_SHR(a, s) ((int32_t)imu_rshift_round64((a), (s)))
 /** Half of a value, same format, rounded. */
@@ -133,6 +134,7 @@ typedef double imu_real_t;
 #define IMU_SUB(a, b) ((a) - (b))
 #define IMU_ADD_SAT(a, b, sat) ((void)(sat), (a) + (b))
 #define IMU_SUB_SAT(a, b, sat) ((void)(sat), (a) - (b))
+#define IMU_NEG_SAT(a, sat) ((void)(sat), -(a))
 #define IMU_SHR(a, s) (a)
 #define IMU_HALF(a) (0.5 * (a))
 #define IMU_SHL_SAT(a, s, sat) ((void)(sat), (a))

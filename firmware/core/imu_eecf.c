@@ -46,7 +46,7 @@ imu_status_t imu_eecf_set_settings(imu_eecf_t *f, const imu_eecf_settings_t *s)
 {
     imu_q16_t dt_q16;
     int i;
-    if (!(s->sample_rate > IMU_QCONST(0.5, 16)) || !in_range(s->kp, 0, IMU_QCONST(100.0, 16)) ||
+    if (s->sample_rate < IMU_QCONST(10.0, 16) || !in_range(s->kp, 0, IMU_QCONST(100.0, 16)) ||
         !in_range(s->kp_mag, 0, IMU_QCONST(100.0, 16)) || !in_range(s->ki, 0, IMU_QCONST(1.0, 16)) ||
         !in_range(s->bias_limit, 0, IMU_QCONST(1.0, 24)) || !in_range(s->align_time, 0, IMU_QCONST(60.0, 16)) ||
         !in_range(s->align_tau, 0, IMU_QCONST(10.0, 16))) {
@@ -160,7 +160,7 @@ static void align_step(imu_eecf_t *f, const imu_sample_t *s)
             still = still && IMU_SUB_SAT(f->align_gyro_max[k], f->align_gyro_min[k], &f->saturations) < STILL_GYRO_SPAN;
         }
         for (k = 0; k < 3 && still; ++k) {
-            imu_q30_t integral = -IMU_SHL_SAT(f->align_gyro_mean[k], 6, &f->saturations);
+            imu_q30_t integral = IMU_NEG_SAT(IMU_SHL_SAT(f->align_gyro_mean[k], 6, &f->saturations), &f->saturations);
             f->integral[k] = integral > limit ? limit : (integral < -limit ? -limit : integral);
         }
     }

@@ -34,7 +34,7 @@
 
 /** Settings. All fields are imu_real_t: Q format in the fixed build as written. */
 typedef struct {
-    imu_real_t sample_rate; /**< Hz, Q16, (0.5, 32768) */
+    imu_real_t sample_rate; /**< Hz, Q16, [10, 32768) */
     imu_real_t kp;          /**< proportional gain of the gravity error, 1/s, Q16, [0, 100] */
     imu_real_t kp_mag;      /**< proportional gain of the heading error, 1/s, Q16, [0, 100] */
     imu_real_t ki;          /**< integral gain (bias estimation), 1/s^2, Q16, [0, 1] */

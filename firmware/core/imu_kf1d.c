@@ -34,7 +34,8 @@ void imu_kf1d_init(imu_kf1d_t *f)
 
 imu_status_t imu_kf1d_set_settings(imu_kf1d_t *f, const imu_kf1d_settings_t *s)
 {
-    if (!(s->sample_rate > IMU_QCONST(0.5, 16)) || s->q_angle < 0 || s->q_angle > IMU_QCONST(1e-3, 40) ||
+    int k;
+    if (s->sample_rate < IMU_QCONST(10.0, 16) || s->q_angle < 0 || s->q_angle > IMU_QCONST(1e-3, 40) ||
         s->q_bias < 0 || s->q_bias > IMU_QCONST(5e-6, 48) || s->r_angle < IMU_QCONST(1e-6, 35) ||
         s->r_angle > IMU_QCONST(0.03, 35) || s->r_heading < IMU_QCONST(1e-6, 35) ||
         s->r_heading > IMU_QCONST(0.03, 35)) {
@@ -44,6 +45,13 @@ imu_status_t imu_kf1d_set_settings(imu_kf1d_t *f, const imu_kf1d_settings_t *s)
     f->saturations = 0;
     f->dt = IMU_DIV_SAT(IMU_QCONST(1.0, 16), s->sample_rate, 30, &f->saturations);
     f->initialised = 0;
+    for (k = 0; k < 3; ++k) {
+        f->axis[k].angle = 0;
+        f->axis[k].bias = 0;
+        f->axis[k].p00 = 0;
+        f->axis[k].p01 = 0;
+        f->axis[k].p11 = 0;
+    }
     return IMU_OK;
 }
 
@@ -158,5 +166,8 @@ void imu_kf1d_get(const imu_kf1d_t *f, imu_output_t *out)
     imu_euler_to_quat(out->euler, out->quat);
     out->gyro_bias[0] = f->axis[PITCH].bias;
     out->gyro_bias[1] = f->axis[ROLL].bias;
-    out->gyro_bias[2] = -f->axis[HEADING].bias;
+    {
+        uint32_t unused = 0; /* a const filter counts nothing; the bias state is already saturated */
+        out->gyro_bias[2] = IMU_NEG_SAT(f->axis[HEADING].bias, &unused);
+    }
 }

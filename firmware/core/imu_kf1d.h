@@ -28,7 +28,7 @@
 
 /** Settings. All fields are imu_real_t: Q format in the fixed build as written. */
 typedef struct {
-    imu_real_t sample_rate; /**< Hz, Q16, (0.5, 32768) */
+    imu_real_t sample_rate; /**< Hz, Q16, [10, 32768) */
     imu_real_t q_angle;     /**< angle process noise density, rad^2/s, Q40, [0, 1e-3] */
     imu_real_t q_bias;      /**< bias process noise density, rad^2/s^3, Q48, [0, 5e-6] */
     imu_real_t r_angle;     /**< roll/pitch measurement variance, rad^2, Q35, [1e-6, 0.03] */

@@ -139,12 +139,20 @@ void imu_quat_normalize(imu_q30_t q[4])
     }
 }
 
-/** atan(2^-i) in rad, Q30: round(atan(2^-i) * 2^30), i = 0..30. */
-static const int32_t cordic_atan_q30[31] = {
-    843314857, 497837829, 263043837, 133525159, 67021687, 33543516, 16775851, 8388437,
-    4194283,   2097149,   1048576,   524288,    262144,   131072,   65536,    32768,
-    16384,     8192,      4096,      2048,      1024,     512,      256,      128,
-    64,        32,        16,        8,         4,        2,        1};
+/** atan(2^-i) in rad, Q40: round(atan(2^-i) * 2^40), i = 0..30. The angle
+ *  accumulates in Q40 so that table rounding stays far below the result's LSB. */
+static const int64_t cordic_atan_q40[31] = {
+    INT64_C(863554413089), INT64_C(509785937287), INT64_C(269356888665), INT64_C(136729762476),
+    INT64_C(68630207382),  INT64_C(34348560106),  INT64_C(17178471287),  INT64_C(8589759836),
+    INT64_C(4294945451),   INT64_C(2147480917),   INT64_C(1073741483),   INT64_C(536870869),
+    INT64_C(268435451),    INT64_C(134217727),    INT64_C(67108864),     INT64_C(33554432),
+    INT64_C(16777216),     INT64_C(8388608),      INT64_C(4194304),      INT64_C(2097152),
+    INT64_C(1048576),      INT64_C(524288),       INT64_C(262144),       INT64_C(131072),
+    INT64_C(65536),        INT64_C(32768),        INT64_C(16384),        INT64_C(8192),
+    INT64_C(4096),         INT64_C(2048),         INT64_C(1024)};
+
+/** pi/2 in Q40. */
+#define HALF_PI_Q40 INT64_C(1727108826179)
 
 /** 1/K, K = prod sqrt(1 + 2^-2i) for i = 0..30 (CORDIC gain), Q40. */
 #define CORDIC_INV_GAIN_Q40 INT64_C(667681663043)
@@ -156,23 +164,23 @@ imu_angle_t imu_atan2(imu_real_t y, imu_real_t x)
 {
     int64_t vx = x;
     int64_t vy = y;
-    int64_t z = 0; /* Q30 rad */
-    int64_t offset = 0; /* Q29 rad */
+    int64_t z = 0; /* rad, Q40 */
     int i;
     if (vx == 0 && vy == 0) {
         return 0;
     }
-    /* Rotate into the right half plane by +-pi/2. */
-    if (vx < 0) {
+    /* Rotate into the right half plane by -+pi/2 (the angle starts at +-pi/2);
+     * the y axis lands on the x axis, so +-pi/2 come out exact. */
+    if (vx <= 0) {
         const int64_t t = vx;
         if (vy >= 0) {
             vx = vy;
             vy = -t;
-            offset = IMU_HALF_PI_ANGLE;
+            z = HALF_PI_Q40;
         } else {
             vx = -vy;
             vy = t;
-            offset = -(int64_t)IMU_HALF_PI_ANGLE;
+            z = -HALF_PI_Q40;
         }
     }
     /* Scale the larger magnitude to 2^40..2^41 for resolution; CORDIC growth
@@ -191,14 +199,15 @@ imu_angle_t imu_atan2(imu_real_t y, imu_real_t x)
         if (vy > 0) {
             vx += dx;
             vy -= dy;
-            z += cordic_atan_q30[i];
-        } else {
+            z += cordic_atan_q40[i];
+        } else if (vy < 0) {
             vx -= dx;
             vy += dy;
-            z -= cordic_atan_q30[i];
+            z -= cordic_atan_q40[i];
         }
     }
-    return imu_wrap_angle((imu_angle_t)(imu_rshift_round64(z, 1) + offset));
+    /* One rounding to Q29; exactly pi stays pi (the wrap keeps (-pi, pi]). */
+    return imu_wrap_angle((imu_angle_t)imu_rshift_round64(z, 11));
 }
 
 /** Wrap an int64 Q29 angle within +-3 turns to (-pi, pi]. */
@@ -243,18 +252,18 @@ void imu_sincos(imu_angle_t angle, imu_q30_t *s, imu_q30_t *c)
         a += IMU_PI_ANGLE;
         negate = 1;
     }
-    z = a * 2; /* Q30, |z| <= pi/2 */
+    z = a * ((int64_t)1 << 11); /* Q40, |z| <= pi/2 */
     for (i = 0; i < 31; ++i) {
         const int64_t dx = vy >> i;
         const int64_t dy = vx >> i;
         if (z >= 0) {
             vx -= dx;
             vy += dy;
-            z -= cordic_atan_q30[i];
+            z -= cordic_atan_q40[i];
         } else {
             vx += dx;
             vy -= dy;
-            z += cordic_atan_q30[i];
+            z += cordic_atan_q40[i];
         }
     }
     vx = imu_rshift_round64(vx, 10);
@@ -265,20 +274,34 @@ void imu_sincos(imu_angle_t angle, imu_q30_t *s, imu_q30_t *c)
 
 void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3])
 {
-    /* x = |theta| / 2; x2 = x^2 in Q30 from the Q60 sum of squares shifted by 32. */
-    const int64_t sum = (int64_t)theta[0] * theta[0] + (int64_t)theta[1] * theta[1] +
-                        (int64_t)theta[2] * theta[2];
-    const int32_t x2 = (int32_t)imu_rshift_round64(sum, 32);
+    /* |theta|^2 in Q60 (three squares below 2^62 each: below 2^64 unsigned). */
+    uint64_t sum = (uint64_t)((int64_t)theta[0] * theta[0]) + (uint64_t)((int64_t)theta[1] * theta[1]) +
+                   (uint64_t)((int64_t)theta[2] * theta[2]);
+    imu_q30_t step[3];
+    int32_t x2;
+    int i;
+    for (i = 0; i < 3; ++i) {
+        step[i] = theta[i];
+    }
+    if (sum > ((uint64_t)1 << 60)) {
+        /* Longer than MAX_STEP (1 rad): keep the direction, limit the length. */
+        const int64_t len = isqrt64(sum); /* Q30, 2^30 .. 2^32 */
+        for (i = 0; i < 3; ++i) {
+            step[i] = (imu_q30_t)(((int64_t)theta[i] * ((int64_t)1 << 30)) / len);
+        }
+        sum = (uint64_t)1 << 60;
+    }
+    /* x = |step| / 2; x^2 in Q30 from the Q60 sum shifted by 32 (at most 2^28). */
+    x2 = (int32_t)imu_rshift_round64((int64_t)sum, 32);
     const int32_t x4 = imu_mul(x2, x2, 30);
     /* cos x = 1 - x^2/2 + x^4/24; sin(x)/x = 1 - x^2/6 + x^4/120 (Q30). */
     const int32_t cos_x = IMU_ONE_Q30 - x2 / 2 + x4 / 24;
     const int32_t sinc_x = IMU_ONE_Q30 - x2 / 6 + x4 / 120;
     imu_q30_t dq[4];
     imu_q30_t out[4];
-    int i;
     dq[0] = cos_x;
     for (i = 0; i < 3; ++i) {
-        dq[i + 1] = imu_mul(sinc_x, theta[i], 31); /* sinc * theta / 2 */
+        dq[i + 1] = imu_mul(sinc_x, step[i], 31); /* sinc * step / 2 */
     }
     imu_quat_mul(q, dq, out);
     for (i = 0; i < 4; ++i) {
@@ -390,8 +413,10 @@ void imu_sincos(imu_angle_t angle, imu_q30_t *s, imu_q30_t *c)
 
 void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3])
 {
-    const double x = 0.5 * sqrt(theta[0] * theta[0] + theta[1] * theta[1] + theta[2] * theta[2]);
-    const double half_sinc = x > 1e-9 ? 0.5 * sin(x) / x : 0.5 * (1.0 - x * x / 6.0);
+    const double len = sqrt(theta[0] * theta[0] + theta[1] * theta[1] + theta[2] * theta[2]);
+    const double limit = len > 1.0 ? 1.0 / len : 1.0; /* steps above 1 rad are limited to 1 rad */
+    const double x = 0.5 * len * limit;
+    const double half_sinc = (x > 1e-9 ? 0.5 * sin(x) / x : 0.5 * (1.0 - x * x / 6.0)) * limit;
     const double dq[4] = {cos(x), half_sinc * theta[0], half_sinc * theta[1], half_sinc * theta[2]};
     imu_q30_t out[4];
     int i;

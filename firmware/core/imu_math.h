@@ -50,11 +50,12 @@ void imu_quat_rotate(const imu_q30_t q[4], const imu_q30_t v[3], imu_q30_t out[3
 /**
  * @brief q <- normalize(q (x) exp(theta / 2)): advance the attitude by a body-frame
  *        rotation vector.
- * @param theta rotation vector in rad, Q30, |theta| < 1 rad (a step of the filter).
+ * @param theta rotation vector in rad, Q30. A step longer than 1 rad (a sample
+ *        rate far too low for the motion) is limited to 1 rad, direction kept.
  *
  * Fixed build: cos and sin(x)/x of the half angle x = |theta|/2 by their Taylor
- * series to x^4 (truncation below 2e-8 at x = 0.5, below 1e-11 at the 0.02 rad
- * half steps of 200 deg/s at 100 Hz). Float build: exact cos and sin.
+ * series to x^4 (truncation 2.2e-5 at the 1 rad limit, 7e-8 at 0.5 rad, below
+ * 1e-11 at the 0.035 rad steps of 200 deg/s at 100 Hz). Float build: exact cos and sin.
  */
 void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3]);
 

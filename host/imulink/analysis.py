@@ -51,3 +51,21 @@ def rmse(errors: dict[str, np.ndarray], mask=None) -> dict[str, float]:
 def angle_difference(q1, q2) -> np.ndarray:
     """Total rotation angle between two quaternion series, degrees (sign-invariant)."""
     return attitude_errors(q1, q2)["total"]
+
+
+def quat_to_euler(q) -> np.ndarray:
+    """[roll, pitch, heading] in rad of w-first sensor-to-earth quaternions, in imulink's
+    convention R = Rz(-heading) Rx(pitch) Ry(roll) (heading clockwise from north)."""
+    q = np.asarray(q, dtype=np.float64)
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    r01 = 2 * (x * y - w * z)
+    r11 = 1 - 2 * (x * x + z * z)
+    r20 = 2 * (x * z - w * y)
+    r21 = 2 * (y * z + w * x)
+    r22 = 1 - 2 * (x * x + y * y)
+    return np.stack([np.arctan2(-r20, r22), np.arctan2(r21, np.hypot(r01, r11)), np.arctan2(r01, r11)], axis=-1)
+
+
+def wrap_deg(a):
+    """Wrap angles in degrees to (-180, 180]."""
+    return -((-np.asarray(a) + 180.0) % 360.0 - 180.0)

@@ -164,11 +164,18 @@ class Filter:
         if self.mod.lib.imu_filter_init(self._handle, filter_id) != 0:
             raise ValueError(f"the core does not know filter {filter_name!r}")
         self.mod.lib.imu_filter_set_sensor(self._handle, sensor_struct(self.mod, arithmetic, profile))
-        status = self.mod.lib.imu_filter_set_settings(
-            self._handle, _settings_struct(self.mod, arithmetic, filter_name, self.settings)
-        )
-        if status != 0:
-            raise SettingsError(f"settings out of range for {filter_name!r}: {self.settings}")
+        if not self._apply(self.settings):
+            defaults = default_settings(filter_name)
+            bad = [k for k, v in self.settings.items() if not self._apply({**defaults, k: v})]
+            fields = {f.name: f for f in settings_fields(filter_name)}
+            detail = ", ".join(f"{k}={self.settings[k]!r} {fields[k].unit}" for k in bad) or str(self.settings)
+            raise SettingsError(f"setting out of the range the {filter_name!r} filter accepts: {detail} "
+                                f"(ranges are documented in firmware/core/{FILTERS[filter_name][1]}.h)")
+        self._apply(self.settings)
+
+    def _apply(self, values: dict[str, float]) -> bool:
+        struct = _settings_struct(self.mod, self.arithmetic, self.filter_name, values)
+        return self.mod.lib.imu_filter_set_settings(self._handle, struct) == 0
 
     def run_counts(self, gyr_counts, acc_counts, mag_counts) -> RunResult:
         ffi, lib = self.mod.ffi, self.mod.lib

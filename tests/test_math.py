@@ -1,0 +1,364 @@
+"""The math helpers of firmware/core (imu_math.h) against independent numpy references.
+
+Called through the cffi modules: imulink._core_fixed (Q formats of imu_arith.h:
+angles Q29 rad, unit values Q30, rates Q24) and imulink._core_float (doubles).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from imulink import _core_fixed, _core_float
+
+Q29 = 2.0**29
+Q30 = 2.0**30
+PI_Q29 = int(round(np.pi * Q29))  # IMU_PI_ANGLE
+INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
+
+
+def wrapped(d):
+    """Angle differences wrapped to [-pi, pi)."""
+    return (np.asarray(d) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+# --------------------------------------------------------------------------- numpy references
+
+
+def qmul(a, b):
+    """Hamilton product of (..., 4) w-first quaternions."""
+    aw, ax, ay, az = np.moveaxis(np.asarray(a), -1, 0)
+    bw, bx, by, bz = np.moveaxis(np.asarray(b), -1, 0)
+    return np.stack([aw * bw - ax * bx - ay * by - az * bz,
+                     aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx,
+                     aw * bz + ax * by - ay * bx + az * bw], axis=-1)
+
+
+def qexp(theta):
+    """exp(theta/2): unit quaternion of the rotation vector theta (..., 3), exact."""
+    theta = np.asarray(theta, dtype=np.float64)
+    angle = np.linalg.norm(theta, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        axis = np.where(angle > 0, theta / angle, 0.0)
+    return np.concatenate([np.cos(angle / 2), np.sin(angle / 2) * axis], axis=-1)
+
+
+def axis_quat(axis, angle):
+    q = np.zeros(np.shape(angle) + (4,))
+    q[..., 0] = np.cos(np.asarray(angle) / 2)
+    q[..., 1 + axis] = np.sin(np.asarray(angle) / 2)
+    return q
+
+
+def euler_to_quat_np(e):
+    """imu_math.h convention: R = Rz(-heading) Rx(pitch) Ry(roll), e = [roll, pitch, heading]."""
+    e = np.asarray(e)
+    return qmul(qmul(axis_quat(2, -e[..., 2]), axis_quat(0, e[..., 1])), axis_quat(1, e[..., 0]))
+
+
+def rotmat_np(q):
+    w, x, y, z = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                     [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                     [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+
+
+# --------------------------------------------------------------------------- C wrappers
+
+
+class Math:
+    """Scalar wrappers of the C helpers for one build; values in SI (conversion at the boundary)."""
+
+    def __init__(self, mod, fixed: bool):
+        self.ffi, self.lib, self.fixed = mod.ffi, mod.lib, fixed
+        t = "int32_t" if fixed else "double"
+        self.q = self.ffi.new(f"{t}[4]")
+        self.v = self.ffi.new(f"{t}[3]")
+        self.s = self.ffi.new(f"{t} *")
+        self.c = self.ffi.new(f"{t} *")
+
+    def _to(self, x, scale):
+        return int(round(x * scale)) if self.fixed else float(x)
+
+    def _from(self, x, scale):
+        return x / scale if self.fixed else x
+
+    def euler_to_quat(self, e):
+        for k in range(3):
+            self.v[k] = self._to(e[k], Q29)
+        self.lib.imu_euler_to_quat(self.v, self.q)
+        return np.array([self._from(self.q[k], Q30) for k in range(4)])
+
+    def quat_to_euler(self, q):
+        for k in range(4):
+            self.q[k] = self._to(q[k], Q30)
+        self.lib.imu_quat_to_euler(self.q, self.v)
+        return np.array([self._from(self.v[k], Q29) for k in range(3)])
+
+    def quat_integrate(self, q, theta):
+        for k in range(4):
+            self.q[k] = self._to(q[k], Q30)
+        for k in range(3):
+            self.v[k] = self._to(theta[k], Q30)
+        self.lib.imu_quat_integrate(self.q, self.v)
+        return np.array([self._from(self.q[k], Q30) for k in range(4)])
+
+
+FIXED = Math(_core_fixed, True)
+FLOAT = Math(_core_float, False)
+BUILDS = {"fixed": FIXED, "float": FLOAT}
+
+
+def fixed_atan2(pairs):
+    f = _core_fixed.lib.imu_atan2
+    return np.array([f(int(y), int(x)) for y, x in pairs], dtype=np.int64)
+
+
+def fixed_sincos(angles):
+    lib, ffi = _core_fixed.lib, _core_fixed.ffi
+    s, c = ffi.new("int32_t *"), ffi.new("int32_t *")
+    out = np.empty((len(angles), 2), dtype=np.int64)
+    for i, a in enumerate(angles):
+        lib.imu_sincos(int(a), s, c)
+        out[i] = s[0], c[0]
+    return out
+
+
+# --------------------------------------------------------------------------- atan2
+
+
+def atan2_inputs():
+    rng = np.random.default_rng(20240601)
+    pairs = []
+    # Random magnitudes from 1 to 2^31 in both arguments (independent shifts).
+    raw = rng.integers(INT32_MIN, INT32_MAX, size=(30000, 2), endpoint=True)
+    shifts = rng.integers(0, 32, size=(30000, 2))
+    pairs += [(int(y) >> int(sy), int(x) >> int(sx)) for (y, x), (sy, sx) in zip(raw, shifts)]
+    mags = [1, 2, 3, 7, 1000, 2**20, 2**29, 2**30, 2**30 + 1, INT32_MAX - 1, INT32_MAX]
+    for m in mags:
+        for sy, sx in ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (1, -1), (-1, 1), (-1, -1)):
+            pairs.append((sy * m, sx * m))
+        # Just beside the axes and the diagonals; both sides of the branch cut at -x.
+        pairs += [(1, m), (-1, m), (1, -m), (-1, -m), (m, 1), (m, -1), (-m, 1), (-m, -1)]
+        pairs += [(m, m - 1), (m - 1, m), (-m, m - 1), (m - 1, -m), (-(m - 1), -m)]
+    for y in (INT32_MIN, INT32_MIN + 1, -1, 0, 1, INT32_MAX):
+        for x in (INT32_MIN, INT32_MIN + 1, -1, 0, 1, INT32_MAX):
+            pairs.append((y, x))
+    pairs += [(y, x) for y in range(-4, 5) for x in range(-4, 5)]  # tiny magnitudes
+    return np.array(pairs, dtype=np.int64)
+
+
+ATAN2_INPUTS = atan2_inputs()
+ATAN2_OUT = fixed_atan2(ATAN2_INPUTS)
+
+
+def test_atan2_fixed_accuracy():
+    y, x = ATAN2_INPUTS[:, 0].astype(np.float64), ATAN2_INPUTS[:, 1].astype(np.float64)
+    err = np.abs(wrapped(ATAN2_OUT / Q29 - np.arctan2(y, x)))
+    worst = int(np.argmax(err))
+    assert err[worst] < 1e-8, f"atan2({ATAN2_INPUTS[worst, 0]}, {ATAN2_INPUTS[worst, 1]}): error {err[worst]:.3g}"
+
+
+def test_atan2_fixed_range_and_origin():
+    assert np.all(ATAN2_OUT > -PI_Q29) and np.all(ATAN2_OUT <= PI_Q29), "result outside (-pi, pi]"
+    assert _core_fixed.lib.imu_atan2(0, 0) == 0
+    assert _core_float.lib.imu_atan2(0.0, 0.0) == 0.0
+    # Exact axes: +-pi/2 and 0 to the LSB of Q29.
+    assert _core_fixed.lib.imu_atan2(5, 0) == int(round(np.pi / 2 * Q29))
+    assert _core_fixed.lib.imu_atan2(-5, 0) == -int(round(np.pi / 2 * Q29))
+    assert _core_fixed.lib.imu_atan2(0, 5) == 0
+
+
+def test_atan2_negative_x_axis_is_plus_pi():
+    for x in (-1, -1000, INT32_MIN):
+        assert _core_fixed.lib.imu_atan2(0, x) > 0
+    assert _core_float.lib.imu_atan2(0.0, -1.0) == pytest.approx(np.pi, abs=0)
+
+
+def test_atan2_float_twin_matches_numpy():
+    rng = np.random.default_rng(5)
+    pts = rng.standard_normal((2000, 2)) * 10.0 ** rng.uniform(-6, 6, size=(2000, 1))
+    got = np.array([_core_float.lib.imu_atan2(y, x) for y, x in pts])
+    np.testing.assert_allclose(got, np.arctan2(pts[:, 0], pts[:, 1]), rtol=0, atol=1e-15)
+
+
+# --------------------------------------------------------------------------- sincos
+
+
+def sincos_inputs():
+    rng = np.random.default_rng(77)
+    special = [0, 1, -1, INT32_MIN, INT32_MAX, PI_Q29, -PI_Q29, PI_Q29 + 1, -PI_Q29 - 1, PI_Q29 - 1]
+    for frac in (0.25, 0.5, 0.75, 1.0, 1.25):
+        a = int(round(frac * np.pi * Q29))
+        special += [a - 1, a, a + 1, -a - 1, -a, -a + 1]
+    return np.concatenate([rng.integers(INT32_MIN, INT32_MAX, size=60000, endpoint=True),
+                           np.array(special, dtype=np.int64)])
+
+
+SINCOS_IN = sincos_inputs()
+SINCOS_OUT = fixed_sincos(SINCOS_IN)
+SINCOS_ERR = np.maximum(np.abs(SINCOS_OUT[:, 0] / Q30 - np.sin(SINCOS_IN / Q29)),
+                        np.abs(SINCOS_OUT[:, 1] / Q30 - np.cos(SINCOS_IN / Q29)))
+
+
+def _worst_sincos() -> str:
+    i = int(np.argmax(SINCOS_ERR))
+    return f"angle {SINCOS_IN[i]} (Q29, {SINCOS_IN[i] / Q29:.6f} rad): error {SINCOS_ERR[i]:.3g}"
+
+
+def test_sincos_fixed_accuracy():
+    """CORDIC with a Q40 angle accumulator: within about 2 LSB of Q30."""
+    assert SINCOS_ERR.max() < 2e-9, _worst_sincos()
+    assert np.median(SINCOS_ERR) < 1e-9
+
+
+def test_sincos_fixed_exact_points():
+    """sin/cos of 0 and +-pi/2 to one LSB, and any angle of the type is accepted (wrapped)."""
+    s, c = fixed_sincos([0])[0]
+    assert abs(s) <= 1 and abs(c - 2**30) <= 1
+    s, c = fixed_sincos([int(round(np.pi / 2 * Q29))])[0]
+    assert abs(s - 2**30) <= 1 and abs(c) <= 2
+    s, c = fixed_sincos([-int(round(np.pi / 2 * Q29))])[0]
+    assert abs(s + 2**30) <= 1 and abs(c) <= 2
+    # Angles beyond +-pi (up to the +-4 rad of the type) equal their wrapped values.
+    big = np.array([INT32_MAX, INT32_MIN, int(3.5 * Q29), -int(3.5 * Q29)])
+    wrapped_q29 = np.rint(wrapped(big / Q29) * Q29).astype(np.int64)
+    assert np.all(np.abs(fixed_sincos(big) - fixed_sincos(wrapped_q29)) <= 2)
+
+
+# --------------------------------------------------------------------------- Euler <-> quaternion
+
+
+def random_euler(n, seed, max_pitch=1.5):
+    rng = np.random.default_rng(seed)
+    return np.stack([rng.uniform(-np.pi, np.pi, n), rng.uniform(-max_pitch, max_pitch, n),
+                     rng.uniform(-np.pi, np.pi, n)], axis=1)
+
+
+TOL = {"fixed": {"quat": 1e-8, "euler": 2e-8}, "float": {"quat": 1e-14, "euler": 1e-12}}
+
+
+@pytest.mark.parametrize("build", ["fixed", "float"])
+def test_euler_to_quat_matches_convention(build):
+    m = BUILDS[build]
+    for e in random_euler(3000, 1):
+        if build == "fixed":
+            e = np.rint(e * Q29) / Q29  # exactly representable input
+        q = m.euler_to_quat(e)
+        ref = euler_to_quat_np(e)
+        err = min(np.abs(q - ref).max(), np.abs(q + ref).max())
+        assert err < TOL[build]["quat"], f"euler {e}: quaternion error {err:.3g}"
+
+
+@pytest.mark.parametrize("build", ["fixed", "float"])
+def test_quat_to_euler_inverts_convention(build):
+    """Quaternions built in numpy give back their Euler angles; the error grows as 1/cos(pitch)
+    for roll and heading near the gimbal lock, hence the scaling."""
+    m = BUILDS[build]
+    for e in random_euler(3000, 2):
+        got = m.quat_to_euler(euler_to_quat_np(e))
+        err = np.abs(wrapped(got - e))
+        assert err[1] < TOL[build]["euler"], f"euler {e}: pitch error {err[1]:.3g}"
+        assert max(err[0], err[2]) * np.cos(e[1]) < TOL[build]["euler"], f"euler {e}: error {err}"
+
+
+@pytest.mark.parametrize("build", ["fixed", "float"])
+def test_euler_quat_round_trip(build):
+    m = BUILDS[build]
+    for e in random_euler(3000, 3, max_pitch=1.2):
+        if build == "fixed":
+            e = np.rint(e * Q29) / Q29
+        back = m.quat_to_euler(m.euler_to_quat(e))
+        err = np.abs(wrapped(back - e))
+        assert err.max() < 2 * TOL[build]["euler"], f"euler {e}: round-trip error {err}"
+
+
+@pytest.mark.parametrize("build", ["fixed", "float"])
+def test_euler_meaning(build):
+    """The documented meaning, checked on the rotation matrix of the C quaternion:
+    heading = compass heading of the y axis, pitch lifts y, positive roll lowers the right side (x)."""
+    m = BUILDS[build]
+    d = np.deg2rad
+    r = rotmat_np(m.euler_to_quat([0.0, 0.0, d(90.0)]))
+    np.testing.assert_allclose(r[:, 1], [1.0, 0.0, 0.0], atol=1e-8)  # y axis points east
+    r = rotmat_np(m.euler_to_quat([0.0, d(30.0), 0.0]))
+    np.testing.assert_allclose(r[:, 1], [0.0, np.cos(d(30.0)), np.sin(d(30.0))], atol=1e-8)
+    r = rotmat_np(m.euler_to_quat([d(30.0), 0.0, 0.0]))
+    np.testing.assert_allclose(r[:, 0], [np.cos(d(30.0)), 0.0, -np.sin(d(30.0))], atol=1e-8)
+    np.testing.assert_allclose(r[:, 1], [0.0, 1.0, 0.0], atol=1e-8)
+
+
+# --------------------------------------------------------------------------- quaternion integration
+
+
+def random_steps(n, seed, lo, hi):
+    rng = np.random.default_rng(seed)
+    q = rng.standard_normal((n, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    direction = rng.standard_normal((n, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    size = np.exp(rng.uniform(np.log(lo), np.log(hi), n))
+    return q, direction * size[:, None]
+
+
+def exact_integrate(q, theta):
+    out = qmul(q, qexp(theta))
+    return out / np.linalg.norm(out)
+
+
+def test_quat_integrate_fixed_filter_steps():
+    """Steps of a filter (|theta| <= 0.1 rad: 570 deg/s at 100 Hz) match the exact exponential
+    to a few Q30 LSB."""
+    q, theta = random_steps(4000, 10, 1e-8, 0.1)
+    worst = 0.0
+    for qi, ti in zip(q, theta):
+        qi = np.rint(qi * Q30) / Q30
+        ti = np.rint(ti * Q30) / Q30
+        got = FIXED.quat_integrate(qi, ti)
+        err = np.abs(got - exact_integrate(qi, ti)).max()
+        worst = max(worst, err)
+        assert abs(np.linalg.norm(got) - 1.0) < 3e-9
+    assert worst < 3e-9, f"worst error {worst:.3g}"
+
+
+def test_quat_integrate_fixed_zero_step_keeps_attitude():
+    q, _ = random_steps(200, 11, 1e-3, 1e-2)
+    for qi in q:
+        qi = np.rint(qi * Q30) / Q30
+        assert np.abs(FIXED.quat_integrate(qi, np.zeros(3)) - qi / np.linalg.norm(qi)).max() < 2e-9
+
+
+def test_quat_integrate_fixed_large_steps_within_series_truncation():
+    """Up to |theta| = 1 rad the error stays within the x^4 Taylor series' truncation (x = |theta|/2):
+    below x^6/720 (the cos term) plus rounding."""
+    q, theta = random_steps(3000, 12, 0.1, 1.0)
+    for qi, ti in zip(q, theta):
+        qi = np.rint(qi * Q30) / Q30
+        ti = np.rint(ti * Q30) / Q30
+        x = np.linalg.norm(ti) / 2
+        err = np.abs(FIXED.quat_integrate(qi, ti) - exact_integrate(qi, ti)).max()
+        assert err < 3e-9 + x**6 / 720, f"|theta| {2 * x:.3f}: error {err:.3g}"
+
+
+def test_quat_integrate_float_is_exact():
+    q, theta = random_steps(2000, 13, 1e-12, 1.0)
+    for qi, ti in zip(q, theta):
+        np.testing.assert_allclose(FLOAT.quat_integrate(qi, ti), exact_integrate(qi, ti), rtol=0, atol=1e-14)
+
+
+@pytest.mark.parametrize("build", ["fixed", "float"])
+def test_quat_integrate_limits_steps_beyond_one_radian(build):
+    """A step longer than 1 rad (sample rate far too low for the motion) turns by 1 rad about
+    the same axis, in both builds; no overflow for any Q30 input."""
+    impl = FIXED if build == "fixed" else FLOAT
+    q, theta = random_steps(500, 14, 1.0001, 1.99)
+    tol = 3e-9 + 0.5**6 / 720 if build == "fixed" else 1e-14
+    for qi, ti in zip(q, theta):
+        qi = np.rint(qi * Q30) / Q30
+        ti = np.rint(ti * Q30) / Q30
+        unit_step = ti / np.linalg.norm(ti)
+        err = np.abs(impl.quat_integrate(qi, ti) - exact_integrate(qi, unit_step)).max()
+        assert err < tol
+    extreme = np.array([INT32_MIN, INT32_MIN, INT32_MIN]) / Q30
+    out = impl.quat_integrate(np.array([1.0, 0, 0, 0]), extreme)
+    assert abs(np.linalg.norm(out) - 1.0) < 3e-9
