@@ -96,13 +96,14 @@ def test_truth_is_integral_of_gyro_samples():
     traj = sim.random_motion(60.0, 100.0, seed=7)
     dt = traj.dt
     assert traj.quat.shape == (6000, 4) and traj.gyr.shape == (6000, 3)
-    # Independent re-integration with scipy: R[k+1] = R[k] * exp(gyr[k] dt).
+    # Independent re-integration with scipy: R[k] = R[k-1] * exp(gyr[k] dt) (sample k
+    # covers the interval that ends at t_k).
     steps = Rotation.from_rotvec(traj.gyr * dt)
     r = to_scipy(traj.quat[0])
     err = 0.0
-    for k in range(len(traj.t)):
-        err = max(err, (to_scipy(traj.quat[k]).inv() * r).magnitude())
+    for k in range(1, len(traj.t)):
         r = r * steps[k]
+        err = max(err, (to_scipy(traj.quat[k]).inv() * r).magnitude())
     assert err < 1e-9
     # The motion is substantial and soft-limited.
     rate_dps = np.rad2deg(np.linalg.norm(traj.gyr, axis=1))
@@ -125,8 +126,9 @@ def test_turntable_heading_changes_by_rate_times_time():
     yaw = np.unwrap(to_scipy(traj.quat).as_euler("ZYX")[:, 0])
     ks = np.searchsorted(traj.t, settle)
     assert traj.rest[:ks].all() and not traj.rest[ks:].any()
-    np.testing.assert_allclose(yaw[:ks + 1], yaw[0], atol=1e-12)
-    np.testing.assert_allclose(np.rad2deg(yaw[ks:] - yaw[ks]), rate_dps * (traj.t[ks:] - traj.t[ks]),
+    # Sample ks is the first moving one: it covers (t_ks-1, t_ks].
+    np.testing.assert_allclose(yaw[:ks], yaw[0], atol=1e-12)
+    np.testing.assert_allclose(np.rad2deg(yaw[ks - 1:] - yaw[ks - 1]), rate_dps * (traj.t[ks - 1:] - traj.t[ks - 1]),
                                atol=1e-8)
     # Roll and pitch relative to the vertical do not change: the up axis in body is fixed.
     up_body = Q.rotate_inverse(traj.quat, [0.0, 0.0, 1.0])

@@ -18,6 +18,7 @@
  *  - imu_q16_t   16.16  settings and physical values near one: gains in 1/s,
  *                       acceleration in m/s^2, magnetic field in uT, rates in Hz
  *  - imu_real_t  int32  any other Q format, named where the value is declared
+ *  - imu_wide_t  int64  exact products and their sums, before rounding back
  *
  * Rounding: every right shift of a product rounds to nearest (ties toward +inf).
  * Overflow: plain macros (IMU_MUL, IMU_ADD) require the caller to prove the bound
@@ -48,6 +49,7 @@ typedef int32_t imu_angle_t; /**< 3.29 rad */
 typedef int32_t imu_rate_t;  /**< 8.24 rad/s */
 typedef int32_t imu_q16_t;   /**< 16.16 */
 typedef int32_t imu_real_t;  /**< Q format written where the value is declared */
+typedef int64_t imu_wide_t;  /**< products and sums of products before rounding (Q written at use) */
 
 /** Fraction bits of each format (used to convert between formats). */
 #define IMU_Q30 30
@@ -117,6 +119,14 @@ static inline int32_t imu_div_sat(int32_t a, int32_t b, int s, uint32_t *sat)
 #define IMU_TO_INT(a, q) ((int32_t)imu_rshift_round64((a), (q)))
 /** Nearest integer to the product of reals a and b whose Q formats add up to q (result below 2^31). */
 #define IMU_MUL_TO_INT(a, b, q) ((int32_t)imu_rshift_round64((int64_t)(a) * (b), (q)))
+/** Exact product of two int32 reals as a wide value (Q formats add). */
+#define IMU_WMUL(a, b) ((int64_t)(a) * (b))
+/** Wide value with s more fraction bits (the caller proves the headroom). */
+#define IMU_WSHL(v, s) ((v) * ((int64_t)1 << (s)))
+/** Wide value with s fewer fraction bits, rounded. */
+#define IMU_WSHR(v, s) imu_rshift_round64((v), (s))
+/** Wide value to int32, dropping s fraction bits (rounded) and saturating. */
+#define IMU_WIDE_TO_SAT(v, s, sat) imu_sat32(imu_rshift_round64((v), (s)), (sat))
 
 #else /* IMU_FLOAT */
 
@@ -125,6 +135,7 @@ typedef double imu_angle_t;
 typedef double imu_rate_t;
 typedef double imu_q16_t;
 typedef double imu_real_t;
+typedef double imu_wide_t;
 
 #define IMU_QCONST(x, q) ((double)(x))
 #define IMU_MUL(a, b, s) ((a) * (b))
@@ -141,6 +152,10 @@ typedef double imu_real_t;
 #define IMU_FROM_INT_SAT(i, q, sat) ((void)(sat), (double)(i))
 #define IMU_TO_INT(a, q) ((int32_t)((a) >= 0 ? (a) + 0.5 : (a) - 0.5))
 #define IMU_MUL_TO_INT(a, b, q) IMU_TO_INT((a) * (b), 0)
+#define IMU_WMUL(a, b) ((a) * (b))
+#define IMU_WIDE_TO_SAT(v, s, sat) ((void)(sat), (v))
+#define IMU_WSHL(v, s) (v)
+#define IMU_WSHR(v, s) (v)
 
 #endif
 

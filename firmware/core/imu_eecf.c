@@ -181,6 +181,14 @@ void imu_eecf_update(imu_eecf_t *f, const imu_sample_t *s)
         return;
     }
 
+    /* Propagate with the gyroscope first: sample k covers the interval ending at
+     * t_k, so the attitude then matches the accelerometer and magnetometer of the
+     * same sample. Rate (Q24) times dt (Q30) >> 24 -> rad (Q30). */
+    for (k = 0; k < 3; ++k) {
+        theta[k] = IMU_MUL_SAT(s->gyr[k], f->dt, 24, &f->saturations);
+    }
+    imu_quat_integrate(f->q, theta);
+
     imu_quat_matrix_row(f->q, 2, up); /* R^T e_z */
     if (imu_vec3_normalize(s->acc, unit, 0)) {
         imu_vec3_cross(unit, up, e_acc);
@@ -220,11 +228,11 @@ void imu_eecf_update(imu_eecf_t *f, const imu_sample_t *s)
             integral = -limit;
         }
         f->integral[k] = integral;
-        /* w' = w + kp e_acc + kp_mag e_mag + I; kp (Q16) * e (Q30) >> 22 -> Q24. */
-        rate = IMU_ADD_SAT(s->gyr[k], IMU_MUL_SAT(f->settings.kp, e_acc[k], 22, &f->saturations), &f->saturations);
+        /* Correction rate kp e_acc + kp_mag e_mag + I; kp (Q16) * e (Q30) >> 22 -> Q24. */
+        rate = IMU_MUL_SAT(f->settings.kp, e_acc[k], 22, &f->saturations);
         rate = IMU_ADD_SAT(rate, IMU_MUL_SAT(f->settings.kp_mag, e_mag[k], 22, &f->saturations), &f->saturations);
         rate = IMU_ADD_SAT(rate, IMU_SHR(integral, 6), &f->saturations);
-        /* rad/s Q24 * s Q30 >> 24 -> rad Q30 (below 2 for |w'| dt < 2). */
+        /* rad/s Q24 * s Q30 >> 24 -> rad Q30 (below 2 for |rate| dt < 2). */
         theta[k] = IMU_MUL_SAT(rate, f->dt, 24, &f->saturations);
     }
     imu_quat_integrate(f->q, theta);

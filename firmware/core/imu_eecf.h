@@ -16,7 +16,10 @@
  * force, v: estimated up direction in the sensor frame) and the heading error
  * from the magnetometer correct the gyroscope through a PI law,
  * w' = w + kp e_a + kp_mag e_m + I, with I += ki (e_a + e_m) dt. The quaternion
- * is advanced with the exact exponential of the rotation vector w' dt.
+ * is advanced with the exact exponential of the rotation vector w' dt, in two
+ * steps: first the gyroscope (sample k covers the interval ending at t_k), then
+ * the errors are measured against the accelerometer and magnetometer of the same
+ * sample and the correction is applied.
  *
  * Deviation from the seed (see docs/filters.md): the magnetometer error uses the
  * horizontal field direction only (e_m is the sine of the heading error about the

@@ -14,6 +14,9 @@ imu_status_t imu_filter_init(imu_filter_t *f, int id)
     case IMU_FILTER_KF1D:
         imu_kf1d_init(&f->u.kf1d);
         break;
+    case IMU_FILTER_ESKF:
+        imu_eskf_init(&f->u.eskf);
+        break;
     default:
         return IMU_ERR_UNKNOWN;
     }
@@ -28,6 +31,8 @@ imu_status_t imu_filter_set_settings(imu_filter_t *f, const void *settings)
         return imu_eecf_set_settings(&f->u.eecf, (const imu_eecf_settings_t *)settings);
     case IMU_FILTER_KF1D:
         return imu_kf1d_set_settings(&f->u.kf1d, (const imu_kf1d_settings_t *)settings);
+    case IMU_FILTER_ESKF:
+        return imu_eskf_set_settings(&f->u.eskf, (const imu_eskf_settings_t *)settings);
     }
     return IMU_ERR_UNKNOWN;
 }
@@ -39,7 +44,15 @@ void imu_filter_set_sensor(imu_filter_t *f, const imu_sensor_settings_t *sensor)
 
 static uint32_t *saturation_counter(imu_filter_t *f)
 {
-    return f->id == IMU_FILTER_EECF ? &f->u.eecf.saturations : &f->u.kf1d.saturations;
+    switch (f->id) {
+    case IMU_FILTER_EECF:
+        return &f->u.eecf.saturations;
+    case IMU_FILTER_KF1D:
+        return &f->u.kf1d.saturations;
+    case IMU_FILTER_ESKF:
+        return &f->u.eskf.saturations;
+    }
+    return &f->u.eecf.saturations; /* unreachable: the id is checked at initialisation */
 }
 
 void imu_filter_update_raw(imu_filter_t *f, const imu_raw_sample_t *raw)
@@ -53,6 +66,9 @@ void imu_filter_update_raw(imu_filter_t *f, const imu_raw_sample_t *raw)
     case IMU_FILTER_KF1D:
         imu_kf1d_update(&f->u.kf1d, &sample);
         break;
+    case IMU_FILTER_ESKF:
+        imu_eskf_update(&f->u.eskf, &sample);
+        break;
     }
 }
 
@@ -65,12 +81,15 @@ void imu_filter_get(const imu_filter_t *f, imu_output_t *out)
     case IMU_FILTER_KF1D:
         imu_kf1d_get(&f->u.kf1d, out);
         break;
+    case IMU_FILTER_ESKF:
+        imu_eskf_get(&f->u.eskf, out);
+        break;
     }
 }
 
 uint32_t imu_filter_saturations(const imu_filter_t *f)
 {
-    return f->id == IMU_FILTER_EECF ? f->u.eecf.saturations : f->u.kf1d.saturations;
+    return *saturation_counter((imu_filter_t *)f);
 }
 
 void imu_filter_run(imu_filter_t *f, const int16_t *gyr, const int16_t *acc, const int16_t *mag, size_t n,
@@ -99,4 +118,9 @@ void imu_filter_run(imu_filter_t *f, const int16_t *gyr, const int16_t *acc, con
             }
         }
     }
+}
+
+const imu_eskf_t *imu_filter_eskf(const imu_filter_t *f)
+{
+    return f->id == IMU_FILTER_ESKF ? &f->u.eskf : 0;
 }

@@ -10,6 +10,7 @@
 
 #include "imu_common.h"
 #include "imu_eecf.h"
+#include "imu_eskf.h"
 #include "imu_kf1d.h"
 #include "imu_sensor.h"
 
@@ -17,6 +18,7 @@
 typedef enum {
     IMU_FILTER_EECF = 1,
     IMU_FILTER_KF1D = 2,
+    IMU_FILTER_ESKF = 3,
 } imu_filter_id_t;
 
 /** A filter of any kind. All members are private. */
@@ -26,6 +28,7 @@ typedef struct {
     union {
         imu_eecf_t eecf;
         imu_kf1d_t kf1d;
+        imu_eskf_t eskf;
     } u;
 } imu_filter_t;
 
@@ -46,6 +49,9 @@ void imu_filter_get(const imu_filter_t *f, imu_output_t *out);
 
 /** @brief Saturation events counted since the last (re)start. */
 uint32_t imu_filter_saturations(const imu_filter_t *f);
+
+/** @brief The ESKF state of a filter handle (for its covariance and accelerometer bias), NULL for another filter. */
+const imu_eskf_t *imu_filter_eskf(const imu_filter_t *f);
 
 /**
  * @brief Run n samples (int16 counts, n x 3 arrays row-major) and store each output.

@@ -10,7 +10,7 @@ from cffi import FFI
 
 ROOT = Path(__file__).resolve().parents[2]
 CORE_DIR = ROOT / "firmware" / "core"
-CORE_SOURCES = ["imu_math.c", "imu_sensor.c", "imu_eecf.c", "imu_kf1d.c", "imu_filter.c"]
+CORE_SOURCES = ["imu_math.c", "imu_sensor.c", "imu_cov.c", "imu_eecf.c", "imu_kf1d.c", "imu_eskf.c", "imu_filter.c"]
 
 _TYPEDEFS = {
     "fixed": """
@@ -25,13 +25,16 @@ _TYPEDEFS = {
 
 _DECLARATIONS = """
     typedef enum { IMU_OK = 0, IMU_ERR_RANGE = -1, IMU_ERR_UNKNOWN = -2 } imu_status_t;
+    typedef enum { IMU_FILTER_EECF = 1, IMU_FILTER_KF1D = 2, IMU_FILTER_ESKF = 3 } imu_filter_id_t;
     typedef struct { int16_t gyr[3]; int16_t acc[3]; int16_t mag[3]; } imu_raw_sample_t;
     typedef struct { imu_real_t gyro_scale; imu_real_t acc_scale; imu_real_t mag_scale; } imu_sensor_settings_t;
     typedef struct { imu_q30_t quat[4]; imu_angle_t euler[3]; imu_rate_t gyro_bias[3]; } imu_output_t;
     typedef struct { const char *name; size_t offset; int frac_bits; const char *unit; } imu_setting_desc_t;
     typedef struct { ...; } imu_eecf_settings_t;
     typedef struct { ...; } imu_kf1d_settings_t;
-    typedef struct { ...; } imu_filter_t;
+    typedef struct { ...; } imu_eskf_settings_t;
+    typedef struct { ...; } imu_eskf_t;
+    typedef struct { imu_filter_id_t id; ...; } imu_filter_t;
 
     extern const imu_sensor_settings_t imu_sensor_default_settings;
     extern const imu_eecf_settings_t imu_eecf_default_settings;
@@ -40,6 +43,9 @@ _DECLARATIONS = """
     extern const imu_kf1d_settings_t imu_kf1d_default_settings;
     extern const imu_setting_desc_t imu_kf1d_setting_descs[];
     extern const int imu_kf1d_setting_count;
+    extern const imu_eskf_settings_t imu_eskf_default_settings;
+    extern const imu_setting_desc_t imu_eskf_setting_descs[];
+    extern const int imu_eskf_setting_count;
 
     imu_status_t imu_filter_init(imu_filter_t *f, int id);
     imu_status_t imu_filter_set_settings(imu_filter_t *f, const void *settings);
@@ -49,6 +55,11 @@ _DECLARATIONS = """
     uint32_t imu_filter_saturations(const imu_filter_t *f);
     void imu_filter_run(imu_filter_t *f, const int16_t *gyr, const int16_t *acc, const int16_t *mag, size_t n,
                         imu_q30_t *quat, imu_angle_t *euler, imu_rate_t *gyro_bias);
+
+    int imu_eskf_state_count(const imu_eskf_t *f);
+    void imu_eskf_covariance(const imu_eskf_t *f, int i, int j, imu_real_t *mant, int32_t *exp);
+    void imu_eskf_get_acc_bias(const imu_eskf_t *f, imu_q16_t acc_bias_q24[3]);
+    const imu_eskf_t *imu_filter_eskf(const imu_filter_t *f);
 
     imu_angle_t imu_atan2(imu_real_t y, imu_real_t x);
     void imu_sincos(imu_angle_t angle, imu_q30_t *s, imu_q30_t *c);

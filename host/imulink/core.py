@@ -17,7 +17,7 @@ from .counts import DEFAULT_PROFILE, SensorProfile, si_to_counts
 ARITHMETICS = ("fixed", "float")
 
 #: filter name -> (id in imu_filter_id_t, C prefix of its settings symbols)
-FILTERS = {"eecf": (1, "imu_eecf"), "kf1d": (2, "imu_kf1d")}
+FILTERS = {"eecf": (1, "imu_eecf"), "kf1d": (2, "imu_kf1d"), "eskf": (3, "imu_eskf")}
 
 #: Q formats of the fixed-build outputs.
 QUAT_FRAC_BITS = 30
@@ -206,6 +206,39 @@ class Filter:
             raw, quat_f, euler_f, bias_f = None, quat, euler, bias
         return RunResult(self.filter_name, self.arithmetic, quat_f, euler_f, bias_f,
                          int(lib.imu_filter_saturations(self._handle)), dict(self.settings), raw)
+
+
+    def _eskf(self):
+        state = self.mod.lib.imu_filter_eskf(self._handle)
+        if state == self.mod.ffi.NULL:
+            raise ValueError(f"filter {self.filter_name!r} has no error-state covariance (only 'eskf' has)")
+        return state
+
+    def covariance(self) -> np.ndarray:
+        """ESKF error-state covariance (n x n, n = 9 or 6) in the state units: rad, rad/s, g.
+
+        Reconstructed from the block-floating storage: P_ij = mant * 2^(exp - 30) in
+        the fixed build, the double itself in the float build.
+        """
+        state = self._eskf()
+        ffi, lib = self.mod.ffi, self.mod.lib
+        n = lib.imu_eskf_state_count(state)
+        mant = ffi.new("int32_t *" if self.arithmetic == "fixed" else "double *")
+        exp = ffi.new("int32_t *")
+        out = np.empty((n, n))
+        for i in range(n):
+            for j in range(n):
+                lib.imu_eskf_covariance(state, i, j, mant, exp)
+                out[i, j] = mant[0] * 2.0 ** (exp[0] - 30) if self.arithmetic == "fixed" else mant[0]
+        return out
+
+    def acc_bias(self) -> np.ndarray:
+        """ESKF accelerometer bias estimate, m/s^2 (3,)."""
+        state = self._eskf()
+        out = self.mod.ffi.new("int32_t[3]" if self.arithmetic == "fixed" else "double[3]")
+        self.mod.lib.imu_eskf_get_acc_bias(state, out)
+        scale = 2.0**-24 if self.arithmetic == "fixed" else 1.0
+        return np.array([out[k] * scale for k in range(3)])
 
 
 def run_counts(filter_name: str, gyr_counts, acc_counts, mag_counts, rate_hz: float, arithmetic: str = "fixed",

@@ -3,12 +3,15 @@
 A :class:`Trajectory` holds sampled truth: attitude, body angular rate, earth-frame
 linear acceleration and a rest mask.  The truth attitude is, by construction, the
 exact integral of the sampled body rate: gyro sample ``k`` is the constant body rate
-over ``[t_k, t_k+1)`` and
+over ``(t_k-1, t_k]`` (the interval that ends at its time stamp, as a sensor's
+output data reports the motion since the previous sample) and
 
-    quat[k+1] = quat[k] ⊗ exp(gyr[k] * dt / 2)
+    quat[k] = quat[k-1] ⊗ exp(gyr[k] * dt / 2)
 
 (quaternion exponential of the rotation vector ``gyr[k] * dt``), so an estimator fed
-with error-free gyro samples can reproduce the truth to rounding error.
+with error-free gyro samples can reproduce the truth to rounding error, and one that
+integrates sample k and then corrects with the accelerometer and magnetometer of
+sample k estimates the attitude at t_k (the convention of the BROAD dataset).
 
 Conventions: quaternions w-first, sensor(body)-to-earth, earth frame ENU.
 All constructors are deterministic for a given ``seed`` (``numpy.random.default_rng``).
@@ -78,18 +81,19 @@ def integrate_gyro(q0, gyr, dt: float) -> np.ndarray:
 
     Args:
         q0: (4,) attitude at ``t_0`` (w-first, sensor-to-earth).
-        gyr: (N,3) body rates in rad/s; sample ``k`` holds over ``[t_k, t_k + dt)``.
+        gyr: (N,3) body rates in rad/s; sample ``k`` holds over ``(t_k - dt, t_k]``.
         dt: sample period in s.
 
     Returns:
         (N,4) attitudes at ``t_0 .. t_{N-1}``: ``q[0] = q0`` and
-        ``q[k+1] = q[k] ⊗ exp(gyr[k] dt / 2)`` (the last rate sample is not needed).
+        ``q[k] = q[k-1] ⊗ exp(gyr[k] dt / 2)`` (the first rate sample is the motion
+        before ``t_0`` and is not needed).
     """
     gyr = np.asarray(gyr, dtype=np.float64)
     n = gyr.shape[0]
     steps = np.empty((n, 4))
     steps[0] = Q.normalize(q0)
-    steps[1:] = Q.from_rotvec(gyr[:-1] * dt)
+    steps[1:] = Q.from_rotvec(gyr[1:] * dt)
     return Q.cumulative_product(steps)
 
 

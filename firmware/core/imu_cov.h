@@ -1,0 +1,76 @@
+/**
+ * @file imu_cov.h
+ * @brief Symmetric covariance matrix in block-floating form, for Kalman filters
+ *        whose variances span many decades (attitude vs bias).
+ *
+ * Fixed build: P_ij = p_ij * 2^(e_i + e_j - 30), with p stored as int32 (upper
+ * triangle only, so P is symmetric by construction) and one exponent e_i per
+ * state. After every operation the exponents are renormalised so that each
+ * diagonal mantissa p_ii lies in [2^28, 2^30): every variance keeps 28+ bits,
+ * whatever its magnitude, and a positive semi-definite P has every |p_ij| below
+ * 2^30. In these scaled coordinates the Kalman equations are the ordinary ones
+ * (a measurement row h becomes h_j 2^e_j), so each operation below is the textbook
+ * formula plus exponent bookkeeping. Float build: p_ij = P_ij, e_i = 0.
+ *
+ * Scaling and overflow: products are formed in int64; shifts by exponent
+ * differences saturate at +-2^62 and count in the caller's counter. A diagonal that
+ * rounding drives to zero or below is reset to its smallest normalised value and
+ * counted (loss of positive definiteness is never silent).
+ */
+#ifndef IMU_COV_H
+#define IMU_COV_H
+
+#include "imu_arith.h"
+
+/** Largest number of states. */
+#define IMU_COV_MAX 9
+/** Number of stored elements (upper triangle). */
+#define IMU_COV_CELLS (IMU_COV_MAX * (IMU_COV_MAX + 1) / 2)
+
+typedef struct {
+    int n;                          /**< number of states */
+    imu_real_t p[IMU_COV_CELLS];    /**< upper triangle, row by row; fixed: Q30 mantissas */
+    int32_t e[IMU_COV_MAX];         /**< per-state exponents; 0 in the float build */
+} imu_cov_t;
+
+/**
+ * @brief Diagonal covariance.
+ * @param var  n variances as wide values in Q`var_q` (fixed build), in the states' units.
+ */
+void imu_cov_init(imu_cov_t *c, int n, const imu_wide_t var[], int var_q, uint32_t *sat);
+
+/**
+ * @brief Time update P <- Phi P Phi^T + diag(qvar).
+ * @param phi  n x n transition matrix in real units, Q30 (|phi_ij| < 2), row stride IMU_COV_MAX.
+ * @param qvar n process-noise variances, wide values in Q`qvar_q` (fixed build).
+ */
+void imu_cov_predict(imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], const imu_wide_t qvar[], int qvar_q,
+                     uint32_t *sat);
+
+/**
+ * @brief Scalar measurement update, z = h x + v, var(v) = r / w.
+ *
+ * K = w P h / (w h P h + r); P <- P - K h P (symmetric form). The weight w in
+ * [0, 1] down-weights a doubtful measurement continuously (w = 0: no update),
+ * without forming r / w.
+ *
+ * @param h   n measurement coefficients, Q30, |h_j| < 2, in the states' units
+ * @param r   measurement variance, wide value in Q`r_q` (fixed build), > 0
+ * @param z   innovation (measured minus predicted), Q30
+ * @param w   weight, Q30, [0, 1]
+ * @param dx  output: n state corrections K z, Q30 in the states' units
+ * @return 1 when updated, 0 when skipped (w = 0)
+ */
+int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu_q30_t z, imu_q30_t w,
+                   imu_q30_t dx[], uint32_t *sat);
+
+/** @brief Zero row and column i and set P_ii = var (a wide value in Q`var_q`): the state is reset. */
+void imu_cov_reset_state(imu_cov_t *c, int i, imu_wide_t var, int var_q, uint32_t *sat);
+
+/**
+ * @brief Element (i, j) as mantissa and exponent: P_ij = mant * 2^(exp - 30) in the
+ *        fixed build; in the float build mant = P_ij and exp = 0.
+ */
+void imu_cov_get(const imu_cov_t *c, int i, int j, imu_real_t *mant, int32_t *exp);
+
+#endif /* IMU_COV_H */

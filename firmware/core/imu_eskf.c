@@ -1,0 +1,455 @@
+/**
+ * @file imu_eskf.c
+ * @brief 9-state error-state Kalman filter (see imu_eskf.h).
+ */
+#include "imu_eskf.h"
+
+#include "imu_math.h"
+
+enum { ATT = 0, GYRO_BIAS = 3, ACC_BIAS = 6 };
+
+const imu_eskf_settings_t imu_eskf_default_settings = {
+    IMU_QCONST(100.0, 16),    /* sample_rate, Hz */
+    IMU_QCONST(8.7e-4, 32),   /* gyro_arw, rad/sqrt(s) (seed 000 table 1: 3 deg/sqrt(h)) */
+    IMU_QCONST(4.2e-5, 40),   /* gyro_rrw, rad/s/sqrt(s) (seed 000 table 1: 520 deg/h^1.5) */
+    IMU_QCONST(1e-4, 32),     /* acc_bias_rw, m/s^2/sqrt(s) */
+    IMU_QCONST(0.05, 24),     /* acc_noise, m/s^2 */
+    IMU_QCONST(1.0, 16),      /* mag_noise, uT */
+    IMU_QCONST(0.1, 28),      /* init_attitude_std, rad */
+    IMU_QCONST(0.01, 30),     /* init_gyro_bias_std, rad/s */
+    IMU_QCONST(0.1, 24),      /* init_acc_bias_std, m/s^2 */
+    IMU_QCONST(1.0, 0),       /* estimate_acc_bias */
+    IMU_QCONST(9.80665, 24),  /* gravity, m/s^2 */
+    IMU_QCONST(0.05, 30),     /* acc_tolerance, fraction of g */
+    IMU_QCONST(0.05, 30),     /* mag_tolerance, fraction of the reference field */
+    IMU_QCONST(0.05, 30),     /* dip_tolerance, rad */
+};
+
+#define DESC(field, q, unit) {#field, offsetof(imu_eskf_settings_t, field), q, unit}
+const imu_setting_desc_t imu_eskf_setting_descs[] = {
+    DESC(sample_rate, 16, "Hz"),
+    DESC(gyro_arw, 32, "rad/s^0.5"),
+    DESC(gyro_rrw, 40, "rad/s^1.5"),
+    DESC(acc_bias_rw, 32, "m/s^2.5"),
+    DESC(acc_noise, 24, "m/s^2"),
+    DESC(mag_noise, 16, "uT"),
+    DESC(init_attitude_std, 28, "rad"),
+    DESC(init_gyro_bias_std, 30, "rad/s"),
+    DESC(init_acc_bias_std, 24, "m/s^2"),
+    DESC(estimate_acc_bias, 0, "1"),
+    DESC(gravity, 24, "m/s^2"),
+    DESC(acc_tolerance, 30, "1"),
+    DESC(mag_tolerance, 30, "1"),
+    DESC(dip_tolerance, 30, "rad"),
+};
+#undef DESC
+const int imu_eskf_setting_count = (int)(sizeof imu_eskf_setting_descs / sizeof imu_eskf_setting_descs[0]);
+
+/** Magnetic reference (norm and dip) tracking: 1 / time constant, 1/s, Q30: 30 s in normal
+ *  operation, 1 s while the dip is learnt (the first REF_LEARN_TIME seconds). */
+#define REF_RATE IMU_QCONST(0.033333333333333333, 30)
+#define LEARN_RATE IMU_QCONST(1.0, 30)
+#define REF_LEARN_TIME IMU_QCONST(10.0, 16)
+/** Below this horizontal share of the unit field (Q30) the heading is not observable. */
+#define MIN_HORIZONTAL_FIELD IMU_QCONST(0.05, 30)
+/** Three-sample coning coefficients of eq. 15, Q30. */
+#define CONING_13 IMU_QCONST(0.4125, 30) /* 33/80 */
+#define CONING_2 IMU_QCONST(0.7125, 30)  /* 57/80 */
+
+static int in_range(imu_real_t v, imu_real_t lo, imu_real_t hi)
+{
+    return v >= lo && v <= hi;
+}
+
+void imu_eskf_init(imu_eskf_t *f)
+{
+    (void)imu_eskf_set_settings(f, &imu_eskf_default_settings);
+}
+
+int imu_eskf_state_count(const imu_eskf_t *f)
+{
+    return f->settings.estimate_acc_bias != 0 ? 9 : 6;
+}
+
+imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
+{
+    imu_q30_t t;
+    int k;
+    if (!in_range(s->sample_rate, IMU_QCONST(30.0, 16), IMU_QCONST(32767.0, 16)) ||
+        !in_range(s->gyro_arw, 0, IMU_QCONST(0.49, 32)) || !in_range(s->gyro_rrw, 0, IMU_QCONST(1.9e-3, 40)) ||
+        !in_range(s->acc_bias_rw, 0, IMU_QCONST(0.49, 32)) ||
+        !in_range(s->acc_noise, IMU_QCONST(1e-3, 24), IMU_QCONST(100.0, 24)) ||
+        !in_range(s->mag_noise, IMU_QCONST(1e-3, 16), IMU_QCONST(1000.0, 16)) ||
+        !in_range(s->init_attitude_std, IMU_QCONST(1e-4, 28), IMU_QCONST(3.2, 28)) ||
+        !in_range(s->init_gyro_bias_std, IMU_QCONST(1e-5, 30), IMU_QCONST(1.0, 30)) ||
+        !in_range(s->init_acc_bias_std, IMU_QCONST(1e-4, 24), IMU_QCONST(10.0, 24)) ||
+        (s->estimate_acc_bias != 0 && s->estimate_acc_bias != IMU_QCONST(1.0, 0)) ||
+        !in_range(s->gravity, IMU_QCONST(9.0, 24), IMU_QCONST(10.5, 24)) ||
+        !in_range(s->acc_tolerance, IMU_QCONST(1e-3, 30), IMU_QCONST(1.0, 30)) ||
+        !in_range(s->mag_tolerance, IMU_QCONST(1e-3, 30), IMU_QCONST(1.0, 30)) ||
+        !in_range(s->dip_tolerance, IMU_QCONST(1e-3, 30), IMU_QCONST(1.5, 30))) {
+        return IMU_ERR_RANGE;
+    }
+    f->settings = *s;
+    f->saturations = 0;
+    f->dt = IMU_DIV_SAT(IMU_QCONST(1.0, 16), s->sample_rate, 30, &f->saturations); /* < 1/30 s */
+    f->period = IMU_ADD(IMU_ADD(f->dt, f->dt), f->dt);                              /* < 0.1 s */
+    /* 1/g: Q24 in, 2^24 * 2^30 / g -> Q30 (about 0.1). */
+    f->inv_gravity = IMU_DIV_SAT(IMU_QCONST(1.0, 24), s->gravity, 30, &f->saturations);
+    /* Per-step variances: (noise * T) * noise. arw Q32 * T Q30 >> 30 -> Q32, * arw Q32 -> Q64. */
+    t = IMU_MUL(s->gyro_arw, f->period, 30);
+    for (k = 0; k < 3; ++k) {
+        f->process_var[ATT + k] = IMU_WMUL(t, s->gyro_arw);
+    }
+    /* rrw Q40 * T Q30 >> 30 -> Q40, * rrw Q40 -> Q80. */
+    t = IMU_MUL(s->gyro_rrw, f->period, 30);
+    for (k = 0; k < 3; ++k) {
+        f->process_var[GYRO_BIAS + k] = IMU_WMUL(t, s->gyro_rrw);
+    }
+    /* In g units: rw Q32 / g (Q32 * Q30 >> 30 -> Q32), then as the angle: Q64. */
+    {
+        const imu_real_t rw_g = IMU_MUL(s->acc_bias_rw, f->inv_gravity, 30);
+        t = IMU_MUL(rw_g, f->period, 30);
+        for (k = 0; k < 3; ++k) {
+            f->process_var[ACC_BIAS + k] = IMU_WMUL(t, rw_g);
+        }
+    }
+    f->initialised = 0;
+    f->in_group = 0;
+    f->steps = 0;
+    /* learning time * filter rate: Q16 * Q16 >> 32; the rate is sample_rate / 3. */
+    f->learn_steps = IMU_MUL_TO_INT(REF_LEARN_TIME, s->sample_rate, 32) / 3;
+    for (k = 0; k < 3; ++k) {
+        f->gyro_bias[k] = 0;
+        f->acc_bias[k] = 0;
+        f->acc_sum[k] = 0;
+        f->mag_sum[k] = 0;
+    }
+    f->q[0] = f->q_out[0] = IMU_ONE_Q30;
+    for (k = 1; k < 4; ++k) {
+        f->q[k] = f->q_out[k] = 0;
+    }
+    f->ref_field = 0;
+    f->ref_dip = 0;
+    f->acc_weight = 0;
+    f->mag_weight = 0;
+    f->cov.n = 0;
+    return IMU_OK;
+}
+
+/** w = 1 / (1 + (dev / tol)^2)^2 in Q30; dev and tol in Q24, tol > 0; 0 beyond 16 tol. */
+static imu_q30_t deviation_weight(imu_real_t dev, imu_real_t tol, uint32_t *sat)
+{
+    imu_real_t d, d2;
+    imu_q30_t inv;
+    if (dev < 0) {
+        dev = IMU_NEG_SAT(dev, sat);
+    }
+    if (dev >= IMU_MUL(tol, IMU_QCONST(16.0, 24), 24)) { /* tol <= 1: 16 tol < 2^29 */
+        return 0;
+    }
+    d = IMU_DIV_SAT(dev, tol, 26, sat);                                   /* Q24 / Q24 -> Q26, < 16 */
+    d2 = IMU_MUL(d, d, 30);                                               /* Q22, < 256 */
+    inv = IMU_DIV_SAT(IMU_QCONST(1.0, 22), IMU_ADD(IMU_QCONST(1.0, 22), d2), 30, sat); /* Q30, <= 1 */
+    return IMU_MUL(inv, inv, 30);
+}
+
+/** Dip of a unit field in the earth frame (positive below the horizon), rad Q29, and its horizontal length. */
+static imu_angle_t field_dip(const imu_q30_t earth[3], imu_q30_t *horizontal)
+{
+    *horizontal = imu_hypot(earth[0], earth[1]);
+    return imu_atan2(-earth[2], *horizontal);
+}
+
+/** Initial attitude (tilt + tilt-compensated heading, seed 004 eq. 3-5, 14), covariance and field reference. */
+static void initialise(imu_eskf_t *f, const imu_sample_t *s)
+{
+    const imu_eskf_settings_t *st = &f->settings;
+    imu_angle_t euler[3] = {0, 0, 0};
+    imu_wide_t var[9];
+    imu_q30_t unit[3], earth[3], horizontal;
+    imu_real_t norm = 0;
+    imu_q30_t acc_std_g;
+    int k;
+    (void)imu_tilt_from_acc(s->acc, &euler[0], &euler[1]);
+    euler[2] = imu_heading_from_mag(s->mag, euler[0], euler[1]);
+    imu_euler_to_quat(euler, f->q);
+    for (k = 0; k < 4; ++k) {
+        f->q_out[k] = f->q[k];
+    }
+    if (imu_vec3_normalize(s->mag, unit, &norm)) {
+        imu_quat_rotate(f->q, unit, earth);
+        f->ref_field = norm;
+        f->ref_dip = field_dip(earth, &horizontal);
+    }
+    /* Variances: attitude Q28^2 = Q56; gyro bias Q30^2 = Q60; acc bias in g (Q24 * Q30 >> 24 -> Q30)^2 = Q60.
+     * All three are brought to Q60 for imu_cov_init. */
+    acc_std_g = IMU_MUL(st->init_acc_bias_std, f->inv_gravity, 24);
+    for (k = 0; k < 3; ++k) {
+        var[ATT + k] = IMU_WSHL(IMU_WMUL(st->init_attitude_std, st->init_attitude_std), 4); /* Q56 -> Q60, < 2^61 */
+        var[GYRO_BIAS + k] = IMU_WMUL(st->init_gyro_bias_std, st->init_gyro_bias_std);
+        var[ACC_BIAS + k] = IMU_WMUL(acc_std_g, acc_std_g);
+    }
+    imu_cov_init(&f->cov, imu_eskf_state_count(f), var, 60, &f->saturations);
+    f->initialised = 1;
+}
+
+/** Three-sample rotation vector of eq. 15 from the buffered increments (Q30 rad, each below 0.1). */
+static void rotation_vector(imu_q30_t t[3][3], imu_q30_t phi[3])
+{
+    imu_q30_t c13[3], diff[3], c2[3];
+    int k;
+    for (k = 0; k < 3; ++k) {
+        diff[k] = IMU_SUB(t[2][k], t[0][k]);
+    }
+    imu_vec3_cross(t[0], t[2], c13);
+    imu_vec3_cross(t[1], diff, c2);
+    for (k = 0; k < 3; ++k) {
+        phi[k] = IMU_ADD(IMU_ADD(IMU_ADD(t[0][k], t[1][k]), t[2][k]),
+                         IMU_ADD(IMU_MUL(CONING_13, c13[k], 30), IMU_MUL(CONING_2, c2[k], 30)));
+    }
+}
+
+/** Covariance time update over one filter period with rotation vector phi. */
+static void predict_covariance(imu_eskf_t *f, const imu_q30_t phi[3])
+{
+    imu_q30_t m[IMU_COV_MAX][IMU_COV_MAX];
+    const int n = imu_eskf_state_count(f);
+    int i, j;
+    for (i = 0; i < n; ++i) {
+        for (j = 0; j < n; ++j) {
+            m[i][j] = i == j ? IMU_ONE_Q30 : 0;
+        }
+    }
+    /* Phi_att,att = I - [phi x] (w T = phi); Phi_att,bias = -T I. */
+    m[0][1] = phi[2];
+    m[0][2] = -phi[1];
+    m[1][0] = -phi[2];
+    m[1][2] = phi[0];
+    m[2][0] = phi[1];
+    m[2][1] = -phi[0];
+    for (i = 0; i < 3; ++i) {
+        m[ATT + i][GYRO_BIAS + i] = -f->period;
+    }
+    /* The angle variances are Q64 and the bias variances Q80: bringing the angle
+     * ones to Q80 would overflow, so the whole vector is passed as Q64 with the bias
+     * terms shifted down by 16 (seed 000's rrw still keeps 2^28 of resolution). */
+    {
+        imu_wide_t qvar[9];
+        for (i = 0; i < 9; ++i) {
+            qvar[i] = f->process_var[i];
+        }
+        for (i = 0; i < 3; ++i) {
+            qvar[GYRO_BIAS + i] = IMU_WSHR(f->process_var[GYRO_BIAS + i], 16);
+        }
+        imu_cov_predict(&f->cov, m, qvar, 64, &f->saturations);
+    }
+}
+
+/** Sequential scalar update; the innovation is corrected for the corrections so far. */
+static void scalar_update(imu_eskf_t *f, const imu_q30_t h[9], imu_q30_t z, imu_wide_t r, int r_q, imu_q30_t w,
+                          imu_q30_t dx_total[9])
+{
+    imu_q30_t dx[9];
+    const int n = imu_eskf_state_count(f);
+    int i;
+    for (i = 0; i < n; ++i) {
+        z = IMU_SUB_SAT(z, IMU_MUL(h[i], dx_total[i], 30), &f->saturations);
+    }
+    if (imu_cov_update(&f->cov, h, r, r_q, z, w, dx, &f->saturations)) {
+        for (i = 0; i < n; ++i) {
+            dx_total[i] = IMU_ADD_SAT(dx_total[i], dx[i], &f->saturations);
+        }
+    }
+}
+
+/** Gravity measurement: a / g = v + [v x] dtheta + ba (three scalar updates). */
+static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q30_t up[3], imu_q30_t dx[9])
+{
+    const imu_eskf_settings_t *st = &f->settings;
+    imu_q30_t unit[3];
+    imu_real_t norm;
+    imu_q30_t h[9];
+    imu_q30_t noise_g;
+    int k, i;
+    if (!imu_vec3_normalize(acc, unit, &norm)) {
+        f->acc_weight = 0;
+        return;
+    }
+    /* |a| / g - 1: Q16 * Q30 >> 22 -> Q24. */
+    f->acc_weight = deviation_weight(IMU_SUB(IMU_MUL(norm, f->inv_gravity, 22), IMU_QCONST(1.0, 24)),
+                                     IMU_SHR(st->acc_tolerance, 6), &f->saturations);
+    noise_g = IMU_MUL(st->acc_noise, f->inv_gravity, 24); /* Q24 * Q30 >> 24 -> Q30 (g) */
+    for (k = 0; k < 3; ++k) {
+        /* Row k of [[v x], 0, I]. */
+        const imu_q30_t cross[3][3] = {{0, -up[2], up[1]}, {up[2], 0, -up[0]}, {-up[1], up[0], 0}};
+        /* z = a_k / g - v_k - ba_k: Q16 * Q30 >> 16 -> Q30 (g). */
+        const imu_q30_t z = IMU_SUB_SAT(IMU_SUB_SAT(IMU_MUL_SAT(acc[k], f->inv_gravity, 16, &f->saturations), up[k],
+                                                    &f->saturations),
+                                        f->acc_bias[k], &f->saturations);
+        for (i = 0; i < 9; ++i) {
+            h[i] = 0;
+        }
+        for (i = 0; i < 3; ++i) {
+            h[ATT + i] = cross[k][i];
+        }
+        h[ACC_BIAS + k] = IMU_ONE_Q30;
+        scalar_update(f, h, z, IMU_WMUL(noise_g, noise_g), 60, f->acc_weight, dx);
+    }
+}
+
+/** Heading measurement from the horizontal field; tracks the field reference while undisturbed. */
+static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_q30_t up[3], imu_q30_t dx[9])
+{
+    const imu_eskf_settings_t *st = &f->settings;
+    imu_q30_t unit[3], earth[3], horizontal;
+    imu_real_t norm;
+    imu_angle_t dip;
+    imu_q30_t h[9], z, sigma, w_norm;
+    int i;
+    f->mag_weight = 0;
+    if (!imu_vec3_normalize(mag, unit, &norm) || f->ref_field <= 0) {
+        return;
+    }
+    imu_quat_rotate(f->q, unit, earth);
+    dip = field_dip(earth, &horizontal);
+    if (horizontal < MIN_HORIZONTAL_FIELD) {
+        return;
+    }
+    /* Norm deviation |m| / ref - 1 (Q16 / Q16 -> Q24) and dip deviation (Q29 -> Q24). */
+    w_norm = deviation_weight(IMU_SUB(IMU_DIV_SAT(norm, f->ref_field, 24, &f->saturations), IMU_QCONST(1.0, 24)),
+                              IMU_SHR(st->mag_tolerance, 6), &f->saturations);
+    f->mag_weight = IMU_MUL(w_norm,
+                            deviation_weight(IMU_SHR(imu_angle_diff(dip, f->ref_dip), 5),
+                                             IMU_SHR(st->dip_tolerance, 6), &f->saturations),
+                            30);
+    if (f->steps < f->learn_steps) {
+        /* Learning: the first dip came from an unconverged attitude; follow the
+         * measured dip quickly (time constant 1 s) and let only the norm gate. */
+        const imu_q30_t rate = IMU_MUL(f->period, LEARN_RATE, 30);
+        f->ref_dip = imu_angle_add(f->ref_dip, IMU_MUL(rate, imu_angle_diff(dip, f->ref_dip), 30));
+        f->mag_weight = w_norm;
+    } else if (f->mag_weight >= IMU_QCONST(0.5, 30)) {
+        /* Undisturbed: follow slow changes of the reference (time constant 30 s). */
+        const imu_q30_t rate = IMU_MUL(f->period, REF_RATE, 30);
+        f->ref_field = IMU_ADD(f->ref_field, IMU_MUL(rate, IMU_SUB(norm, f->ref_field), 30));
+        f->ref_dip = imu_angle_add(f->ref_dip, IMU_MUL(rate, imu_angle_diff(dip, f->ref_dip), 30));
+    }
+    /* z = sin(heading error) = east share of the horizontal field; H = [v^T, 0, 0]. */
+    z = IMU_DIV_SAT(earth[0], horizontal, 30, &f->saturations);
+    for (i = 0; i < 9; ++i) {
+        h[i] = 0;
+    }
+    for (i = 0; i < 3; ++i) {
+        h[ATT + i] = up[i];
+    }
+    /* sigma = mag_noise / (horizontal field in uT), Q16 / Q16 -> Q30 (clamped: a tiny horizontal field means no heading). */
+    {
+        const imu_q16_t horizontal_ut = IMU_MUL(horizontal, norm, 30);
+        if (horizontal_ut <= 0) {
+            return;
+        }
+        sigma = IMU_DIV_SAT(st->mag_noise, horizontal_ut, 30, &f->saturations);
+    }
+    scalar_update(f, h, z, IMU_WMUL(sigma, sigma), 60, f->mag_weight, dx);
+}
+
+/** One filter step at the end of a group of three samples. */
+static void filter_step(imu_eskf_t *f)
+{
+    imu_q30_t phi[3], up[3], dx[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+    imu_q16_t acc[3], mag[3];
+    int k;
+    rotation_vector(f->increments, phi);
+    imu_quat_integrate(f->q, phi);
+    predict_covariance(f, phi);
+    for (k = 0; k < 3; ++k) {
+        acc[k] = f->acc_sum[k] / 3;
+        mag[k] = f->mag_sum[k] / 3;
+        f->acc_sum[k] = 0;
+        f->mag_sum[k] = 0;
+    }
+    imu_quat_matrix_row(f->q, 2, up);
+    gravity_update(f, acc, up, dx);
+    heading_update(f, mag, up, dx);
+    /* Inject and reset the error state. */
+    imu_quat_integrate(f->q, &dx[ATT]);
+    for (k = 0; k < 3; ++k) {
+        f->gyro_bias[k] = IMU_ADD_SAT(f->gyro_bias[k], dx[GYRO_BIAS + k], &f->saturations);
+        if (imu_eskf_state_count(f) == 9) {
+            f->acc_bias[k] = IMU_ADD_SAT(f->acc_bias[k], dx[ACC_BIAS + k], &f->saturations);
+        }
+    }
+    for (k = 0; k < 4; ++k) {
+        f->q_out[k] = f->q[k];
+    }
+    if (f->steps < f->learn_steps) {
+        ++f->steps;
+    }
+}
+
+/** v <- v - theta x v: a sensor-frame vector (Q16) seen from the frame turned by theta (Q30 rad, small). */
+static void rotate_back(imu_q16_t v[3], const imu_q30_t theta[3])
+{
+    const imu_q16_t c0 = IMU_SUB(IMU_MUL(theta[1], v[2], 30), IMU_MUL(theta[2], v[1], 30));
+    const imu_q16_t c1 = IMU_SUB(IMU_MUL(theta[2], v[0], 30), IMU_MUL(theta[0], v[2], 30));
+    const imu_q16_t c2 = IMU_SUB(IMU_MUL(theta[0], v[1], 30), IMU_MUL(theta[1], v[0], 30));
+    v[0] = IMU_SUB(v[0], c0);
+    v[1] = IMU_SUB(v[1], c1);
+    v[2] = IMU_SUB(v[2], c2);
+}
+
+void imu_eskf_update(imu_eskf_t *f, const imu_sample_t *s)
+{
+    int k;
+    if (!f->initialised) {
+        initialise(f, s);
+        return;
+    }
+    for (k = 0; k < 3; ++k) {
+        /* Bias-corrected rate (Q24 - Q30 >> 6) times dt (Q30) >> 24 -> rad Q30. */
+        const imu_rate_t w = IMU_SUB_SAT(s->gyr[k], IMU_SHR(f->gyro_bias[k], 6), &f->saturations);
+        f->increments[f->in_group][k] = IMU_MUL_SAT(w, f->dt, 24, &f->saturations);
+    }
+    /* The group's sums are kept in the frame of the latest sample: rotate them by
+     * this sample's increment (v <- v - theta x v) before adding the new values, so
+     * the measurement matches the attitude at the end of the group. */
+    rotate_back(f->acc_sum, f->increments[f->in_group]);
+    rotate_back(f->mag_sum, f->increments[f->in_group]);
+    for (k = 0; k < 3; ++k) {
+        /* Three sensor values (each below 2^27 in Q16) sum without overflow. */
+        f->acc_sum[k] = IMU_ADD(f->acc_sum[k], s->acc[k]);
+        f->mag_sum[k] = IMU_ADD(f->mag_sum[k], s->mag[k]);
+    }
+    imu_quat_integrate(f->q_out, f->increments[f->in_group]);
+    if (++f->in_group == 3) {
+        f->in_group = 0;
+        filter_step(f);
+    }
+}
+
+void imu_eskf_get(const imu_eskf_t *f, imu_output_t *out)
+{
+    int k;
+    for (k = 0; k < 4; ++k) {
+        out->quat[k] = f->q_out[k];
+    }
+    imu_quat_to_euler(f->q_out, out->euler);
+    for (k = 0; k < 3; ++k) {
+        out->gyro_bias[k] = IMU_SHR(f->gyro_bias[k], 6);
+    }
+}
+
+void imu_eskf_get_acc_bias(const imu_eskf_t *f, imu_q16_t acc_bias_q24[3])
+{
+    int k;
+    for (k = 0; k < 3; ++k) {
+        /* g units Q30 * g (Q24) >> 30 -> m/s^2 Q24. */
+        acc_bias_q24[k] = IMU_MUL(f->acc_bias[k], f->settings.gravity, 30);
+    }
+}
+
+void imu_eskf_covariance(const imu_eskf_t *f, int i, int j, imu_real_t *mant, int32_t *exp)
+{
+    imu_cov_get(&f->cov, i, j, mant, exp);
+}

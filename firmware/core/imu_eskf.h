@@ -1,0 +1,125 @@
+/**
+ * @file imu_eskf.h
+ * @brief 9-state error-state Kalman filter (seed 000), with its gaps fixed.
+ *
+ * Error state x = [dtheta (3), dbg (3), dba (3)]: attitude error angle in the
+ * sensor frame (rad; twice the seed's error-quaternion vector part, true =
+ * estimate (x) exp(dtheta)), gyro bias error (rad/s), accelerometer bias error (in
+ * units of g, so that every measurement coefficient is at most 1).
+ *
+ * Propagation (eq. 15-16): gyro samples are consumed three at a time; their
+ * bias-corrected increments form the three-sample rotation vector
+ * phi = t1 + t2 + t3 + 33/80 t1 x t3 + 57/80 t2 x (t3 - t1), and q <- q (x) exp(phi).
+ * The filter (covariance and measurements) therefore runs at a third of the
+ * sensor rate, whatever that rate is (a sensor rate that is not a multiple of
+ * three gives a non-integer filter rate, which is fine: T = 3 / sample_rate).
+ * Between filter steps the output is the attitude propagated by the increments
+ * received so far, so every sample has an up-to-date estimate; an incomplete
+ * group at the end of a stream is simply not yet fused.
+ *
+ * Covariance (eq. 17-18): Phi = I + F T, F = [[-[w x], -I, 0], [0, 0, 0], [0, 0, 0]]
+ * (with w T = phi), and Q = diag(arw^2, rrw^2, acc_bias_rw^2) T, the Allan-variance
+ * angle random walk and rate random walk directly; the seed's
+ * Gamma = (I + T F) G T adds only terms of order T^2 to this Q, dropped here.
+ * Stored in block-floating form (imu_cov.h).
+ *
+ * Measurements (eq. 8-9), as sequential scalar updates (no matrix inverse):
+ * - gravity: a / g = v + [v x] dtheta + ba, three components, where v is the
+ *   estimated up direction in the sensor frame. The accelerometer bias is
+ *   observable through rotations (it is not in the seed's H); it can be switched
+ *   off (`estimate_acc_bias` = 0: 6 states).
+ * - heading: the east share of the horizontal magnetic field in the estimated
+ *   earth frame, z = h_east / |h_horizontal| (the sine of the heading error), with
+ *   H = [v^T, 0, 0]: only rotation about the vertical. The seed's 2[m x] would let
+ *   the magnetometer tilt roll and pitch; here it never does.
+ * Robustness: a specific-force norm away from g (taps, translation, free fall) and
+ * a field whose norm or dip departs from the reference (a magnet nearby)
+ * down-weight their measurement smoothly: w = 1 / (1 + d^2)^2 with d the
+ * deviation over its tolerance; the effective variance is R / w. The reference
+ * norm is the first sample's; the reference dip is learnt during the first 10 s
+ * (the initial attitude may be off by degrees), then both follow slow changes
+ * (time constant 30 s) while the field is undisturbed.
+ *
+ * After each filter step the error is injected (q <- q (x) exp(dtheta), biases
+ * += their errors) and the error state restarts at zero.
+ */
+#ifndef IMU_ESKF_H
+#define IMU_ESKF_H
+
+#include "imu_common.h"
+#include "imu_cov.h"
+#include "imu_sensor.h"
+
+/** Settings. All fields are imu_real_t: Q format in the fixed build as written. */
+typedef struct {
+    imu_real_t sample_rate;        /**< sensor rate (filter rate x 3), Hz, Q16, [30, 32768) */
+    imu_real_t gyro_arw;           /**< gyro angle random walk, rad/sqrt(s), Q32, [0, 0.5) */
+    imu_real_t gyro_rrw;           /**< gyro rate random walk, rad/s/sqrt(s), Q40, [0, 1.9e-3) */
+    imu_real_t acc_bias_rw;        /**< accelerometer bias random walk, m/s^2/sqrt(s), Q32, [0, 0.5) */
+    imu_real_t acc_noise;          /**< specific-force noise per filter step, m/s^2, Q24, [1e-3, 100] */
+    imu_real_t mag_noise;          /**< horizontal magnetic field noise per filter step, uT, Q16, [1e-3, 1000] */
+    imu_real_t init_attitude_std;  /**< initial attitude uncertainty, rad, Q28, [1e-4, 3.2] */
+    imu_real_t init_gyro_bias_std; /**< initial gyro bias uncertainty, rad/s, Q30, [1e-5, 1] */
+    imu_real_t init_acc_bias_std;  /**< initial accelerometer bias uncertainty, m/s^2, Q24, [1e-4, 10] */
+    imu_real_t estimate_acc_bias;  /**< 1: 9 states; 0: no accelerometer bias states, Q0, {0, 1} */
+    imu_real_t gravity;            /**< local gravity, m/s^2, Q24, [9, 10.5] */
+    imu_real_t acc_tolerance;      /**< specific-force norm deviation scale, fraction of g, Q30, [1e-3, 1] */
+    imu_real_t mag_tolerance;      /**< field norm deviation scale, fraction of the reference, Q30, [1e-3, 1] */
+    imu_real_t dip_tolerance;      /**< field dip deviation scale, rad, Q30, [1e-3, 1.5] */
+} imu_eskf_settings_t;
+
+extern const imu_eskf_settings_t imu_eskf_default_settings;
+extern const imu_setting_desc_t imu_eskf_setting_descs[];
+extern const int imu_eskf_setting_count;
+
+/** State. All members are private. */
+typedef struct {
+    imu_eskf_settings_t settings;
+    imu_q30_t dt;                 /**< sensor period, s, Q30 */
+    imu_q30_t period;             /**< filter period T = 3 dt, s, Q30 */
+    imu_q30_t inv_gravity;        /**< 1 / gravity, 1/(m/s^2), Q30 */
+    imu_wide_t process_var[9];    /**< per-step process noise: Q64 (angle), Q80 (gyro bias), Q64 (acc bias, g^2) */
+    int initialised;              /**< 0 until the first sample set the attitude */
+    int in_group;                 /**< gyro increments buffered in the current group, 0..2 */
+    int32_t steps;                /**< filter steps so far (counts up to learn_steps) */
+    int32_t learn_steps;          /**< filter steps of the magnetic dip learning phase */
+    imu_q30_t increments[3][3];   /**< bias-corrected gyro increments of the group, rad, Q30 */
+    imu_q16_t acc_sum[3];         /**< sum of the group's specific force, m/s^2, Q16 */
+    imu_q16_t mag_sum[3];         /**< sum of the group's magnetic field, uT, Q16 */
+    imu_q30_t q[4];               /**< attitude at the last filter step, Q30 */
+    imu_q30_t q_out[4];           /**< attitude at the last sample, Q30 */
+    imu_q30_t gyro_bias[3];       /**< rad/s, Q30 */
+    imu_q30_t acc_bias[3];        /**< in units of g, Q30 */
+    imu_q16_t ref_field;          /**< reference field norm, uT, Q16 */
+    imu_angle_t ref_dip;          /**< reference dip (below the horizon positive), rad, Q29 */
+    imu_q30_t acc_weight;         /**< weight of the last gravity update, Q30 */
+    imu_q30_t mag_weight;         /**< weight of the last heading update, Q30 */
+    imu_cov_t cov;                /**< error-state covariance */
+    uint32_t saturations;         /**< saturation events since initialisation */
+} imu_eskf_t;
+
+/** @brief Initialise with the default settings. */
+void imu_eskf_init(imu_eskf_t *f);
+
+/** @brief Apply settings and restart; IMU_ERR_RANGE leaves the filter unchanged. */
+imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *settings);
+
+/** @brief Process one sensor sample. */
+void imu_eskf_update(imu_eskf_t *f, const imu_sample_t *sample);
+
+/** @brief Current estimate. */
+void imu_eskf_get(const imu_eskf_t *f, imu_output_t *out);
+
+/** @brief Accelerometer bias estimate, m/s^2, Q24. */
+void imu_eskf_get_acc_bias(const imu_eskf_t *f, imu_q16_t acc_bias_q24[3]);
+
+/** @brief Number of error states (9, or 6 without accelerometer bias). */
+int imu_eskf_state_count(const imu_eskf_t *f);
+
+/**
+ * @brief Covariance element (i, j) of the error state in the state units (rad,
+ *        rad/s, g): P_ij = mant * 2^(exp - 30) (fixed), mant with exp = 0 (float).
+ */
+void imu_eskf_covariance(const imu_eskf_t *f, int i, int j, imu_real_t *mant, int32_t *exp);
+
+#endif /* IMU_ESKF_H */
