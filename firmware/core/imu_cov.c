@@ -31,6 +31,16 @@ static void load_wide(const imu_cov_t *c, imu_wide_t w[IMU_COV_CELLS])
 
 #define WIDE_LIMIT ((int64_t)1 << 62)
 
+static int bit_length(uint64_t v)
+{
+    int n = 0;
+    while (v != 0) {
+        v >>= 1;
+        ++n;
+    }
+    return n;
+}
+
 /** v * 2^n: rounded for n < 0, saturated to +-2^62 for n > 0. */
 static imu_wide_t wide_ldexp(imu_wide_t v, int n, uint32_t *sat)
 {
@@ -47,25 +57,16 @@ static imu_wide_t wide_ldexp(imu_wide_t v, int n, uint32_t *sat)
     return v * ((int64_t)1 << n);
 }
 
-/** Wide value clamped to +-2^bits (keeps later int64 products in range). */
-static imu_wide_t wide_clamp(imu_wide_t v, int bits, uint32_t *sat)
+static imu_wide_t wide_abs(imu_wide_t v)
 {
-    const int64_t limit = (int64_t)1 << bits;
-    if (v > limit || v < -limit) {
-        ++*sat;
-        return v > 0 ? limit : -limit;
-    }
-    return v;
+    return v < 0 ? -v : v;
 }
 
-static int bit_length(uint64_t v)
+/** Right shift that brings a magnitude below 2^bits (0 when it already is). */
+static int headroom(imu_wide_t magnitude, int bits)
 {
-    int n = 0;
-    while (v != 0) {
-        v >>= 1;
-        ++n;
-    }
-    return n;
+    const int excess = bit_length((uint64_t)magnitude) - bits;
+    return excess > 0 ? excess : 0;
 }
 
 /**
@@ -190,11 +191,16 @@ static imu_wide_t wide_ldexp(imu_wide_t v, int n, uint32_t *sat)
     return v;
 }
 
-static imu_wide_t wide_clamp(imu_wide_t v, int bits, uint32_t *sat)
+static imu_wide_t wide_abs(imu_wide_t v)
 {
+    return v < 0 ? -v : v;
+}
+
+static int headroom(imu_wide_t magnitude, int bits)
+{
+    (void)magnitude;
     (void)bits;
-    (void)sat;
-    return v;
+    return 0;
 }
 
 static void renormalize(imu_cov_t *c, imu_wide_t w[IMU_COV_CELLS], uint32_t *sat)
@@ -286,37 +292,66 @@ void imu_cov_reset_state(imu_cov_t *c, int i, imu_wide_t var, int var_q, uint32_
     renormalize(c, w, sat);
 }
 
+/** Largest e_k - e_i over the k where row i of phi is non-zero (how far a term can grow). */
+static int row_growth(const imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], int i)
+{
+    int k, growth = 0;
+    for (k = 0; k < c->n; ++k) {
+        if (phi[i][k] != 0 && c->e[k] - c->e[i] > growth) {
+            growth = c->e[k] - c->e[i];
+        }
+    }
+    return growth;
+}
+
 void imu_cov_predict(imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], const imu_wide_t qvar[], int qvar_q,
                      uint32_t *sat)
 {
-    /* Scaled coordinates: phi~_ik = phi_ik 2^(e_k - e_i); P~' = phi~ P~ phi~^T. */
-    imu_wide_t m[IMU_COV_MAX][IMU_COV_MAX]; /* phi~ P~, Q30, clamped to +-2^32 */
+    /* Scaled coordinates: phi~_ik = phi_ik 2^(e_k - e_i); P~' = phi~ P~ phi~^T.
+     * Mixed states may have very different exponents (a large heading variance
+     * rotated into a small tilt one), so both products accumulate in a format
+     * lowered by the row's largest exponent difference (every term is then shifted
+     * right only), and each row of m = phi~ P~ is brought below 2^31 by row_shift,
+     * with the row's total scale kept in row_scale: no int64 product or sum
+     * overflows, and only a truly out-of-range result saturates. */
+    imu_wide_t m[IMU_COV_MAX][IMU_COV_MAX]; /* m_ij (Q30) = m[i][j] * 2^row_scale[i] */
+    int row_scale[IMU_COV_MAX];
     imu_wide_t w[IMU_COV_CELLS];
     const int n = c->n;
     int i, j, k;
     for (i = 0; i < n; ++i) {
+        const int growth = row_growth(c, phi, i);
+        imu_wide_t biggest = 0;
+        int row_shift;
         for (j = 0; j < n; ++j) {
             imu_wide_t sum = 0;
             for (k = 0; k < n; ++k) {
                 if (phi[i][k] != 0) {
-                    /* Q30 * Q30 -> Q60, scaled by 2^(e_k - e_i). */
-                    sum += wide_ldexp(IMU_WMUL(phi[i][k], c->p[cell(k, j)]), c->e[k] - c->e[i] - 2, sat);
+                    /* Q30 * Q30 -> Q60 (below 2^61), to Q56 - growth: 9 terms below 2^61. */
+                    sum += wide_ldexp(IMU_WMUL(phi[i][k], c->p[cell(k, j)]), c->e[k] - c->e[i] - growth - 4, sat);
                 }
             }
-            /* The sum of at most 9 terms below 2^60 each fits; Q58 -> Q30. */
-            m[i][j] = wide_clamp(wide_ldexp(sum, -28, sat), 32, sat);
+            m[i][j] = sum;
+            biggest = wide_abs(sum) > biggest ? wide_abs(sum) : biggest;
         }
+        row_shift = headroom(biggest, 31);
+        for (j = 0; j < n; ++j) {
+            m[i][j] = wide_ldexp(m[i][j], -row_shift, sat);
+        }
+        row_scale[i] = growth - 26 + row_shift; /* Q56 -> Q30 is 2^-26 */
     }
     for (i = 0; i < n; ++i) {
         for (j = i; j < n; ++j) {
+            const int growth = row_growth(c, phi, j);
             imu_wide_t sum = 0;
             for (k = 0; k < n; ++k) {
                 if (phi[j][k] != 0) {
-                    /* Q30 (|m| <= 2^32) * Q30 -> Q60 (< 2^63), scaled by 2^(e_k - e_j). */
-                    sum += wide_ldexp(IMU_WMUL(m[i][k], phi[j][k]), c->e[k] - c->e[j] - 2, sat);
+                    /* (|m| < 2^31) * Q30 -> below 2^62, to Q-4 - growth: 9 terms below 2^62. */
+                    sum += wide_ldexp(IMU_WMUL(m[i][k], phi[j][k]), c->e[k] - c->e[j] - growth - 4, sat);
                 }
             }
-            w[cell(i, j)] = wide_ldexp(sum, -28, sat);
+            /* sum * 2^(growth + 4 - 30) is in units of m; times 2^row_scale -> Q30. */
+            w[cell(i, j)] = wide_ldexp(sum, growth - 26 + row_scale[i], sat);
         }
         w[cell(i, i)] += variance_mantissa(c, i, qvar[i], qvar_q, sat); /* both below 2^62 */
     }

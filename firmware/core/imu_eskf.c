@@ -116,6 +116,7 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
     }
     f->initialised = 0;
     f->in_group = 0;
+    f->clipped = 0;
     f->steps = 0;
     /* learning time * filter rate: Q16 * Q16 >> 32; the rate is sample_rate / 3. */
     f->learn_steps = IMU_MUL_TO_INT(REF_LEARN_TIME, s->sample_rate, 32) / 3;
@@ -279,6 +280,9 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q30_
     /* |a| / g - 1: Q16 * Q30 >> 22 -> Q24. */
     f->acc_weight = deviation_weight(IMU_SUB(IMU_MUL(norm, f->inv_gravity, 22), IMU_QCONST(1.0, 24)),
                                      IMU_SHR(st->acc_tolerance, 6), &f->saturations);
+    if (f->acc_weight == 0) {
+        return; /* far from 1 g (taps, free fall): no gravity information */
+    }
     noise_g = IMU_MUL(st->acc_noise, f->inv_gravity, 24); /* Q24 * Q30 >> 24 -> Q30 (g) */
     for (k = 0; k < 3; ++k) {
         /* Row k of [[v x], 0, I]. */
@@ -335,6 +339,9 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_q30_
         f->ref_field = IMU_ADD(f->ref_field, IMU_MUL(rate, IMU_SUB(norm, f->ref_field), 30));
         f->ref_dip = imu_angle_add(f->ref_dip, IMU_MUL(rate, imu_angle_diff(dip, f->ref_dip), 30));
     }
+    if (f->mag_weight == 0) {
+        return;
+    }
     /* z = sin(heading error) = east share of the horizontal field; H = [v^T, 0, 0]. */
     z = IMU_DIV_SAT(earth[0], horizontal, 30, &f->saturations);
     for (i = 0; i < 9; ++i) {
@@ -354,6 +361,16 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_q30_
     scalar_update(f, h, z, IMU_WMUL(sigma, sigma), 60, f->mag_weight, dx);
 }
 
+/** Attitude error variance back to init_attitude_std^2, its correlations cleared. */
+static void restart_attitude_uncertainty(imu_eskf_t *f)
+{
+    const imu_wide_t var = IMU_WMUL(f->settings.init_attitude_std, f->settings.init_attitude_std); /* Q56 */
+    int k;
+    for (k = 0; k < 3; ++k) {
+        imu_cov_reset_state(&f->cov, ATT + k, var, 56, &f->saturations);
+    }
+}
+
 /** One filter step at the end of a group of three samples. */
 static void filter_step(imu_eskf_t *f)
 {
@@ -369,9 +386,23 @@ static void filter_step(imu_eskf_t *f)
         f->acc_sum[k] = 0;
         f->mag_sum[k] = 0;
     }
+    if ((f->clipped & IMU_CLIPPED_GYR) != 0) {
+        /* A clipped gyroscope lost an unknown part of the rotation: the attitude is
+         * as uncertain as at start-up, so the measurements may pull it back at once. */
+        restart_attitude_uncertainty(f);
+    }
     imu_quat_matrix_row(f->q, 2, up);
-    gravity_update(f, acc, up, dx);
-    heading_update(f, mag, up, dx);
+    if ((f->clipped & IMU_CLIPPED_ACC) == 0) {
+        gravity_update(f, acc, up, dx);
+    } else {
+        f->acc_weight = 0;
+    }
+    if ((f->clipped & IMU_CLIPPED_MAG) == 0) {
+        heading_update(f, mag, up, dx);
+    } else {
+        f->mag_weight = 0;
+    }
+    f->clipped = 0;
     /* Inject and reset the error state. */
     imu_quat_integrate(f->q, &dx[ATT]);
     for (k = 0; k < 3; ++k) {
@@ -421,6 +452,7 @@ void imu_eskf_update(imu_eskf_t *f, const imu_sample_t *s)
         f->acc_sum[k] = IMU_ADD(f->acc_sum[k], s->acc[k]);
         f->mag_sum[k] = IMU_ADD(f->mag_sum[k], s->mag[k]);
     }
+    f->clipped |= s->clipped;
     imu_quat_integrate(f->q_out, f->increments[f->in_group]);
     if (++f->in_group == 3) {
         f->in_group = 0;

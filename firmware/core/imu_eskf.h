@@ -40,6 +40,10 @@
  * (the initial attitude may be off by degrees), then both follow slow changes
  * (time constant 30 s) while the field is undisturbed.
  *
+ * A sensor at its register limit is not trusted: a clipped accelerometer or
+ * magnetometer skips its update for that step, a clipped gyroscope (an unknown
+ * part of the rotation lost) restores the initial attitude uncertainty.
+ *
  * After each filter step the error is injected (q <- q (x) exp(dtheta), biases
  * += their errors) and the error state restarts at zero.
  */
@@ -81,6 +85,7 @@ typedef struct {
     imu_wide_t process_var[9];    /**< per-step process noise: Q64 (angle), Q80 (gyro bias), Q64 (acc bias, g^2) */
     int initialised;              /**< 0 until the first sample set the attitude */
     int in_group;                 /**< gyro increments buffered in the current group, 0..2 */
+    unsigned clipped;             /**< IMU_CLIPPED_* bits seen in the current group */
     int32_t steps;                /**< filter steps so far (counts up to learn_steps) */
     int32_t learn_steps;          /**< filter steps of the magnetic dip learning phase */
     imu_q30_t increments[3][3];   /**< bias-corrected gyro increments of the group, rad, Q30 */

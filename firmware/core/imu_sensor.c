@@ -14,7 +14,17 @@ void imu_sample_from_raw(const imu_sensor_settings_t *settings, const imu_raw_sa
                          imu_sample_t *out, uint32_t *sat)
 {
     int i;
+    out->clipped = 0;
     for (i = 0; i < 3; ++i) {
+        if (raw->gyr[i] <= IMU_MPU6050_MIN || raw->gyr[i] >= IMU_MPU6050_MAX) {
+            out->clipped |= IMU_CLIPPED_GYR;
+        }
+        if (raw->acc[i] <= IMU_MPU6050_MIN || raw->acc[i] >= IMU_MPU6050_MAX) {
+            out->clipped |= IMU_CLIPPED_ACC;
+        }
+        if (raw->mag[i] <= IMU_HMC5883L_MIN || raw->mag[i] >= IMU_HMC5883L_MAX) {
+            out->clipped |= IMU_CLIPPED_MAG;
+        }
         out->gyr[i] = IMU_MUL_SAT(IMU_FROM_INT_SAT(raw->gyr[i], 0, sat), settings->gyro_scale, 16, sat);
         out->acc[i] = IMU_MUL_SAT(IMU_FROM_INT_SAT(raw->acc[i], 0, sat), settings->acc_scale, 16, sat);
         out->mag[i] = IMU_MUL_SAT(IMU_FROM_INT_SAT(raw->mag[i], 0, sat), settings->mag_scale, 8, sat);

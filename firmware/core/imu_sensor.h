@@ -19,12 +19,25 @@ typedef struct {
     int16_t mag[3]; /**< magnetometer counts */
 } imu_raw_sample_t;
 
+/** Bits of imu_sample_t.clipped: a count at its register's limit (the true value may be larger). */
+#define IMU_CLIPPED_GYR 1u
+#define IMU_CLIPPED_ACC 2u
+#define IMU_CLIPPED_MAG 4u
+
 /** One sample in the filters' units. */
 typedef struct {
     imu_rate_t gyr[3]; /**< angular rate, rad/s (Q24) */
     imu_q16_t acc[3];  /**< specific force, m/s^2 (Q16) */
     imu_q16_t mag[3];  /**< magnetic field, uT (Q16) */
+    unsigned clipped;  /**< IMU_CLIPPED_* bits */
 } imu_sample_t;
+
+/** Register limits: MPU6050 outputs span the int16 range; the HMC5883L's span
+ *  -2048..2047 and it reports -4096 on overflow. */
+#define IMU_MPU6050_MIN (-32768)
+#define IMU_MPU6050_MAX 32767
+#define IMU_HMC5883L_MIN (-2048)
+#define IMU_HMC5883L_MAX 2047
 
 /** Sensitivities of the three sensors. */
 typedef struct {
@@ -37,7 +50,7 @@ typedef struct {
 extern const imu_sensor_settings_t imu_sensor_default_settings;
 
 /**
- * @brief Scale raw counts to rad/s, m/s^2 and uT.
+ * @brief Scale raw counts to rad/s, m/s^2 and uT, and flag counts at their limits.
  *
  * Fixed build, scaling and overflow: |count| <= 2^15 and each scale below 2^31
  * give products below 2^46; after the shifts to Q24/Q16 the results are below
