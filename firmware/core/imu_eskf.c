@@ -23,6 +23,7 @@ const imu_eskf_settings_t imu_eskf_default_settings = {
     IMU_QCONST(0.05, 30),     /* acc_tolerance, fraction of g */
     IMU_QCONST(0.05, 30),     /* mag_tolerance, fraction of the reference field */
     IMU_QCONST(0.05, 30),     /* dip_tolerance, rad */
+    IMU_QCONST(3.0, 16),      /* acc_lowpass, s */
 };
 
 #define DESC(field, q, unit) {#field, offsetof(imu_eskf_settings_t, field), q, unit}
@@ -41,6 +42,7 @@ const imu_setting_desc_t imu_eskf_setting_descs[] = {
     DESC(acc_tolerance, 30, "1"),
     DESC(mag_tolerance, 30, "1"),
     DESC(dip_tolerance, 30, "rad"),
+    DESC(acc_lowpass, 16, "s"),
 };
 #undef DESC
 const int imu_eskf_setting_count = (int)(sizeof imu_eskf_setting_descs / sizeof imu_eskf_setting_descs[0]);
@@ -87,7 +89,8 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
         !in_range(s->gravity, IMU_QCONST(9.0, 24), IMU_QCONST(10.5, 24)) ||
         !in_range(s->acc_tolerance, IMU_QCONST(1e-3, 30), IMU_QCONST(1.0, 30)) ||
         !in_range(s->mag_tolerance, IMU_QCONST(1e-3, 30), IMU_QCONST(1.0, 30)) ||
-        !in_range(s->dip_tolerance, IMU_QCONST(1e-3, 30), IMU_QCONST(1.5, 30))) {
+        !in_range(s->dip_tolerance, IMU_QCONST(1e-3, 30), IMU_QCONST(1.5, 30)) ||
+        !in_range(s->acc_lowpass, 0, IMU_QCONST(60.0, 16))) {
         return IMU_ERR_RANGE;
     }
     f->settings = *s;
@@ -113,6 +116,15 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
         for (k = 0; k < 3; ++k) {
             f->process_var[ACC_BIAS + k] = IMU_WMUL(t, rw_g);
         }
+    }
+    /* Low-pass weight T / (tau + T) in [0, 1] (Q16 / Q16 -> Q30; T as Q16). */
+    {
+        const imu_q16_t period_q16 = IMU_SHR(f->period, 14);
+        f->acc_alpha = IMU_DIV_SAT(period_q16, IMU_ADD(s->acc_lowpass, period_q16), 30, &f->saturations);
+    }
+    f->acc_earth_valid = 0;
+    for (k = 0; k < 3; ++k) {
+        f->acc_earth[k] = 0;
     }
     f->initialised = 0;
     f->in_group = 0;
@@ -247,9 +259,24 @@ static void predict_covariance(imu_eskf_t *f, const imu_q30_t phi[3])
     }
 }
 
-/** Sequential scalar update; the innovation is corrected for the corrections so far. */
+/** x <- (u . x) u for a 3-vector x and a unit vector u (both Q30). */
+static void project_onto(imu_q30_t x[3], const imu_q30_t u[3])
+{
+    const imu_q30_t along = IMU_ADD(IMU_ADD(IMU_MUL(x[0], u[0], 30), IMU_MUL(x[1], u[1], 30)), IMU_MUL(x[2], u[2], 30));
+    int k;
+    for (k = 0; k < 3; ++k) {
+        x[k] = IMU_MUL(along, u[k], 30);
+    }
+}
+
+/**
+ * Sequential scalar update; the innovation is corrected for the corrections so
+ * far. With `vertical_only` (the heading update) the attitude and gyro-bias
+ * corrections keep only their component along `up`, so that cross-covariances
+ * cannot let the magnetometer tilt roll and pitch.
+ */
 static void scalar_update(imu_eskf_t *f, const imu_q30_t h[9], imu_q30_t z, imu_wide_t r, int r_q, imu_q30_t w,
-                          imu_q30_t dx_total[9])
+                          const imu_q30_t *vertical_only, imu_q30_t dx_total[9])
 {
     imu_q30_t dx[9];
     const int n = imu_eskf_state_count(f);
@@ -258,6 +285,13 @@ static void scalar_update(imu_eskf_t *f, const imu_q30_t h[9], imu_q30_t z, imu_
         z = IMU_SUB_SAT(z, IMU_MUL(h[i], dx_total[i], 30), &f->saturations);
     }
     if (imu_cov_update(&f->cov, h, r, r_q, z, w, dx, &f->saturations)) {
+        if (vertical_only != 0) {
+            project_onto(&dx[ATT], vertical_only);
+            project_onto(&dx[GYRO_BIAS], vertical_only);
+            for (i = ACC_BIAS; i < n; ++i) {
+                dx[i] = 0;
+            }
+        }
         for (i = 0; i < n; ++i) {
             dx_total[i] = IMU_ADD_SAT(dx_total[i], dx[i], &f->saturations);
         }
@@ -298,7 +332,7 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q30_
             h[ATT + i] = cross[k][i];
         }
         h[ACC_BIAS + k] = IMU_ONE_Q30;
-        scalar_update(f, h, z, IMU_WMUL(noise_g, noise_g), 60, f->acc_weight, dx);
+        scalar_update(f, h, z, IMU_WMUL(noise_g, noise_g), 60, f->acc_weight, 0, dx);
     }
 }
 
@@ -358,7 +392,50 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_q30_
         }
         sigma = IMU_DIV_SAT(st->mag_noise, horizontal_ut, 30, &f->saturations);
     }
-    scalar_update(f, h, z, IMU_WMUL(sigma, sigma), 60, f->mag_weight, dx);
+    scalar_update(f, h, z, IMU_WMUL(sigma, sigma), 60, f->mag_weight, up, dx);
+}
+
+/**
+ * Low-pass the specific force in the estimated earth frame, where rotations do
+ * not change gravity but a back-and-forth translation averages out (time
+ * constant acc_lowpass), and return it in the sensor frame: acc <- R^T lp(R acc).
+ */
+static void lowpass_specific_force(imu_eskf_t *f, imu_q16_t acc[3])
+{
+    imu_q30_t rows[3][3];
+    imu_q16_t earth[3];
+    int r, k;
+    for (r = 0; r < 3; ++r) {
+        imu_quat_matrix_row(f->q, r, rows[r]);
+        /* Q30 * Q16 >> 30 -> Q16; |R a| = |a|. */
+        earth[r] = IMU_ADD(IMU_ADD(IMU_MUL(rows[r][0], acc[0], 30), IMU_MUL(rows[r][1], acc[1], 30)),
+                           IMU_MUL(rows[r][2], acc[2], 30));
+    }
+    for (r = 0; r < 3; ++r) {
+        f->acc_earth[r] = f->acc_earth_valid
+                              ? IMU_ADD(f->acc_earth[r], IMU_MUL(f->acc_alpha, IMU_SUB(earth[r], f->acc_earth[r]), 30))
+                              : earth[r];
+    }
+    f->acc_earth_valid = 1;
+    for (k = 0; k < 3; ++k) {
+        acc[k] = IMU_ADD(IMU_ADD(IMU_MUL(rows[0][k], f->acc_earth[0], 30), IMU_MUL(rows[1][k], f->acc_earth[1], 30)),
+                         IMU_MUL(rows[2][k], f->acc_earth[2], 30));
+    }
+}
+
+/** v <- v + (R dtheta) x v: an earth-frame vector (Q16) after the estimate turned by dtheta (sensor frame, Q30). */
+static void turn_earth_vector(const imu_eskf_t *f, imu_q16_t v[3], const imu_q30_t dtheta[3])
+{
+    imu_q30_t u[3];
+    imu_q16_t c[3];
+    int k;
+    imu_quat_rotate(f->q, dtheta, u);
+    c[0] = IMU_SUB(IMU_MUL(u[1], v[2], 30), IMU_MUL(u[2], v[1], 30));
+    c[1] = IMU_SUB(IMU_MUL(u[2], v[0], 30), IMU_MUL(u[0], v[2], 30));
+    c[2] = IMU_SUB(IMU_MUL(u[0], v[1], 30), IMU_MUL(u[1], v[0], 30));
+    for (k = 0; k < 3; ++k) {
+        v[k] = IMU_ADD(v[k], c[k]);
+    }
 }
 
 /** Attitude error variance back to init_attitude_std^2, its correlations cleared. */
@@ -393,6 +470,7 @@ static void filter_step(imu_eskf_t *f)
     }
     imu_quat_matrix_row(f->q, 2, up);
     if ((f->clipped & IMU_CLIPPED_ACC) == 0) {
+        lowpass_specific_force(f, acc);
         gravity_update(f, acc, up, dx);
     } else {
         f->acc_weight = 0;
@@ -403,7 +481,9 @@ static void filter_step(imu_eskf_t *f)
         f->mag_weight = 0;
     }
     f->clipped = 0;
-    /* Inject and reset the error state. */
+    /* Inject and reset the error state; the low-passed specific force follows the
+     * estimated earth frame's correction (exp(R dtheta)). */
+    turn_earth_vector(f, f->acc_earth, &dx[ATT]);
     imu_quat_integrate(f->q, &dx[ATT]);
     for (k = 0; k < 3; ++k) {
         f->gyro_bias[k] = IMU_ADD_SAT(f->gyro_bias[k], dx[GYRO_BIAS + k], &f->saturations);
@@ -484,4 +564,10 @@ void imu_eskf_get_acc_bias(const imu_eskf_t *f, imu_q16_t acc_bias_q24[3])
 void imu_eskf_covariance(const imu_eskf_t *f, int i, int j, imu_real_t *mant, int32_t *exp)
 {
     imu_cov_get(&f->cov, i, j, mant, exp);
+}
+
+void imu_eskf_get_weights(const imu_eskf_t *f, imu_q30_t *gravity, imu_q30_t *heading)
+{
+    *gravity = f->acc_weight;
+    *heading = f->mag_weight;
 }

@@ -31,7 +31,14 @@
  * - heading: the east share of the horizontal magnetic field in the estimated
  *   earth frame, z = h_east / |h_horizontal| (the sine of the heading error), with
  *   H = [v^T, 0, 0]: only rotation about the vertical. The seed's 2[m x] would let
- *   the magnetometer tilt roll and pitch; here it never does.
+ *   the magnetometer tilt roll and pitch; here it never does: the attitude and
+ *   gyro-bias corrections of this update are also projected on the vertical, so
+ *   that cross-covariances cannot carry the heading innovation into the tilt
+ *   (the covariance is updated as for the unprojected gain, a slight
+ *   underestimate of the tilt uncertainty during long gravity outages).
+ * Gravity is measured from the specific force low-passed in the estimated earth
+ * frame (time constant acc_lowpass): rotations do not change gravity there, while
+ * the accelerations of a back-and-forth translation average out.
  * Robustness: a specific-force norm away from g (taps, translation, free fall) and
  * a field whose norm or dip departs from the reference (a magnet nearby)
  * down-weight their measurement smoothly: w = 1 / (1 + d^2)^2 with d the
@@ -70,6 +77,7 @@ typedef struct {
     imu_real_t acc_tolerance;      /**< specific-force norm deviation scale, fraction of g, Q30, [1e-3, 1] */
     imu_real_t mag_tolerance;      /**< field norm deviation scale, fraction of the reference, Q30, [1e-3, 1] */
     imu_real_t dip_tolerance;      /**< field dip deviation scale, rad, Q30, [1e-3, 1.5] */
+    imu_real_t acc_lowpass;        /**< time constant of the earth-frame specific-force low-pass, s, Q16, [0, 60] */
 } imu_eskf_settings_t;
 
 extern const imu_eskf_settings_t imu_eskf_default_settings;
@@ -97,6 +105,9 @@ typedef struct {
     imu_q30_t acc_bias[3];        /**< in units of g, Q30 */
     imu_q16_t ref_field;          /**< reference field norm, uT, Q16 */
     imu_angle_t ref_dip;          /**< reference dip (below the horizon positive), rad, Q29 */
+    imu_q30_t acc_alpha;          /**< low-pass weight T / (acc_lowpass + T), Q30 */
+    imu_q16_t acc_earth[3];       /**< low-passed specific force in the estimated earth frame, m/s^2, Q16 */
+    int acc_earth_valid;          /**< 0 until the low-pass has its first value */
     imu_q30_t acc_weight;         /**< weight of the last gravity update, Q30 */
     imu_q30_t mag_weight;         /**< weight of the last heading update, Q30 */
     imu_cov_t cov;                /**< error-state covariance */
@@ -117,6 +128,9 @@ void imu_eskf_get(const imu_eskf_t *f, imu_output_t *out);
 
 /** @brief Accelerometer bias estimate, m/s^2, Q24. */
 void imu_eskf_get_acc_bias(const imu_eskf_t *f, imu_q16_t acc_bias_q24[3]);
+
+/** @brief Weights (Q30, [0, 1]) of the last gravity and heading updates: 1 trusted, 0 rejected. */
+void imu_eskf_get_weights(const imu_eskf_t *f, imu_q30_t *gravity, imu_q30_t *heading);
 
 /** @brief Number of error states (9, or 6 without accelerometer bias). */
 int imu_eskf_state_count(const imu_eskf_t *f);

@@ -10,10 +10,10 @@ enum { ROLL = 0, PITCH = 1, HEADING = 2 };
 
 const imu_kf1d_settings_t imu_kf1d_default_settings = {
     IMU_QCONST(100.0, 16), /* sample_rate, Hz */
-    IMU_QCONST(1e-5, 40),  /* q_angle, rad^2/s */
-    IMU_QCONST(1e-8, 48),  /* q_bias, rad^2/s^3 */
-    IMU_QCONST(0.01, 35),  /* r_angle, rad^2 */
-    IMU_QCONST(0.01, 35),  /* r_heading, rad^2 */
+    IMU_QCONST(2e-4, 40),  /* q_angle, rad^2/s (tuned on BROAD under the fixed-vs-float bound) */
+    IMU_QCONST(3e-8, 48),  /* q_bias, rad^2/s^3 (tuned, docs/accuracy.md) */
+    IMU_QCONST(0.03, 35),  /* r_angle, rad^2 (tuned) */
+    IMU_QCONST(0.03, 35),  /* r_heading, rad^2 (tuned) */
 };
 
 #define DESC(field, q, unit) {#field, offsetof(imu_kf1d_settings_t, field), q, unit}

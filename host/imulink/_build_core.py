@@ -57,6 +57,7 @@ _DECLARATIONS = """
                         imu_q30_t *quat, imu_angle_t *euler, imu_rate_t *gyro_bias);
 
     int imu_eskf_state_count(const imu_eskf_t *f);
+    void imu_eskf_get_weights(const imu_eskf_t *f, imu_q30_t *gravity, imu_q30_t *heading);
     void imu_eskf_covariance(const imu_eskf_t *f, int i, int j, imu_real_t *mant, int32_t *exp);
     void imu_eskf_get_acc_bias(const imu_eskf_t *f, imu_q16_t acc_bias_q24[3]);
     const imu_eskf_t *imu_filter_eskf(const imu_filter_t *f);

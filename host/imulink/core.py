@@ -232,6 +232,15 @@ class Filter:
                 out[i, j] = mant[0] * 2.0 ** (exp[0] - 30) if self.arithmetic == "fixed" else mant[0]
         return out
 
+    def measurement_weights(self) -> tuple[float, float]:
+        """ESKF weights of the last gravity and heading updates, in [0, 1] (0: rejected)."""
+        state = self._eskf()
+        ctype = "int32_t *" if self.arithmetic == "fixed" else "double *"
+        gravity, heading = self.mod.ffi.new(ctype), self.mod.ffi.new(ctype)
+        self.mod.lib.imu_eskf_get_weights(state, gravity, heading)
+        scale = 2.0**-30 if self.arithmetic == "fixed" else 1.0
+        return gravity[0] * scale, heading[0] * scale
+
     def acc_bias(self) -> np.ndarray:
         """ESKF accelerometer bias estimate, m/s^2 (3,)."""
         state = self._eskf()
