@@ -12,8 +12,8 @@ const imu_eecf_settings_t imu_eecf_default_settings = {
     IMU_QCONST(0.01, 16),  /* kp_mag, 1/s (tuned on BROAD) */
     IMU_QCONST(0.0, 16),   /* ki, 1/s^2 (tuned on BROAD: bias from the still alignment only) */
     IMU_QCONST(0.1745, 24), /* bias_limit, rad/s (10 deg/s) */
-    IMU_QCONST(5.0, 16),   /* align_time, s (tuned on BROAD) */
-    IMU_QCONST(3.0, 16),   /* align_tau, s (tuned on BROAD) */
+    IMU_QCONST(2.0, 16),   /* align_time, s */
+    IMU_QCONST(1.0, 16),   /* align_tau, s (tuned on BROAD) */
 };
 
 #define DESC(field, q, unit) {#field, offsetof(imu_eecf_settings_t, field), q, unit}

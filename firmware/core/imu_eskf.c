@@ -8,21 +8,26 @@
 
 enum { ATT = 0, GYRO_BIAS = 3, ACC_BIAS = 6 };
 
+/* Defaults: seed 000's angle random walk; the rest chosen on the BROAD trials
+ * (one set for all, docs/accuracy.md): a rate random walk below seed 000's (its
+ * 520 deg/h^1.5 makes the bias wander faster than MEMS parts of the GY-86 class
+ * do), no accelerometer-bias states (without rotation they absorb translation
+ * accelerations, docs/filters.md). */
 const imu_eskf_settings_t imu_eskf_default_settings = {
     IMU_QCONST(100.0, 16),    /* sample_rate, Hz */
     IMU_QCONST(8.7e-4, 32),   /* gyro_arw, rad/sqrt(s) (seed 000 table 1: 3 deg/sqrt(h)) */
-    IMU_QCONST(4.2e-5, 40),   /* gyro_rrw, rad/s/sqrt(s) (seed 000 table 1: 520 deg/h^1.5) */
+    IMU_QCONST(1e-5, 40),     /* gyro_rrw, rad/s/sqrt(s) (124 deg/h^1.5) */
     IMU_QCONST(1e-4, 32),     /* acc_bias_rw, m/s^2/sqrt(s) */
-    IMU_QCONST(0.05, 24),     /* acc_noise, m/s^2 */
+    IMU_QCONST(0.3, 24),      /* acc_noise, m/s^2 */
     IMU_QCONST(1.0, 16),      /* mag_noise, uT */
     IMU_QCONST(0.1, 28),      /* init_attitude_std, rad */
     IMU_QCONST(0.01, 30),     /* init_gyro_bias_std, rad/s */
     IMU_QCONST(0.1, 24),      /* init_acc_bias_std, m/s^2 */
-    IMU_QCONST(1.0, 0),       /* estimate_acc_bias */
+    IMU_QCONST(0.0, 0),       /* estimate_acc_bias */
     IMU_QCONST(9.80665, 24),  /* gravity, m/s^2 */
-    IMU_QCONST(0.05, 30),     /* acc_tolerance, fraction of g */
+    IMU_QCONST(0.25, 30),     /* acc_tolerance, fraction of g */
     IMU_QCONST(0.05, 30),     /* mag_tolerance, fraction of the reference field */
-    IMU_QCONST(0.05, 30),     /* dip_tolerance, rad */
+    IMU_QCONST(0.02, 30),     /* dip_tolerance, rad */
     IMU_QCONST(3.0, 16),      /* acc_lowpass, s */
 };
 
@@ -446,6 +451,7 @@ static void restart_attitude_uncertainty(imu_eskf_t *f)
     for (k = 0; k < 3; ++k) {
         imu_cov_reset_state(&f->cov, ATT + k, var, 56, &f->saturations);
     }
+    f->acc_earth_valid = 0; /* its earth frame was the lost one */
 }
 
 /** One filter step at the end of a group of three samples. */

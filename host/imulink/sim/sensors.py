@@ -137,7 +137,8 @@ class MagModel:
     """Magnetometer errors and the local earth field.
 
     Attributes:
-        noise_std: white noise std per sample in uT (scalar or (3,)).
+        noise_std: white noise std per sample in uT (scalar or (3,)); default 0.2 uT,
+            the HMC5883L data sheet's noise floor (2 mG at gain 1090).
         hard_iron: constant offset in uT, (3,).
         soft_iron: (3,3) matrix (dimensionless) applied to the body-frame field.
         earth_field_uT: total intensity of the earth field in uT.
@@ -150,7 +151,7 @@ class MagModel:
     Measurement: ``soft_iron @ (R^T (B_earth + disturbance)) + hard_iron + noise``.
     """
 
-    noise_std: np.ndarray | float = 0.3
+    noise_std: np.ndarray | float = 0.2
     hard_iron: tuple | np.ndarray = (0.0, 0.0, 0.0)
     soft_iron: np.ndarray = field(default_factory=lambda: np.eye(3))
     earth_field_uT: float = 49.0
