@@ -118,7 +118,12 @@ def main(argv=None) -> int:
     bad = [f for f in filters if f not in core.FILTERS]
     if bad or not filters:
         p.error(f"unknown filters {bad}; choose from {', '.join(core.FILTERS)}")
-    settings = json.loads(args.settings) if args.settings else {}
+    try:
+        settings = json.loads(args.settings) if args.settings else {}
+    except json.JSONDecodeError as exc:
+        p.error(f"--settings is not valid JSON: {exc}")
+    if not isinstance(settings, dict) or not all(isinstance(v, dict) for v in settings.values()):
+        p.error('--settings must be an object of objects, e.g. {"kf1d": {"q_angle": 1e-4}}')
 
     if args.static is not None:
         return main_static(filters, args.static, settings, args.markdown)

@@ -300,7 +300,7 @@ def main(argv=None) -> int:
         results = evaluate(trials, args.filters, args.arithmetic, settings, log)
     except core.SettingsError as exc:
         print(f"error: {exc}", file=sys.stderr)
-        return EXIT_NO_DATA
+        return 2  # a usage error, like argparse's
     if args.json:
         out = {f"{k[0]}/{k[1]}": v for k, v in results.items()}
         print(json.dumps(out, indent=1))

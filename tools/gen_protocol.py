@@ -68,6 +68,8 @@ INT_TYPES = {
 #: Byte-string types: `char[N]` fixed and NUL padded; `text[MAX]`, `bytes[MAX]` variable (last field only).
 STRING_TYPES = ("char", "text", "bytes")
 VARIABLE_TYPES = ("text", "bytes")
+#: imu_proto_<name>_t types of the hand-written codec and of the generated id tables.
+RESERVED_C_NAMES = {"result", "frame", "decoder", "msg_id", "command_id"}
 _TYPE_RE = re.compile(r"^(u8|i8|u16|i16|u32|i32|char|text|bytes)(?:\[([1-9][0-9]*)\])?$")
 _NAME_RE = re.compile(r"^[a-z][a-z0-9_]*$")
 _UPPER_NAME_RE = re.compile(r"^[A-Z][A-Z0-9_]*$")
@@ -298,6 +300,10 @@ def load_schema(path: Path) -> Schema:
     _unique(commands, "name", "[[command]]")
     _unique(commands, "id", "[[command]]")
 
+    taken = {n.lower() for n in by_name} & (enum_names | RESERVED_C_NAMES)
+    if taken or any(n.lower().startswith("cmd_") for n in by_name):
+        raise SchemaError(f"[[message]]: names {sorted(taken) or 'CMD_*'} clash with C type names "
+                          f"imu_proto_<name>_t of code tables or of the codec")
     schema = Schema(version, tuple(enums), tuple(sorted(messages, key=lambda m: m.id)),
                     tuple(sorted(commands, key=lambda c: c.id)))
     _check_command_message(schema)
@@ -392,7 +398,7 @@ def _message_prototypes(m: Message) -> list[str]:
         f"/** @brief Payload bytes of {N} into `payload` (IMU_PROTO_{N}_SIZE bytes); returns {pack_ret}. */",
         f"size_t imu_proto_{n}_pack(const imu_proto_{n}_t *m, uint8_t *payload);",
         f"/** @brief Fields of a {N} payload; IMU_PROTO_ERR_LENGTH when `len` is not a {N} payload length. */",
-        f"imu_proto_status_t imu_proto_{n}_unpack(imu_proto_{n}_t *m, const uint8_t *payload, size_t len);",
+        f"imu_proto_result_t imu_proto_{n}_unpack(imu_proto_{n}_t *m, const uint8_t *payload, size_t len);",
         f"/** @brief Wire bytes of a {N} frame (delimiter included); 0 when they do not fit or pack fails. */",
         f"size_t imu_proto_{n}_encode(const imu_proto_{n}_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);",
         "",
@@ -409,7 +415,7 @@ def _command_prototypes(c: Command) -> list[str]:
         f"/** @brief Argument bytes of {N} into `args` (IMU_PROTO_CMD_{N}_SIZE bytes); returns that size. */",
         f"size_t imu_proto_cmd_{n}_pack(const {t} *a, uint8_t *args);",
         f"/** @brief Arguments of {N}; IMU_PROTO_ERR_LENGTH when `len` is not IMU_PROTO_CMD_{N}_SIZE. */",
-        f"imu_proto_status_t imu_proto_cmd_{n}_unpack({t} *a, const uint8_t *args, size_t len);",
+        f"imu_proto_result_t imu_proto_cmd_{n}_unpack({t} *a, const uint8_t *args, size_t len);",
         "",
     ]
 
@@ -428,7 +434,7 @@ def render_c_header(schema: Schema) -> str:
     ]
     lines += _c_enum("imu_proto_msg_id_t", "Message ids (frame byte 0).",
                      [(f"IMU_PROTO_MSG_{m.name}", m.id, m.doc.split(". ")[0].rstrip(".")) for m in schema.messages])
-    lines += _c_enum("imu_proto_command_t", "Command ids (COMMAND.command).",
+    lines += _c_enum("imu_proto_command_id_t", "Command ids (COMMAND.command).",
                      [(f"IMU_PROTO_CMD_{c.name}", c.id, c.doc.split(". ")[0].rstrip(".")) for c in schema.commands])
     for e in schema.enums:
         lines += _c_enum(f"imu_proto_{e.name}_t", e.doc,
@@ -526,7 +532,7 @@ def _c_pack_unpack(type_name: str, prefix: str, fields: tuple[Field, ...], size_
     pack += _pack_lines(fields, buf, obj)
     pack += [f"    return {fixed_size}u + {obj}->{variable.name}_len;" if variable else f"    return {size_macro};",
              "}", ""]
-    unpack = [f"imu_proto_status_t {prefix}_unpack({type_name} *{obj}, const uint8_t *{buf}, size_t len)", "{"]
+    unpack = [f"imu_proto_result_t {prefix}_unpack({type_name} *{obj}, const uint8_t *{buf}, size_t len)", "{"]
     unpack += loop
     if variable:
         unpack += [f"    if (len < {fixed_size}u || len > {size_macro}) {{"]
@@ -583,7 +589,7 @@ def render_c_source(schema: Schema) -> str:
                 f"    return imu_proto_{like}_pack(a, args);",
                 "}",
                 "",
-                f"imu_proto_status_t imu_proto_cmd_{n}_unpack({t} *a, const uint8_t *args, size_t len)",
+                f"imu_proto_result_t imu_proto_cmd_{n}_unpack({t} *a, const uint8_t *args, size_t len)",
                 "{",
                 f"    return imu_proto_{like}_unpack(a, args, len);",
                 "}",
@@ -606,7 +612,7 @@ def render_cffi(schema: Schema) -> str:
     lines.append("typedef enum { " + ", ".join(f"IMU_PROTO_MSG_{m.name} = {m.id}" for m in schema.messages)
                  + " } imu_proto_msg_id_t;")
     lines.append("typedef enum { " + ", ".join(f"IMU_PROTO_CMD_{c.name} = {c.id}" for c in schema.commands)
-                 + " } imu_proto_command_t;")
+                 + " } imu_proto_command_id_t;")
     for e in schema.enums:
         lines.append("typedef enum { " + ", ".join(f"IMU_PROTO_{e.name.upper()}_{v.name} = {v.value}"
                                                    for v in e.values) + f" }} imu_proto_{e.name}_t;")
@@ -633,8 +639,10 @@ def render_cffi(schema: Schema) -> str:
 # --------------------------------------------------------------------------- Python
 
 
-def _py_fields(fields: tuple[Field, ...]) -> str:
-    return "(" + "".join(f"({f.name!r}, {f.base!r}, {f.length!r}), " for f in fields) + ")"
+def _py_fields(fields: tuple[Field, ...], indent: str) -> str:
+    if not fields:
+        return "()"
+    return "(\n" + "".join(f"{indent}    ({f.name!r}, {f.base!r}, {f.length!r}),\n" for f in fields) + f"{indent})"
 
 
 def render_python(schema: Schema) -> str:
@@ -659,10 +667,10 @@ def render_python(schema: Schema) -> str:
     ]
     for m in schema.messages:
         out.append(f"    {m.name!r}: {{'id': 0x{m.id:02X}, 'direction': {m.direction!r}, 'fields': "
-                   f"{_py_fields(m.fields)}}},")
+                   f"{_py_fields(m.fields, '    ')}}},")
     out += ["}", "", "#: command name -> id and argument fields (COMMAND.args)", "COMMANDS = {"]
     for c in schema.commands:
-        out.append(f"    {c.name!r}: {{'id': {c.id}, 'args': {_py_fields(c.args)}}},")
+        out.append(f"    {c.name!r}: {{'id': {c.id}, 'args': {_py_fields(c.args, '    ')}}},")
     out += ["}", "", "#: code table name -> code name -> value", "ENUMS = {"]
     for e in schema.enums:
         out.append(f"    {e.name!r}: {{" + ", ".join(f"{v.name!r}: {v.value}" for v in e.values) + "},")

@@ -134,6 +134,7 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
     f->initialised = 0;
     f->in_group = 0;
     f->clipped = 0;
+    f->realign = 0;
     f->steps = 0;
     /* learning time * filter rate: Q16 * Q16 >> 32; the rate is sample_rate / 3. */
     f->learn_steps = IMU_MUL_TO_INT(REF_LEARN_TIME, s->sample_rate, 32) / 3;
@@ -179,22 +180,29 @@ static imu_angle_t field_dip(const imu_q30_t earth[3], imu_q30_t *horizontal)
     return imu_atan2(-earth[2], *horizontal);
 }
 
-/** Initial attitude (tilt + tilt-compensated heading, seed 004 eq. 3-5, 14), covariance and field reference. */
+/** Attitude from a specific force and a field alone: tilt + tilt-compensated heading (seed 004 eq. 3-5, 14). */
+static void align_to(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q16_t mag[3])
+{
+    imu_angle_t euler[3] = {0, 0, 0};
+    int k;
+    (void)imu_tilt_from_acc(acc, &euler[0], &euler[1]);
+    euler[2] = imu_heading_from_mag(mag, euler[0], euler[1]);
+    imu_euler_to_quat(euler, f->q);
+    for (k = 0; k < 4; ++k) {
+        f->q_out[k] = f->q[k];
+    }
+}
+
+/** Initial attitude (align_to), covariance and field reference. */
 static void initialise(imu_eskf_t *f, const imu_sample_t *s)
 {
     const imu_eskf_settings_t *st = &f->settings;
-    imu_angle_t euler[3] = {0, 0, 0};
     imu_wide_t var[9];
     imu_q30_t unit[3], earth[3], horizontal;
     imu_real_t norm = 0;
     imu_q30_t acc_std_g;
     int k;
-    (void)imu_tilt_from_acc(s->acc, &euler[0], &euler[1]);
-    euler[2] = imu_heading_from_mag(s->mag, euler[0], euler[1]);
-    imu_euler_to_quat(euler, f->q);
-    for (k = 0; k < 4; ++k) {
-        f->q_out[k] = f->q[k];
-    }
+    align_to(f, s->acc, s->mag);
     if (imu_vec3_normalize(s->mag, unit, &norm)) {
         imu_quat_rotate(f->q, unit, earth);
         f->ref_field = norm;
@@ -381,7 +389,8 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_q30_
     if (f->mag_weight == 0) {
         return;
     }
-    /* z = sin(heading error) = east share of the horizontal field; H = [v^T, 0, 0]. */
+    /* z = sin(heading error) = east share of the horizontal field; H = [v^T, 0, 0].
+     * (The sine, rather than the angle, also softens large innovations.) */
     z = IMU_DIV_SAT(earth[0], horizontal, 30, &f->saturations);
     for (i = 0; i < 9; ++i) {
         h[i] = 0;
@@ -443,6 +452,20 @@ static void turn_earth_vector(const imu_eskf_t *f, imu_q16_t v[3], const imu_q30
     }
 }
 
+/** 1 when the specific force's norm is within acc_tolerance of gravity (Q16 m/s^2 in). */
+static int near_gravity(const imu_eskf_t *f, const imu_q16_t acc[3])
+{
+    imu_q30_t unit[3];
+    imu_real_t norm;
+    imu_real_t deviation;
+    if (!imu_vec3_normalize(acc, unit, &norm)) {
+        return 0;
+    }
+    /* |a| / g - 1: Q16 * Q30 >> 22 -> Q24 (up to 128 g). */
+    deviation = IMU_SUB(IMU_MUL(norm, f->inv_gravity, 22), IMU_QCONST(1.0, 24));
+    return deviation < IMU_SHR(f->settings.acc_tolerance, 6) && deviation > -IMU_SHR(f->settings.acc_tolerance, 6);
+}
+
 /** Attitude error variance back to init_attitude_std^2, its correlations cleared. */
 static void restart_attitude_uncertainty(imu_eskf_t *f)
 {
@@ -470,9 +493,14 @@ static void filter_step(imu_eskf_t *f)
         f->mag_sum[k] = 0;
     }
     if ((f->clipped & IMU_CLIPPED_GYR) != 0) {
-        /* A clipped gyroscope lost an unknown part of the rotation: the attitude is
-         * as uncertain as at start-up, so the measurements may pull it back at once. */
+        /* A clipped gyroscope lost an unknown part of the rotation (any angle): the
+         * attitude restarts from gravity and the field at the first calm step. */
+        f->realign = 1;
+    }
+    if (f->realign && (f->clipped & (IMU_CLIPPED_GYR | IMU_CLIPPED_ACC)) == 0 && near_gravity(f, acc)) {
+        align_to(f, acc, mag);
         restart_attitude_uncertainty(f);
+        f->realign = 0;
     }
     imu_quat_matrix_row(f->q, 2, up);
     if ((f->clipped & IMU_CLIPPED_ACC) == 0) {

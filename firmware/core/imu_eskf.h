@@ -48,8 +48,10 @@
  * (time constant 30 s) while the field is undisturbed.
  *
  * A sensor at its register limit is not trusted: a clipped accelerometer or
- * magnetometer skips its update for that step, a clipped gyroscope (an unknown
- * part of the rotation lost) restores the initial attitude uncertainty.
+ * magnetometer skips its update for that step; after a clipped gyroscope (an
+ * unknown part of the rotation lost, possibly half a turn) the attitude is
+ * re-aligned from gravity and the field at the first step whose specific force is
+ * within acc_tolerance of g, with the initial attitude uncertainty.
  *
  * After each filter step the error is injected (q <- q (x) exp(dtheta), biases
  * += their errors) and the error state restarts at zero.
@@ -94,6 +96,7 @@ typedef struct {
     int initialised;              /**< 0 until the first sample set the attitude */
     int in_group;                 /**< gyro increments buffered in the current group, 0..2 */
     unsigned clipped;             /**< IMU_CLIPPED_* bits seen in the current group */
+    int realign;                  /**< 1 after a clipped gyroscope, until the next calm step re-aligns */
     int32_t steps;                /**< filter steps so far (counts up to learn_steps) */
     int32_t learn_steps;          /**< filter steps of the magnetic dip learning phase */
     imu_q30_t increments[3][3];   /**< bias-corrected gyro increments of the group, rad, Q30 */

@@ -4,13 +4,15 @@
 `imulink._core_float` is the float twin (IMU_FLOAT, double). Both expose the same
 declarations; only the arithmetic-layer typedefs differ.
 """
+import runpy
 from pathlib import Path
 
 from cffi import FFI
 
 ROOT = Path(__file__).resolve().parents[2]
 CORE_DIR = ROOT / "firmware" / "core"
-CORE_SOURCES = ["imu_math.c", "imu_sensor.c", "imu_cov.c", "imu_eecf.c", "imu_kf1d.c", "imu_eskf.c", "imu_filter.c"]
+CORE_SOURCES = ["imu_math.c", "imu_sensor.c", "imu_cov.c", "imu_eecf.c", "imu_kf1d.c", "imu_eskf.c", "imu_filter.c",
+                "imu_proto.c"]
 
 _TYPEDEFS = {
     "fixed": """
@@ -67,7 +69,28 @@ _DECLARATIONS = """
     void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3]);
     void imu_quat_to_euler(const imu_q30_t q[4], imu_angle_t euler[3]);
     void imu_euler_to_quat(const imu_angle_t euler[3], imu_q30_t q[4]);
+
+    typedef enum { IMU_PROTO_OK = 0, IMU_PROTO_ERR_LENGTH = -1, IMU_PROTO_ERR_COBS = -2,
+                   IMU_PROTO_ERR_SPACE = -3 } imu_proto_result_t;
+    #define IMU_PROTO_HEADER_SIZE ...
+    #define IMU_PROTO_CRC_SIZE ...
+    #define IMU_PROTO_MIN_FRAME ...
+    #define IMU_PROTO_MAX_FRAME ...
+    #define IMU_PROTO_MAX_WIRE ...
+    typedef struct { uint8_t msg_id; uint16_t seq; const uint8_t *payload; size_t payload_len; } imu_proto_frame_t;
+    typedef struct { uint32_t bytes; uint32_t frames; uint32_t crc_errors; uint32_t resyncs; uint32_t oversize;
+                     ...; } imu_proto_decoder_t;
+    uint32_t imu_proto_crc32(uint32_t crc, const uint8_t *data, size_t len);
+    size_t imu_proto_cobs_encode(const uint8_t *in, size_t len, uint8_t *out, size_t out_cap);
+    imu_proto_result_t imu_proto_cobs_decode(const uint8_t *in, size_t len, uint8_t *out, size_t out_cap,
+                                             size_t *out_len);
+    size_t imu_proto_frame_encode(uint8_t msg_id, uint16_t seq, const uint8_t *payload, size_t payload_len,
+                                  uint8_t *wire, size_t wire_cap);
+    void imu_proto_decoder_init(imu_proto_decoder_t *d, uint8_t *buf, size_t cap);
+    int imu_proto_decoder_push(imu_proto_decoder_t *d, uint8_t byte, imu_proto_frame_t *frame);
 """
+# The message structs and functions of imu_proto.h, generated from shared/protocol.toml.
+_DECLARATIONS += runpy.run_path(str(Path(__file__).with_name("_protocol_schema.py")))["CFFI_DECLARATIONS"]
 
 
 def _make(arithmetic: str) -> FFI:
@@ -76,7 +99,7 @@ def _make(arithmetic: str) -> FFI:
     rel = Path(__file__).resolve().parents[2]
     ffi.set_source(
         f"imulink._core_{arithmetic}",
-        '#include "imu_filter.h"\n#include "imu_math.h"\n',
+        '#include "imu_filter.h"\n#include "imu_math.h"\n#include "imu_proto.h"\n',
         sources=[str((CORE_DIR / s).relative_to(rel)) for s in CORE_SOURCES],
         include_dirs=[str(CORE_DIR.relative_to(rel))],
         define_macros=[("IMU_FIXED" if arithmetic == "fixed" else "IMU_FLOAT", "1")],

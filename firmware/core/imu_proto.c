@@ -1,0 +1,741 @@
+/**
+ * @file imu_proto.c
+ * @brief Frame protocol codec: CRC-32, COBS, frame builder, incremental decoder
+ *        (written by hand) and the message pack/unpack functions (generated from
+ *        shared/protocol.toml by tools/gen_protocol.py, at the end of this file).
+ */
+#include "imu_proto.h"
+
+/* --------------------------------------------------------------------------- little endian */
+
+static void put_u16(uint8_t *p, uint16_t v)
+{
+    p[0] = (uint8_t)(v & 0xFFu);
+    p[1] = (uint8_t)(v >> 8);
+}
+
+static void put_u32(uint8_t *p, uint32_t v)
+{
+    p[0] = (uint8_t)(v & 0xFFu);
+    p[1] = (uint8_t)((v >> 8) & 0xFFu);
+    p[2] = (uint8_t)((v >> 16) & 0xFFu);
+    p[3] = (uint8_t)(v >> 24);
+}
+
+static uint16_t get_u16(const uint8_t *p)
+{
+    return (uint16_t)((uint16_t)p[0] | (uint16_t)((uint16_t)p[1] << 8));
+}
+
+static uint32_t get_u32(const uint8_t *p)
+{
+    return (uint32_t)p[0] | ((uint32_t)p[1] << 8) | ((uint32_t)p[2] << 16) | ((uint32_t)p[3] << 24);
+}
+
+/* --------------------------------------------------------------------------- CRC-32 */
+
+/* CRC of the 16 nibble values for the reflected polynomial 0xEDB88320. */
+static const uint32_t crc32_nibble[16] = {
+    0x00000000u, 0x1DB71064u, 0x3B6E20C8u, 0x26D930ACu, 0x76DC4190u, 0x6B6B51F4u, 0x4DB26158u, 0x5005713Cu,
+    0xEDB88320u, 0xF00F9344u, 0xD6D6A3E8u, 0xCB61B38Cu, 0x9B64C2B0u, 0x86D3D2D4u, 0xA00AE278u, 0xBDBDF21Cu,
+};
+
+uint32_t imu_proto_crc32(uint32_t crc, const uint8_t *data, size_t len)
+{
+    size_t i;
+    crc = ~crc;
+    for (i = 0; i < len; ++i) {
+        crc ^= data[i];
+        crc = (crc >> 4) ^ crc32_nibble[crc & 0x0Fu];
+        crc = (crc >> 4) ^ crc32_nibble[crc & 0x0Fu];
+    }
+    return ~crc;
+}
+
+/* --------------------------------------------------------------------------- COBS encoding */
+
+/* Streaming COBS encoder into a bounded buffer. A block holds up to 254 data
+ * bytes after its code byte (code = data bytes + 1); a block that ends because of
+ * a 0x00 in the input has code < 0xFF, a full block has code 0xFF and no zero. */
+typedef struct {
+    uint8_t *out;
+    size_t cap;
+    size_t pos;      /* where the next data byte goes */
+    size_t code_pos; /* where the open block's code byte goes */
+    uint8_t code;    /* 1 + data bytes in the open block */
+    int overflow;    /* a byte did not fit in cap */
+} cobs_writer_t;
+
+static void cobs_write(cobs_writer_t *w, size_t at, uint8_t byte)
+{
+    if (at < w->cap) {
+        w->out[at] = byte;
+    } else {
+        w->overflow = 1;
+    }
+}
+
+static void cobs_start(cobs_writer_t *w, uint8_t *out, size_t cap)
+{
+    w->out = out;
+    w->cap = cap;
+    w->code_pos = 0;
+    w->pos = 1;
+    w->code = 1;
+    w->overflow = 0;
+}
+
+static void cobs_close_block(cobs_writer_t *w)
+{
+    cobs_write(w, w->code_pos, w->code);
+    w->code_pos = w->pos++;
+    w->code = 1;
+}
+
+static void cobs_put(cobs_writer_t *w, uint8_t byte)
+{
+    if (w->code == 0xFFu) {
+        /* the previous byte filled a block: open the next only now that more data follows */
+        cobs_close_block(w);
+    }
+    if (byte == 0) {
+        cobs_close_block(w);
+        return;
+    }
+    cobs_write(w, w->pos++, byte);
+    ++w->code;
+}
+
+static void cobs_put_all(cobs_writer_t *w, const uint8_t *data, size_t len)
+{
+    size_t i;
+    for (i = 0; i < len; ++i) {
+        cobs_put(w, data[i]);
+    }
+}
+
+/* Closes the last block; the encoded length, or 0 when it did not fit. */
+static size_t cobs_finish(cobs_writer_t *w)
+{
+    cobs_write(w, w->code_pos, w->code);
+    return w->overflow ? 0 : w->pos;
+}
+
+size_t imu_proto_cobs_encode(const uint8_t *in, size_t len, uint8_t *out, size_t out_cap)
+{
+    cobs_writer_t w;
+    cobs_start(&w, out, out_cap);
+    cobs_put_all(&w, in, len);
+    return cobs_finish(&w);
+}
+
+size_t imu_proto_frame_encode(uint8_t msg_id, uint16_t seq, const uint8_t *payload, size_t payload_len,
+                              uint8_t *wire, size_t wire_cap)
+{
+    uint8_t header[IMU_PROTO_HEADER_SIZE];
+    uint8_t crc[IMU_PROTO_CRC_SIZE];
+    cobs_writer_t w;
+    size_t n;
+    if (wire_cap == 0) {
+        return 0;
+    }
+    header[0] = msg_id;
+    put_u16(header + 1, seq);
+    put_u32(crc, imu_proto_crc32(imu_proto_crc32(0, header, sizeof header), payload, payload_len));
+    cobs_start(&w, wire, wire_cap - 1); /* the last byte is kept for the delimiter */
+    cobs_put_all(&w, header, sizeof header);
+    cobs_put_all(&w, payload, payload_len);
+    cobs_put_all(&w, crc, sizeof crc);
+    n = cobs_finish(&w);
+    if (n == 0) {
+        return 0;
+    }
+    wire[n] = 0;
+    return n + 1;
+}
+
+/* --------------------------------------------------------------------------- COBS decoding */
+
+static void span_restart(imu_proto_decoder_t *d)
+{
+    d->len = 0;
+    d->span = 0;
+    d->remaining = 0;
+    d->zero_pending = 0;
+    d->overflow = 0;
+}
+
+static void emit(imu_proto_decoder_t *d, uint8_t byte)
+{
+    if (d->len < d->cap) {
+        d->buf[d->len++] = byte;
+    } else {
+        d->overflow = 1;
+    }
+}
+
+/* One non-zero wire byte of the current span: a code byte when the previous block
+ * is complete, a data byte otherwise. The zero that ends a block is written only
+ * when the next block starts, so the implicit zero at the end of a frame never is. */
+static void cobs_step(imu_proto_decoder_t *d, uint8_t byte)
+{
+    ++d->span;
+    if (d->remaining == 0) {
+        if (d->zero_pending) {
+            emit(d, 0);
+        }
+        d->remaining = (uint8_t)(byte - 1u);
+        d->zero_pending = byte != 0xFFu;
+    } else {
+        emit(d, byte);
+        --d->remaining;
+    }
+}
+
+imu_proto_result_t imu_proto_cobs_decode(const uint8_t *in, size_t len, uint8_t *out, size_t out_cap,
+                                         size_t *out_len)
+{
+    imu_proto_decoder_t d;
+    size_t i;
+    imu_proto_decoder_init(&d, out, out_cap);
+    if (len == 0) {
+        return IMU_PROTO_ERR_COBS;
+    }
+    for (i = 0; i < len; ++i) {
+        if (in[i] == 0) {
+            return IMU_PROTO_ERR_COBS;
+        }
+        cobs_step(&d, in[i]);
+    }
+    if (d.remaining != 0) {
+        return IMU_PROTO_ERR_COBS;
+    }
+    if (d.overflow) {
+        return IMU_PROTO_ERR_SPACE;
+    }
+    *out_len = d.len;
+    return IMU_PROTO_OK;
+}
+
+/* --------------------------------------------------------------------------- frame decoder */
+
+void imu_proto_decoder_init(imu_proto_decoder_t *d, uint8_t *buf, size_t cap)
+{
+    d->buf = buf;
+    d->cap = cap;
+    d->bytes = 0;
+    d->frames = 0;
+    d->crc_errors = 0;
+    d->resyncs = 0;
+    d->oversize = 0;
+    span_restart(d);
+}
+
+int imu_proto_decoder_push(imu_proto_decoder_t *d, uint8_t byte, imu_proto_frame_t *frame)
+{
+    int complete = 0;
+    ++d->bytes;
+    if (byte != 0) {
+        cobs_step(d, byte);
+        return 0;
+    }
+    if (d->span == 0) {
+        return 0; /* two delimiters in a row: nothing in between */
+    }
+    if (d->overflow) {
+        ++d->oversize;
+        ++d->resyncs;
+    } else if (d->remaining != 0 || d->len < IMU_PROTO_MIN_FRAME) {
+        ++d->resyncs;
+    } else if (imu_proto_crc32(0, d->buf, d->len - IMU_PROTO_CRC_SIZE) !=
+               get_u32(d->buf + d->len - IMU_PROTO_CRC_SIZE)) {
+        ++d->crc_errors;
+    } else {
+        frame->msg_id = d->buf[0];
+        frame->seq = get_u16(d->buf + 1);
+        frame->payload = d->buf + IMU_PROTO_HEADER_SIZE;
+        frame->payload_len = d->len - IMU_PROTO_MIN_FRAME;
+        ++d->frames;
+        complete = 1;
+    }
+    span_restart(d);
+    return complete;
+}
+
+/* --------------------------------------------------------------------------- messages */
+
+/* BEGIN GENERATED by tools/gen_protocol.py from shared/protocol.toml: do not edit by hand */
+/* Two's-complement uint8_t to int8_t, without an implementation-defined conversion. */
+static int8_t to_i8(uint8_t u)
+{
+    return u < 0x80u ? (int8_t)u : (int8_t)(-(int32_t)((uint8_t)~u) - 1);
+}
+
+/* Two's-complement uint16_t to int16_t, without an implementation-defined conversion. */
+static int16_t to_i16(uint16_t u)
+{
+    return u < 0x8000u ? (int16_t)u : (int16_t)(-(int32_t)((uint16_t)~u) - 1);
+}
+
+/* Two's-complement uint32_t to int32_t, without an implementation-defined conversion. */
+static int32_t to_i32(uint32_t u)
+{
+    return u < 0x80000000u ? (int32_t)u : (int32_t)(-(int32_t)(~u) - 1);
+}
+
+size_t imu_proto_hello_pack(const imu_proto_hello_t *m, uint8_t *payload)
+{
+    size_t i;
+    payload[0] = (uint8_t)m->firmware_major;
+    payload[1] = (uint8_t)m->firmware_minor;
+    payload[2] = (uint8_t)m->firmware_patch;
+    payload[3] = (uint8_t)m->protocol_version;
+    put_u32(payload + 4, (uint32_t)m->schema_hash);
+    for (i = 0; i < 16; ++i) {
+        payload[8 + i] = ((const unsigned char *)m->board)[i];
+    }
+    payload[24] = (uint8_t)m->filters;
+    return IMU_PROTO_HELLO_SIZE;
+}
+
+imu_proto_result_t imu_proto_hello_unpack(imu_proto_hello_t *m, const uint8_t *payload, size_t len)
+{
+    size_t i;
+    if (len != IMU_PROTO_HELLO_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    m->firmware_major = payload[0];
+    m->firmware_minor = payload[1];
+    m->firmware_patch = payload[2];
+    m->protocol_version = payload[3];
+    m->schema_hash = get_u32(payload + 4);
+    for (i = 0; i < 16; ++i) {
+        ((unsigned char *)m->board)[i] = payload[8 + i];
+    }
+    m->filters = payload[24];
+    return IMU_PROTO_OK;
+}
+
+size_t imu_proto_hello_encode(const imu_proto_hello_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
+{
+    uint8_t payload[IMU_PROTO_HELLO_SIZE];
+    size_t len = imu_proto_hello_pack(m, payload);
+    return imu_proto_frame_encode(IMU_PROTO_MSG_HELLO, seq, payload, len, wire, wire_cap);
+}
+
+size_t imu_proto_status_pack(const imu_proto_status_t *m, uint8_t *payload)
+{
+    put_u32(payload + 0, (uint32_t)m->uptime_ms);
+    payload[4] = (uint8_t)m->active_filter;
+    put_u32(payload + 5, (uint32_t)m->sample_rate_mhz);
+    put_u32(payload + 9, (uint32_t)m->dropped_samples);
+    put_u16(payload + 13, (uint16_t)m->cpu_load_permille);
+    put_u32(payload + 15, (uint32_t)m->filter_saturations);
+    put_u32(payload + 19, (uint32_t)m->sensor_saturations);
+    payload[23] = (uint8_t)m->streaming;
+    payload[24] = (uint8_t)m->injection_mode;
+    return IMU_PROTO_STATUS_SIZE;
+}
+
+imu_proto_result_t imu_proto_status_unpack(imu_proto_status_t *m, const uint8_t *payload, size_t len)
+{
+    if (len != IMU_PROTO_STATUS_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    m->uptime_ms = get_u32(payload + 0);
+    m->active_filter = payload[4];
+    m->sample_rate_mhz = get_u32(payload + 5);
+    m->dropped_samples = get_u32(payload + 9);
+    m->cpu_load_permille = get_u16(payload + 13);
+    m->filter_saturations = get_u32(payload + 15);
+    m->sensor_saturations = get_u32(payload + 19);
+    m->streaming = payload[23];
+    m->injection_mode = payload[24];
+    return IMU_PROTO_OK;
+}
+
+size_t imu_proto_status_encode(const imu_proto_status_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
+{
+    uint8_t payload[IMU_PROTO_STATUS_SIZE];
+    size_t len = imu_proto_status_pack(m, payload);
+    return imu_proto_frame_encode(IMU_PROTO_MSG_STATUS, seq, payload, len, wire, wire_cap);
+}
+
+size_t imu_proto_log_pack(const imu_proto_log_t *m, uint8_t *payload)
+{
+    size_t i;
+    if (m->text_len > 200u) {
+        return 0;
+    }
+    payload[0] = (uint8_t)m->level;
+    for (i = 0; i < m->text_len; ++i) {
+        payload[1 + i] = ((const unsigned char *)m->text)[i];
+    }
+    return 1u + m->text_len;
+}
+
+imu_proto_result_t imu_proto_log_unpack(imu_proto_log_t *m, const uint8_t *payload, size_t len)
+{
+    size_t i;
+    if (len < 1u || len > IMU_PROTO_LOG_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    m->level = payload[0];
+    m->text_len = len - 1u;
+    for (i = 0; i < m->text_len; ++i) {
+        ((unsigned char *)m->text)[i] = payload[1 + i];
+    }
+    return IMU_PROTO_OK;
+}
+
+size_t imu_proto_log_encode(const imu_proto_log_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
+{
+    uint8_t payload[IMU_PROTO_LOG_SIZE];
+    size_t len = imu_proto_log_pack(m, payload);
+    if (len == 0) {
+        return 0;
+    }
+    return imu_proto_frame_encode(IMU_PROTO_MSG_LOG, seq, payload, len, wire, wire_cap);
+}
+
+size_t imu_proto_ack_pack(const imu_proto_ack_t *m, uint8_t *payload)
+{
+    put_u16(payload + 0, (uint16_t)m->command_seq);
+    payload[2] = (uint8_t)m->command;
+    payload[3] = (uint8_t)m->reason;
+    return IMU_PROTO_ACK_SIZE;
+}
+
+imu_proto_result_t imu_proto_ack_unpack(imu_proto_ack_t *m, const uint8_t *payload, size_t len)
+{
+    if (len != IMU_PROTO_ACK_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    m->command_seq = get_u16(payload + 0);
+    m->command = payload[2];
+    m->reason = payload[3];
+    return IMU_PROTO_OK;
+}
+
+size_t imu_proto_ack_encode(const imu_proto_ack_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
+{
+    uint8_t payload[IMU_PROTO_ACK_SIZE];
+    size_t len = imu_proto_ack_pack(m, payload);
+    return imu_proto_frame_encode(IMU_PROTO_MSG_ACK, seq, payload, len, wire, wire_cap);
+}
+
+size_t imu_proto_nack_pack(const imu_proto_nack_t *m, uint8_t *payload)
+{
+    put_u16(payload + 0, (uint16_t)m->command_seq);
+    payload[2] = (uint8_t)m->command;
+    payload[3] = (uint8_t)m->reason;
+    return IMU_PROTO_NACK_SIZE;
+}
+
+imu_proto_result_t imu_proto_nack_unpack(imu_proto_nack_t *m, const uint8_t *payload, size_t len)
+{
+    if (len != IMU_PROTO_NACK_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    m->command_seq = get_u16(payload + 0);
+    m->command = payload[2];
+    m->reason = payload[3];
+    return IMU_PROTO_OK;
+}
+
+size_t imu_proto_nack_encode(const imu_proto_nack_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
+{
+    uint8_t payload[IMU_PROTO_NACK_SIZE];
+    size_t len = imu_proto_nack_pack(m, payload);
+    return imu_proto_frame_encode(IMU_PROTO_MSG_NACK, seq, payload, len, wire, wire_cap);
+}
+
+size_t imu_proto_setting_pack(const imu_proto_setting_t *m, uint8_t *payload)
+{
+    size_t i;
+    payload[0] = (uint8_t)m->filter_id;
+    payload[1] = (uint8_t)m->index;
+    payload[2] = (uint8_t)m->setting_count;
+    put_u32(payload + 3, (uint32_t)m->value);
+    payload[7] = (uint8_t)m->frac_bits;
+    for (i = 0; i < 24; ++i) {
+        payload[8 + i] = ((const unsigned char *)m->name)[i];
+    }
+    for (i = 0; i < 12; ++i) {
+        payload[32 + i] = ((const unsigned char *)m->unit)[i];
+    }
+    return IMU_PROTO_SETTING_SIZE;
+}
+
+imu_proto_result_t imu_proto_setting_unpack(imu_proto_setting_t *m, const uint8_t *payload, size_t len)
+{
+    size_t i;
+    if (len != IMU_PROTO_SETTING_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    m->filter_id = payload[0];
+    m->index = payload[1];
+    m->setting_count = payload[2];
+    m->value = to_i32(get_u32(payload + 3));
+    m->frac_bits = to_i8(payload[7]);
+    for (i = 0; i < 24; ++i) {
+        ((unsigned char *)m->name)[i] = payload[8 + i];
+    }
+    for (i = 0; i < 12; ++i) {
+        ((unsigned char *)m->unit)[i] = payload[32 + i];
+    }
+    return IMU_PROTO_OK;
+}
+
+size_t imu_proto_setting_encode(const imu_proto_setting_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
+{
+    uint8_t payload[IMU_PROTO_SETTING_SIZE];
+    size_t len = imu_proto_setting_pack(m, payload);
+    return imu_proto_frame_encode(IMU_PROTO_MSG_SETTING, seq, payload, len, wire, wire_cap);
+}
+
+size_t imu_proto_sample_pack(const imu_proto_sample_t *m, uint8_t *payload)
+{
+    size_t i;
+    put_u32(payload + 0, (uint32_t)m->timestamp_us);
+    put_u32(payload + 4, (uint32_t)m->index);
+    for (i = 0; i < 3; ++i) {
+        put_u16(payload + 8 + 2 * i, (uint16_t)m->gyr[i]);
+    }
+    for (i = 0; i < 3; ++i) {
+        put_u16(payload + 14 + 2 * i, (uint16_t)m->acc[i]);
+    }
+    for (i = 0; i < 3; ++i) {
+        put_u16(payload + 20 + 2 * i, (uint16_t)m->mag[i]);
+    }
+    put_u16(payload + 26, (uint16_t)m->temperature);
+    return IMU_PROTO_SAMPLE_SIZE;
+}
+
+imu_proto_result_t imu_proto_sample_unpack(imu_proto_sample_t *m, const uint8_t *payload, size_t len)
+{
+    size_t i;
+    if (len != IMU_PROTO_SAMPLE_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    m->timestamp_us = get_u32(payload + 0);
+    m->index = get_u32(payload + 4);
+    for (i = 0; i < 3; ++i) {
+        m->gyr[i] = to_i16(get_u16(payload + 8 + 2 * i));
+    }
+    for (i = 0; i < 3; ++i) {
+        m->acc[i] = to_i16(get_u16(payload + 14 + 2 * i));
+    }
+    for (i = 0; i < 3; ++i) {
+        m->mag[i] = to_i16(get_u16(payload + 20 + 2 * i));
+    }
+    m->temperature = to_i16(get_u16(payload + 26));
+    return IMU_PROTO_OK;
+}
+
+size_t imu_proto_sample_encode(const imu_proto_sample_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
+{
+    uint8_t payload[IMU_PROTO_SAMPLE_SIZE];
+    size_t len = imu_proto_sample_pack(m, payload);
+    return imu_proto_frame_encode(IMU_PROTO_MSG_SAMPLE, seq, payload, len, wire, wire_cap);
+}
+
+size_t imu_proto_estimate_pack(const imu_proto_estimate_t *m, uint8_t *payload)
+{
+    size_t i;
+    put_u32(payload + 0, (uint32_t)m->index);
+    payload[4] = (uint8_t)m->filter_id;
+    for (i = 0; i < 4; ++i) {
+        put_u32(payload + 5 + 4 * i, (uint32_t)m->quat[i]);
+    }
+    for (i = 0; i < 3; ++i) {
+        put_u32(payload + 21 + 4 * i, (uint32_t)m->gyro_bias[i]);
+    }
+    for (i = 0; i < 3; ++i) {
+        put_u32(payload + 33 + 4 * i, (uint32_t)m->euler[i]);
+    }
+    for (i = 0; i < 9; ++i) {
+        put_u32(payload + 45 + 4 * i, (uint32_t)m->cov_mantissa[i]);
+    }
+    for (i = 0; i < 9; ++i) {
+        payload[81 + i] = (uint8_t)m->cov_exponent[i];
+    }
+    put_u32(payload + 90, (uint32_t)m->saturations);
+    return IMU_PROTO_ESTIMATE_SIZE;
+}
+
+imu_proto_result_t imu_proto_estimate_unpack(imu_proto_estimate_t *m, const uint8_t *payload, size_t len)
+{
+    size_t i;
+    if (len != IMU_PROTO_ESTIMATE_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    m->index = get_u32(payload + 0);
+    m->filter_id = payload[4];
+    for (i = 0; i < 4; ++i) {
+        m->quat[i] = to_i32(get_u32(payload + 5 + 4 * i));
+    }
+    for (i = 0; i < 3; ++i) {
+        m->gyro_bias[i] = to_i32(get_u32(payload + 21 + 4 * i));
+    }
+    for (i = 0; i < 3; ++i) {
+        m->euler[i] = to_i32(get_u32(payload + 33 + 4 * i));
+    }
+    for (i = 0; i < 9; ++i) {
+        m->cov_mantissa[i] = to_i32(get_u32(payload + 45 + 4 * i));
+    }
+    for (i = 0; i < 9; ++i) {
+        m->cov_exponent[i] = to_i8(payload[81 + i]);
+    }
+    m->saturations = get_u32(payload + 90);
+    return IMU_PROTO_OK;
+}
+
+size_t imu_proto_estimate_encode(const imu_proto_estimate_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
+{
+    uint8_t payload[IMU_PROTO_ESTIMATE_SIZE];
+    size_t len = imu_proto_estimate_pack(m, payload);
+    return imu_proto_frame_encode(IMU_PROTO_MSG_ESTIMATE, seq, payload, len, wire, wire_cap);
+}
+
+size_t imu_proto_command_pack(const imu_proto_command_t *m, uint8_t *payload)
+{
+    size_t i;
+    if (m->args_len > 28u) {
+        return 0;
+    }
+    payload[0] = (uint8_t)m->command;
+    put_u16(payload + 1, (uint16_t)m->command_seq);
+    for (i = 0; i < m->args_len; ++i) {
+        payload[3 + i] = m->args[i];
+    }
+    return 3u + m->args_len;
+}
+
+imu_proto_result_t imu_proto_command_unpack(imu_proto_command_t *m, const uint8_t *payload, size_t len)
+{
+    size_t i;
+    if (len < 3u || len > IMU_PROTO_COMMAND_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    m->command = payload[0];
+    m->command_seq = get_u16(payload + 1);
+    m->args_len = len - 3u;
+    for (i = 0; i < m->args_len; ++i) {
+        m->args[i] = payload[3 + i];
+    }
+    return IMU_PROTO_OK;
+}
+
+size_t imu_proto_command_encode(const imu_proto_command_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
+{
+    uint8_t payload[IMU_PROTO_COMMAND_SIZE];
+    size_t len = imu_proto_command_pack(m, payload);
+    if (len == 0) {
+        return 0;
+    }
+    return imu_proto_frame_encode(IMU_PROTO_MSG_COMMAND, seq, payload, len, wire, wire_cap);
+}
+
+size_t imu_proto_cmd_select_filter_pack(const imu_proto_cmd_select_filter_t *a, uint8_t *args)
+{
+    args[0] = (uint8_t)a->filter_id;
+    return IMU_PROTO_CMD_SELECT_FILTER_SIZE;
+}
+
+imu_proto_result_t imu_proto_cmd_select_filter_unpack(imu_proto_cmd_select_filter_t *a, const uint8_t *args, size_t len)
+{
+    if (len != IMU_PROTO_CMD_SELECT_FILTER_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    a->filter_id = args[0];
+    return IMU_PROTO_OK;
+}
+
+size_t imu_proto_cmd_get_setting_pack(const imu_proto_cmd_get_setting_t *a, uint8_t *args)
+{
+    args[0] = (uint8_t)a->index;
+    return IMU_PROTO_CMD_GET_SETTING_SIZE;
+}
+
+imu_proto_result_t imu_proto_cmd_get_setting_unpack(imu_proto_cmd_get_setting_t *a, const uint8_t *args, size_t len)
+{
+    if (len != IMU_PROTO_CMD_GET_SETTING_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    a->index = args[0];
+    return IMU_PROTO_OK;
+}
+
+size_t imu_proto_cmd_set_setting_pack(const imu_proto_cmd_set_setting_t *a, uint8_t *args)
+{
+    args[0] = (uint8_t)a->index;
+    put_u32(args + 1, (uint32_t)a->value);
+    return IMU_PROTO_CMD_SET_SETTING_SIZE;
+}
+
+imu_proto_result_t imu_proto_cmd_set_setting_unpack(imu_proto_cmd_set_setting_t *a, const uint8_t *args, size_t len)
+{
+    if (len != IMU_PROTO_CMD_SET_SETTING_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    a->index = args[0];
+    a->value = to_i32(get_u32(args + 1));
+    return IMU_PROTO_OK;
+}
+
+size_t imu_proto_cmd_inject_sample_pack(const imu_proto_sample_t *a, uint8_t *args)
+{
+    return imu_proto_sample_pack(a, args);
+}
+
+imu_proto_result_t imu_proto_cmd_inject_sample_unpack(imu_proto_sample_t *a, const uint8_t *args, size_t len)
+{
+    return imu_proto_sample_unpack(a, args, len);
+}
+
+size_t imu_proto_cmd_set_injection_mode_pack(const imu_proto_cmd_set_injection_mode_t *a, uint8_t *args)
+{
+    args[0] = (uint8_t)a->enabled;
+    return IMU_PROTO_CMD_SET_INJECTION_MODE_SIZE;
+}
+
+imu_proto_result_t imu_proto_cmd_set_injection_mode_unpack(imu_proto_cmd_set_injection_mode_t *a, const uint8_t *args, size_t len)
+{
+    if (len != IMU_PROTO_CMD_SET_INJECTION_MODE_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    a->enabled = args[0];
+    return IMU_PROTO_OK;
+}
+
+int imu_proto_command_args_size(uint8_t command)
+{
+    switch (command) {
+    case IMU_PROTO_CMD_START_STREAM:
+        return 0;
+    case IMU_PROTO_CMD_STOP_STREAM:
+        return 0;
+    case IMU_PROTO_CMD_SELECT_FILTER:
+        return IMU_PROTO_CMD_SELECT_FILTER_SIZE;
+    case IMU_PROTO_CMD_GET_SETTING:
+        return IMU_PROTO_CMD_GET_SETTING_SIZE;
+    case IMU_PROTO_CMD_SET_SETTING:
+        return IMU_PROTO_CMD_SET_SETTING_SIZE;
+    case IMU_PROTO_CMD_INJECT_SAMPLE:
+        return IMU_PROTO_CMD_INJECT_SAMPLE_SIZE;
+    case IMU_PROTO_CMD_RESET:
+        return 0;
+    case IMU_PROTO_CMD_ENTER_BOOTLOADER:
+        return 0;
+    case IMU_PROTO_CMD_GET_VERSION:
+        return 0;
+    case IMU_PROTO_CMD_GET_STATUS:
+        return 0;
+    case IMU_PROTO_CMD_SET_INJECTION_MODE:
+        return IMU_PROTO_CMD_SET_INJECTION_MODE_SIZE;
+    default:
+        return -1;
+    }
+}
+/* END GENERATED */
