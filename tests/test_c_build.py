@@ -275,7 +275,12 @@ def test_vector_driver_rejects_incomplete_or_unknown_settings(sanitized_driver, 
     ([], "define IMU_FIXED"),
 ])
 def test_arithmetic_must_be_chosen_once(defines, message):
-    for src in SOURCES:
+    """Every source built on the arithmetic layer refuses an ambiguous or missing
+    choice (the frame codec is integer code independent of it)."""
+    layered = [src for src in SOURCES
+               if "imu_arith.h" in gcc("-std=c99", "-DIMU_FIXED", f"-I{CORE}", "-MM", src).stdout]
+    assert len(layered) >= 6
+    for src in layered:
         proc = gcc("-std=c99", *defines, f"-I{CORE}", "-fsyntax-only", src)
         assert proc.returncode != 0, f"{src.name} compiled with {defines or 'no arithmetic'}"
         assert "#error" in proc.stderr and message in proc.stderr, proc.stderr

@@ -114,7 +114,7 @@ def test_unknown_setting(data):
 def test_out_of_range_setting(data, filter_name, name, value):
     with pytest.raises(core.SettingsError, match=f"out of range for '{filter_name}'") as info:
         _run(data, filter_name, settings={name: value})
-    assert f"'{name}': {value!r}" in str(info.value)  # the message lists the offending value
+    assert f"{name}={value!r}" in str(info.value)  # the message names the offending setting and value
 
 
 def test_setting_that_does_not_fit_its_q_format(data):

@@ -285,7 +285,9 @@ def load_schema(path: Path) -> Schema:
             raise SchemaError(f"{where}: give args or args_like, not both")
         args_like = c.get("args_like")
         if args_like is not None:
-            if args_like not in by_name or by_name[args_like].variable is not None:
+            if args_like not in by_name:
+                raise SchemaError(f"{where}: args_like {args_like!r} is not a message")
+            if by_name[args_like].variable is not None:
                 raise SchemaError(f"{where}: args_like must name a fixed-size message")
             args = by_name[args_like].fields
         else:

@@ -208,15 +208,15 @@ static void initialise(imu_eskf_t *f, const imu_sample_t *s)
         f->ref_field = norm;
         f->ref_dip = field_dip(earth, &horizontal);
     }
-    /* Variances: attitude Q28^2 = Q56; gyro bias Q30^2 = Q60; acc bias in g (Q24 * Q30 >> 24 -> Q30)^2 = Q60.
-     * All three are brought to Q60 for imu_cov_init. */
+    /* Variances in Q56: attitude Q28^2 = Q56 (at most 3.2^2 * 2^56 < 2^60); gyro bias Q30^2 = Q60
+     * and acc bias in g (Q24 * Q30 >> 24 -> Q30)^2 = Q60, both shifted down by 4. */
     acc_std_g = IMU_MUL(st->init_acc_bias_std, f->inv_gravity, 24);
     for (k = 0; k < 3; ++k) {
-        var[ATT + k] = IMU_WSHL(IMU_WMUL(st->init_attitude_std, st->init_attitude_std), 4); /* Q56 -> Q60, < 2^61 */
-        var[GYRO_BIAS + k] = IMU_WMUL(st->init_gyro_bias_std, st->init_gyro_bias_std);
-        var[ACC_BIAS + k] = IMU_WMUL(acc_std_g, acc_std_g);
+        var[ATT + k] = IMU_WMUL(st->init_attitude_std, st->init_attitude_std);
+        var[GYRO_BIAS + k] = IMU_WSHR(IMU_WMUL(st->init_gyro_bias_std, st->init_gyro_bias_std), 4);
+        var[ACC_BIAS + k] = IMU_WSHR(IMU_WMUL(acc_std_g, acc_std_g), 4);
     }
-    imu_cov_init(&f->cov, imu_eskf_state_count(f), var, 60, &f->saturations);
+    imu_cov_init(&f->cov, imu_eskf_state_count(f), var, 56, &f->saturations);
     f->initialised = 1;
 }
 

@@ -169,7 +169,7 @@ class Filter:
             bad = [k for k, v in self.settings.items() if not self._apply({**defaults, k: v})]
             fields = {f.name: f for f in settings_fields(filter_name)}
             detail = ", ".join(f"{k}={self.settings[k]!r} {fields[k].unit}" for k in bad) or str(self.settings)
-            raise SettingsError(f"setting out of the range the {filter_name!r} filter accepts: {detail} "
+            raise SettingsError(f"setting out of range for {filter_name!r}: {detail} "
                                 f"(ranges are documented in firmware/core/{FILTERS[filter_name][1]}.h)")
         self._apply(self.settings)
 

@@ -247,7 +247,7 @@ def _codec(name: str) -> _MessageCodec:
         raise ValueError(f"unknown message {name!r}; messages: {', '.join(_CODECS)}") from None
 
 
-def encode(name: str, seq: int, **fields) -> bytes:
+def encode(name: str, seq: int, /, **fields) -> bytes:
     """Wire bytes of one frame (COBS-encoded, delimiter included).
 
     `seq` is the sender's frame counter for this direction (u16, wrapping). Every field
@@ -374,7 +374,7 @@ class FrameDecoder:
         return messages
 
 
-def encode_command(seq: int, command: str, command_seq: int, **args) -> bytes:
+def encode_command(seq: int, command: str, command_seq: int, /, **args) -> bytes:
     """Wire bytes of a COMMAND frame: `command` by name, its arguments as keywords."""
     try:
         layout = _COMMAND_LAYOUTS[command]

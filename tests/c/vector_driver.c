@@ -107,6 +107,7 @@ static int run_file(const char *path)
     union {
         imu_eecf_settings_t eecf;
         imu_kf1d_settings_t kf1d;
+        imu_eskf_settings_t eskf;
     } values;
     const imu_setting_desc_t *descs;
     int n_descs;
@@ -217,10 +218,14 @@ static int run_file(const char *path)
         values.eecf = imu_eecf_default_settings;
         descs = imu_eecf_setting_descs;
         n_descs = imu_eecf_setting_count;
-    } else {
+    } else if (filter_id == IMU_FILTER_KF1D) {
         values.kf1d = imu_kf1d_default_settings;
         descs = imu_kf1d_setting_descs;
         n_descs = imu_kf1d_setting_count;
+    } else {
+        values.eskf = imu_eskf_default_settings;
+        descs = imu_eskf_setting_descs;
+        n_descs = imu_eskf_setting_count;
     }
     for (k = 0; k < n_descs; ++k) {
         int j;
