@@ -74,21 +74,44 @@ def messages(draw, names=MESSAGE_NAMES):
     return name, draw(FIELDS[name])
 
 
-@st.composite
-def sent_streams(draw, max_frames=30):
-    """Frames as a sender writes them: a list of (name, seq, fields, wire bytes), the
-    sequence numbers consecutive per direction from a random start (some wrap at 65535).
-    A HELLO that would get seq 0 is left out: it would announce a sender restart."""
-    seq_ranges = st.one_of(st.integers(0, 0xFFFF), st.integers(0xFFFF - 10, 0xFFFF))
-    next_seq = {direction: draw(seq_ranges) for direction in protocol.DIRECTIONS}
+def number_frames(named_fields, first_seqs: dict) -> list:
+    """Frames as a sender writes them: a list of (name, seq, fields, wire bytes) with
+    consecutive sequence numbers per direction from `first_seqs`. A HELLO that would get
+    seq 0 is left out: it would announce a sender restart."""
+    next_seq = dict(first_seqs)
     out = []
-    for name, fields in draw(st.lists(messages(), min_size=1, max_size=max_frames)):
+    for name, fields in named_fields:
         direction = schema.MESSAGES[name]["direction"]
         seq = next_seq[direction]
         if name == "HELLO" and seq == 0:
             continue
         next_seq[direction] = (seq + 1) & 0xFFFF
         out.append((name, seq, fields, protocol.encode(name, seq, **fields)))
+    return out
+
+
+@st.composite
+def sent_streams(draw, max_frames=30):
+    """number_frames() of random messages; some sequences start near 65535 and wrap."""
+    seq_ranges = st.one_of(st.integers(0, 0xFFFF), st.integers(0xFFFF - 10, 0xFFFF))
+    first_seqs = {direction: draw(seq_ranges) for direction in protocol.DIRECTIONS}
+    return number_frames(draw(st.lists(messages(), min_size=1, max_size=max_frames)), first_seqs)
+
+
+def random_fields(fields: tuple, rnd: random.Random) -> dict:
+    """Random values of a field list (the soak test's faster stand-in for FIELDS)."""
+    out = {}
+    for name, base, length in fields:
+        if base in ("char", "text"):
+            out[name] = "".join(rnd.choice("abcxyz_-019 éü") for _ in range(rnd.randint(0, length // 2)))
+        elif base == "bytes":
+            out[name] = rnd.randbytes(rnd.randint(0, length))
+        else:
+            low, high = _INT_RANGES[base]
+            small = rnd.random() < 0.3  # small values: zero bytes, many COBS code bytes
+            values = [rnd.randint(max(low, -3), 3) if small else rnd.randint(low, high)
+                      for _ in range(length or 1)]
+            out[name] = tuple(values) if length else values[0]
     return out
 
 
@@ -102,12 +125,16 @@ def chunked(data: bytes, rnd: random.Random, largest: int = 64):
 
 
 def feed_all(decoder: protocol.FrameDecoder, data: bytes, rnd: random.Random | None = None) -> list:
-    """Feed `data` (in random chunks when `rnd` is given) and count it in THROWN."""
+    """Feed `data` to a new decoder (in random chunks when `rnd` is given); count it in THROWN."""
+    if rnd is None:
+        received = decoder.feed(data)
+    else:
+        received = [m for chunk in chunked(data, rnd) for m in decoder.feed(chunk)]
     THROWN["streams"] += 1
     THROWN["bytes"] += len(data)
-    if rnd is None:
-        return decoder.feed(data)
-    return [m for chunk in chunked(data, rnd) for m in decoder.feed(chunk)]
+    THROWN["frames"] += decoder.frames
+    THROWN["rejected"] += decoder.crc_errors + decoder.resyncs
+    return received
 
 
 def nonempty_spans(data: bytes) -> int:
@@ -123,8 +150,8 @@ def wire_of(message: protocol.Message) -> bytes:
 @pytest.fixture(scope="module", autouse=True)
 def report_thrown():
     yield
-    print(f"\ntest_protocol.py: FrameDecoder fed {THROWN['streams']} random streams, "
-          f"{THROWN['bytes']} bytes")
+    print(f"\ntest_protocol.py: FrameDecoder fed {THROWN['streams']} random streams, {THROWN['bytes']} bytes; "
+          f"decoded {THROWN['frames']} frames, rejected {THROWN['rejected']} spans")
 
 
 # --------------------------------------------------------------------------- encode / decode
@@ -363,34 +390,39 @@ DAMAGE = [_flip_bits, _drop_byte, _duplicate_byte, _insert_garbage, _truncate_fr
           _zero_byte]
 
 
-@st.composite
-def damaged_streams(draw):
-    """(sent frames, damaged stream bytes, indices of the frames that may be damaged)."""
-    sent = draw(sent_streams())
+def damage_stream(sent: list, damages) -> tuple[bytes, set]:
+    """The sent frames' bytes after `damages`, a list of (DAMAGE function, relative
+    position in [0, 1), value 0..255); and the indices of the frames they may have damaged."""
     data = bytearray(b"".join(wire for *_, wire in sent))
     owners = [k for k, (*_, wire) in enumerate(sent) for _ in wire]
     touched = set()
-    for damage, where, value in draw(st.lists(
-            st.tuples(st.sampled_from(DAMAGE), st.floats(0, 1, exclude_max=True), st.integers(0, 255)),
-            max_size=6)):
+    for damage, where, value in damages:
         if not data:
             break
         pos = int(where * len(data))
         if owners[pos] is None:
             continue  # inside earlier damage: keep the bookkeeping simple
         touched |= damage(data, owners, pos, value)
-    return sent, bytes(data), touched
+    return bytes(data), touched
 
 
-@settings(max_examples=1500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(stream=damaged_streams(), seed=st.integers(0, 2**32 - 1))
-def test_damaged_streams_resync_and_never_accept_a_corrupted_frame(stream, seed):
-    sent, data, touched = stream
+@st.composite
+def damaged_streams(draw):
+    """(sent frames, damaged stream bytes, indices of the frames that may be damaged)."""
+    sent = draw(sent_streams())
+    damages = draw(st.lists(st.tuples(st.sampled_from(DAMAGE), st.floats(0, 1, exclude_max=True),
+                                      st.integers(0, 255)), max_size=6))
+    return (sent, *damage_stream(sent, damages))
+
+
+def check_damaged_stream(sent: list, data: bytes, touched: set, rnd: random.Random) -> list:
+    """Decode `data` whole and in random chunks and check every promise of the decoder
+    (module docstring); returns the decoded messages."""
     wires = [wire for *_, wire in sent]
     whole = protocol.FrameDecoder()
     received = feed_all(whole, data)
     chunked_decoder = protocol.FrameDecoder()
-    assert feed_all(chunked_decoder, data, random.Random(seed)) == received, "chunking changed the result"
+    assert feed_all(chunked_decoder, data, rnd) == received, "chunking changed the result"
     assert chunked_decoder.counters() == whole.counters()
 
     # every decoded frame is byte-identical to a sent frame, in sending order, never twice
@@ -402,6 +434,27 @@ def test_damaged_streams_resync_and_never_accept_a_corrupted_frame(stream, seed)
     assert whole.frames + whole.crc_errors + whole.resyncs == nonempty_spans(data)
     # lost frames: exactly those missing between the first and the last received frame
     assert whole.lost == _lost_by_direction(sent, indices)
+    return received
+
+
+@settings(max_examples=1500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(stream=damaged_streams(), seed=st.integers(0, 2**32 - 1))
+def test_damaged_streams_resync_and_never_accept_a_corrupted_frame(stream, seed):
+    check_damaged_stream(*stream, random.Random(seed))
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_long_damaged_streams(seed):
+    """Soak: long streams (about 100 frames each) with up to 30 damages, from a seeded
+    generator (hypothesis keeps its streams short)."""
+    rnd = random.Random(seed)
+    for _ in range(150):
+        named = [(name, random_fields(schema.MESSAGES[name]["fields"], rnd))
+                 for name in rnd.choices(MESSAGE_NAMES, k=rnd.randint(50, 150))]
+        sent = number_frames(named, {d: rnd.randint(0, 0xFFFF) for d in protocol.DIRECTIONS})
+        damages = [(rnd.choice(DAMAGE), rnd.random(), rnd.randint(0, 255)) for _ in range(rnd.randint(0, 30))]
+        data, touched = damage_stream(sent, damages)
+        check_damaged_stream(sent, data, touched, rnd)
 
 
 def _lost_by_direction(sent, indices) -> dict:

@@ -426,11 +426,11 @@ def render_c_header(schema: Schema) -> str:
     """The generated section of imu_proto.h."""
     h = schema_hash(schema)
     lines = [
-        f"/** Protocol version ([protocol] version), sent in HELLO. */",
+        "/** Protocol version ([protocol] version), sent in HELLO. */",
         f"#define IMU_PROTO_VERSION {schema.version}u",
-        f"/** Schema hash of shared/protocol.toml (CRC-32 of its canonical form), sent in HELLO. */",
+        "/** Schema hash of shared/protocol.toml (CRC-32 of its canonical form), sent in HELLO. */",
         f"#define IMU_PROTO_SCHEMA_HASH 0x{h:08X}u",
-        f"/** Largest payload of any message, bytes. */",
+        "/** Largest payload of any message, bytes. */",
         f"#define IMU_PROTO_MAX_PAYLOAD {schema.max_payload}u",
         "",
     ]
@@ -610,7 +610,7 @@ def render_c_source(schema: Schema) -> str:
 
 def render_cffi(schema: Schema) -> str:
     """cffi declarations of the generated C API (appended by host/imulink/_build_core.py)."""
-    lines = [f"#define IMU_PROTO_VERSION ...", "#define IMU_PROTO_SCHEMA_HASH ...", "#define IMU_PROTO_MAX_PAYLOAD ..."]
+    lines = ["#define IMU_PROTO_VERSION ...", "#define IMU_PROTO_SCHEMA_HASH ...", "#define IMU_PROTO_MAX_PAYLOAD ..."]
     lines.append("typedef enum { " + ", ".join(f"IMU_PROTO_MSG_{m.name} = {m.id}" for m in schema.messages)
                  + " } imu_proto_msg_id_t;")
     lines.append("typedef enum { " + ", ".join(f"IMU_PROTO_CMD_{c.name} = {c.id}" for c in schema.commands)
@@ -624,9 +624,8 @@ def render_cffi(schema: Schema) -> str:
         return f"typedef struct {{ {members} }} {type_name};"
 
     for m in schema.messages:
-        n, t = _c_name(m.name), f"imu_proto_{_c_name(m.name)}_t"
         lines.append(f"#define IMU_PROTO_{m.name}_SIZE ...")
-        lines.append(struct(t, m.fields))
+        lines.append(struct(f"imu_proto_{_c_name(m.name)}_t", m.fields))
         lines += [line for line in _message_prototypes(m) if line and not line.startswith("/**")]
     for c in schema.commands:
         if c.args:
