@@ -5,7 +5,8 @@ BIN    := $(VENV)/bin
 
 .PHONY: setup demo test bench clean
 
-$(BIN)/imulink: pyproject.toml setup.py host/imulink/_build_core.py $(wildcard firmware/core/*.c firmware/core/*.h)
+$(BIN)/imulink: pyproject.toml setup.py host/imulink/_build_core.py host/imulink/_protocol_schema.py \
+		$(wildcard firmware/core/*.c firmware/core/*.h)
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -e '.[test]'
@@ -22,9 +23,10 @@ demo: setup
 test: setup
 	$(BIN)/python -m pytest -q
 
-## bench: throughput and agreement benchmarks (results in docs/performance.md)
+## bench: core and protocol throughput benchmarks (results in docs/performance.md)
 bench: setup
 	$(BIN)/python tools/bench_core.py
+	$(BIN)/python tools/bench_protocol.py
 
 clean:
 	rm -rf $(VENV) build host/*.egg-info host/imulink/_core_*.so host/imulink/_core_*.c

@@ -33,6 +33,9 @@ from imulink import protocol
 ROOT = Path(__file__).resolve().parents[1]
 GENERATOR = ROOT / "tools" / "gen_protocol.py"
 
+#: Shared hypothesis settings: no deadline (example timings vary on CI machines).
+HYPOTHESIS = {"deadline": None}
+
 #: Streams and bytes fed to FrameDecoder by the property tests of this module.
 THROWN = Counter()
 
@@ -158,7 +161,7 @@ def report_thrown():
 
 
 @pytest.mark.parametrize("name", MESSAGE_NAMES)
-@settings(max_examples=60, deadline=None)
+@settings(max_examples=60, **HYPOTHESIS)
 @given(data=st.data())
 def test_every_message_round_trips(name, data):
     fields = data.draw(FIELDS[name])
@@ -246,7 +249,7 @@ def test_variable_length_messages_accept_every_length_up_to_the_maximum():
 
 
 @pytest.mark.parametrize("command", list(schema.COMMANDS))
-@settings(max_examples=25, deadline=None)
+@settings(max_examples=25, **HYPOTHESIS)
 @given(data=st.data())
 def test_every_command_round_trips(command, data):
     args = data.draw(ARGS[command])
@@ -289,7 +292,7 @@ def _hello(**overrides) -> dict:
 
 
 def test_check_hello_accepts_the_same_schema():
-    protocol.check_hello(_hello())
+    assert protocol.check_hello(_hello()) is None
 
 
 def test_check_hello_names_both_hashes():
@@ -309,7 +312,7 @@ def test_check_hello_refuses_another_protocol_version():
 # --------------------------------------------------------------------------- stream decoding
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=300, **HYPOTHESIS)
 @given(garbage=st.binary(max_size=3000), seed=st.integers(0, 2**32 - 1))
 def test_random_garbage_is_counted_and_never_accepted(garbage, seed):
     data = garbage + b"\0"
@@ -437,7 +440,7 @@ def check_damaged_stream(sent: list, data: bytes, touched: set, rnd: random.Rand
     return received
 
 
-@settings(max_examples=1500, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@settings(max_examples=1500, **HYPOTHESIS, suppress_health_check=[HealthCheck.too_slow])
 @given(stream=damaged_streams(), seed=st.integers(0, 2**32 - 1))
 def test_damaged_streams_resync_and_never_accept_a_corrupted_frame(stream, seed):
     check_damaged_stream(*stream, random.Random(seed))
@@ -478,7 +481,7 @@ def test_each_damage_breaks_only_the_frame_it_claims(damage):
     assert [wire_of(m) for m in protocol.FrameDecoder().feed(bytes(data))] == [sent[0], sent[2]]
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=300, **HYPOTHESIS)
 @given(frames=st.lists(st.tuples(messages([n for n in MESSAGE_NAMES if n != "HELLO"]), st.booleans()),
                        min_size=1, max_size=60),
        starts=st.tuples(st.integers(0, 0xFFFF), st.integers(0xFFF0, 0xFFFF)))
