@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from imulink.analysis import attitude_errors, rmse
+
 REPO_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_DATA = REPO_ROOT / ".." / "shared" / "data" / "broad"
 
@@ -88,29 +90,6 @@ def load_trials(data_dir) -> list[Trial]:
     return [load_trial(p) for p in trial_paths(data_dir)]
 
 
-def error_angles(q_est, q_ref) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per-sample (total, heading, inclination) errors in rad, BROAD's definition.
-
-    ``e = q_est ⊗ q_ref⁻¹``; total ``2 acos|e_w|``, heading ``2 atan|e_z/e_w|``,
-    inclination ``2 acos sqrt(e_w² + e_z²)``. NaN where q_ref is NaN.
-    """
-    q_est = np.asarray(q_est, dtype=np.float64)
-    q_ref = np.asarray(q_ref, dtype=np.float64)
-    q_est = q_est / np.linalg.norm(q_est, axis=-1, keepdims=True)
-    q_ref = q_ref / np.linalg.norm(q_ref, axis=-1, keepdims=True)
-    aw, ax, ay, az = np.moveaxis(q_est, -1, 0)
-    # q_ref^-1 = conjugate for unit quaternions: (bw, -bx, -by, -bz).
-    bw, bx, by, bz = np.moveaxis(q_ref, -1, 0)
-    bx, by, bz = -bx, -by, -bz
-    ew = aw * bw - ax * bx - ay * by - az * bz
-    ez = aw * bz + ax * by - ay * bx + az * bw
-    with np.errstate(invalid="ignore", divide="ignore"):
-        total = 2.0 * np.arccos(np.clip(np.abs(ew), 0.0, 1.0))
-        heading = 2.0 * np.arctan(np.abs(ez / ew))
-        inclination = 2.0 * np.arccos(np.clip(np.sqrt(ew * ew + ez * ez), 0.0, 1.0))
-    return total, heading, inclination
-
-
 def broad_errors(q_est, q_ref, movement) -> dict[str, float]:
     """RMSE (degrees) of the total, heading and inclination errors of one trial.
 
@@ -124,10 +103,7 @@ def broad_errors(q_est, q_ref, movement) -> dict[str, float]:
     """
     q_ref = np.asarray(q_ref, dtype=np.float64)
     mask = np.asarray(movement).ravel().astype(bool) & np.all(np.isfinite(q_ref), axis=-1)
-    total, heading, inclination = error_angles(np.asarray(q_est)[mask], q_ref[mask])
-    out = {}
-    for key, e in (("total", total), ("heading", heading), ("inclination", inclination)):
-        out[key] = float(np.rad2deg(np.sqrt(np.mean(e * e)))) if e.size else float("nan")
+    out = rmse(attitude_errors(np.asarray(q_est)[mask], q_ref[mask]))
     out["n"] = int(mask.sum())
     return out
 

@@ -8,19 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-
-def _multiply(p: np.ndarray, q: np.ndarray) -> np.ndarray:
-    pw, px, py, pz = np.moveaxis(p, -1, 0)
-    qw, qx, qy, qz = np.moveaxis(q, -1, 0)
-    return np.stack(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ],
-        axis=-1,
-    )
+from .sim import quat
 
 
 def attitude_errors(q_est, q_ref) -> dict[str, np.ndarray]:
@@ -28,7 +16,7 @@ def attitude_errors(q_est, q_ref) -> dict[str, np.ndarray]:
     q_est = np.asarray(q_est, dtype=np.float64)
     q_ref = np.asarray(q_ref, dtype=np.float64)
     ref_inv = q_ref * np.array([1.0, -1.0, -1.0, -1.0])
-    e = _multiply(q_est, ref_inv)
+    e = quat.multiply(q_est, ref_inv)
     e = e / np.linalg.norm(e, axis=-1, keepdims=True)
     ew, ez = np.abs(e[..., 0]), np.abs(e[..., 3])
     return {
