@@ -196,18 +196,12 @@ void imu_eecf_update(imu_eecf_t *f, const imu_sample_t *s)
     if (imu_vec3_normalize(s->mag, unit, 0)) {
         /* Field in the estimated earth frame; its east share over its horizontal
          * length is the sine of the heading error (eq. 29 with d = (0, |h|, h_z)). */
-        imu_q30_t east[3], north[3];
-        imu_q30_t h_east, h_north, h_len;
-        imu_quat_matrix_row(f->q, 0, east);
-        imu_quat_matrix_row(f->q, 1, north);
-        h_east = IMU_ADD(IMU_ADD(IMU_MUL(east[0], unit[0], 30), IMU_MUL(east[1], unit[1], 30)),
-                         IMU_MUL(east[2], unit[2], 30));
-        h_north = IMU_ADD(IMU_ADD(IMU_MUL(north[0], unit[0], 30), IMU_MUL(north[1], unit[1], 30)),
-                          IMU_MUL(north[2], unit[2], 30));
-        h_len = imu_hypot(h_east, h_north);
+        imu_q30_t earth[3], h_len;
+        imu_quat_rotate(f->q, unit, earth);
+        h_len = imu_hypot(earth[0], earth[1]);
         if (h_len > MIN_HORIZONTAL_FIELD) {
             /* |h_east| <= h_len: quotient within [-1, 1]. */
-            const imu_q30_t sin_err = IMU_DIV_SAT(h_east, h_len, 30, &f->saturations);
+            const imu_q30_t sin_err = IMU_DIV_SAT(earth[0], h_len, 30, &f->saturations);
             for (k = 0; k < 3; ++k) {
                 e_mag[k] = IMU_MUL(sin_err, up[k], 30);
             }
