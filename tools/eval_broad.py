@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from imulink.analysis import attitude_errors, rmse
+from imulink.counts import BROAD_PROFILE, si_to_counts
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_DATA = REPO_ROOT / ".." / "shared" / "data" / "broad"
@@ -272,6 +273,9 @@ def main(argv=None) -> int:
 
     log(f"loading {len(paths)} trials from {args.data.resolve()}")
     trials = [load_trial(x) for x in paths]
+    for trial in trials:
+        clipped = si_to_counts(trial.gyr, trial.acc, trial.mag, BROAD_PROFILE, return_saturation=True)[3]
+        log(f"{trial.name}: sensor values clipped by {BROAD_PROFILE.name}: {clipped}")
     try:
         results = evaluate(trials, args.filters, args.arithmetic, settings, log)
     except core.SettingsError as exc:

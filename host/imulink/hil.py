@@ -1,0 +1,737 @@
+"""Hardware in the loop: record a board, replay and compare a recording against the host
+build of the same C, inject samples into a board, and the no-hardware demo.
+
+- :func:`record`: snapshot the board (HELLO, STATUS, every setting of the active
+  filter), restart its filter, stream, and write every received byte to a recording.
+  A lost SAMPLE makes the rest of a filter run impossible to reproduce, so by default
+  the recorder then restarts the board's filter (``resync``): a new segment begins
+  that can be verified again.
+- :func:`host_run`: re-run the recorded samples through the fixed-point build (what
+  the board must have computed) and the float twin, with the recorded settings and
+  sensor profile. :func:`compare` checks every board estimate that can be verified
+  (its segment's samples complete from index 0 up to it) bit for bit;
+  :func:`export_csv` / :func:`export_npz` write the replay.
+- :func:`inject`: stream samples (a recording, a simulation, a BROAD .mat file) into a
+  board in injection mode and compare every answer on the fly.
+- :func:`demo`: a virtual board in-process, a recording of its simulated run,
+  the comparison, and the accuracy against the simulated truth.
+"""
+from __future__ import annotations
+
+import json
+import math
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import core, protocol, sim
+from .analysis import angle_difference, attitude_errors, rmse, wrap_deg
+from .board import FirmwareFilter, PtyTransport, TcpTransport, VirtualBoard
+from .counts import BROAD_PROFILE, DEFAULT_PROFILE, SensorProfile, si_to_counts
+from .link import DEFAULT_BAUD, Disconnected, Link, LinkError
+from .recording import Estimates, Recording, RecordingError, RecordingWriter, load_recording
+
+#: Sensor profiles a board can be declared to use (the protocol cannot report them).
+PROFILES = {p.name: p for p in (DEFAULT_PROFILE, BROAD_PROFILE)}
+#: Seconds excluded from accuracy statistics (alignment and convergence).
+SETTLE_S = 10.0
+_FILTER_NAMES = {filter_id: name for name, (filter_id, _) in core.FILTERS.items()}
+_Q = {"quat": core.QUAT_FRAC_BITS, "euler": core.EULER_FRAC_BITS, "gyro_bias": core.RATE_FRAC_BITS}
+
+
+class HilError(Exception):
+    """A HIL job that cannot go on (a board that cannot be configured, a bad input)."""
+
+
+# ---------------------------------------------------------------------------- progress
+
+
+class Progress:
+    """One status line on stderr: rewritten in place on a terminal, a plain line every
+    `interval_s` seconds otherwise."""
+
+    def __init__(self, stream=None, interval_s: float = 5.0):
+        self.stream = stream or sys.stderr
+        self.tty = self.stream.isatty()
+        self.interval_s = 0.25 if self.tty else interval_s
+        self._last = 0.0
+        self._shown = False
+
+    def update(self, text: str, force: bool = False) -> None:
+        now = time.monotonic()
+        if not force and now - self._last < self.interval_s:
+            return
+        self._last = now
+        if self.tty:
+            self.stream.write("\r\x1b[K" + text)
+            self._shown = True
+        else:
+            self.stream.write(text + "\n")
+        self.stream.flush()
+
+    def message(self, text: str) -> None:
+        """A line of its own (a board LOG, a warning) that does not clobber the status line."""
+        if self._shown:
+            self.stream.write("\r\x1b[K")
+        self.stream.write(text + "\n")
+        self.stream.flush()
+        self._last = 0.0
+
+    def done(self) -> None:
+        if self._shown:
+            self.stream.write("\n")
+            self.stream.flush()
+            self._shown = False
+
+
+def _link_summary(counters: dict) -> str:
+    return (f"{counters['frames']} frames, {counters['bytes'] / 1e3:.0f} kB, "
+            f"{counters['frame_rate']:.0f} frames/s, CRC errors {counters['crc_errors']}, "
+            f"resyncs {counters['resyncs']}, lost {counters['lost_frames']}")
+
+
+def _board_log(progress: Progress | None, fields: dict) -> None:
+    if progress is not None:
+        level = {v: k for k, v in protocol.LOG_LEVELS.items()}.get(fields["level"], str(fields["level"]))
+        progress.message(f"board: {level} {fields['text']}")
+
+
+# ---------------------------------------------------------------------------- board set-up
+
+
+def read_settings(link: Link) -> tuple[int, dict[int, dict]]:
+    """The active filter's id and its settings (index -> SETTING fields), read with GET_SETTING."""
+    first = link.command("GET_SETTING", index=0).data.fields
+    settings = {0: first}
+    for index in range(1, first["setting_count"]):
+        settings[index] = link.command("GET_SETTING", index=index).data.fields
+    return first["filter_id"], settings
+
+
+def _leave_injection_mode(link: Link) -> None:
+    if link.command("GET_STATUS").data.fields["injection_mode"]:
+        link.command("SET_INJECTION_MODE", enabled=0)
+
+
+# ---------------------------------------------------------------------------- record
+
+
+@dataclass
+class RecordResult:
+    path: Path
+    hello: dict
+    filter_name: str
+    samples: int
+    estimates: int
+    filter_restarts: int
+    stop_reason: str
+    duration_s: float
+    counters: dict
+
+
+def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAULT_BAUD,
+           profile: SensorProfile = DEFAULT_PROFILE, resync: bool = True, progress: Progress | None = None,
+           stop_when_idle: bool = True) -> RecordResult:
+    """Record a board's stream to `path` until `duration_s` s have passed, the board stops
+    streaming (STATUS.streaming = 0), or Ctrl-C.
+
+    The file keeps everything received up to a failure: a disconnect raises
+    Disconnected after the file was closed cleanly. Nothing is left behind when the
+    board cannot be reached or refuses the handshake.
+    """
+    path = Path(path)
+    with Link(url, baud) as link:
+        writer = RecordingWriter(path, url, profile)
+        link_ready = False
+        try:
+            link.tap = writer.received
+            hello = link.connect()
+            writer.event("connected", hello=hello)
+            link.command("STOP_STREAM")
+            _leave_injection_mode(link)
+            status = link.command("GET_STATUS").data.fields
+            filter_id, settings = read_settings(link)
+            filter_name = _FILTER_NAMES.get(filter_id, str(filter_id))
+            writer.event("snapshot", status=status, filter=filter_name,
+                         settings={s["name"]: s["value"] for s in settings.values()})
+            link.command("SELECT_FILTER", filter_id=filter_id)  # restart: the recording starts at index 0
+            link_ready = True
+        except BaseException:
+            writer.close()
+            path.unlink(missing_ok=True)
+            raise
+        try:
+            result = _stream_to(link, writer, hello, filter_id, filter_name, duration_s, resync, progress,
+                                stop_when_idle)
+        finally:
+            writer.close()
+    assert link_ready
+    return result
+
+
+def _stream_to(link: Link, writer: RecordingWriter, hello: dict, filter_id: int, filter_name: str,
+               duration_s: float | None, resync: bool, progress: Progress | None,
+               stop_when_idle: bool) -> RecordResult:
+    """The streaming part of :func:`record`: runs until a stop condition, stops the stream."""
+    link.receive(timeout=0)  # forget the snapshot answers: only the stream matters from here
+    link.command("START_STREAM")
+    started = time.monotonic()
+    writer.event("stream_started", filter=filter_name)
+    samples = estimates = restarts = 0
+    expected_index, segment_ok, restart = 0, True, None
+    stop_reason = None
+    try:
+        while stop_reason is None:
+            for received in link.receive(timeout=0.1):
+                name, fields = received.message.name, received.message.fields
+                if name == "SAMPLE":
+                    samples += 1
+                    index = fields["index"]
+                    if index == 0:
+                        segment_ok = True
+                    elif index != expected_index:
+                        segment_ok = False
+                    expected_index = index + 1
+                elif name == "ESTIMATE":
+                    estimates += 1
+                elif name in ("ACK", "NACK") and restart is not None \
+                        and fields["command_seq"] == restart[0].command_seq:
+                    restart = None
+                elif name == "STATUS" and not fields["streaming"] and stop_when_idle:
+                    stop_reason = "the board stopped streaming"
+                elif name == "LOG":
+                    _board_log(progress, fields)
+            if resync and not segment_ok and (restart is None or time.monotonic() - restart[1] > 1.0):
+                restart = (link.send_command("SELECT_FILTER", filter_id=filter_id), time.monotonic())
+                restarts += 1
+            elapsed = time.monotonic() - started
+            if duration_s is not None and elapsed >= duration_s:
+                stop_reason = f"{duration_s:g} s recorded"
+            if progress is not None:
+                progress.update(f"recording {elapsed:6.1f} s: {samples} samples, {_link_summary(link.counters())}"
+                                + (f", filter restarts {restarts}" if restarts else ""))
+    except KeyboardInterrupt:
+        stop_reason = "interrupted (Ctrl-C)"
+    except Disconnected as exc:
+        counters = link.counters()
+        writer.event("stopped", reason=str(exc), counters=counters)
+        if progress is not None:
+            progress.done()
+        raise Disconnected(f"{exc}; {writer.path} keeps the {counters['frames']} frames received before "
+                           "(it is complete and readable)") from None
+    try:
+        link.command("STOP_STREAM")
+    except LinkError:
+        pass  # the recording is complete either way; the board may be gone
+    counters = link.counters()
+    writer.event("stopped", reason=stop_reason, counters=counters)
+    if progress is not None:
+        progress.update(f"recorded {time.monotonic() - started:.1f} s: {samples} samples, "
+                        f"{_link_summary(counters)}", force=True)
+        progress.done()
+    return RecordResult(writer.path, hello, filter_name, samples, estimates, restarts, stop_reason,
+                        time.monotonic() - started, counters)
+
+
+# ---------------------------------------------------------------------------- host run and compare
+
+
+@dataclass
+class HostRun:
+    """The host's computation for each recorded sample (arrays aligned with
+    recording.samples). fixed: the fixed-point build's ESTIMATE fields (raw integers);
+    float_quat / float_euler / float_gyro_bias: the float twin (SI, rad and rad/s);
+    verifiable: the sample's segment is complete from index 0 up to it, so the host
+    saw exactly what the board saw."""
+
+    fixed: dict[str, np.ndarray]
+    float_quat: np.ndarray
+    float_euler: np.ndarray
+    float_gyro_bias: np.ndarray
+    verifiable: np.ndarray
+    filter_names: dict[int, str] = field(default_factory=dict)  # segment -> filter
+
+
+def host_run(recording: Recording) -> HostRun:
+    """Re-run the recorded samples through both builds of the filter the board ran."""
+    samples = recording.samples
+    n = len(samples)
+    fixed = {name: np.zeros((n,) + shape, np.int64) for name, shape in
+             (("filter_id", ()), ("quat", (4,)), ("gyro_bias", (3,)), ("euler", (3,)), ("cov_mantissa", (9,)),
+              ("cov_exponent", (9,)), ("saturations", ()))}
+    float_quat, float_euler, float_bias = np.full((n, 4), np.nan), np.full((n, 3), np.nan), np.full((n, 3), np.nan)
+    verifiable = np.zeros(n, bool)
+    names = {}
+    for segment in np.unique(samples.segment):
+        rows = np.flatnonzero(samples.segment == segment)
+        filter_id = _segment_filter(recording, segment)
+        name, raw_settings = recording.filter_settings(filter_id)
+        names[int(segment)] = name
+        reference = FirmwareFilter(name, raw_settings, recording.profile)
+        for row in rows:
+            estimate = reference.step(int(samples.index[row]), samples.gyr[row], samples.acc[row], samples.mag[row])
+            for key, value in estimate.items():
+                if key != "index":
+                    fixed[key][row] = value
+        twin = core.Filter(name, reference.si_settings["sample_rate"], "float", reference.si_settings,
+                           recording.profile).run_counts(samples.gyr[rows], samples.acc[rows], samples.mag[rows])
+        float_quat[rows], float_euler[rows], float_bias[rows] = twin.quat, twin.euler, twin.gyro_bias
+        complete = samples.index[rows] == np.arange(len(rows))
+        verifiable[rows] = np.cumprod(complete).astype(bool)
+    return HostRun(fixed, float_quat, float_euler, float_bias, verifiable, names)
+
+
+def _segment_filter(recording: Recording, segment: int) -> int:
+    ids = recording.estimates.filter_id[recording.estimates.segment == segment]
+    if len(ids):
+        return int(ids[0])
+    if recording.active_filter is None:
+        raise RecordingError(f"{recording.path}: no STATUS or ESTIMATE says which filter the board ran")
+    return recording.active_filter
+
+
+@dataclass
+class Difference:
+    """The first estimate that differs from the host: where, which field, both values."""
+
+    estimate: int  # position among the recorded estimates
+    segment: int
+    index: int
+    field: str
+    board: object
+    host: object
+
+    def __str__(self) -> str:
+        return (f"estimate #{self.estimate} (segment {self.segment}, sample index {self.index}): {self.field}: "
+                f"board {self.board}, host {self.host}")
+
+
+@dataclass
+class Comparison:
+    """Bit-exactness of a recording's estimates and the fixed-vs-float agreement.
+
+    fixed_vs_float: over the verified estimates, the rotation angle between the
+    board's quaternion and the float twin's (deg: max, mean, rms), the largest Euler
+    angle difference (deg) and the largest gyro bias difference (deg/s).
+    """
+
+    estimates: int
+    verified: int
+    identical: int
+    unverifiable: int
+    first_difference: Difference | None
+    fixed_vs_float: dict
+    matched: np.ndarray  # per estimate: row of its sample, -1 when it has none or is unverifiable
+
+    @property
+    def bit_exact(self) -> bool:
+        return self.verified > 0 and self.identical == self.verified
+
+
+def _match_estimates(recording: Recording, run: HostRun) -> np.ndarray:
+    samples, estimates = recording.samples, recording.estimates
+    rows = {(int(s), int(i)): r for r, (s, i) in enumerate(zip(samples.segment, samples.index))}
+    matched = np.array([rows.get((int(s), int(i)), -1) for s, i in zip(estimates.segment, estimates.index)],
+                       np.int64)
+    matched[matched >= 0] = np.where(run.verifiable[matched[matched >= 0]], matched[matched >= 0], -1)
+    return matched
+
+
+def compare(recording: Recording, run: HostRun | None = None) -> Comparison:
+    """Compare every verifiable board estimate with the host fixed-point build, bit for bit."""
+    run = run or host_run(recording)
+    estimates = recording.estimates
+    matched = _match_estimates(recording, run)
+    verified = np.flatnonzero(matched >= 0)
+    rows = matched[verified]
+    equal = np.ones(len(verified), bool)
+    first = None
+    for name in Estimates.COMPARED:
+        board = getattr(estimates, name)[verified]
+        host = run.fixed[name][rows]
+        same = board == host if board.ndim == 1 else np.all(board == host, axis=1)
+        equal &= same
+    if not equal.all():
+        k = int(np.flatnonzero(~equal)[0])
+        position, row = int(verified[k]), int(rows[k])
+        for name in Estimates.COMPARED:
+            board, host = getattr(estimates, name)[position], run.fixed[name][row]
+            if np.any(board != host):
+                first = Difference(position, int(estimates.segment[position]), int(estimates.index[position]), name,
+                                   board.tolist(), host.tolist())
+                break
+    return Comparison(len(estimates), len(verified), int(equal.sum()), len(estimates) - len(verified), first,
+                      _fixed_vs_float(estimates, verified, run.float_quat[rows], run.float_euler[rows],
+                                      run.float_gyro_bias[rows]), matched)
+
+
+def _fixed_vs_float(estimates: Estimates, positions, float_quat, float_euler, float_bias) -> dict:
+    if not len(positions):
+        return {}
+    quat = estimates.quat[positions] / 2.0**_Q["quat"]
+    angle = angle_difference(quat, float_quat)
+    euler = np.degrees(estimates.euler[positions] / 2.0**_Q["euler"])
+    bias = estimates.gyro_bias[positions] / 2.0**_Q["gyro_bias"]
+    return {"angle_max_deg": float(angle.max()), "angle_mean_deg": float(angle.mean()),
+            "angle_rms_deg": float(np.sqrt(np.mean(angle**2))),
+            "euler_max_deg": float(np.abs(wrap_deg(euler - np.degrees(float_euler))).max()),
+            "gyro_bias_max_deg_s": float(np.degrees(np.abs(bias - float_bias)).max())}
+
+
+def format_comparison(recording: Recording, comparison: Comparison) -> str:
+    """The human report of `imulink compare`."""
+    c = recording.counters
+    lines = [f"recording: {recording.path}"]
+    if recording.hello:
+        h = recording.hello
+        lines.append(f"board: {h['board']} firmware {h['firmware_major']}.{h['firmware_minor']}."
+                     f"{h['firmware_patch']}, sensor profile {recording.profile.name}")
+    lines.append(f"link: {c['frames']} frames, {c['bytes']} bytes, CRC errors {c['crc_errors']}, "
+                 f"resyncs {c['resyncs']}, lost frames {c['lost_frames']}; {recording.segments} filter run(s)"
+                 + (f"; ignored a truncated tail of {recording.truncated_bytes} bytes"
+                    if recording.truncated_bytes else ""))
+    lines.append(f"estimates: {comparison.estimates} received, {comparison.verified} verifiable, "
+                 f"{comparison.identical} identical, {comparison.verified - comparison.identical} different, "
+                 f"{comparison.unverifiable} unverifiable (a sample before them was lost)")
+    if comparison.first_difference is not None:
+        lines.append(f"first difference: {comparison.first_difference}")
+    verdict = "yes" if comparison.bit_exact else ("no estimate to verify" if not comparison.verified else "NO")
+    lines.append(f"bit-exact: {verdict}")
+    ff = comparison.fixed_vs_float
+    if ff:
+        lines.append(f"fixed vs float: attitude max {ff['angle_max_deg']:.5f} deg, RMS {ff['angle_rms_deg']:.5f} deg; "
+                     f"Euler max {ff['euler_max_deg']:.5f} deg; gyro bias max {ff['gyro_bias_max_deg_s']:.2e} deg/s")
+    return "\n".join(lines)
+
+
+# ---------------------------------------------------------------------------- replay export
+
+
+def replay_columns(recording: Recording, run: HostRun, comparison: Comparison) -> dict[str, np.ndarray]:
+    """One row per recorded sample: inputs in SI, the board's estimate, the host fixed
+    build and the float twin. Keys are CSV column names with their units."""
+    s, e, p = recording.samples, recording.estimates, recording.profile
+    n = len(s)
+    board_row = np.full(n, -1)
+    has_sample = comparison.matched >= 0
+    board_row[comparison.matched[has_sample]] = np.flatnonzero(has_sample)
+    unmatched = {(int(sg), int(i)): k for k, (sg, i) in enumerate(zip(e.segment, e.index))}
+    for r in np.flatnonzero(board_row < 0):
+        board_row[r] = unmatched.get((int(s.segment[r]), int(s.index[r])), -1)
+    have = board_row >= 0
+
+    def board(values: np.ndarray, scale: float) -> np.ndarray:
+        out = np.full((n,) + values.shape[1:], np.nan)
+        out[have] = values[board_row[have]] * scale
+        return out
+
+    columns = {"host_time_s": s.host_time, "timestamp_us": s.timestamp_us, "segment": s.segment,
+               "index": s.index, "verifiable": run.verifiable.astype(int)}
+    axes = ("x", "y", "z")
+    for name, counts, scale, unit in (("gyr", s.gyr, p.gyro_scale, "rad_s"), ("acc", s.acc, p.acc_scale, "m_s2"),
+                                      ("mag", s.mag, p.mag_scale, "uT")):
+        for k, axis in enumerate(axes):
+            columns[f"{name}_{axis}_{unit}"] = counts[:, k] * scale
+    sources = {"board": (board(e.quat, 2.0**-_Q["quat"]), board(e.euler, 2.0**-_Q["euler"]),
+                         board(e.gyro_bias, 2.0**-_Q["gyro_bias"])),
+               "fixed": (run.fixed["quat"] * 2.0**-_Q["quat"], run.fixed["euler"] * 2.0**-_Q["euler"],
+                         run.fixed["gyro_bias"] * 2.0**-_Q["gyro_bias"]),
+               "float": (run.float_quat, run.float_euler, run.float_gyro_bias)}
+    for source, (quat, euler, bias) in sources.items():
+        for k, part in enumerate("wxyz"):
+            columns[f"{source}_q{part}"] = quat[:, k]
+        for k, angle in enumerate(("roll", "pitch", "heading")):
+            columns[f"{source}_{angle}_deg"] = np.degrees(euler[:, k])
+        for k, axis in enumerate(axes):
+            columns[f"{source}_gyro_bias_{axis}_rad_s"] = bias[:, k]
+    identical = np.full(n, np.nan)
+    rows = comparison.matched[comparison.matched >= 0]
+    positions = np.flatnonzero(comparison.matched >= 0)
+    if len(rows):
+        same = np.ones(len(rows), bool)
+        for name in Estimates.COMPARED:
+            board_v, host_v = getattr(e, name)[positions], run.fixed[name][rows]
+            same &= board_v == host_v if board_v.ndim == 1 else np.all(board_v == host_v, axis=1)
+        identical[rows] = same
+    columns["identical"] = identical
+    columns["fixed_float_angle_deg"] = angle_difference(np.nan_to_num(sources["fixed"][0]),
+                                                        np.nan_to_num(run.float_quat, nan=1.0))
+    return columns
+
+
+def export_csv(columns: dict[str, np.ndarray], path) -> None:
+    """Write replay columns as CSV (empty cells where a value is missing)."""
+    names = list(columns)
+    data = np.column_stack([np.asarray(columns[k], np.float64) for k in names])
+    integer = {"timestamp_us", "segment", "index", "verifiable"}
+    with open(path, "w", encoding="utf-8") as out:
+        out.write(",".join(names) + "\n")
+        for row in data:
+            out.write(",".join("" if math.isnan(v) else (str(int(v)) if names[i] in integer or names[i] == "identical"
+                                                          else f"{v:.9g}") for i, v in enumerate(row)) + "\n")
+
+
+def export_npz(recording: Recording, run: HostRun, columns: dict[str, np.ndarray], path) -> None:
+    """Write the replay as .npz: the CSV columns, the raw integers (sensor counts, the
+    board's and the host's ESTIMATE fields) and the recording's metadata as JSON."""
+    raw = {f"samples_{k}": getattr(recording.samples, k) for k in
+           ("gyr", "acc", "mag", "temperature", "timestamp_us", "index", "segment", "host_time")}
+    raw.update({f"board_{k}": getattr(recording.estimates, k) for k in
+                ("index", "segment", "host_time") + Estimates.COMPARED})
+    raw.update({f"host_fixed_{k}": v for k, v in run.fixed.items()})
+    meta = {"header": recording.header, "hello": recording.hello, "status": recording.status,
+            "counters": recording.counters, "events": recording.events}
+    np.savez_compressed(path, **columns, **raw, metadata=np.array(json.dumps(meta, default=str)))
+
+
+# ---------------------------------------------------------------------------- inject
+
+
+@dataclass
+class InjectionInput:
+    """Samples to inject: int16 counts (N,3), their rate and sensor profile; optionally
+    the filter and raw settings to run them with (a recording's) and the truth."""
+
+    description: str
+    gyr: np.ndarray
+    acc: np.ndarray
+    mag: np.ndarray
+    rate_hz: float
+    profile: SensorProfile
+    filter_name: str | None = None
+    raw_settings: dict[str, int] | None = None
+    truth: np.ndarray | None = None
+
+
+def load_injection_input(spec: str) -> InjectionInput:
+    """`sim:SCENARIO[:DURATION_S[:RATE_HZ[:SEED]]]` (default 60 s at 100 Hz, seed 0),
+    a BROAD .mat file (converted to counts with BROAD_PROFILE) or a recording."""
+    if spec.startswith("sim:"):
+        parts = spec.split(":")[1:]
+        if not 1 <= len(parts) <= 4 or parts[0] not in sim.SCENARIOS:
+            raise HilError(f"bad simulated input {spec!r}: use sim:SCENARIO[:DURATION_S[:RATE_HZ[:SEED]]] "
+                           f"with SCENARIO one of {', '.join(sim.SCENARIOS)}")
+        try:
+            duration = float(parts[1]) if len(parts) > 1 else 60.0
+            rate = float(parts[2]) if len(parts) > 2 else 100.0
+            seed = int(parts[3]) if len(parts) > 3 else 0
+        except ValueError:
+            raise HilError(f"bad simulated input {spec!r}: duration and rate must be numbers, seed an integer") from None
+        if duration <= 0 or rate <= 0:
+            raise HilError(f"bad simulated input {spec!r}: duration and rate must be positive")
+        run = sim.make_scenario(parts[0], duration, rate, seed)
+        return InjectionInput(f"simulated {parts[0]} ({duration:g} s at {rate:g} Hz, seed {seed})", run.gyr_counts,
+                              run.acc_counts, run.mag_counts, rate, run.profile, truth=run.quat_true)
+    path = Path(spec)
+    if not path.exists():
+        raise HilError(f"input {spec!r} not found (give a recording, a BROAD .mat file or sim:SCENARIO:SECONDS)")
+    if path.suffix.lower() == ".mat":
+        return _load_broad(path)
+    recording = load_recording(path)
+    if not len(recording.samples):
+        raise HilError(f"{path} holds no samples")
+    name, raw_settings = recording.filter_settings(recording.active_filter)
+    s = recording.samples
+    return InjectionInput(f"recording {path.name} ({len(s)} samples)", s.gyr, s.acc, s.mag,
+                          raw_settings["sample_rate"] / 2.0**16, recording.profile, name, raw_settings)
+
+
+def _load_broad(path: Path) -> InjectionInput:
+    from scipy.io import loadmat
+
+    try:
+        data = loadmat(str(path))
+        gyr, acc, mag = (np.asarray(data[k], np.float64) for k in ("imu_gyr", "imu_acc", "imu_mag"))
+        rate = float(np.asarray(data["sampling_rate"]).ravel()[0])
+        truth = np.asarray(data["opt_quat"], np.float64) if "opt_quat" in data else None
+    except (OSError, ValueError, KeyError) as exc:
+        raise HilError(f"{path} is not a BROAD trial (.mat with imu_gyr, imu_acc, imu_mag, sampling_rate): "
+                       f"{exc}") from None
+    g, a, m, saturated = si_to_counts(gyr, acc, mag, BROAD_PROFILE, return_saturation=True)
+    return InjectionInput(f"BROAD trial {path.stem} ({len(g)} samples at {rate:g} Hz)", g, a, m, rate, BROAD_PROFILE,
+                          truth=truth)
+
+
+@dataclass
+class InjectResult:
+    samples: int
+    answered: int
+    identical: int
+    answers_lost: int
+    filter_restarts: int
+    first_difference: str | None
+    filter_name: str
+    duration_s: float
+    accuracy: dict | None
+
+    @property
+    def bit_exact(self) -> bool:
+        return self.answered > 0 and self.identical == self.answered
+
+
+def _configure_for_injection(link: Link, source: InjectionInput, filter_name: str | None) -> tuple[str, dict, dict]:
+    """Select the filter and set the settings the injection runs with; returns the
+    filter name, the raw settings in force, and the original values changed (to restore)."""
+    _leave_injection_mode(link)
+    wanted_filter = filter_name or source.filter_name
+    if wanted_filter is not None:
+        link.command("SELECT_FILTER", filter_id=core.FILTERS[wanted_filter][0])
+    filter_id, settings = read_settings(link)
+    name = _FILTER_NAMES[filter_id]
+    fields = core.settings_fields(name)
+    current = {fields[i].name: settings[i]["value"] for i in range(len(fields))}
+    wanted = dict(source.raw_settings) if source.raw_settings and name == source.filter_name else {}
+    wanted["sample_rate"] = core.to_fixed(source.rate_hz, 16, "sample_rate")
+    changed = {}
+    for index, f in enumerate(fields):
+        if f.name in wanted and wanted[f.name] != current[f.name]:
+            try:
+                link.command("SET_SETTING", index=index, value=wanted[f.name])
+            except protocol.CommandError as exc:
+                raise HilError(f"the board refuses {f.name} = {wanted[f.name] / 2.0**f.frac_bits:g} {f.unit} "
+                               f"({exc.reason})") from None
+            changed[index] = current[f.name]
+            current[f.name] = wanted[f.name]
+    return name, current, changed
+
+
+def inject(url: str, source: InjectionInput, *, baud: int = DEFAULT_BAUD, filter_name: str | None = None,
+           board_profile: SensorProfile = DEFAULT_PROFILE, progress: Progress | None = None) -> InjectResult:
+    """Inject every sample of `source` into the board and compare each ESTIMATE with the
+    host fixed-point build on the fly.
+
+    An ESTIMATE lost on the way is counted (answers_lost). A sample whose ACK never
+    comes may or may not have run on the board, so the filter is restarted on both
+    sides (SET_INJECTION_MODE 1) and the comparison goes on from the next sample.
+    """
+    if source.profile != board_profile:
+        raise HilError(f"{source.description} is in sensor profile {source.profile.name!r} but the board is declared "
+                       f"as {board_profile.name!r}; protocol v{protocol.PROTOCOL_VERSION} can neither read nor set a "
+                       f"board's sensor scales. Start the board with profile {source.profile.name!r} (imulink emulate "
+                       f"--profile {source.profile.name}) and pass --board-profile {source.profile.name}")
+    with Link(url, baud) as link:
+        link.connect()
+        link.command("STOP_STREAM")
+        name, raw_settings, changed = _configure_for_injection(link, source, filter_name)
+        link.command("SET_INJECTION_MODE", enabled=1)
+        try:
+            result = _inject_samples(link, source, name, raw_settings, board_profile, progress)
+        finally:
+            link.command("SET_INJECTION_MODE", enabled=0)
+            for index, value in changed.items():
+                link.command("SET_SETTING", index=index, value=value)
+    return result
+
+
+def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings: dict, profile: SensorProfile,
+                    progress: Progress | None) -> InjectResult:
+    reference = FirmwareFilter(name, raw_settings, profile)
+    n = len(source.gyr)
+    answered = identical = lost = restarts = 0
+    first = None
+    board_quat = np.full((n, 4), np.nan)
+    started = time.monotonic()
+    gyr, acc, mag = source.gyr.tolist(), source.acc.tolist(), source.mag.tolist()
+    for k in range(n):
+        try:
+            reply = link.command("INJECT_SAMPLE", timestamp_us=round(k * 1e6 / source.rate_hz) & 0xFFFFFFFF,
+                                 index=k, gyr=gyr[k], acc=acc[k], mag=mag[k], temperature=0)
+        except LinkError as exc:
+            if isinstance(exc, Disconnected):
+                raise
+            link.command("SET_INJECTION_MODE", enabled=1)  # the board's filter state is unknown: restart both
+            reference = FirmwareFilter(name, raw_settings, profile)
+            restarts += 1
+            continue
+        expected = reference.step(k, gyr[k], acc[k], mag[k])
+        if reply.data is None:
+            lost += 1
+            continue
+        answered += 1
+        got = reply.data.fields
+        board_quat[k] = np.array(got["quat"]) / 2.0**_Q["quat"]
+        if all(tuple(got[f]) == tuple(expected[f]) if isinstance(expected[f], list) else got[f] == expected[f]
+               for f in ("index",) + Estimates.COMPARED):
+            identical += 1
+        elif first is None:
+            field_name = next(f for f in ("index",) + Estimates.COMPARED
+                              if (list(got[f]) if isinstance(expected[f], list) else got[f]) != expected[f])
+            first = f"sample {k}: {field_name}: board {got[field_name]}, host {expected[field_name]}"
+        if progress is not None:
+            progress.update(f"injecting: {k + 1}/{n} samples, {identical}/{answered} identical, "
+                            f"{(k + 1) / (time.monotonic() - started):.0f} samples/s")
+    if progress is not None:
+        progress.done()
+    accuracy = None
+    if source.truth is not None and answered:
+        settle = int(SETTLE_S * source.rate_hz)
+        accuracy = rmse(attitude_errors(board_quat[settle:], source.truth[settle:]))
+    return InjectResult(n, answered, identical, lost, restarts, first, name, time.monotonic() - started, accuracy)
+
+
+# ---------------------------------------------------------------------------- demo
+
+
+@dataclass
+class DemoReport:
+    address: str
+    record: RecordResult
+    recording: Recording
+    comparison: Comparison
+    accuracy: dict
+    duration_s: float
+
+    def format(self) -> str:
+        r, c, rec = self.record, self.comparison, self.recording
+        lost = rec.counters["lost_frames"]
+        lines = [
+            f"virtual board: {self.address} ({rec.hello['board']}, filter {r.filter_name})",
+            f"recorded: {r.samples} samples, {r.estimates} estimates, {rec.counters['frames']} frames in "
+            f"{r.duration_s:.2f} s ({rec.counters['frames'] / max(r.duration_s, 1e-9):.0f} frames/s); "
+            f"lost frames {lost}, CRC errors {rec.counters['crc_errors']}",
+            f"bit-exact: {'yes' if c.bit_exact else 'NO'} ({c.identical} of {c.verified} verifiable estimates "
+            f"identical to the host fixed-point build)",
+        ]
+        if c.first_difference is not None:
+            lines.append(f"first difference: {c.first_difference}")
+        if c.fixed_vs_float:
+            ff = c.fixed_vs_float
+            lines.append(f"fixed vs float twin: attitude max {ff['angle_max_deg']:.5f} deg, "
+                         f"RMS {ff['angle_rms_deg']:.5f} deg")
+        if self.accuracy:
+            a = self.accuracy
+            lines.append(f"accuracy vs simulated truth (RMS after {SETTLE_S:g} s): total {a['total']:.3f} deg, "
+                         f"heading {a['heading']:.3f} deg, inclination {a['inclination']:.3f} deg")
+        lines.append(f"recording: {rec.path}")
+        lines.append(f"demo took {self.duration_s:.1f} s")
+        return "\n".join(lines)
+
+
+def demo(*, transport: str = "tcp", scenario: str = "rests", duration_s: float = 60.0, rate_hz: float = 100.0,
+         seed: int = 0, filter_name: str = "eecf", output=None, progress: Progress | None = None) -> DemoReport:
+    """Record a virtual board's simulated run (as fast as the link goes) and verify it.
+
+    `output` keeps the recording; by default it goes to a temporary directory.
+    """
+    started = time.monotonic()
+    if output is None:
+        output = Path(tempfile.mkdtemp(prefix="imulink-demo-")) / "demo.imulog"
+    board_transport = TcpTransport() if transport == "tcp" else PtyTransport()
+    with VirtualBoard(board_transport, scenario=scenario, duration_s=duration_s, rate_hz=rate_hz, seed=seed,
+                      filter_name=filter_name) as board:
+        result = record(board.address, output, progress=progress)
+    recording = load_recording(output)
+    comparison = compare(recording)
+    accuracy = {}
+    verified = comparison.matched >= 0
+    if verified.any():
+        rows = comparison.matched[verified]
+        quat = recording.estimates.quat[verified] / 2.0**_Q["quat"]
+        truth = board.truth(recording.samples.timestamp_us[rows])
+        settled = recording.samples.timestamp_us[rows] >= SETTLE_S * 1e6
+        accuracy = rmse(attitude_errors(quat[settled], truth[settled]))
+    return DemoReport(board.address, result, recording, comparison, accuracy, time.monotonic() - started)
