@@ -156,23 +156,6 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
     return IMU_OK;
 }
 
-/** w = 1 / (1 + (dev / tol)^2)^2 in Q30; dev and tol in Q24, tol > 0; 0 beyond 16 tol. */
-static imu_q30_t deviation_weight(imu_real_t dev, imu_real_t tol, uint32_t *sat)
-{
-    imu_real_t d, d2;
-    imu_q30_t inv;
-    if (dev < 0) {
-        dev = IMU_NEG_SAT(dev, sat);
-    }
-    if (dev >= IMU_MUL(tol, IMU_QCONST(16.0, 24), 24)) { /* tol <= 1: 16 tol < 2^29 */
-        return 0;
-    }
-    d = IMU_DIV_SAT(dev, tol, 26, sat);                                   /* Q24 / Q24 -> Q26, < 16 */
-    d2 = IMU_MUL(d, d, 30);                                               /* Q22, < 256 */
-    inv = IMU_DIV_SAT(IMU_QCONST(1.0, 22), IMU_ADD(IMU_QCONST(1.0, 22), d2), 30, sat); /* Q30, <= 1 */
-    return IMU_MUL(inv, inv, 30);
-}
-
 /** Dip of a unit field in the earth frame (positive below the horizon), rad Q29, and its horizontal length. */
 static imu_angle_t field_dip(const imu_q30_t earth[3], imu_q30_t *horizontal)
 {
@@ -325,7 +308,7 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q30_
         return;
     }
     /* |a| / g - 1: Q16 * Q30 >> 22 -> Q24. */
-    f->acc_weight = deviation_weight(IMU_SUB(IMU_MUL(norm, f->inv_gravity, 22), IMU_QCONST(1.0, 24)),
+    f->acc_weight = imu_deviation_weight(IMU_SUB(IMU_MUL(norm, f->inv_gravity, 22), IMU_QCONST(1.0, 24)),
                                      IMU_SHR(st->acc_tolerance, 6), &f->saturations);
     if (f->acc_weight == 0) {
         return; /* far from 1 g (taps, free fall): no gravity information */
@@ -368,10 +351,10 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_q30_
         return;
     }
     /* Norm deviation |m| / ref - 1 (Q16 / Q16 -> Q24) and dip deviation (Q29 -> Q24). */
-    w_norm = deviation_weight(IMU_SUB(IMU_DIV_SAT(norm, f->ref_field, 24, &f->saturations), IMU_QCONST(1.0, 24)),
+    w_norm = imu_deviation_weight(IMU_SUB(IMU_DIV_SAT(norm, f->ref_field, 24, &f->saturations), IMU_QCONST(1.0, 24)),
                               IMU_SHR(st->mag_tolerance, 6), &f->saturations);
     f->mag_weight = IMU_MUL(w_norm,
-                            deviation_weight(IMU_SHR(imu_angle_diff(dip, f->ref_dip), 5),
+                            imu_deviation_weight(IMU_SHR(imu_angle_diff(dip, f->ref_dip), 5),
                                              IMU_SHR(st->dip_tolerance, 6), &f->saturations),
                             30);
     if (f->steps < f->learn_steps) {

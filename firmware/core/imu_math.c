@@ -559,3 +559,19 @@ imu_angle_t imu_heading_from_mag(const imu_real_t mag[3], imu_angle_t roll, imu_
     hy = IMU_SUB(IMU_MUL(cp, m[1], 30), IMU_MUL(sp, w, 30));
     return imu_atan2(-hx, hy);
 }
+
+imu_q30_t imu_deviation_weight(imu_real_t deviation, imu_real_t tolerance, uint32_t *sat)
+{
+    imu_real_t d, d2;
+    imu_q30_t inv;
+    if (deviation < 0) {
+        deviation = IMU_NEG_SAT(deviation, sat);
+    }
+    if (deviation >= IMU_MUL(tolerance, IMU_QCONST(16.0, 24), 24)) { /* tolerance < 2: 16 x < 2^29 */
+        return 0;
+    }
+    d = IMU_DIV_SAT(deviation, tolerance, 26, sat); /* Q24 / Q24 -> Q26, < 16 */
+    d2 = IMU_MUL(d, d, 30);                          /* Q22, < 256 */
+    inv = IMU_DIV_SAT(IMU_QCONST(1.0, 22), IMU_ADD(IMU_QCONST(1.0, 22), d2), 30, sat); /* Q30, <= 1 */
+    return IMU_MUL(inv, inv, 30);
+}

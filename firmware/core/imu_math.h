@@ -93,4 +93,14 @@ int imu_tilt_from_acc(const imu_real_t acc[3], imu_angle_t *roll, imu_angle_t *p
  */
 imu_angle_t imu_heading_from_mag(const imu_real_t mag[3], imu_angle_t roll, imu_angle_t pitch);
 
+/**
+ * @brief Weight of a measurement whose input departs from its model:
+ *        w = 1 / (1 + (deviation / tolerance)^2)^2 in Q30, 0 beyond 16 tolerances.
+ *
+ * Flat near zero (small deviations keep the full weight), continuous (a fixed and a
+ * float build never take different branches), deviation and tolerance in Q24 with
+ * 0 < tolerance < 2.
+ */
+imu_q30_t imu_deviation_weight(imu_real_t deviation, imu_real_t tolerance, uint32_t *sat);
+
 #endif /* IMU_MATH_H */
