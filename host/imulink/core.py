@@ -171,7 +171,6 @@ class Filter:
             detail = ", ".join(f"{k}={self.settings[k]!r} {fields[k].unit}" for k in bad) or str(self.settings)
             raise SettingsError(f"setting out of range for {filter_name!r}: {detail} "
                                 f"(ranges are documented in firmware/core/{FILTERS[filter_name][1]}.h)")
-        self._apply(self.settings)
 
     def _apply(self, values: dict[str, float]) -> bool:
         struct = _settings_struct(self.mod, self.arithmetic, self.filter_name, values)
