@@ -15,9 +15,10 @@ $(BIN)/imulink: pyproject.toml setup.py host/imulink/_build_core.py host/imulink
 ## setup: create .venv and build the package with both C core builds
 setup: $(BIN)/imulink
 
-## demo: the main job (no hardware): simulated run through every filter, fixed and float
+## demo: the main job (no hardware): a virtual board streams a simulated run over the
+## frame protocol; the host records it and proves every estimate bit-exact
 demo: setup
-	$(BIN)/imulink simulate
+	$(BIN)/imulink demo
 
 ## test: the whole test suite
 test: setup

@@ -58,28 +58,6 @@ RESTARTING_COMMANDS = frozenset({"SELECT_FILTER", "SET_SETTING", "SET_INJECTION_
 # ---------------------------------------------------------------------------- the firmware's filter
 
 
-def covariance_diagonal_raw(filter_: core.Filter) -> tuple[list[int], list[int]]:
-    """ESKF covariance diagonal as the firmware stores it: (mantissas, exponents), 9 each,
-    P_ii = mantissa * 2^(exponent - 30); zeros past the filter's state count.
-
-    imu_cov.h keeps every diagonal mantissa in [2^28, 2^30) with an even exponent
-    (e_i + e_i), so the pair is recovered exactly from the value that
-    :meth:`core.Filter.covariance` reconstructs. A raw accessor in the core bindings
-    would make this unnecessary (see docs/hil.md).
-    """
-    diagonal = np.diag(filter_.covariance())
-    mantissas, exponents = [0] * 9, [0] * 9
-    for i, value in enumerate(diagonal):
-        fraction, exponent = math.frexp(float(value))  # value = fraction * 2^exponent, fraction in [0.5, 1)
-        mantissa = fraction * 2.0**30
-        if exponent % 2:
-            mantissa, exponent = mantissa / 2, exponent + 1
-        if value <= 0 or mantissa != int(mantissa) or not -128 <= exponent <= 127:
-            raise ValueError(f"ESKF covariance P[{i},{i}] = {value!r} is not a normalised block-floating value")
-        mantissas[i], exponents[i] = int(mantissa), exponent
-    return mantissas, exponents
-
-
 class FirmwareFilter:
     """One filter of the fixed-point core, configured by raw settings (the integers of
     SET_SETTING) and stepped one sample at a time, as the firmware runs it.
@@ -110,7 +88,7 @@ class FirmwareFilter:
                                       np.array([mag], np.int16))
         self.saturations = result.saturations
         if self._has_covariance:
-            mantissas, exponents = covariance_diagonal_raw(self.core)
+            mantissas, exponents = self.core.covariance_diagonal_raw()
         else:
             mantissas, exponents = [0] * 9, [0] * 9
         raw = result.raw
@@ -298,7 +276,9 @@ class TcpTransport:
 
 
 class SerialTransport:
-    """Any pyserial URL or device, polled every `poll_s` seconds."""
+    """Any pyserial URL or device (a real UART to a host through a null-modem cable, for
+    example), polled every `poll_s` seconds. Raises serial.SerialException when the port
+    cannot be opened."""
 
     def __init__(self, url: str, baud: int = 921600, poll_s: float = 0.002):
         self._port = serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=0)
@@ -339,21 +319,21 @@ class VirtualBoard:
         profile: sensor full-scale profile of the simulated GY-86 (its counts and the
             core's sensor scales).
         faults: damage to apply to the outgoing bytes.
-        schema_hash: the hash HELLO reports (another value emulates a board built from
-            another protocol definition).
+        schema_hash: the hash HELLO reports (None: this host's; another value emulates a
+            board built from another protocol definition).
     """
 
     def __init__(self, transport, *, scenario: str = "rests", duration_s: float = 600.0, rate_hz: float = 100.0,
                  seed: int = 0, filter_name: str = "eecf", realtime: bool = False,
                  profile: SensorProfile = DEFAULT_PROFILE, faults: FaultConfig | None = None,
-                 schema_hash: int = protocol.SCHEMA_HASH):
+                 schema_hash: int | None = None):
         if filter_name not in core.FILTERS:
             raise ValueError(f"unknown filter {filter_name!r}; choose one of {', '.join(core.FILTERS)}")
         self.transport = transport
         self.rate_hz = float(rate_hz)
         self.realtime = realtime
         self.profile = profile
-        self.schema_hash = schema_hash
+        self.schema_hash = protocol.SCHEMA_HASH if schema_hash is None else schema_hash
         self.initial_filter = filter_name
         self.simulation = sim.make_scenario(scenario, duration_s, rate_hz, seed)
         counts = (self.simulation.gyr_counts, self.simulation.acc_counts, self.simulation.mag_counts)
@@ -379,6 +359,7 @@ class VirtualBoard:
         self._settings = {name: FirmwareFilter.default_raw_settings(name, self.rate_hz) for name in core.FILTERS}
         self._start_filter(FirmwareFilter(self.initial_filter, self._settings[self.initial_filter], self.profile))
         self._streaming = False
+        self._stream_start, self._stream_first = 0.0, 0  # when streaming started, and at which sample
         self._injection = False
         self._decoder = protocol.FrameDecoder()
         self._booted = time.monotonic()
@@ -396,11 +377,6 @@ class VirtualBoard:
     def address(self) -> str:
         """What the host opens: a pty path or a socket:// URL."""
         return self.transport.address
-
-    @property
-    def samples_streamed(self) -> int:
-        """Simulated samples consumed so far."""
-        return self._position
 
     def truth(self, timestamps_us) -> np.ndarray:
         """True attitude (N,4) (w-first, sensor-to-earth ENU) of the samples with these
@@ -441,15 +417,15 @@ class VirtualBoard:
     def _loop(self) -> None:
         connections = self.transport.connections
         while not self._stop.is_set():
-            if self.transport.connections != connections:  # a new client: greet it
-                connections = self.transport.connections
-                self._out.clear()
-                self._hello_pending = True
             if self._hello_pending:
                 self._hello_pending = False
                 self._emit("HELLO", **self._hello_fields())
             self._flush()
             self.transport.wait(bool(self._out), self._wait_time())
+            if self.transport.connections != connections:  # a new client: forget the old one's output, greet it
+                connections = self.transport.connections
+                self._out.clear()
+                self._emit("HELLO", **self._hello_fields())
             data = self.transport.read()
             if data:
                 for message in self._decoder.feed(data):

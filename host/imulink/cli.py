@@ -2,10 +2,10 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import time
 
-import numpy as np
 
 from . import __version__
 
@@ -84,7 +84,310 @@ def build_parser() -> argparse.ArgumentParser:
                        description="List each filter's settings: default value, SI unit and fixed-point format.")
     p.add_argument("--filters", default="all", help="comma-separated filter names (default: all)")
     p.set_defaults(func=_cmd_filters)
+    _add_hil_commands(sub)
     return parser
+
+
+# ---------------------------------------------------------------------------- hardware in the loop
+# The logic lives in imulink.hil (record, replay, compare, inject, demo) and imulink.board
+# (emulate); these functions only parse, print and turn errors into one line and exit 2.
+
+EXIT_MISMATCH = 1
+EXIT_ERROR = 2
+
+
+def _hil_command(func):
+    """Run a HIL command: known errors print `imulink: error: ...` and exit 2, Ctrl-C exits 130."""
+
+    def run(args) -> int:
+        from . import core, protocol
+        from .hil import HilError
+        from .link import LinkError
+        from .recording import RecordingError
+
+        try:
+            return func(args)
+        except (LinkError, protocol.ProtocolError, RecordingError, HilError, core.SettingsError, OSError) as exc:
+            print(f"imulink: error: {exc}", file=sys.stderr)
+            return EXIT_ERROR
+        except KeyboardInterrupt:
+            print("imulink: interrupted", file=sys.stderr)
+            return 130
+
+    run.__doc__ = func.__doc__
+    return run
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def _profile(name: str):
+    from .hil import PROFILES
+
+    try:
+        return PROFILES[name]
+    except KeyError:
+        raise argparse.ArgumentTypeError(f"unknown sensor profile {name!r}; choose from {', '.join(PROFILES)}") from None
+
+
+def _probability(text: str) -> float:
+    value = _non_negative_float(text)
+    if value > 1:
+        raise argparse.ArgumentTypeError(f"a probability must be in [0, 1]: {text!r}")
+    return value
+
+
+def _non_negative_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"must not be negative: {text!r}")
+    return value
+
+
+def _hex_int(text: str) -> int:
+    try:
+        return int(text, 0)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer (e.g. 0x1234ABCD): {text!r}") from None
+
+
+@_hil_command
+def _cmd_emulate(args) -> int:
+    import serial
+
+    from . import board
+    from .link import PortError
+
+    if args.serial is not None:
+        try:
+            transport = board.SerialTransport(args.serial, args.baud)
+        except serial.SerialException as exc:
+            raise PortError(f"cannot open {args.serial}: {exc}") from None
+    elif args.tcp is not None:
+        transport = board.TcpTransport(port=args.tcp)
+    else:
+        transport = board.PtyTransport()
+    faults = board.FaultConfig(drop_byte=args.drop_byte, flip_bit=args.flip_bit, garbage=args.garbage,
+                               stall=args.stall, stall_s=args.stall_duration, seed=args.fault_seed)
+    virtual = board.VirtualBoard(transport, scenario=args.scenario, duration_s=args.duration, rate_hz=args.rate,
+                                 seed=args.seed, filter_name=args.filter, realtime=not args.fast,
+                                 profile=args.profile, faults=faults, schema_hash=args.schema_hash)
+    print(virtual.address, flush=True)
+    pace = "as fast as the link drains" if args.fast else "in real time"
+    print(f"virtual board: {args.scenario} {args.duration:g} s at {args.rate:g} Hz {pace}, filter {args.filter}, "
+          f"profile {args.profile.name}{', faults ' + str(faults) if faults.active else ''}. Ctrl-C stops it.",
+          file=sys.stderr)
+    signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops the board as cleanly as Ctrl-C
+    virtual.start()
+    try:
+        while virtual.error is None:
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        virtual.stop()
+    if virtual.error is not None:
+        print(f"imulink: error: the virtual board failed: {virtual.error!r}", file=sys.stderr)
+        return EXIT_ERROR
+    return 0
+
+
+@_hil_command
+def _cmd_record(args) -> int:
+    from . import hil
+
+    result = hil.record(args.port, args.output, duration_s=args.duration, baud=args.baud, profile=args.profile,
+                        resync=not args.no_resync, progress=hil.Progress())
+    print(f"recorded {result.samples} samples and {result.estimates} estimates of {result.filter_name} in "
+          f"{result.duration_s:.1f} s to {result.path} ({result.stop_reason}); "
+          f"{hil.link_summary(result.counters)}"
+          + (f"; filter restarts after lost samples: {result.filter_restarts}" if result.filter_restarts else ""))
+    return 0
+
+
+@_hil_command
+def _cmd_replay(args) -> int:
+    from pathlib import Path
+
+    from . import hil
+    from .recording import load_recording
+
+    recording = load_recording(args.file)
+    run = hil.host_run(recording)
+    comparison = hil.compare(recording, run)
+    columns = hil.replay_columns(recording, run, comparison)
+    csv_path = args.csv or (None if args.npz else Path(args.file).with_suffix(".csv"))
+    print(hil.format_comparison(recording, comparison))
+    if csv_path:
+        hil.export_csv(columns, csv_path)
+        print(f"CSV: {csv_path} ({len(recording.samples)} rows, {len(columns)} columns)")
+    if args.npz:
+        hil.export_npz(recording, run, columns, args.npz)
+        print(f"NPZ: {args.npz}")
+    return 0
+
+
+@_hil_command
+def _cmd_compare(args) -> int:
+    from . import hil
+    from .recording import load_recording
+
+    recording = load_recording(args.file)
+    comparison = hil.compare(recording)
+    print(hil.format_comparison(recording, comparison))
+    return 0 if comparison.bit_exact else EXIT_MISMATCH
+
+
+@_hil_command
+def _cmd_inject(args) -> int:
+    from . import hil
+
+    source = hil.load_injection_input(args.input)
+    result = hil.inject(args.port, source, baud=args.baud, filter_name=args.filter, board_profile=args.board_profile,
+                        progress=hil.Progress())
+    print(hil.format_inject(result))
+    return 0 if result.bit_exact else EXIT_MISMATCH
+
+
+@_hil_command
+def _cmd_demo(args) -> int:
+    from . import hil
+
+    report = hil.demo(transport=args.transport, scenario=args.scenario, duration_s=args.duration, rate_hz=args.rate,
+                      seed=args.seed, filter_name=args.filter, output=args.output, progress=hil.Progress())
+    print(report.format())
+    return 0 if report.comparison.bit_exact else EXIT_MISMATCH
+
+
+def _add_hil_commands(sub) -> None:
+    from . import core, sim
+    from .counts import DEFAULT_PROFILE
+    from .link import DEFAULT_BAUD
+
+    def port_arguments(p):
+        p.add_argument("port", metavar="PORT", help="serial device (/dev/ttyACM0, COM3) or pyserial URL "
+                                                     "(socket://HOST:PORT, rfc2217://HOST:PORT, loop://)")
+        p.add_argument("--baud", type=int, default=DEFAULT_BAUD,
+                       help=f"line rate of a real serial port (default: {DEFAULT_BAUD}; ignored by sockets and ptys)")
+
+    def simulation_arguments(p, duration: float, scenario: str = "rests"):
+        p.add_argument("--scenario", default=scenario, choices=sim.SCENARIOS,
+                       help=f"simulated trajectory (default: {scenario})")
+        p.add_argument("--duration", type=_positive_float, default=duration,
+                       help=f"seconds of simulated data (default: {duration:g})")
+        p.add_argument("--rate", type=_positive_float, default=100.0, help="sample rate in Hz (default: 100)")
+        p.add_argument("--seed", type=int, default=0, help="seed of the simulation (default: 0)")
+        p.add_argument("--filter", default="eskf", choices=list(core.FILTERS),
+                       help="filter active at start-up (default: eskf)")
+
+    p = sub.add_parser(
+        "demo", help="no hardware: record a virtual board's simulated run and prove it bit-exact",
+        description="Start a virtual board (the fixed-point C core and the sensor simulator behind the frame "
+                    "protocol) in this process, record its simulated run over a TCP loopback or a pty as fast as "
+                    "the link goes, replay the recording through the host build of the same C, and report: "
+                    "frames and losses, bit-exactness, the fixed-vs-float difference, and the accuracy against "
+                    "the simulated truth. Exit status 0 when every estimate is bit-exact, 1 otherwise.")
+    simulation_arguments(p, 60.0)
+    p.add_argument("--transport", choices=("tcp", "pty"), default="tcp", help="link to the board (default: tcp)")
+    p.add_argument("--output", "-o", help="keep the recording here (default: a temporary file)")
+    p.set_defaults(func=_cmd_demo)
+
+    p = sub.add_parser(
+        "emulate", help="run a virtual board on a pty, a TCP port or a serial port",
+        description="Run a virtual board until Ctrl-C: the fixed-point C core (exactly what the firmware "
+                    "computes) fed by the sensor simulator, answering every protocol command, on a pty (default; "
+                    "its path is printed), a TCP port (socket://127.0.0.1:PORT is printed) or a serial port. "
+                    "Every imulink "
+                    "command works against it. Fault options damage what the board sends, to test a host.")
+    simulation_arguments(p, 600.0)
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--tcp", type=int, nargs="?", const=0, metavar="PORT",
+                       help="listen on 127.0.0.1:PORT instead of a pty (no PORT: any free port)")
+    where.add_argument("--serial", metavar="URL", help="be the board on this serial port or pyserial URL (e.g. one "
+                                                       "end of a null-modem cable)")
+    p.add_argument("--baud", type=int, default=DEFAULT_BAUD, help=f"line rate for --serial (default: {DEFAULT_BAUD})")
+    p.add_argument("--fast", action="store_true", help="stream as fast as the link drains (default: real time)")
+    p.add_argument("--profile", type=_profile, default=DEFAULT_PROFILE,
+                   help="sensor profile: gy86-default (+-8 g) or gy86-broad (+-16 g) (default: gy86-default)")
+    p.add_argument("--schema-hash", type=_hex_int, default=None,
+                   help="schema hash to report in HELLO (emulates a board built from another protocol definition)")
+    faults = p.add_argument_group("fault injection (board-to-host bytes; deterministic for a seed)")
+    faults.add_argument("--drop-byte", type=_probability, default=0.0, metavar="P",
+                        help="probability that each byte is dropped")
+    faults.add_argument("--flip-bit", type=_probability, default=0.0, metavar="P",
+                        help="probability that each byte has a bit flipped")
+    faults.add_argument("--garbage", type=_probability, default=0.0, metavar="P",
+                        help="probability that random bytes precede a frame")
+    faults.add_argument("--stall", type=_probability, default=0.0, metavar="P",
+                        help="probability that the board goes silent before a frame")
+    faults.add_argument("--stall-duration", type=_non_negative_float, default=0.05, metavar="S",
+                        help="length of a stall in s (default: 0.05)")
+    faults.add_argument("--fault-seed", type=int, default=0, metavar="N", help="seed of the faults (default: 0)")
+    p.set_defaults(func=_cmd_emulate)
+
+    p = sub.add_parser(
+        "record", help="record a board's stream to a file",
+        description="Connect (GET_VERSION -> HELLO, schema hash checked), write the board's HELLO, STATUS and "
+                    "every setting of its active filter into the recording, restart the filter so the "
+                    "recording starts at sample 0, then stream and capture every received byte with its host "
+                    "time until --duration, the end of the board's stream, or Ctrl-C. The file is append-only "
+                    "and flushed as it grows: after a crash or a disconnect everything received is kept. "
+                    "After a lost SAMPLE the filter is restarted (unless --no-resync), so that the rest of the "
+                    "recording can still be verified bit for bit.")
+    port_arguments(p)
+    p.add_argument("--output", "-o", required=True, help="recording file to write (e.g. run.imulog)")
+    p.add_argument("--duration", type=_positive_float, help="seconds to record (default: until the stream ends "
+                                                           "or Ctrl-C)")
+    p.add_argument("--profile", type=_profile, default=DEFAULT_PROFILE,
+                   help="the board's sensor profile, stored for replay (default: gy86-default); the protocol "
+                        "cannot report it")
+    p.add_argument("--no-resync", action="store_true", help="never restart the filter after a lost sample")
+    p.set_defaults(func=_cmd_record)
+
+    p = sub.add_parser(
+        "replay", help="re-run a recording through the host builds and export CSV / .npz",
+        description="Decode a recording and re-run its raw samples through the host build of the filter the "
+                    "board ran (fixed point and float twin, with the recorded settings and sensor profile). "
+                    "Writes one row per sample: inputs in SI units, the board's estimate, the host fixed and "
+                    "float outputs, and whether the board's estimate was identical; units are in the column "
+                    "names. Without --csv or --npz the CSV goes next to the recording.")
+    p.add_argument("file", metavar="FILE", help="recording written by `imulink record` or `imulink demo`")
+    p.add_argument("--csv", help="CSV file to write")
+    p.add_argument("--npz", help="numpy .npz file to write (also the raw integers and the metadata)")
+    p.set_defaults(func=_cmd_replay)
+
+    p = sub.add_parser(
+        "compare", help="bit-exactness verdict of a recording",
+        description="Compare every estimate of a recording with the host fixed-point build, bit for bit, and "
+                    "report the counts of identical frames, the first differing frame and field with both "
+                    "values, and the fixed-vs-float statistics. Estimates after a lost sample of their filter "
+                    "run cannot be reproduced and are reported as unverifiable. Exit status 0 when every "
+                    "verifiable estimate is identical, 1 on any difference (or when none can be verified).")
+    p.add_argument("file", metavar="FILE", help="recording to check")
+    p.set_defaults(func=_cmd_compare)
+
+    p = sub.add_parser(
+        "inject", help="stream samples into a board in injection mode and check every answer",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Put the board in injection mode, send every sample of the input with INJECT_SAMPLE\n"
+                    "and compare each ESTIMATE with the host fixed-point build as it arrives. The board's\n"
+                    "sample_rate is set to the input's (and, for a recording, its filter and settings are\n"
+                    "applied); changed settings are restored afterwards. Exit status 1 on any difference.\n\n"
+                    "INPUT is one of:\n"
+                    "  sim:SCENARIO[:SECONDS[:RATE_HZ[:SEED]]]  a simulated run, e.g. sim:rests:60\n"
+                    "  FILE.mat                                 a BROAD trial (counts with profile gy86-broad)\n"
+                    "  FILE                                     a recording")
+    port_arguments(p)
+    p.add_argument("--input", "-i", required=True, help="what to inject (see above)")
+    p.add_argument("--filter", choices=list(core.FILTERS), help="select this filter first (default: the board's "
+                                                                 "active filter, or the recording's)")
+    p.add_argument("--board-profile", type=_profile, default=DEFAULT_PROFILE,
+                   help="the sensor profile the board runs with (default: gy86-default); it must match the input's")
+    p.set_defaults(func=_cmd_inject)
 
 
 def _positive_float(text: str) -> float:

@@ -231,6 +231,21 @@ class Filter:
                 out[i, j] = mant[0] * 2.0 ** (exp[0] - 30) if self.arithmetic == "fixed" else mant[0]
         return out
 
+    def covariance_diagonal_raw(self) -> tuple[list[int], list[int]]:
+        """ESKF covariance diagonal exactly as the fixed build stores it (what the board
+        sends in ESTIMATE): 9 mantissas and exponents, P_ii = mant * 2^(exp - 30), zeros
+        past the state count. Fixed build only."""
+        if self.arithmetic != "fixed":
+            raise ValueError("the raw covariance exists in the fixed build only")
+        state = self._eskf()
+        ffi, lib = self.mod.ffi, self.mod.lib
+        mant, exp = ffi.new("int32_t *"), ffi.new("int32_t *")
+        mantissas, exponents = [0] * 9, [0] * 9
+        for i in range(lib.imu_eskf_state_count(state)):
+            lib.imu_eskf_covariance(state, i, i, mant, exp)
+            mantissas[i], exponents[i] = mant[0], exp[0]
+        return mantissas, exponents
+
     def measurement_weights(self) -> tuple[float, float]:
         """ESKF weights of the last gravity and heading updates, in [0, 1] (0: rejected)."""
         state = self._eskf()

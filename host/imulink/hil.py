@@ -23,7 +23,7 @@ import math
 import sys
 import tempfile
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +32,7 @@ from . import core, protocol, sim
 from .analysis import angle_difference, attitude_errors, rmse, wrap_deg
 from .board import FirmwareFilter, PtyTransport, TcpTransport, VirtualBoard
 from .counts import BROAD_PROFILE, DEFAULT_PROFILE, SensorProfile, si_to_counts
-from .link import DEFAULT_BAUD, Disconnected, Link, LinkError
+from .link import DEFAULT_BAUD, CommandTimeout, Disconnected, Link, LinkError
 from .recording import Estimates, Recording, RecordingError, RecordingWriter, load_recording
 
 #: Sensor profiles a board can be declared to use (the protocol cannot report them).
@@ -61,11 +61,14 @@ class Progress:
         self._last = 0.0
         self._shown = False
 
+    def due(self) -> bool:
+        """Whether an update would be shown now (so the caller can skip building it)."""
+        return time.monotonic() - self._last >= self.interval_s
+
     def update(self, text: str, force: bool = False) -> None:
-        now = time.monotonic()
-        if not force and now - self._last < self.interval_s:
+        if not force and not self.due():
             return
-        self._last = now
+        self._last = time.monotonic()
         if self.tty:
             self.stream.write("\r\x1b[K" + text)
             self._shown = True
@@ -79,7 +82,6 @@ class Progress:
             self.stream.write("\r\x1b[K")
         self.stream.write(text + "\n")
         self.stream.flush()
-        self._last = 0.0
 
     def done(self) -> None:
         if self._shown:
@@ -88,7 +90,8 @@ class Progress:
             self._shown = False
 
 
-def _link_summary(counters: dict) -> str:
+def link_summary(counters: dict) -> str:
+    """Link counters in one phrase."""
     return (f"{counters['frames']} frames, {counters['bytes'] / 1e3:.0f} kB, "
             f"{counters['frame_rate']:.0f} frames/s, CRC errors {counters['crc_errors']}, "
             f"resyncs {counters['resyncs']}, lost {counters['lost_frames']}")
@@ -134,8 +137,7 @@ class RecordResult:
 
 
 def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAULT_BAUD,
-           profile: SensorProfile = DEFAULT_PROFILE, resync: bool = True, progress: Progress | None = None,
-           stop_when_idle: bool = True) -> RecordResult:
+           profile: SensorProfile = DEFAULT_PROFILE, resync: bool = True, progress: Progress | None = None) -> RecordResult:
     """Record a board's stream to `path` until `duration_s` s have passed, the board stops
     streaming (STATUS.streaming = 0), or Ctrl-C.
 
@@ -144,100 +146,133 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
     board cannot be reached or refuses the handshake.
     """
     path = Path(path)
-    with Link(url, baud) as link:
-        writer = RecordingWriter(path, url, profile)
-        link_ready = False
+    writer = RecordingWriter(path, url, profile)
+    try:
+        link = Link(url, baud, tap=writer.received)  # the file holds every byte from the moment the port opens
         try:
-            link.tap = writer.received
-            hello = link.connect()
-            writer.event("connected", hello=hello)
-            link.command("STOP_STREAM")
-            _leave_injection_mode(link)
-            status = link.command("GET_STATUS").data.fields
-            filter_id, settings = read_settings(link)
-            filter_name = _FILTER_NAMES.get(filter_id, str(filter_id))
-            writer.event("snapshot", status=status, filter=filter_name,
-                         settings={s["name"]: s["value"] for s in settings.values()})
-            link.command("SELECT_FILTER", filter_id=filter_id)  # restart: the recording starts at index 0
-            link_ready = True
+            hello, filter_id, filter_name = _snapshot(link, writer)
         except BaseException:
-            writer.close()
-            path.unlink(missing_ok=True)
+            link.close()
             raise
+    except BaseException:
+        writer.close()
+        path.unlink(missing_ok=True)
+        raise
+    with writer, link:
+        return _StreamRecorder(link, writer, filter_id, resync, progress).run(hello, filter_name, duration_s)
+
+
+def _snapshot(link: Link, writer: RecordingWriter) -> tuple[dict, int, str]:
+    """Handshake, quiet the board, read its state and settings into the recording, and
+    restart its filter so the recording starts at sample index 0. Returns the HELLO
+    fields, the active filter's id and name."""
+    hello = link.connect()
+    writer.event("connected", hello=hello)
+    link.command("STOP_STREAM")
+    _leave_injection_mode(link)
+    status = link.command("GET_STATUS").data.fields
+    filter_id, settings = read_settings(link)
+    filter_name = _FILTER_NAMES.get(filter_id, str(filter_id))
+    writer.event("snapshot", status=status, filter=filter_name,
+                 settings={s["name"]: s["value"] for s in settings.values()})
+    link.command("SELECT_FILTER", filter_id=filter_id)
+    return hello, filter_id, filter_name
+
+
+class _StreamRecorder:
+    """The streaming part of :func:`record`: follows the stream, restarts the board's
+    filter after a lost SAMPLE (when `resync`), shows progress, stops the stream."""
+
+    RESTART_TIMEOUT_S = 1.0
+
+    def __init__(self, link: Link, writer: RecordingWriter, filter_id: int, resync: bool, progress: Progress | None):
+        self.link, self.writer, self.filter_id = link, writer, filter_id
+        self.resync, self.progress = resync, progress
+        self.samples = self.estimates = self.restarts = 0
+        self._expected_index = 0
+        self._segment_complete = True
+        self._restart: tuple | None = None  # (PendingCommand, time sent) of a filter restart in flight
+        self.stop_reason: str | None = None
+
+    def _follow(self, message: protocol.Message) -> None:
+        name, fields = message.name, message.fields
+        if name == "SAMPLE":
+            self.samples += 1
+            index = fields["index"]
+            if index == 0:
+                self._segment_complete = True  # a (re)started filter run
+            elif index != self._expected_index:
+                self._segment_complete = False  # a SAMPLE was lost: the rest of this run cannot be verified
+            self._expected_index = index + 1
+        elif name == "ESTIMATE":
+            self.estimates += 1
+        elif name in ("ACK", "NACK") and self._restart and fields["command_seq"] == self._restart[0].command_seq:
+            self._restart = None
+            if name == "ACK":  # every frame of the old run came before this: the next SAMPLE must be index 0
+                self._segment_complete, self._expected_index = True, 0
+        elif name == "STATUS" and not fields["streaming"]:
+            self.stop_reason = "the board stopped streaming"
+        elif name == "LOG":
+            _board_log(self.progress, fields)
+
+    def _restart_if_needed(self) -> None:
+        if not self.resync or self._segment_complete:
+            return
+        if self._restart is None or time.monotonic() - self._restart[1] > self.RESTART_TIMEOUT_S:
+            self._restart = (self.link.send_command("SELECT_FILTER", filter_id=self.filter_id), time.monotonic())
+            self.restarts += 1
+
+    def run(self, hello: dict, filter_name: str, duration_s: float | None) -> RecordResult:
+        link, writer = self.link, self.writer
+        start_ack = link.command("START_STREAM").ack
+        started = time.monotonic()
+        writer.event("stream_started", filter=filter_name)
+        streaming = False  # messages before the START_STREAM ACK belong to the snapshot
         try:
-            result = _stream_to(link, writer, hello, filter_id, filter_name, duration_s, resync, progress,
-                                stop_when_idle)
-        finally:
-            writer.close()
-    assert link_ready
-    return result
-
-
-def _stream_to(link: Link, writer: RecordingWriter, hello: dict, filter_id: int, filter_name: str,
-               duration_s: float | None, resync: bool, progress: Progress | None,
-               stop_when_idle: bool) -> RecordResult:
-    """The streaming part of :func:`record`: runs until a stop condition, stops the stream."""
-    link.receive(timeout=0)  # forget the snapshot answers: only the stream matters from here
-    link.command("START_STREAM")
-    started = time.monotonic()
-    writer.event("stream_started", filter=filter_name)
-    samples = estimates = restarts = 0
-    expected_index, segment_ok, restart = 0, True, None
-    stop_reason = None
-    try:
-        while stop_reason is None:
-            for received in link.receive(timeout=0.1):
-                name, fields = received.message.name, received.message.fields
-                if name == "SAMPLE":
-                    samples += 1
-                    index = fields["index"]
-                    if index == 0:
-                        segment_ok = True
-                    elif index != expected_index:
-                        segment_ok = False
-                    expected_index = index + 1
-                elif name == "ESTIMATE":
-                    estimates += 1
-                elif name in ("ACK", "NACK") and restart is not None \
-                        and fields["command_seq"] == restart[0].command_seq:
-                    restart = None
-                elif name == "STATUS" and not fields["streaming"] and stop_when_idle:
-                    stop_reason = "the board stopped streaming"
-                elif name == "LOG":
-                    _board_log(progress, fields)
-            if resync and not segment_ok and (restart is None or time.monotonic() - restart[1] > 1.0):
-                restart = (link.send_command("SELECT_FILTER", filter_id=filter_id), time.monotonic())
-                restarts += 1
-            elapsed = time.monotonic() - started
-            if duration_s is not None and elapsed >= duration_s:
-                stop_reason = f"{duration_s:g} s recorded"
-            if progress is not None:
-                progress.update(f"recording {elapsed:6.1f} s: {samples} samples, {_link_summary(link.counters())}"
-                                + (f", filter restarts {restarts}" if restarts else ""))
-    except KeyboardInterrupt:
-        stop_reason = "interrupted (Ctrl-C)"
-    except Disconnected as exc:
+            while self.stop_reason is None:
+                for received in link.receive(timeout=0.1):
+                    if streaming:
+                        self._follow(received.message)
+                    streaming = streaming or received.message is start_ack
+                self._restart_if_needed()
+                elapsed = time.monotonic() - started
+                if duration_s is not None and elapsed >= duration_s:
+                    self.stop_reason = f"{duration_s:g} s recorded"
+                if self.progress is not None and self.progress.due():
+                    self.progress.update(self._status_line(elapsed, link.counters()))
+        except KeyboardInterrupt:
+            self.stop_reason = "interrupted (Ctrl-C)"
+        except Disconnected as exc:
+            counters = link.counters()
+            writer.event("stopped", reason=str(exc), counters=counters)
+            if self.progress is not None:
+                self.progress.done()
+            raise Disconnected(f"{exc}; {writer.path} keeps the {counters['frames']} frames received before "
+                               "(complete and readable)") from None
+        try:
+            link.command("STOP_STREAM")
+        except (LinkError, protocol.ProtocolError):
+            pass  # the recording is complete either way; the board may be gone
         counters = link.counters()
-        writer.event("stopped", reason=str(exc), counters=counters)
-        if progress is not None:
-            progress.done()
-        raise Disconnected(f"{exc}; {writer.path} keeps the {counters['frames']} frames received before "
-                           "(it is complete and readable)") from None
-    try:
-        link.command("STOP_STREAM")
-    except LinkError:
-        pass  # the recording is complete either way; the board may be gone
-    counters = link.counters()
-    writer.event("stopped", reason=stop_reason, counters=counters)
-    if progress is not None:
-        progress.update(f"recorded {time.monotonic() - started:.1f} s: {samples} samples, "
-                        f"{_link_summary(counters)}", force=True)
-        progress.done()
-    return RecordResult(writer.path, hello, filter_name, samples, estimates, restarts, stop_reason,
-                        time.monotonic() - started, counters)
+        writer.event("stopped", reason=self.stop_reason, counters=counters)
+        elapsed = time.monotonic() - started
+        if self.progress is not None:
+            self.progress.update(self._status_line(elapsed, counters), force=True)
+            self.progress.done()
+        return RecordResult(writer.path, hello, filter_name, self.samples, self.estimates, self.restarts,
+                            self.stop_reason, elapsed, counters)
+
+    def _status_line(self, elapsed: float, counters: dict) -> str:
+        return (f"recording {elapsed:6.1f} s: {self.samples} samples, {link_summary(counters)}"
+                + (f", filter restarts {self.restarts}" if self.restarts else ""))
 
 
 # ---------------------------------------------------------------------------- host run and compare
+
+
+#: ESTIMATE fields the host computes (Estimates.COMPARED) and the shape of one sample's value.
+_ESTIMATE_SHAPES = {"filter_id": (), "quat": (4,), "gyro_bias": (3,), "euler": (3,), "cov_mantissa": (9,),
+                    "cov_exponent": (9,), "saturations": ()}
 
 
 @dataclass
@@ -253,36 +288,54 @@ class HostRun:
     float_euler: np.ndarray
     float_gyro_bias: np.ndarray
     verifiable: np.ndarray
-    filter_names: dict[int, str] = field(default_factory=dict)  # segment -> filter
 
 
 def host_run(recording: Recording) -> HostRun:
     """Re-run the recorded samples through both builds of the filter the board ran."""
     samples = recording.samples
     n = len(samples)
-    fixed = {name: np.zeros((n,) + shape, np.int64) for name, shape in
-             (("filter_id", ()), ("quat", (4,)), ("gyro_bias", (3,)), ("euler", (3,)), ("cov_mantissa", (9,)),
-              ("cov_exponent", (9,)), ("saturations", ()))}
+    fixed = {name: np.zeros((n,) + shape, np.int64) for name, shape in _ESTIMATE_SHAPES.items()}
     float_quat, float_euler, float_bias = np.full((n, 4), np.nan), np.full((n, 3), np.nan), np.full((n, 3), np.nan)
     verifiable = np.zeros(n, bool)
-    names = {}
     for segment in np.unique(samples.segment):
         rows = np.flatnonzero(samples.segment == segment)
-        filter_id = _segment_filter(recording, segment)
-        name, raw_settings = recording.filter_settings(filter_id)
-        names[int(segment)] = name
+        name, raw_settings = recording.filter_settings(_segment_filter(recording, segment))
+        counts = samples.gyr[rows], samples.acc[rows], samples.mag[rows]
+        for key, values in fixed_outputs(name, raw_settings, recording.profile, *counts).items():
+            fixed[key][rows] = values
         reference = FirmwareFilter(name, raw_settings, recording.profile)
-        for row in rows:
-            estimate = reference.step(int(samples.index[row]), samples.gyr[row], samples.acc[row], samples.mag[row])
-            for key, value in estimate.items():
-                if key != "index":
-                    fixed[key][row] = value
         twin = core.Filter(name, reference.si_settings["sample_rate"], "float", reference.si_settings,
-                           recording.profile).run_counts(samples.gyr[rows], samples.acc[rows], samples.mag[rows])
+                           recording.profile).run_counts(*counts)
         float_quat[rows], float_euler[rows], float_bias[rows] = twin.quat, twin.euler, twin.gyro_bias
         complete = samples.index[rows] == np.arange(len(rows))
         verifiable[rows] = np.cumprod(complete).astype(bool)
-    return HostRun(fixed, float_quat, float_euler, float_bias, verifiable, names)
+    return HostRun(fixed, float_quat, float_euler, float_bias, verifiable)
+
+
+def fixed_outputs(filter_name: str, raw_settings: dict[str, int], profile: SensorProfile, gyr, acc, mag) -> dict:
+    """The ESTIMATE fields (arrays, one row per sample) the firmware computes for a filter
+    run from its start over these counts.
+
+    One batch call to the core when that gives every field: not for the ESKF (its
+    covariance is read after each sample), and not when the saturation counter moved
+    (its value after each sample is needed); then one sample at a time, as the board.
+    """
+    n = len(gyr)
+    reference = FirmwareFilter(filter_name, raw_settings, profile)
+    if filter_name != "eskf":
+        batch = reference.core.run_counts(gyr, acc, mag)
+        if batch.saturations == 0:  # the counter never decreases: zero at the end means zero throughout
+            return {"filter_id": np.full(n, reference.filter_id), "quat": batch.raw["quat"],
+                    "gyro_bias": batch.raw["gyro_bias"], "euler": batch.raw["euler"],
+                    "cov_mantissa": np.zeros((n, 9), np.int64), "cov_exponent": np.zeros((n, 9), np.int64),
+                    "saturations": np.zeros(n, np.int64)}
+        reference = FirmwareFilter(filter_name, raw_settings, profile)  # start again, sample by sample
+    out = {name: np.zeros((n,) + shape, np.int64) for name, shape in _ESTIMATE_SHAPES.items()}
+    for k in range(n):
+        for key, value in reference.step(k, gyr[k], acc[k], mag[k]).items():
+            if key in out:
+                out[key][k] = value
+    return out
 
 
 def _segment_filter(recording: Recording, segment: int) -> int:
@@ -314,59 +367,68 @@ class Difference:
 class Comparison:
     """Bit-exactness of a recording's estimates and the fixed-vs-float agreement.
 
-    fixed_vs_float: over the verified estimates, the rotation angle between the
-    board's quaternion and the float twin's (deg: max, mean, rms), the largest Euler
-    angle difference (deg) and the largest gyro bias difference (deg/s).
+    Per estimate (arrays aligned with recording.estimates): sample_row, the row of its
+    SAMPLE in recording.samples (-1 when that SAMPLE was lost); verified, whether the
+    host could reproduce it (its filter run complete up to it); identical, verified and
+    equal in every field. fixed_vs_float: over the verified estimates, the rotation angle
+    between the board's quaternion and the float twin's (deg: max, mean, rms), the
+    largest Euler angle difference (deg) and gyro bias difference (deg/s).
     """
 
-    estimates: int
-    verified: int
-    identical: int
-    unverifiable: int
+    sample_row: np.ndarray
+    verified: np.ndarray
+    identical: np.ndarray
     first_difference: Difference | None
     fixed_vs_float: dict
-    matched: np.ndarray  # per estimate: row of its sample, -1 when it has none or is unverifiable
+
+    @property
+    def estimates(self) -> int:
+        return len(self.verified)
+
+    @property
+    def verified_count(self) -> int:
+        return int(self.verified.sum())
+
+    @property
+    def identical_count(self) -> int:
+        return int(self.identical.sum())
 
     @property
     def bit_exact(self) -> bool:
-        return self.verified > 0 and self.identical == self.verified
+        return self.verified_count > 0 and self.identical_count == self.verified_count
 
 
-def _match_estimates(recording: Recording, run: HostRun) -> np.ndarray:
+def _sample_rows(recording: Recording) -> np.ndarray:
+    """Per estimate, the row of the SAMPLE with the same segment and index (-1: lost)."""
     samples, estimates = recording.samples, recording.estimates
     rows = {(int(s), int(i)): r for r, (s, i) in enumerate(zip(samples.segment, samples.index))}
-    matched = np.array([rows.get((int(s), int(i)), -1) for s, i in zip(estimates.segment, estimates.index)],
-                       np.int64)
-    matched[matched >= 0] = np.where(run.verifiable[matched[matched >= 0]], matched[matched >= 0], -1)
-    return matched
+    return np.array([rows.get((int(s), int(i)), -1) for s, i in zip(estimates.segment, estimates.index)], np.int64)
 
 
 def compare(recording: Recording, run: HostRun | None = None) -> Comparison:
     """Compare every verifiable board estimate with the host fixed-point build, bit for bit."""
     run = run or host_run(recording)
     estimates = recording.estimates
-    matched = _match_estimates(recording, run)
-    verified = np.flatnonzero(matched >= 0)
-    rows = matched[verified]
-    equal = np.ones(len(verified), bool)
-    first = None
+    sample_row = _sample_rows(recording)
+    verified = sample_row >= 0
+    verified[verified] = run.verifiable[sample_row[verified]]
+    positions, rows = np.flatnonzero(verified), sample_row[verified]
+    equal = np.ones(len(positions), bool)
     for name in Estimates.COMPARED:
-        board = getattr(estimates, name)[verified]
-        host = run.fixed[name][rows]
-        same = board == host if board.ndim == 1 else np.all(board == host, axis=1)
-        equal &= same
+        board, host = getattr(estimates, name)[positions], run.fixed[name][rows]
+        equal &= board == host if board.ndim == 1 else np.all(board == host, axis=1)
+    identical = np.zeros(len(verified), bool)
+    identical[positions] = equal
+    first = None
     if not equal.all():
         k = int(np.flatnonzero(~equal)[0])
-        position, row = int(verified[k]), int(rows[k])
-        for name in Estimates.COMPARED:
-            board, host = getattr(estimates, name)[position], run.fixed[name][row]
-            if np.any(board != host):
-                first = Difference(position, int(estimates.segment[position]), int(estimates.index[position]), name,
-                                   board.tolist(), host.tolist())
-                break
-    return Comparison(len(estimates), len(verified), int(equal.sum()), len(estimates) - len(verified), first,
-                      _fixed_vs_float(estimates, verified, run.float_quat[rows], run.float_euler[rows],
-                                      run.float_gyro_bias[rows]), matched)
+        position, row = int(positions[k]), int(rows[k])
+        name = next(f for f in Estimates.COMPARED if np.any(getattr(estimates, f)[position] != run.fixed[f][row]))
+        first = Difference(position, int(estimates.segment[position]), int(estimates.index[position]), name,
+                           getattr(estimates, name)[position].tolist(), run.fixed[name][row].tolist())
+    return Comparison(sample_row, verified, identical, first,
+                      _fixed_vs_float(estimates, positions, run.float_quat[rows], run.float_euler[rows],
+                                      run.float_gyro_bias[rows]))
 
 
 def _fixed_vs_float(estimates: Estimates, positions, float_quat, float_euler, float_bias) -> dict:
@@ -384,22 +446,24 @@ def _fixed_vs_float(estimates: Estimates, positions, float_quat, float_euler, fl
 
 def format_comparison(recording: Recording, comparison: Comparison) -> str:
     """The human report of `imulink compare`."""
-    c = recording.counters
+    counters = recording.counters
     lines = [f"recording: {recording.path}"]
     if recording.hello:
         h = recording.hello
         lines.append(f"board: {h['board']} firmware {h['firmware_major']}.{h['firmware_minor']}."
                      f"{h['firmware_patch']}, sensor profile {recording.profile.name}")
-    lines.append(f"link: {c['frames']} frames, {c['bytes']} bytes, CRC errors {c['crc_errors']}, "
-                 f"resyncs {c['resyncs']}, lost frames {c['lost_frames']}; {recording.segments} filter run(s)"
+    lines.append(f"link: {counters['frames']} frames, {counters['bytes']} bytes, CRC errors {counters['crc_errors']}, "
+                 f"resyncs {counters['resyncs']}, lost frames {counters['lost_frames']}; "
+                 f"{recording.segments} filter run(s)"
                  + (f"; ignored a truncated tail of {recording.truncated_bytes} bytes"
                     if recording.truncated_bytes else ""))
-    lines.append(f"estimates: {comparison.estimates} received, {comparison.verified} verifiable, "
-                 f"{comparison.identical} identical, {comparison.verified - comparison.identical} different, "
-                 f"{comparison.unverifiable} unverifiable (a sample before them was lost)")
-    if comparison.first_difference is not None:
-        lines.append(f"first difference: {comparison.first_difference}")
-    verdict = "yes" if comparison.bit_exact else ("no estimate to verify" if not comparison.verified else "NO")
+    c = comparison
+    lines.append(f"estimates: {c.estimates} received, {c.verified_count} verifiable, {c.identical_count} identical, "
+                 f"{c.verified_count - c.identical_count} different, {c.estimates - c.verified_count} unverifiable "
+                 "(a sample of their filter run was lost)")
+    if c.first_difference is not None:
+        lines.append(f"first difference: {c.first_difference}")
+    verdict = "yes" if c.bit_exact else ("no estimate to verify" if not c.verified_count else "NO")
     lines.append(f"bit-exact: {verdict}")
     ff = comparison.fixed_vs_float
     if ff:
@@ -412,21 +476,20 @@ def format_comparison(recording: Recording, comparison: Comparison) -> str:
 
 
 def replay_columns(recording: Recording, run: HostRun, comparison: Comparison) -> dict[str, np.ndarray]:
-    """One row per recorded sample: inputs in SI, the board's estimate, the host fixed
-    build and the float twin. Keys are CSV column names with their units."""
+    """One row per recorded sample: inputs in SI, the board's estimate (NaN where its
+    ESTIMATE was lost), the host fixed build and the float twin, and whether the board's
+    estimate was identical (1), different (0) or not verifiable (NaN). Keys are CSV
+    column names that carry their units."""
     s, e, p = recording.samples, recording.estimates, recording.profile
     n = len(s)
-    board_row = np.full(n, -1)
-    has_sample = comparison.matched >= 0
-    board_row[comparison.matched[has_sample]] = np.flatnonzero(has_sample)
-    unmatched = {(int(sg), int(i)): k for k, (sg, i) in enumerate(zip(e.segment, e.index))}
-    for r in np.flatnonzero(board_row < 0):
-        board_row[r] = unmatched.get((int(s.segment[r]), int(s.index[r])), -1)
-    have = board_row >= 0
+    estimate_of = np.full(n, -1)
+    has_sample = comparison.sample_row >= 0
+    estimate_of[comparison.sample_row[has_sample]] = np.flatnonzero(has_sample)
+    have = estimate_of >= 0
 
-    def board(values: np.ndarray, scale: float) -> np.ndarray:
+    def board(values: np.ndarray, frac_bits: int) -> np.ndarray:
         out = np.full((n,) + values.shape[1:], np.nan)
-        out[have] = values[board_row[have]] * scale
+        out[have] = values[estimate_of[have]] * 2.0**-frac_bits
         return out
 
     columns = {"host_time_s": s.host_time, "timestamp_us": s.timestamp_us, "segment": s.segment,
@@ -436,9 +499,9 @@ def replay_columns(recording: Recording, run: HostRun, comparison: Comparison) -
                                       ("mag", s.mag, p.mag_scale, "uT")):
         for k, axis in enumerate(axes):
             columns[f"{name}_{axis}_{unit}"] = counts[:, k] * scale
-    sources = {"board": (board(e.quat, 2.0**-_Q["quat"]), board(e.euler, 2.0**-_Q["euler"]),
-                         board(e.gyro_bias, 2.0**-_Q["gyro_bias"])),
-               "fixed": (run.fixed["quat"] * 2.0**-_Q["quat"], run.fixed["euler"] * 2.0**-_Q["euler"],
+    fixed_quat = run.fixed["quat"] * 2.0**-_Q["quat"]
+    sources = {"board": (board(e.quat, _Q["quat"]), board(e.euler, _Q["euler"]), board(e.gyro_bias, _Q["gyro_bias"])),
+               "fixed": (fixed_quat, run.fixed["euler"] * 2.0**-_Q["euler"],
                          run.fixed["gyro_bias"] * 2.0**-_Q["gyro_bias"]),
                "float": (run.float_quat, run.float_euler, run.float_gyro_bias)}
     for source, (quat, euler, bias) in sources.items():
@@ -449,17 +512,11 @@ def replay_columns(recording: Recording, run: HostRun, comparison: Comparison) -
         for k, axis in enumerate(axes):
             columns[f"{source}_gyro_bias_{axis}_rad_s"] = bias[:, k]
     identical = np.full(n, np.nan)
-    rows = comparison.matched[comparison.matched >= 0]
-    positions = np.flatnonzero(comparison.matched >= 0)
-    if len(rows):
-        same = np.ones(len(rows), bool)
-        for name in Estimates.COMPARED:
-            board_v, host_v = getattr(e, name)[positions], run.fixed[name][rows]
-            same &= board_v == host_v if board_v.ndim == 1 else np.all(board_v == host_v, axis=1)
-        identical[rows] = same
+    checked = have.copy()
+    checked[have] = comparison.verified[estimate_of[have]]
+    identical[checked] = comparison.identical[estimate_of[checked]]
     columns["identical"] = identical
-    columns["fixed_float_angle_deg"] = angle_difference(np.nan_to_num(sources["fixed"][0]),
-                                                        np.nan_to_num(run.float_quat, nan=1.0))
+    columns["fixed_float_angle_deg"] = angle_difference(fixed_quat, run.float_quat)
     return columns
 
 
@@ -467,12 +524,12 @@ def export_csv(columns: dict[str, np.ndarray], path) -> None:
     """Write replay columns as CSV (empty cells where a value is missing)."""
     names = list(columns)
     data = np.column_stack([np.asarray(columns[k], np.float64) for k in names])
-    integer = {"timestamp_us", "segment", "index", "verifiable"}
+    integer = [k in ("timestamp_us", "segment", "index", "verifiable", "identical") for k in names]
     with open(path, "w", encoding="utf-8") as out:
         out.write(",".join(names) + "\n")
         for row in data:
-            out.write(",".join("" if math.isnan(v) else (str(int(v)) if names[i] in integer or names[i] == "identical"
-                                                          else f"{v:.9g}") for i, v in enumerate(row)) + "\n")
+            out.write(",".join("" if math.isnan(v) else (str(int(v)) if integer[i] else f"{v:.9g}")
+                               for i, v in enumerate(row)) + "\n")
 
 
 def export_npz(recording: Recording, run: HostRun, columns: dict[str, np.ndarray], path) -> None:
@@ -551,13 +608,14 @@ def _load_broad(path: Path) -> InjectionInput:
     except (OSError, ValueError, KeyError) as exc:
         raise HilError(f"{path} is not a BROAD trial (.mat with imu_gyr, imu_acc, imu_mag, sampling_rate): "
                        f"{exc}") from None
-    g, a, m, saturated = si_to_counts(gyr, acc, mag, BROAD_PROFILE, return_saturation=True)
+    g, a, m = si_to_counts(gyr, acc, mag, BROAD_PROFILE)
     return InjectionInput(f"BROAD trial {path.stem} ({len(g)} samples at {rate:g} Hz)", g, a, m, rate, BROAD_PROFILE,
                           truth=truth)
 
 
 @dataclass
 class InjectResult:
+    description: str
     samples: int
     answered: int
     identical: int
@@ -573,12 +631,31 @@ class InjectResult:
         return self.answered > 0 and self.identical == self.answered
 
 
+def format_inject(result: InjectResult) -> str:
+    """The human report of `imulink inject`."""
+    lines = [f"input: {result.description}",
+             f"injected {result.samples} samples into {result.filter_name} in {result.duration_s:.1f} s "
+             f"({result.samples / max(result.duration_s, 1e-9):.0f} samples/s): {result.answered} answered, "
+             f"{result.answers_lost} answers lost"
+             + (f", filter restarts after unanswered samples: {result.filter_restarts}"
+                if result.filter_restarts else "")]
+    lines.append(f"bit-exact: {'yes' if result.bit_exact else 'NO'} ({result.identical} of {result.answered} "
+                 "answers identical to the host fixed-point build)")
+    if result.first_difference:
+        lines.append(f"first difference: {result.first_difference}")
+    if result.accuracy:
+        a = result.accuracy
+        lines.append(f"accuracy vs truth (RMS after {SETTLE_S:g} s): total {a['total']:.3f} deg, "
+                     f"heading {a['heading']:.3f} deg, inclination {a['inclination']:.3f} deg")
+    return "\n".join(lines)
+
+
 def _configure_for_injection(link: Link, source: InjectionInput, filter_name: str | None) -> tuple[str, dict, dict]:
     """Select the filter and set the settings the injection runs with; returns the
     filter name, the raw settings in force, and the original values changed (to restore)."""
     _leave_injection_mode(link)
     wanted_filter = filter_name or source.filter_name
-    if wanted_filter is not None:
+    if wanted_filter is not None and wanted_filter != _FILTER_NAMES.get(read_settings(link)[0]):
         link.command("SELECT_FILTER", filter_id=core.FILTERS[wanted_filter][0])
     filter_id, settings = read_settings(link)
     name = _FILTER_NAMES[filter_id]
@@ -616,15 +693,28 @@ def inject(url: str, source: InjectionInput, *, baud: int = DEFAULT_BAUD, filter
     with Link(url, baud) as link:
         link.connect()
         link.command("STOP_STREAM")
+        original_filter = link.command("GET_STATUS").data.fields["active_filter"]
         name, raw_settings, changed = _configure_for_injection(link, source, filter_name)
         link.command("SET_INJECTION_MODE", enabled=1)
         try:
             result = _inject_samples(link, source, name, raw_settings, board_profile, progress)
-        finally:
+        finally:  # leave the board as it was found
             link.command("SET_INJECTION_MODE", enabled=0)
             for index, value in changed.items():
                 link.command("SET_SETTING", index=index, value=value)
+            if original_filter != core.FILTERS[name][0]:
+                link.command("SELECT_FILTER", filter_id=original_filter)
     return result
+
+
+def _first_different_field(board: dict, host: dict) -> str | None:
+    """The first ESTIMATE field in which the board's answer differs from the host's."""
+    for name in ("index",) + Estimates.COMPARED:
+        mine = list(host[name]) if isinstance(host[name], (list, tuple)) else host[name]
+        theirs = list(board[name]) if isinstance(board[name], (list, tuple)) else board[name]
+        if mine != theirs:
+            return name
+    return None
 
 
 def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings: dict, profile: SensorProfile,
@@ -640,10 +730,8 @@ def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings:
         try:
             reply = link.command("INJECT_SAMPLE", timestamp_us=round(k * 1e6 / source.rate_hz) & 0xFFFFFFFF,
                                  index=k, gyr=gyr[k], acc=acc[k], mag=mag[k], temperature=0)
-        except LinkError as exc:
-            if isinstance(exc, Disconnected):
-                raise
-            link.command("SET_INJECTION_MODE", enabled=1)  # the board's filter state is unknown: restart both
+        except CommandTimeout:  # did the sample run on the board? Unknown: restart the filter on both sides
+            link.command("SET_INJECTION_MODE", enabled=1)
             reference = FirmwareFilter(name, raw_settings, profile)
             restarts += 1
             continue
@@ -654,13 +742,11 @@ def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings:
         answered += 1
         got = reply.data.fields
         board_quat[k] = np.array(got["quat"]) / 2.0**_Q["quat"]
-        if all(tuple(got[f]) == tuple(expected[f]) if isinstance(expected[f], list) else got[f] == expected[f]
-               for f in ("index",) + Estimates.COMPARED):
+        different = _first_different_field(got, expected)
+        if different is None:
             identical += 1
         elif first is None:
-            field_name = next(f for f in ("index",) + Estimates.COMPARED
-                              if (list(got[f]) if isinstance(expected[f], list) else got[f]) != expected[f])
-            first = f"sample {k}: {field_name}: board {got[field_name]}, host {expected[field_name]}"
+            first = f"sample {k}: {different}: board {got[different]}, host {expected[different]}"
         if progress is not None:
             progress.update(f"injecting: {k + 1}/{n} samples, {identical}/{answered} identical, "
                             f"{(k + 1) / (time.monotonic() - started):.0f} samples/s")
@@ -670,7 +756,8 @@ def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings:
     if source.truth is not None and answered:
         settle = int(SETTLE_S * source.rate_hz)
         accuracy = rmse(attitude_errors(board_quat[settle:], source.truth[settle:]))
-    return InjectResult(n, answered, identical, lost, restarts, first, name, time.monotonic() - started, accuracy)
+    return InjectResult(source.description, n, answered, identical, lost, restarts, first, name,
+                        time.monotonic() - started, accuracy)
 
 
 # ---------------------------------------------------------------------------- demo
@@ -693,7 +780,7 @@ class DemoReport:
             f"recorded: {r.samples} samples, {r.estimates} estimates, {rec.counters['frames']} frames in "
             f"{r.duration_s:.2f} s ({rec.counters['frames'] / max(r.duration_s, 1e-9):.0f} frames/s); "
             f"lost frames {lost}, CRC errors {rec.counters['crc_errors']}",
-            f"bit-exact: {'yes' if c.bit_exact else 'NO'} ({c.identical} of {c.verified} verifiable estimates "
+            f"bit-exact: {'yes' if c.bit_exact else 'NO'} ({c.identical_count} of {c.verified_count} verifiable estimates "
             f"identical to the host fixed-point build)",
         ]
         if c.first_difference is not None:
@@ -712,7 +799,7 @@ class DemoReport:
 
 
 def demo(*, transport: str = "tcp", scenario: str = "rests", duration_s: float = 60.0, rate_hz: float = 100.0,
-         seed: int = 0, filter_name: str = "eecf", output=None, progress: Progress | None = None) -> DemoReport:
+         seed: int = 0, filter_name: str = "eskf", output=None, progress: Progress | None = None) -> DemoReport:
     """Record a virtual board's simulated run (as fast as the link goes) and verify it.
 
     `output` keeps the recording; by default it goes to a temporary directory.
@@ -727,9 +814,9 @@ def demo(*, transport: str = "tcp", scenario: str = "rests", duration_s: float =
     recording = load_recording(output)
     comparison = compare(recording)
     accuracy = {}
-    verified = comparison.matched >= 0
+    verified = comparison.verified
     if verified.any():
-        rows = comparison.matched[verified]
+        rows = comparison.sample_row[verified]
         quat = recording.estimates.quat[verified] / 2.0**_Q["quat"]
         truth = board.truth(recording.samples.timestamp_us[rows])
         settled = recording.samples.timestamp_us[rows] >= SETTLE_S * 1e6

@@ -25,6 +25,7 @@ Typical use::
 """
 from __future__ import annotations
 
+import errno
 import os
 import queue
 import select
@@ -53,7 +54,6 @@ REPLY_MESSAGES = {"GET_VERSION": "HELLO", "GET_STATUS": "STATUS", "GET_SETTING":
 NOT_IDEMPOTENT = frozenset({"INJECT_SAMPLE", "RESET"})
 
 _REASON_NAMES = {value: name for name, value in protocol.REASONS.items()}
-_COMMAND_NAMES = {value: name for name, value in protocol.COMMAND_IDS.items()}
 _READ_SIZE = 1 << 16
 _POLL_S = 0.05
 _RATE_WINDOW_S = 1.0
@@ -109,9 +109,7 @@ class PendingCommand:
         """Whether `message` is the data this command waits for."""
         if message.name != self.reply_name or self.data is not None:
             return False
-        if self.name == "INJECT_SAMPLE":
-            return message.fields["index"] == self.args["index"]
-        if self.name == "GET_SETTING":
+        if "index" in self.args:  # GET_SETTING, INJECT_SAMPLE: the answer repeats the index asked for
             return message.fields["index"] == self.args["index"]
         return True
 
@@ -121,14 +119,15 @@ class PendingCommand:
 
 
 def _describe_port_error(url: str, exc: Exception) -> str:
+    """One line saying why a port did not open, with what to do about it."""
     text = str(exc)
-    errno_ = getattr(exc, "errno", None)
+    code = getattr(exc, "errno", None)
     lowered = text.lower()
-    if errno_ == 2 or "no such file" in lowered:
+    if code == errno.ENOENT or "no such file" in lowered:
         return f"cannot open {url}: no such port (is the board plugged in? `ls /dev/tty*` lists ports)"
-    if errno_ in (13,) or "permission denied" in lowered:
+    if code == errno.EACCES or "permission denied" in lowered:
         return f"cannot open {url}: permission denied (on Linux, add yourself to the 'dialout' group)"
-    if errno_ in (16,) or "busy" in lowered or "lock" in lowered:
+    if code == errno.EBUSY or "busy" in lowered or "lock" in lowered:
         return f"cannot open {url}: the port is busy (another program has it open)"
     if "refused" in lowered:
         return f"cannot open {url}: connection refused (is the board or emulator listening?)"
@@ -150,7 +149,7 @@ class Link:
     def __init__(self, url: str, baud: int = DEFAULT_BAUD, tap=None, queue_size: int = QUEUE_SIZE):
         self.url = url
         self.hello: dict | None = None
-        self._tap = tap
+        self.tap = tap
         self._port = self._open(url, baud)
         self._fileno = self._port_fileno()
         self._decoder = protocol.FrameDecoder()
@@ -233,8 +232,9 @@ class Link:
             if not chunk:
                 continue
             now = time.time()
-            if self._tap is not None:
-                self._tap(chunk, now)
+            tap = self.tap
+            if tap is not None:
+                tap(chunk, now)
             with self._decoder_lock:
                 messages = self._decoder.feed(chunk)
                 self._rate_points.append((time.monotonic(), self._decoder.frames, self._decoder.bytes))
@@ -405,12 +405,3 @@ class Link:
         self.hello = reply.data.fields
         return reply.data.fields
 
-
-def command_name(command_id: int) -> str:
-    """The name of a command id (for messages about ACK/NACK frames)."""
-    return _COMMAND_NAMES.get(command_id, f"command {command_id}")
-
-
-def reason_name(reason: int) -> str:
-    """The name of an ACK/NACK reason code."""
-    return _REASON_NAMES.get(reason, f"reason {reason}")

@@ -29,7 +29,7 @@ import struct
 import threading
 import time
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -149,22 +149,19 @@ def read_records(path) -> tuple[list[LogRecord], int]:
         raise RecordingError(f"{path} is not an imulink recording (it does not start with {MAGIC!r})")
     records, offset, end = [], len(MAGIC), len(data)
     while offset < end:
-        remaining = data[offset:]
-        if len(remaining) < _RECORD_HEAD.size + _CRC.size or not any(remaining):
-            return records, len(remaining)  # a partial record header, or zero fill after a crash
+        remaining = end - offset
+        if remaining < _RECORD_HEAD.size + _CRC.size:
+            return records, remaining  # a partial record header
         length, kind, host_time = _RECORD_HEAD.unpack_from(data, offset)
-        if length > MAX_BODY:
-            raise RecordingCorrupt(f"{path} is corrupt at byte {offset} (record {len(records)}): "
-                                   f"impossible record length {length}")
         stop = offset + _RECORD_HEAD.size + length
-        if stop + _CRC.size > end:
-            return records, len(remaining)  # the last record was cut short
-        (crc,) = _CRC.unpack_from(data, stop)
-        if zlib.crc32(data[offset:stop]) != crc:
-            if stop + _CRC.size == end:
-                return records, len(remaining)  # a last record written only in part
-            raise RecordingCorrupt(f"{path} is corrupt at byte {offset} (record {len(records)}): CRC mismatch, "
-                                   f"{end - stop - _CRC.size} bytes follow")
+        if length <= MAX_BODY and stop + _CRC.size > end:
+            return records, remaining  # the last record was cut short
+        if length > MAX_BODY or zlib.crc32(memoryview(data)[offset:stop]) != _CRC.unpack_from(data, stop)[0]:
+            if stop + _CRC.size == end or data.count(0, offset) == remaining:
+                return records, remaining  # a last record written in part, or the zero fill a crash may leave
+            problem = f"impossible record length {length}" if length > MAX_BODY else "CRC mismatch"
+            raise RecordingCorrupt(f"{path} is corrupt at byte {offset} (record {len(records)}): {problem}, "
+                                   f"{remaining} bytes from there")
         records.append(LogRecord(kind, host_time, data[offset + _RECORD_HEAD.size:stop]))
         offset = stop + _CRC.size
     return records, 0
@@ -221,6 +218,7 @@ class Recording:
     settings: filter_id -> setting index -> SETTING fields (the last value received).
     counters: the frame decoder's counters over the whole recorded byte stream.
     truncated_bytes: bytes of a damaged tail that were ignored.
+    segments: number of filter runs (see the module docstring).
     """
 
     path: Path
@@ -235,7 +233,7 @@ class Recording:
     logs: list[tuple[float, int, str]]
     counters: dict
     truncated_bytes: int
-    segments: int = field(default=0)
+    segments: int
 
     def filter_settings(self, filter_id: int) -> tuple[str, dict[str, int]]:
         """(filter name, raw settings by name) of a filter, as the board reported them."""
@@ -325,8 +323,10 @@ def load_recording(path) -> Recording:
         profile = profile_from_json(header["profile"])
     except (KeyError, TypeError) as exc:
         raise RecordingError(f"{path}: header without a valid sensor profile ({exc})") from None
-    return Recording(path, header, profile, events, hello, status, settings, _sample_table(samples),
-                     _estimate_table(estimates), logs, decoder.counters(), truncated, segmenter.segment + 1)
+    sample_table, estimate_table = _sample_table(samples), _estimate_table(estimates)
+    segments = len(set(sample_table.segment.tolist()) | set(estimate_table.segment.tolist()))
+    return Recording(path, header, profile, events, hello, status, settings, sample_table, estimate_table, logs,
+                     decoder.counters(), truncated, segments)
 
 
 def _sample_table(rows) -> Samples:

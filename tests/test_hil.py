@@ -1,0 +1,391 @@
+"""Hardware in the loop end to end: record, compare, replay, inject and demo against the
+virtual board over a pty and over TCP on 127.0.0.1, through the command line.
+
+Shown here: a 60 s simulated run at 100 Hz and at 1 kHz records bit-exact over both
+transports; with dropped bytes, flipped bits or garbage the recording still works, the
+damage is counted, and every estimate that arrived is either verified bit for bit or
+reported unverifiable because a sample of its filter run was lost; a difference is
+found and named; every error case ends in one line and exit status 2.
+"""
+from __future__ import annotations
+
+import csv
+import socket
+import threading
+import time
+
+import numpy as np
+import pytest
+from scipy.io import savemat
+
+from imulink import core, hil, protocol, sim
+from imulink.analysis import attitude_errors, rmse
+from imulink.board import FaultConfig, FirmwareFilter, PtyTransport, TcpTransport, VirtualBoard
+from imulink.cli import main
+from imulink.counts import BROAD_PROFILE, DEFAULT_PROFILE, counts_to_si
+from imulink.link import Link
+from imulink.recording import RecordingWriter, load_recording
+
+TRANSPORTS = {"pty": PtyTransport, "tcp": TcpTransport}
+
+
+def run_cli(capsys, *argv) -> tuple[int, str, str]:
+    code = main([str(a) for a in argv])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def assert_one_line_error(err: str, *fragments: str) -> None:
+    """A CLI failure: one line `imulink: error: ...` (after any progress lines), no traceback."""
+    errors = [line for line in err.splitlines() if line.startswith("imulink: error: ")]
+    assert len(errors) == 1 and err.rstrip().endswith(errors[0]) and "Traceback" not in err, err
+    for fragment in fragments:
+        assert fragment in errors[0]
+
+
+# ---------------------------------------------------------------------------- end to end
+
+
+@pytest.mark.parametrize("rate_hz", [100.0, 1000.0])
+@pytest.mark.parametrize("transport", ["pty", "tcp"])
+def test_record_60_s_and_compare_bit_exact(tmp_path, capsys, transport, rate_hz):
+    path = tmp_path / "run.imulog"
+    with VirtualBoard(TRANSPORTS[transport](), duration_s=60.0, rate_hz=rate_hz) as board:
+        code, out, _ = run_cli(capsys, "record", board.address, "-o", path)
+    samples = int(60 * rate_hz)
+    assert code == 0 and f"recorded {samples} samples and {samples} estimates" in out
+    assert "the board stopped streaming" in out
+    code, out, _ = run_cli(capsys, "compare", path)
+    assert code == 0
+    assert f"{samples} received, {samples} verifiable, {samples} identical, 0 different" in out
+    assert "bit-exact: yes" in out and "lost frames 0" in out
+
+
+def test_recording_snapshot_lets_replay_reproduce_changed_settings(tmp_path):
+    """Settings set on the board before recording travel in the file: the replay uses them."""
+    path = tmp_path / "kp.imulog"
+    with VirtualBoard(PtyTransport(), duration_s=10.0, filter_name="kf1d") as board:
+        with Link(board.address) as link:
+            link.connect()
+            link.command("SET_SETTING", index=1, value=12345)  # q_angle, an odd raw value
+        hil.record(board.address, path)
+    recording = load_recording(path)
+    name, settings = recording.filter_settings(recording.active_filter)
+    assert name == "kf1d" and settings["q_angle"] == 12345
+    assert hil.compare(recording).bit_exact
+
+
+def test_eskf_covariance_is_verified_too(tmp_path):
+    path = tmp_path / "eskf.imulog"
+    with VirtualBoard(TcpTransport(), duration_s=10.0, filter_name="eskf") as board:
+        hil.record(board.address, path)
+    recording = load_recording(path)
+    assert (recording.estimates.cov_mantissa[:, :6] >= 2**28).all()
+    comparison = hil.compare(recording)
+    assert comparison.bit_exact and comparison.verified_count == 1000
+
+
+# ---------------------------------------------------------------------------- faults
+
+
+@pytest.mark.parametrize("faults", [
+    FaultConfig(drop_byte=2e-4, seed=1),
+    FaultConfig(flip_bit=2e-4, seed=2),
+    FaultConfig(garbage=0.01, seed=3),
+], ids=["dropped-bytes", "flipped-bits", "garbage"])
+def test_faults_are_counted_and_every_arrived_estimate_is_accounted_for(tmp_path, faults):
+    path = tmp_path / "faults.imulog"
+    with VirtualBoard(PtyTransport(), duration_s=30.0, faults=faults) as board:
+        result = hil.record(board.address, path)
+    counters = result.counters
+    assert counters["crc_errors"] + counters["resyncs"] > 0 and counters["lost_frames"] > 0
+    assert result.filter_restarts > 0  # lost samples made the recorder restart the filter
+    recording = load_recording(path)
+    assert recording.counters["crc_errors"] == counters["crc_errors"]  # the file holds the damaged bytes too
+    comparison = hil.compare(recording)
+    assert comparison.bit_exact
+    # each restart began a filter run that could be verified again
+    assert len(set(recording.estimates.segment[comparison.verified].tolist())) > 1
+    # every estimate that was not verified follows a gap in the samples of its filter run
+    samples = recording.samples
+    for position in np.flatnonzero(~comparison.verified):
+        segment, index = recording.estimates.segment[position], recording.estimates.index[position]
+        present = set(samples.index[samples.segment == segment].tolist())
+        assert not set(range(index + 1)) <= present
+
+
+def test_one_restart_per_loss_in_real_time(tmp_path):
+    """At real time the next sample comes well after the restart's ACK: no second restart meanwhile."""
+    path = tmp_path / "realtime.imulog"
+    with VirtualBoard(TcpTransport(), duration_s=5.0, rate_hz=200.0, realtime=True,
+                      faults=FaultConfig(drop_byte=3e-4, seed=8)) as board:
+        result = hil.record(board.address, path, duration_s=1.5)
+    recording = load_recording(path)
+    assert 0 < result.filter_restarts == recording.segments - 1
+    comparison = hil.compare(recording)
+    assert comparison.bit_exact and comparison.verified_count > 0.9 * len(recording.estimates)
+
+
+def test_without_resync_a_lost_sample_ends_verification(tmp_path):
+    path = tmp_path / "noresync.imulog"
+    with VirtualBoard(PtyTransport(), duration_s=30.0, faults=FaultConfig(drop_byte=2e-4, seed=1)) as board:
+        result = hil.record(board.address, path, resync=False)
+    assert result.filter_restarts == 0
+    recording = load_recording(path)
+    comparison = hil.compare(recording)
+    assert recording.segments == 1 and comparison.bit_exact
+    first_gap = int(np.flatnonzero(recording.samples.index != np.arange(len(recording.samples)))[0])
+    assert comparison.verified_count <= first_gap
+
+
+def test_stalls_delay_but_lose_nothing(tmp_path):
+    path = tmp_path / "stalls.imulog"
+    with VirtualBoard(TcpTransport(), duration_s=10.0, faults=FaultConfig(stall=0.005, stall_s=0.02, seed=4)) as board:
+        result = hil.record(board.address, path)
+        assert board.faults.counts["stalls"] > 0
+    assert result.counters["lost_frames"] == 0 and result.samples == 1000
+    assert hil.compare(load_recording(path)).bit_exact
+
+
+# ---------------------------------------------------------------------------- differences
+
+
+def _synthetic_recording(path, tamper: int | None) -> sim.SimResult:
+    """A recording written as a board would send it, with estimate `tamper` changed by one LSB."""
+    data = sim.make_scenario("random", 3.0, 100.0, seed=2)
+    settings = FirmwareFilter.default_raw_settings("eecf", 100.0)
+    firmware = FirmwareFilter("eecf", settings)
+    fields = core.settings_fields("eecf")
+    with RecordingWriter(path, "test://", DEFAULT_PROFILE) as writer:
+        seq = 0
+        for i, f in enumerate(fields):
+            writer.received(protocol.encode("SETTING", seq, filter_id=1, index=i, setting_count=len(fields),
+                                            value=settings[f.name], frac_bits=f.frac_bits, name=f.name, unit=f.unit),
+                            0.0)
+            seq += 1
+        for k in range(len(data)):
+            gyr, acc, mag = (a[k].tolist() for a in (data.gyr_counts, data.acc_counts, data.mag_counts))
+            estimate = firmware.step(k, gyr, acc, mag)
+            if k == tamper:
+                estimate["euler"][2] += 1
+            wire = protocol.encode("SAMPLE", seq, timestamp_us=k * 10_000, index=k, gyr=gyr, acc=acc, mag=mag,
+                                   temperature=0) + protocol.encode("ESTIMATE", seq + 1, **estimate)
+            writer.received(wire, float(k))
+            seq += 2
+    return data
+
+
+def test_compare_names_the_first_difference(tmp_path, capsys):
+    path = tmp_path / "tampered.imulog"
+    _synthetic_recording(path, tamper=123)
+    code, out, _ = run_cli(capsys, "compare", path)
+    assert code == 1 and "bit-exact: NO" in out
+    assert "300 received, 300 verifiable, 299 identical, 1 different" in out
+    comparison = hil.compare(load_recording(path))
+    difference = comparison.first_difference
+    assert (difference.estimate, difference.index, difference.field) == (123, 123, "euler")
+    assert difference.board[2] == difference.host[2] + 1 and difference.board[:2] == difference.host[:2]
+    assert str(difference) in out
+
+
+def test_replay_exports_csv_and_npz_with_units(tmp_path, capsys):
+    path = tmp_path / "replay.imulog"
+    data = _synthetic_recording(path, tamper=None)
+    csv_path, npz_path = tmp_path / "replay.csv", tmp_path / "replay.npz"
+    code, out, _ = run_cli(capsys, "replay", path, "--csv", csv_path, "--npz", npz_path)
+    assert code == 0 and "bit-exact: yes" in out
+    with open(csv_path) as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == len(data)
+    for column in ("gyr_x_rad_s", "acc_z_m_s2", "mag_y_uT", "board_qw", "board_heading_deg", "float_roll_deg",
+                   "fixed_gyro_bias_z_rad_s", "fixed_float_angle_deg", "identical"):
+        assert column in rows[0]
+    assert all(r["identical"] == "1" and r["board_qx"] == r["fixed_qx"] for r in rows)
+    gyr_si, _, _ = counts_to_si(data.gyr_counts, data.acc_counts, data.mag_counts)
+    np.testing.assert_allclose([float(r["gyr_z_rad_s"]) for r in rows], gyr_si[:, 2], rtol=1e-8)
+    assert max(float(r["fixed_float_angle_deg"]) for r in rows) < 0.05
+    npz = np.load(npz_path)
+    np.testing.assert_array_equal(npz["samples_gyr"], data.gyr_counts)
+    np.testing.assert_array_equal(npz["board_quat"], npz["host_fixed_quat"])
+    assert "gy86-default" in str(npz["metadata"])
+
+
+def test_replay_defaults_to_a_csv_beside_the_recording(tmp_path, capsys):
+    path = tmp_path / "beside.imulog"
+    _synthetic_recording(path, tamper=None)
+    assert run_cli(capsys, "replay", path)[0] == 0
+    assert (tmp_path / "beside.csv").exists()
+
+
+# ---------------------------------------------------------------------------- error cases
+
+
+def test_nonexistent_port(tmp_path, capsys):
+    path = tmp_path / "never.imulog"
+    code, _, err = run_cli(capsys, "record", "/dev/imulink-no-such-port", "-o", path)
+    assert code == 2
+    assert_one_line_error(err, "no such port")
+    assert not path.exists()
+
+
+class _FakePeer:
+    """A TCP server on 127.0.0.1 that is not an imulink board: it sends `payload` to
+    every byte it gets (or nothing)."""
+
+    def __init__(self, payload: bytes):
+        self.server = socket.create_server(("127.0.0.1", 0))
+        self.url = f"socket://127.0.0.1:{self.server.getsockname()[1]}"
+        threading.Thread(target=self._serve, args=(payload,), daemon=True).start()
+
+    def _serve(self, payload: bytes) -> None:
+        client, _ = self.server.accept()
+        self.server.close()
+        with client:
+            while client.recv(4096):
+                client.sendall(payload)
+
+
+@pytest.mark.parametrize("payload, heard", [(b"", "received nothing"),
+                                            (b"$GPGGA,123519,4807.038,N*47\r\n" * 20, "no valid frame")],
+                         ids=["silent", "garbage"])
+def test_peer_that_is_not_a_board(tmp_path, capsys, payload, heard):
+    peer = _FakePeer(payload)
+    path = tmp_path / "none.imulog"
+    code, _, err = run_cli(capsys, "record", peer.url, "-o", path)
+    assert code == 2
+    assert_one_line_error(err, "no imulink board answered", heard)
+    assert not path.exists()
+
+
+def test_schema_mismatch(tmp_path, capsys):
+    with VirtualBoard(PtyTransport(), duration_s=1.0, schema_hash=0x0BADF00D) as board:
+        code, _, err = run_cli(capsys, "record", board.address, "-o", tmp_path / "x.imulog")
+    assert code == 2
+    assert_one_line_error(err, "protocol mismatch", "0x0BADF00D", f"0x{protocol.SCHEMA_HASH:08X}")
+
+
+@pytest.mark.parametrize("transport", ["pty", "tcp"])
+def test_disconnect_mid_stream_keeps_the_recording(tmp_path, capsys, transport):
+    path = tmp_path / "cut.imulog"
+    board = VirtualBoard(TRANSPORTS[transport](), duration_s=60.0, rate_hz=500.0, realtime=True).start()
+    stopper = threading.Timer(0.8, board.stop)
+    stopper.start()
+    code, _, err = run_cli(capsys, "record", board.address, "-o", path)
+    stopper.join()
+    assert code == 2
+    assert_one_line_error(err, "disconnected", str(path), "complete and readable")
+    recording = load_recording(path)
+    assert 100 < len(recording.samples) < 30_000
+    assert recording.events[-1]["event"] == "stopped" and "disconnected" in recording.events[-1]["reason"]
+    assert hil.compare(recording).bit_exact
+
+
+def test_ctrl_c_stops_the_recording_cleanly(tmp_path):
+    class InterruptAfter(hil.Progress):
+        """Raises KeyboardInterrupt at the third status update, as Ctrl-C would."""
+
+        def __init__(self):
+            super().__init__(stream=open("/dev/null", "w"), interval_s=0.0)
+            self.updates = 0
+
+        def update(self, text, force=False):
+            self.updates += 1
+            if self.updates == 3:
+                raise KeyboardInterrupt
+
+    path = tmp_path / "ctrl-c.imulog"
+    with VirtualBoard(PtyTransport(), duration_s=60.0, rate_hz=200.0, realtime=True) as board:
+        result = hil.record(board.address, path, progress=InterruptAfter())
+    assert result.stop_reason == "interrupted (Ctrl-C)"
+    recording = load_recording(path)
+    assert recording.truncated_bytes == 0 and recording.events[-1]["reason"] == "interrupted (Ctrl-C)"
+    assert hil.compare(recording).bit_exact
+
+
+def test_truncated_and_corrupt_recordings(tmp_path, capsys):
+    path = tmp_path / "whole.imulog"
+    _synthetic_recording(path, tamper=None)
+    data = path.read_bytes()
+    truncated, corrupt = tmp_path / "truncated.imulog", tmp_path / "corrupt.imulog"
+    truncated.write_bytes(data[:-700])
+    damaged = bytearray(data)
+    damaged[len(data) // 3] ^= 0x01
+    corrupt.write_bytes(bytes(damaged))
+    code, out, _ = run_cli(capsys, "compare", truncated)
+    assert code == 0 and "ignored a truncated tail" in out and "bit-exact: yes" in out
+    code, _, err = run_cli(capsys, "compare", corrupt)
+    assert code == 2
+    assert_one_line_error(err, "corrupt at byte")
+    code, _, err = run_cli(capsys, "replay", tmp_path / "missing.imulog")
+    assert code == 2
+    assert_one_line_error(err, "cannot read")
+
+
+# ---------------------------------------------------------------------------- inject
+
+
+def test_inject_simulation_and_recording(tmp_path, capsys):
+    path = tmp_path / "src.imulog"
+    with VirtualBoard(PtyTransport(), duration_s=5.0) as board:
+        hil.record(board.address, path)
+        code, out, _ = run_cli(capsys, "inject", board.address, "--input", "sim:random:10:200:4")
+        assert code == 0 and "injected 2000 samples" in out and "bit-exact: yes (2000 of 2000" in out
+        assert "accuracy vs truth" in out
+        code, out, _ = run_cli(capsys, "inject", board.address, "--input", path, "--filter", "eskf")
+        assert code == 0 and "injected 500 samples into eskf" in out and "bit-exact: yes" in out
+        with Link(board.address) as link:  # inject leaves the board as it found it
+            link.connect()
+            status = link.command("GET_STATUS").data.fields
+            assert status["injection_mode"] == 0 and status["sample_rate_mhz"] == 100_000
+            assert status["active_filter"] == core.FILTERS["eecf"][0]
+
+
+def _broad_like_mat(path, rate_hz: float = 285.714) -> None:
+    data = sim.make_scenario("turntable", 12.0, rate_hz, seed=5)
+    savemat(path, {"imu_gyr": data.gyr, "imu_acc": data.acc, "imu_mag": data.mag, "opt_quat": data.quat_true,
+                   "sampling_rate": np.array([[rate_hz]]), "movement": np.ones((len(data), 1))})
+
+
+def test_inject_mat_needs_the_broad_profile(tmp_path, capsys):
+    mat = tmp_path / "trial.mat"
+    _broad_like_mat(mat)
+    with VirtualBoard(PtyTransport(), duration_s=1.0) as board:
+        code, _, err = run_cli(capsys, "inject", board.address, "--input", mat)
+        assert code == 2
+        assert_one_line_error(err, "gy86-broad", "can neither read nor set", "--board-profile gy86-broad")
+        # a board that runs another profile than declared computes something else: caught
+        code, out, _ = run_cli(capsys, "inject", board.address, "--input", mat, "--board-profile", "gy86-broad")
+        assert code == 1 and "bit-exact: NO" in out and "first difference: sample " in out
+    with VirtualBoard(PtyTransport(), duration_s=1.0, profile=BROAD_PROFILE) as board:
+        code, out, _ = run_cli(capsys, "inject", board.address, "--input", mat, "--board-profile", "gy86-broad")
+        assert code == 0 and "bit-exact: yes" in out and "injected 3429 samples" in out
+
+
+def test_inject_bad_inputs(capsys, tmp_path):
+    code, _, err = run_cli(capsys, "inject", "loop://", "--input", "sim:nowhere:5")
+    assert code == 2
+    assert_one_line_error(err, "bad simulated input")
+    code, _, err = run_cli(capsys, "inject", "loop://", "--input", tmp_path / "nothing.bin")
+    assert code == 2
+    assert_one_line_error(err, "not found")
+
+
+# ---------------------------------------------------------------------------- demo
+
+
+@pytest.mark.parametrize("transport", ["tcp", "pty"])
+def test_demo(tmp_path, capsys, transport):
+    started = time.monotonic()
+    code, out, _ = run_cli(capsys, "demo", "--transport", transport, "--output", tmp_path / "demo.imulog")
+    elapsed = time.monotonic() - started
+    assert code == 0
+    assert "recorded: 6000 samples, 6000 estimates" in out and "lost frames 0" in out
+    assert "bit-exact: yes (6000 of 6000" in out
+    assert "fixed vs float twin: attitude max" in out and "accuracy vs simulated truth" in out
+    assert elapsed < 30
+    # the accuracy is the host fixed build's against the truth of the same simulation
+    data = sim.make_scenario("rests", 60.0, 100.0, seed=0)
+    host = core.run_counts("eskf", data.gyr_counts, data.acc_counts, data.mag_counts, 100.0)
+    expected = rmse(attitude_errors(host.quat[1000:], data.quat_true[1000:]))["total"]
+    reported = float(out.split("accuracy vs simulated truth (RMS after 10 s): total ")[1].split(" deg")[0])
+    assert reported == pytest.approx(expected, abs=1e-3)
