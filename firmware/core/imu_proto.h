@@ -151,7 +151,7 @@ typedef enum {
 typedef enum {
     IMU_PROTO_CMD_START_STREAM = 1, /**< Start streaming SAMPLE and ESTIMATE frames for every live sensor sample */
     IMU_PROTO_CMD_STOP_STREAM = 2, /**< Stop streaming */
-    IMU_PROTO_CMD_SELECT_FILTER = 3, /**< Make another filter active; it starts from its current settings and re-aligns */
+    IMU_PROTO_CMD_SELECT_FILTER = 3, /**< Make a filter active, the active one too: it restarts at sample index 0 from its current settings and re-aligns (the host restarts the active filter to resynchronise a recording after a lost sample) */
     IMU_PROTO_CMD_GET_SETTING = 4, /**< Read one setting of the active filter */
     IMU_PROTO_CMD_SET_SETTING = 5, /**< Write one setting of the active filter (raw fixed-point value, Q format as SETTING reports it); the filter restarts with it */
     IMU_PROTO_CMD_INJECT_SAMPLE = 6, /**< Run the active filter on this sample instead of a sensor reading (injection mode only) */
