@@ -121,12 +121,8 @@ static inline int32_t imu_div_sat(int32_t a, int32_t b, int s, uint32_t *sat)
 #define IMU_MUL_TO_INT(a, b, q) ((int32_t)imu_rshift_round64((int64_t)(a) * (b), (q)))
 /** Exact product of two int32 reals as a wide value (Q formats add). */
 #define IMU_WMUL(a, b) ((int64_t)(a) * (b))
-/** Wide value with s more fraction bits (the caller proves the headroom). */
-#define IMU_WSHL(v, s) ((v) * ((int64_t)1 << (s)))
 /** Wide value with s fewer fraction bits, rounded. */
 #define IMU_WSHR(v, s) imu_rshift_round64((v), (s))
-/** Wide value to int32, dropping s fraction bits (rounded) and saturating. */
-#define IMU_WIDE_TO_SAT(v, s, sat) imu_sat32(imu_rshift_round64((v), (s)), (sat))
 
 #else /* IMU_FLOAT */
 
@@ -153,8 +149,6 @@ typedef double imu_wide_t;
 #define IMU_TO_INT(a, q) ((int32_t)((a) >= 0 ? (a) + 0.5 : (a) - 0.5))
 #define IMU_MUL_TO_INT(a, b, q) IMU_TO_INT((a) * (b), 0)
 #define IMU_WMUL(a, b) ((a) * (b))
-#define IMU_WIDE_TO_SAT(v, s, sat) ((void)(sat), (v))
-#define IMU_WSHL(v, s) (v)
 #define IMU_WSHR(v, s) (v)
 
 #endif

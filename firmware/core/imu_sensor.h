@@ -52,11 +52,11 @@ extern const imu_sensor_settings_t imu_sensor_default_settings;
 /**
  * @brief Scale raw counts to rad/s, m/s^2 and uT, and flag counts at their limits.
  *
- * Fixed build, scaling and overflow: |count| <= 2^15 and each scale below 2^31
- * give products below 2^46; after the shifts to Q24/Q16 the results are below
- * 2^30 for any scale under 2^31 (gyro: 2^46 >> 16; acc: 2^46 >> 16; mag: 2^46 >> 8
- * exceeds int32 only for mag_scale >= 2^23 in Q24, i.e. 0.5 uT/LSB, the
- * HMC5883L's coarsest gain is 0.435: results saturate and count in *sat).
+ * Fixed build, scaling and overflow: |count| <= 2^15, so the gyroscope (Q40 scale,
+ * >> 16) and accelerometer (Q32 scale, >> 16) results stay below 2^30 for any scale
+ * in int32. The magnetometer (Q24 scale, >> 8) fits for scales below 2^23, i.e.
+ * 0.5 uT/LSB (the HMC5883L's coarsest gain is 0.435 uT/LSB); beyond, the result
+ * saturates and counts in *sat.
  */
 void imu_sample_from_raw(const imu_sensor_settings_t *settings, const imu_raw_sample_t *raw,
                          imu_sample_t *out, uint32_t *sat);
