@@ -462,8 +462,8 @@ void imu_vec3_cross(const imu_q30_t a[3], const imu_q30_t b[3], imu_q30_t out[3]
 
 void imu_quat_mul(const imu_q30_t a[4], const imu_q30_t b[4], imu_q30_t out[4])
 {
-    /* Each output component is bounded by |a||b| (near 1); partial sums of the
-     * rounded products stay within +-4 < Q30 range only in int64, so sum there. */
+    /* Each output component is bounded by |a||b| (near 1), but partial sums of the
+     * four products may not be: they are summed exactly in int64 and rounded once. */
 #ifdef IMU_FIXED
     const int64_t w = (int64_t)a[0] * b[0] - (int64_t)a[1] * b[1] - (int64_t)a[2] * b[2] - (int64_t)a[3] * b[3];
     const int64_t x = (int64_t)a[0] * b[1] + (int64_t)a[1] * b[0] + (int64_t)a[2] * b[3] - (int64_t)a[3] * b[2];
