@@ -393,6 +393,17 @@ DAMAGE = [_flip_bits, _drop_byte, _duplicate_byte, _insert_garbage, _truncate_fr
           _zero_byte]
 
 
+def random_damaged_stream(rnd: random.Random, frames: tuple[int, int], max_damages: int) -> tuple[list, bytes, set]:
+    """A random run of numbered frames (between frames[0] and frames[1] of them) and the
+    same stream with up to max_damages random damages: (sent, damaged bytes, touched)."""
+    named = [(name, random_fields(schema.MESSAGES[name]["fields"], rnd))
+             for name in rnd.choices(MESSAGE_NAMES, k=rnd.randint(*frames))]
+    sent = number_frames(named, {d: rnd.randint(0, 0xFFFF) for d in protocol.DIRECTIONS})
+    damages = [(rnd.choice(DAMAGE), rnd.random(), rnd.randint(0, 255)) for _ in range(rnd.randint(0, max_damages))]
+    data, touched = damage_stream(sent, damages)
+    return sent, data, touched
+
+
 def damage_stream(sent: list, damages) -> tuple[bytes, set]:
     """The sent frames' bytes after `damages`, a list of (DAMAGE function, relative
     position in [0, 1), value 0..255); and the indices of the frames they may have damaged."""
@@ -452,12 +463,7 @@ def test_long_damaged_streams(seed):
     generator (hypothesis keeps its streams short)."""
     rnd = random.Random(seed)
     for _ in range(150):
-        named = [(name, random_fields(schema.MESSAGES[name]["fields"], rnd))
-                 for name in rnd.choices(MESSAGE_NAMES, k=rnd.randint(50, 150))]
-        sent = number_frames(named, {d: rnd.randint(0, 0xFFFF) for d in protocol.DIRECTIONS})
-        damages = [(rnd.choice(DAMAGE), rnd.random(), rnd.randint(0, 255)) for _ in range(rnd.randint(0, 30))]
-        data, touched = damage_stream(sent, damages)
-        check_damaged_stream(sent, data, touched, rnd)
+        check_damaged_stream(*random_damaged_stream(rnd, frames=(50, 150), max_damages=30), rnd)
 
 
 def _lost_by_direction(sent, indices) -> dict:

@@ -24,7 +24,7 @@ from hypothesis import strategies as st
 from imulink import _core_fixed, _core_float, core, protocol
 from imulink import _protocol_schema as schema
 from test_protocol import (ARGS, DAMAGE, FIELDS, HYPOTHESIS, MESSAGE_NAMES, damage_stream, number_frames,
-                           random_fields)
+                           random_damaged_stream, random_fields)
 
 ffi, lib = _core_fixed.ffi, _core_fixed.lib
 
@@ -291,11 +291,7 @@ def test_c_decoder_counts_garbage_like_python(garbage):
 def test_c_decoder_accepts_and_counts_damaged_streams_like_python(seed):
     rnd = random.Random(seed)
     for _ in range(50):
-        named = [(name, random_fields(schema.MESSAGES[name]["fields"], rnd))
-                 for name in rnd.choices(MESSAGE_NAMES, k=rnd.randint(10, 60))]
-        sent = number_frames(named, {d: rnd.randint(0, 0xFFFF) for d in protocol.DIRECTIONS})
-        damages = [(rnd.choice(DAMAGE), rnd.random(), rnd.randint(0, 255)) for _ in range(rnd.randint(0, 20))]
-        data, _ = damage_stream(sent, damages)
+        _, data, _ = random_damaged_stream(rnd, frames=(10, 60), max_damages=20)
         c, py = CDecoder(), protocol.FrameDecoder()
         assert c.feed(data) == _python_frames(py.feed(data))
         counters = c.counters()
