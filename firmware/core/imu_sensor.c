@@ -5,7 +5,7 @@
 #include "imu_sensor.h"
 
 const imu_sensor_settings_t imu_sensor_default_settings = {
-    IMU_QCONST(1.0642251738473303e-3, 40), /* pi/180 / 16.4 */
+    IMU_QCONST(3.14159265358979323846 / 180.0 / 16.4, 40), /* rad/s per LSB at 16.4 LSB/(deg/s) */
     IMU_QCONST(2.394201660156250e-3, 32),  /* 9.80665 / 4096 */
     IMU_QCONST(9.174311926605504e-2, 24),  /* 100 / 1090 */
 };
