@@ -334,6 +334,9 @@ size_t imu_proto_status_pack(const imu_proto_status_t *m, uint8_t *payload)
     put_u32(payload + 19, (uint32_t)m->sensor_saturations);
     payload[23] = (uint8_t)m->streaming;
     payload[24] = (uint8_t)m->injection_mode;
+    put_u32(payload + 25, (uint32_t)m->filter_cycles);
+    put_u32(payload + 29, (uint32_t)m->cycle_hz);
+    put_u32(payload + 33, (uint32_t)m->sensor_errors);
     return IMU_PROTO_STATUS_SIZE;
 }
 
@@ -351,6 +354,9 @@ imu_proto_result_t imu_proto_status_unpack(imu_proto_status_t *m, const uint8_t 
     m->sensor_saturations = get_u32(payload + 19);
     m->streaming = payload[23];
     m->injection_mode = payload[24];
+    m->filter_cycles = get_u32(payload + 25);
+    m->cycle_hz = get_u32(payload + 29);
+    m->sensor_errors = get_u32(payload + 33);
     return IMU_PROTO_OK;
 }
 

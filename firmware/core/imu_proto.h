@@ -130,7 +130,7 @@ int imu_proto_decoder_push(imu_proto_decoder_t *d, uint8_t byte, imu_proto_frame
 /** Protocol version ([protocol] version), sent in HELLO. */
 #define IMU_PROTO_VERSION 1u
 /** Schema hash of shared/protocol.toml (CRC-32 of its canonical form), sent in HELLO. */
-#define IMU_PROTO_SCHEMA_HASH 0x25CB0848u
+#define IMU_PROTO_SCHEMA_HASH 0x5F2C8D5Eu
 /** Largest payload of any message, bytes. */
 #define IMU_PROTO_MAX_PAYLOAD 201u
 
@@ -203,7 +203,7 @@ typedef struct {
     uint8_t firmware_patch; /**< firmware version, patch */
     uint8_t protocol_version; /**< [protocol] version of the schema the firmware was built from */
     uint32_t schema_hash; /**< schema hash of the firmware's protocol definition */
-    char board[16]; /**< board name, e.g. stm32f407-gy86, qemu-netduinoplus2, emulator */
+    char board[16]; /**< board name: stm32f407-gy86, qemu-stm32f405 (QEMU netduinoplus2), native */
     uint8_t filters; /**< filters the firmware has: bit (1 << filter id) set for each */
 } imu_proto_hello_t;
 
@@ -215,7 +215,7 @@ imu_proto_result_t imu_proto_hello_unpack(imu_proto_hello_t *m, const uint8_t *p
 size_t imu_proto_hello_encode(const imu_proto_hello_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 
 /** STATUS payload bytes. */
-#define IMU_PROTO_STATUS_SIZE 25u
+#define IMU_PROTO_STATUS_SIZE 37u
 
 /** STATUS (id 0x02, to_host): Board state and health counters. Answer to GET_STATUS; a board may
  *  also send it periodically.
@@ -230,6 +230,9 @@ typedef struct {
     uint32_t sensor_saturations; /**< sensor readings at the end of their range (+-32767 counts) */
     uint8_t streaming; /**< 1 while SAMPLE/ESTIMATE frames are streamed */
     uint8_t injection_mode; /**< 1 while the filter runs on injected samples instead of the sensors */
+    uint32_t filter_cycles; /**< cost of the last filter update (update and output of one sample), in ticks of the board's cycle counter */
+    uint32_t cycle_hz; /**< frequency of that counter, Hz: the CPU clock where the board counts cycles (the STM32F407: DWT), the rate of its clock where it counts time instead (QEMU: 1000000, native: 1000000000), 0 where it has none */
+    uint32_t sensor_errors; /**< sensor reads that failed since start-up (each is also a dropped sample; LOG says why) */
 } imu_proto_status_t;
 
 /** @brief Payload bytes of STATUS into `payload` (IMU_PROTO_STATUS_SIZE bytes); returns IMU_PROTO_STATUS_SIZE. */

@@ -7,7 +7,7 @@ the last field only, text / bytes (length: the maximum, variable on the wire).
 """
 
 PROTOCOL_VERSION = 1
-SCHEMA_HASH = 0x25CB0848
+SCHEMA_HASH = 0x5F2C8D5E
 HEADER_SIZE = 3
 CRC_SIZE = 4
 MAX_PAYLOAD = 201
@@ -33,6 +33,9 @@ MESSAGES = {
         ('sensor_saturations', 'u32', None),
         ('streaming', 'u8', None),
         ('injection_mode', 'u8', None),
+        ('filter_cycles', 'u32', None),
+        ('cycle_hz', 'u32', None),
+        ('sensor_errors', 'u32', None),
     )},
     'LOG': {'id': 0x03, 'direction': 'to_host', 'fields': (
         ('level', 'u8', None),
@@ -136,7 +139,7 @@ size_t imu_proto_hello_pack(const imu_proto_hello_t *m, uint8_t *payload);
 imu_proto_result_t imu_proto_hello_unpack(imu_proto_hello_t *m, const uint8_t *payload, size_t len);
 size_t imu_proto_hello_encode(const imu_proto_hello_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 #define IMU_PROTO_STATUS_SIZE ...
-typedef struct { uint32_t uptime_ms; uint8_t active_filter; uint32_t sample_rate_mhz; uint32_t dropped_samples; uint16_t cpu_load_permille; uint32_t filter_saturations; uint32_t sensor_saturations; uint8_t streaming; uint8_t injection_mode; } imu_proto_status_t;
+typedef struct { uint32_t uptime_ms; uint8_t active_filter; uint32_t sample_rate_mhz; uint32_t dropped_samples; uint16_t cpu_load_permille; uint32_t filter_saturations; uint32_t sensor_saturations; uint8_t streaming; uint8_t injection_mode; uint32_t filter_cycles; uint32_t cycle_hz; uint32_t sensor_errors; } imu_proto_status_t;
 size_t imu_proto_status_pack(const imu_proto_status_t *m, uint8_t *payload);
 imu_proto_result_t imu_proto_status_unpack(imu_proto_status_t *m, const uint8_t *payload, size_t len);
 size_t imu_proto_status_encode(const imu_proto_status_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
