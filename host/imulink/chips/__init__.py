@@ -1,0 +1,21 @@
+"""Register-level models of the reference board's chips, from their data sheets.
+
+The firmware's sensor drivers (firmware/drivers) are tested against these models: an
+:class:`I2CBus` carries the chips by address and implements the transfers of
+firmware/drivers/i2c.h, with failure injection; :class:`MPU6050` and :class:`HMC5883L`
+behave like the chips at register level (reset values, identity, auto-increment,
+data registers, the MPU6050's bypass switch in front of its auxiliary bus).
+
+The GY-86 module is built like this::
+
+    bus = I2CBus()
+    mpu = bus.attach(0x68, MPU6050())
+    mag = mpu.aux_bus.attach(0x1E, HMC5883L())   # reachable once the bypass is on
+
+Each model's module docstring says what is modelled and what is not.
+"""
+from .hmc5883l import HMC5883L
+from .i2c import FAILURES, STATUS_CODES, I2CBus, I2CDevice, RegisterDevice
+from .mpu6050 import MPU6050
+
+__all__ = ["FAILURES", "HMC5883L", "I2CBus", "I2CDevice", "MPU6050", "RegisterDevice", "STATUS_CODES"]
