@@ -1,0 +1,603 @@
+/**
+ * @file app.c
+ * @brief The board application (see app.h): protocol commands, live samples, injection.
+ */
+#include "app.h"
+
+#include "board.h"
+#include "text.h"
+
+/** Bytes of one live sample on the wire: SAMPLE + ESTIMATE frames at their largest. */
+#define SAMPLE_WIRE_BYTES                                                                         \
+    (2u * (IMU_PROTO_COBS_MAX(IMU_PROTO_HEADER_SIZE + IMU_PROTO_ESTIMATE_SIZE + IMU_PROTO_CRC_SIZE) + 1u))
+
+/** Sensor failures are reported at most once per this many microseconds, and the sensors set up
+ *  again at most as often, so a dead sensor costs little and does not flood the link. */
+#define SENSOR_RETRY_US 1000000u
+
+/** Weight of the newest sample in the smoothed CPU load: 1/64 (a time constant of 64 samples). */
+#define LOAD_SMOOTHING_SHIFT 6
+
+/* --------------------------------------------------------------------------- the filters */
+
+/** What the application needs to know of each filter: its id, settings table and storage. */
+typedef struct {
+    uint8_t id;
+    const imu_setting_desc_t *descs;
+    const int *count;
+    size_t offset;    /**< offsetof(app_settings_t, <its settings>) */
+    const void *defaults;
+    size_t size;      /**< sizeof its settings struct */
+} filter_info_t;
+
+static const filter_info_t filters[] = {
+    {IMU_FILTER_EECF, imu_eecf_setting_descs, &imu_eecf_setting_count, offsetof(app_settings_t, eecf),
+     &imu_eecf_default_settings, sizeof(imu_eecf_settings_t)},
+    {IMU_FILTER_KF1D, imu_kf1d_setting_descs, &imu_kf1d_setting_count, offsetof(app_settings_t, kf1d),
+     &imu_kf1d_default_settings, sizeof(imu_kf1d_settings_t)},
+    {IMU_FILTER_ESKF, imu_eskf_setting_descs, &imu_eskf_setting_count, offsetof(app_settings_t, eskf),
+     &imu_eskf_default_settings, sizeof(imu_eskf_settings_t)},
+};
+#define FILTER_COUNT (sizeof filters / sizeof filters[0])
+
+static const filter_info_t *filter_info(int id)
+{
+    size_t i;
+    for (i = 0; i < FILTER_COUNT; ++i) {
+        if (filters[i].id == id) {
+            return &filters[i];
+        }
+    }
+    return 0;
+}
+
+static void *settings_of(app_settings_t *settings, const filter_info_t *info)
+{
+    return (uint8_t *)settings + info->offset;
+}
+
+/** The settings field (an imu_real_t: int32 in Qn) at `index` of a filter's settings struct. */
+static imu_real_t *setting_field(void *settings, const filter_info_t *info, int index)
+{
+    return (imu_real_t *)((uint8_t *)settings + info->descs[index].offset);
+}
+
+static void copy_bytes(void *to, const void *from, size_t n)
+{
+    uint8_t *t = (uint8_t *)to;
+    const uint8_t *f = (const uint8_t *)from;
+    while (n--) {
+        *t++ = *f++;
+    }
+}
+
+/** Make filter `id` active with its stored settings, from sample index 0. The stored settings
+ *  were accepted by the filter before, so this cannot fail. */
+static void restart_filter(app_t *app, int id)
+{
+    const filter_info_t *info = filter_info(id);
+    imu_filter_init(&app->filter, id);
+    imu_filter_set_sensor(&app->filter, &app->config.sensor);
+    (void)imu_filter_set_settings(&app->filter, settings_of(&app->settings, info));
+    app->index = 0;
+}
+
+/** The active filter's sample rate, mHz (the live tick); its setting is in Hz, Q16. */
+static uint32_t sample_rate_mhz(const app_t *app)
+{
+    const filter_info_t *info = filter_info(app->filter.id);
+    const imu_real_t rate = *setting_field(settings_of((app_settings_t *)&app->settings, info), info, 0);
+    return (uint32_t)(((uint64_t)(uint32_t)rate * 1000u + 32768u) >> 16);
+}
+
+/* --------------------------------------------------------------------------- output */
+
+static void send_wire(app_t *app, size_t len)
+{
+    board_link_write(app->wire, len);
+    app->tx_seq = (uint16_t)(app->tx_seq + 1u);
+}
+
+static void send_log(app_t *app, uint8_t level, const char *text)
+{
+    imu_proto_log_t log;
+    size_t n = 0;
+    log.level = level;
+    while (text[n] != '\0' && n < sizeof log.text) {
+        log.text[n] = text[n];
+        ++n;
+    }
+    log.text_len = n;
+    send_wire(app, imu_proto_log_encode(&log, app->tx_seq, app->wire, sizeof app->wire));
+}
+
+void app_send_hello(app_t *app)
+{
+    imu_proto_hello_t hello;
+    size_t i;
+    const char *name = app->config.board_name;
+    hello.firmware_major = APP_VERSION_MAJOR;
+    hello.firmware_minor = APP_VERSION_MINOR;
+    hello.firmware_patch = APP_VERSION_PATCH;
+    hello.protocol_version = IMU_PROTO_VERSION;
+    hello.schema_hash = IMU_PROTO_SCHEMA_HASH;
+    for (i = 0; i < sizeof hello.board; ++i) {
+        hello.board[i] = *name != '\0' ? *name++ : '\0';
+    }
+    hello.filters = 0;
+    for (i = 0; i < FILTER_COUNT; ++i) {
+        hello.filters = (uint8_t)(hello.filters | (1u << filters[i].id));
+    }
+    send_wire(app, imu_proto_hello_encode(&hello, app->tx_seq, app->wire, sizeof app->wire));
+}
+
+static void send_status(app_t *app)
+{
+    imu_proto_status_t s;
+    s.uptime_ms = (uint32_t)(board_time_us() / 1000u);
+    s.active_filter = (uint8_t)app->filter.id;
+    s.sample_rate_mhz = sample_rate_mhz(app);
+    s.dropped_samples = app->dropped_samples;
+    s.cpu_load_permille = (uint16_t)((app->load_permille_q8 + 128u) >> 8);
+    s.filter_saturations = imu_filter_saturations(&app->filter);
+    s.sensor_saturations = app->sensor_saturations;
+    s.streaming = (uint8_t)app->streaming;
+    s.injection_mode = (uint8_t)app->injection;
+    s.filter_cycles = app->filter_cycles;
+    s.cycle_hz = board_cycle_hz();
+    s.sensor_errors = app->sensor_errors;
+    send_wire(app, imu_proto_status_encode(&s, app->tx_seq, app->wire, sizeof app->wire));
+}
+
+static void send_answer(app_t *app, const imu_proto_command_t *command, uint8_t reason)
+{
+    if (reason == IMU_PROTO_REASON_OK) {
+        imu_proto_ack_t ack;
+        ack.command_seq = command->command_seq;
+        ack.command = command->command;
+        ack.reason = reason;
+        send_wire(app, imu_proto_ack_encode(&ack, app->tx_seq, app->wire, sizeof app->wire));
+    } else {
+        imu_proto_nack_t nack;
+        nack.command_seq = command->command_seq;
+        nack.command = command->command;
+        nack.reason = reason;
+        send_wire(app, imu_proto_nack_encode(&nack, app->tx_seq, app->wire, sizeof app->wire));
+    }
+}
+
+/** Run the active filter on one sample and send its ESTIMATE under `index`. */
+static void run_filter(app_t *app, const imu_raw_sample_t *raw, uint32_t index)
+{
+    imu_proto_estimate_t e;
+    imu_output_t out;
+    const imu_eskf_t *eskf;
+    const uint32_t started = board_cycles();
+    int i;
+    imu_filter_update_raw(&app->filter, raw);
+    imu_filter_get(&app->filter, &out);
+    app->filter_cycles = board_cycles() - started;
+
+    e.index = index;
+    e.filter_id = (uint8_t)app->filter.id;
+    for (i = 0; i < 4; ++i) {
+        e.quat[i] = out.quat[i];
+    }
+    for (i = 0; i < 3; ++i) {
+        e.gyro_bias[i] = out.gyro_bias[i];
+        e.euler[i] = out.euler[i];
+    }
+    for (i = 0; i < 9; ++i) {
+        e.cov_mantissa[i] = 0;
+        e.cov_exponent[i] = 0;
+    }
+    eskf = imu_filter_eskf(&app->filter);
+    if (eskf != 0) {
+        const int states = imu_eskf_state_count(eskf);
+        for (i = 0; i < states; ++i) {
+            int32_t exponent;
+            imu_eskf_covariance(eskf, i, i, &e.cov_mantissa[i], &exponent);
+            e.cov_exponent[i] = (int8_t)exponent; /* the block-floating exponents stay within +-64 */
+        }
+    }
+    e.saturations = imu_filter_saturations(&app->filter);
+    send_wire(app, imu_proto_estimate_encode(&e, app->tx_seq, app->wire, sizeof app->wire));
+}
+
+/* --------------------------------------------------------------------------- live samples */
+
+static void start_stream(app_t *app)
+{
+    app->streaming = 1;
+    app->samples_until_status = (sample_rate_mhz(app) + 500u) / 1000u;
+    board_sample_clock_start(sample_rate_mhz(app));
+}
+
+static void stop_stream(app_t *app)
+{
+    app->streaming = 0;
+    board_sample_clock_stop();
+}
+
+/** A register at the end of its range: the true value may be beyond it. */
+static int clipped(const imu_raw_sample_t *raw)
+{
+    int i;
+    for (i = 0; i < 3; ++i) {
+        if (raw->gyr[i] <= IMU_MPU6050_MIN || raw->gyr[i] >= IMU_MPU6050_MAX || raw->acc[i] <= IMU_MPU6050_MIN ||
+            raw->acc[i] >= IMU_MPU6050_MAX || raw->mag[i] <= IMU_HMC5883L_MIN || raw->mag[i] >= IMU_HMC5883L_MAX) {
+            return 1;
+        }
+    }
+    return 0;
+}
+
+/** Set the sensors up; say how it went (a failed retry stays quiet: the failed reads are reported). */
+static void set_up_sensors(app_t *app, int report_failure)
+{
+    const char *message = "";
+    app->sensors_ok = board_sensors_init(&message) == BOARD_SENSORS_OK;
+    app->sensor_retry_us = board_time_us() + SENSOR_RETRY_US;
+    if (app->sensors_ok || report_failure) {
+        send_log(app, app->sensors_ok ? IMU_PROTO_LOG_LEVEL_INFO : IMU_PROTO_LOG_LEVEL_ERROR, message);
+    }
+}
+
+/** A read failed: count it, say why now and then, and set the sensors up again now and then. */
+static void sensor_failed(app_t *app, const char *why)
+{
+    const uint64_t now = board_time_us();
+    ++app->sensor_errors;
+    ++app->dropped_samples;
+    ++app->failures_since_log;
+    if (app->sensors_ok || now >= app->error_log_us) {
+        char line[IMU_PROTO_LOG_SIZE];
+        text_t t;
+        text_start(&t, line, sizeof line);
+        text_add(&t, why);
+        if (!app->sensors_ok) {
+            text_add(&t, " (");
+            text_add_uint(&t, app->failures_since_log);
+            text_add(&t, " failed reads in the last second)");
+        }
+        send_log(app, IMU_PROTO_LOG_LEVEL_ERROR, text_end(&t));
+        app->failures_since_log = 0;
+        app->error_log_us = now + SENSOR_RETRY_US;
+    }
+    if (app->sensors_ok) {
+        app->sensors_ok = 0;
+        app->sensor_retry_us = now + SENSOR_RETRY_US;
+    } else if (now >= app->sensor_retry_us) {
+        set_up_sensors(app, 0);
+    }
+}
+
+static void update_load(app_t *app, uint32_t work_cycles)
+{
+    const uint64_t period_cycles = (uint64_t)board_cycle_hz() * 1000u / sample_rate_mhz(app); /* at least 10 Hz: every filter refuses less */
+    uint64_t permille_q8;
+    if (period_cycles == 0) {
+        return; /* no cycle counter */
+    }
+    permille_q8 = ((uint64_t)work_cycles * 1000u * 256u) / period_cycles;
+    if (permille_q8 > 1000u * 256u) {
+        permille_q8 = 1000u * 256u;
+    }
+    app->load_permille_q8 = (uint32_t)(app->load_permille_q8 +
+                                       (((int32_t)permille_q8 - (int32_t)app->load_permille_q8) >> LOAD_SMOOTHING_SHIFT));
+}
+
+static void live_sample(app_t *app)
+{
+    imu_raw_sample_t raw;
+    imu_proto_sample_t s;
+    int16_t temperature = 0;
+    const char *message = "";
+    const uint32_t started = board_cycles();
+    const uint64_t read_at = board_time_us();
+    const board_sensors_result_t result = board_sensors_read(&raw, &temperature, &message);
+    int i;
+
+    if (result == BOARD_SENSORS_ENDED) {
+        char line[IMU_PROTO_LOG_SIZE];
+        text_t t;
+        text_start(&t, line, sizeof line);
+        text_add(&t, message);
+        text_add(&t, ": streaming stopped");
+        stop_stream(app);
+        send_log(app, IMU_PROTO_LOG_LEVEL_INFO, text_end(&t));
+        send_status(app);
+        return;
+    }
+    if (result != BOARD_SENSORS_OK) {
+        sensor_failed(app, message);
+        return;
+    }
+    if (!app->sensors_ok) {
+        char line[IMU_PROTO_LOG_SIZE];
+        text_t t;
+        text_start(&t, line, sizeof line);
+        text_add(&t, "sensors answer again after ");
+        text_add_uint(&t, app->failures_since_log);
+        text_add(&t, " more failed reads");
+        send_log(app, IMU_PROTO_LOG_LEVEL_INFO, text_end(&t));
+        app->sensors_ok = 1;
+        app->failures_since_log = 0;
+    }
+    app->sensor_saturations += (uint32_t)clipped(&raw);
+
+    if (board_link_space() < SAMPLE_WIRE_BYTES) {
+        /* The host does not keep up: the filter still runs (its state must follow the sensor),
+         * the frames are dropped like a full UART buffer would drop them. */
+        imu_filter_update_raw(&app->filter, &raw);
+        ++app->dropped_samples;
+    } else {
+        s.timestamp_us = (uint32_t)read_at;
+        s.index = app->index;
+        for (i = 0; i < 3; ++i) {
+            s.gyr[i] = raw.gyr[i];
+            s.acc[i] = raw.acc[i];
+            s.mag[i] = raw.mag[i];
+        }
+        s.temperature = temperature;
+        send_wire(app, imu_proto_sample_encode(&s, app->tx_seq, app->wire, sizeof app->wire));
+        run_filter(app, &raw, app->index);
+    }
+    ++app->index;
+    update_load(app, board_cycles() - started);
+    if (--app->samples_until_status == 0) {
+        app->samples_until_status = (sample_rate_mhz(app) + 500u) / 1000u;
+        send_status(app);
+    }
+}
+
+/* --------------------------------------------------------------------------- commands */
+
+/** A command's outcome: the NACK reason, or OK; `after` asks the main loop for a restart. */
+typedef struct {
+    uint8_t reason;
+    app_result_t after;
+} outcome_t;
+
+static outcome_t ok(void)
+{
+    outcome_t o = {IMU_PROTO_REASON_OK, APP_BUSY};
+    return o;
+}
+
+static outcome_t refuse(uint8_t reason)
+{
+    outcome_t o;
+    o.reason = reason;
+    o.after = APP_BUSY;
+    return o;
+}
+
+static outcome_t cmd_select_filter(app_t *app, const imu_proto_command_t *c)
+{
+    imu_proto_cmd_select_filter_t a;
+    (void)imu_proto_cmd_select_filter_unpack(&a, c->args, c->args_len);
+    if (filter_info(a.filter_id) == 0) {
+        return refuse(IMU_PROTO_REASON_UNKNOWN_FILTER);
+    }
+    restart_filter(app, a.filter_id);
+    if (app->streaming) {
+        start_stream(app); /* the new filter's rate */
+    }
+    return ok();
+}
+
+static outcome_t cmd_get_setting(app_t *app, const imu_proto_command_t *c)
+{
+    imu_proto_cmd_get_setting_t a;
+    imu_proto_setting_t s;
+    const filter_info_t *info = filter_info(app->filter.id);
+    const imu_setting_desc_t *desc;
+    size_t i;
+    (void)imu_proto_cmd_get_setting_unpack(&a, c->args, c->args_len);
+    if (a.index >= *info->count) {
+        return refuse(IMU_PROTO_REASON_UNKNOWN_SETTING);
+    }
+    desc = &info->descs[a.index];
+    s.filter_id = info->id;
+    s.index = a.index;
+    s.setting_count = (uint8_t)*info->count;
+    s.value = *setting_field(settings_of(&app->settings, info), info, a.index);
+    s.frac_bits = (int8_t)desc->frac_bits;
+    for (i = 0; i < sizeof s.name; ++i) {
+        s.name[i] = i < text_length(desc->name) ? desc->name[i] : '\0';
+    }
+    for (i = 0; i < sizeof s.unit; ++i) {
+        s.unit[i] = i < text_length(desc->unit) ? desc->unit[i] : '\0';
+    }
+    send_wire(app, imu_proto_setting_encode(&s, app->tx_seq, app->wire, sizeof app->wire));
+    return ok();
+}
+
+static outcome_t cmd_set_setting(app_t *app, const imu_proto_command_t *c)
+{
+    imu_proto_cmd_set_setting_t a;
+    const filter_info_t *info = filter_info(app->filter.id);
+    app_settings_t candidate;
+    (void)imu_proto_cmd_set_setting_unpack(&a, c->args, c->args_len);
+    if (a.index >= *info->count) {
+        return refuse(IMU_PROTO_REASON_UNKNOWN_SETTING);
+    }
+    candidate = app->settings;
+    *setting_field(settings_of(&candidate, info), info, a.index) = a.value;
+    /* The filter checks every range; a refused value leaves it unchanged. */
+    if (imu_filter_set_settings(&app->filter, settings_of(&candidate, info)) != IMU_OK) {
+        return refuse(IMU_PROTO_REASON_OUT_OF_RANGE);
+    }
+    app->settings = candidate;
+    restart_filter(app, info->id);
+    if (app->streaming) {
+        start_stream(app); /* sample_rate may have changed */
+    }
+    return ok();
+}
+
+static outcome_t cmd_inject_sample(app_t *app, const imu_proto_command_t *c)
+{
+    imu_proto_sample_t s;
+    imu_raw_sample_t raw;
+    int i;
+    if (!app->injection) {
+        return refuse(IMU_PROTO_REASON_NOT_IN_INJECTION_MODE);
+    }
+    (void)imu_proto_cmd_inject_sample_unpack(&s, c->args, c->args_len);
+    for (i = 0; i < 3; ++i) {
+        raw.gyr[i] = s.gyr[i];
+        raw.acc[i] = s.acc[i];
+        raw.mag[i] = s.mag[i];
+    }
+    run_filter(app, &raw, s.index);
+    ++app->index;
+    return ok();
+}
+
+static outcome_t cmd_set_injection_mode(app_t *app, const imu_proto_command_t *c)
+{
+    imu_proto_cmd_set_injection_mode_t a;
+    (void)imu_proto_cmd_set_injection_mode_unpack(&a, c->args, c->args_len);
+    if (a.enabled > 1) {
+        return refuse(IMU_PROTO_REASON_BAD_ARGUMENT);
+    }
+    if (app->streaming) {
+        return refuse(IMU_PROTO_REASON_BUSY);
+    }
+    app->injection = a.enabled;
+    restart_filter(app, app->filter.id);
+    return ok();
+}
+
+static outcome_t run_command(app_t *app, const imu_proto_command_t *c)
+{
+    const int args_size = imu_proto_command_args_size(c->command);
+    outcome_t o = ok();
+    if (args_size < 0) {
+        return refuse(IMU_PROTO_REASON_UNKNOWN_COMMAND);
+    }
+    if ((size_t)args_size != c->args_len) {
+        return refuse(IMU_PROTO_REASON_BAD_LENGTH);
+    }
+    switch (c->command) {
+    case IMU_PROTO_CMD_START_STREAM:
+        if (app->injection) {
+            return refuse(IMU_PROTO_REASON_BUSY);
+        }
+        if (!app->streaming) {
+            start_stream(app);
+        }
+        return o;
+    case IMU_PROTO_CMD_STOP_STREAM:
+        stop_stream(app);
+        return o;
+    case IMU_PROTO_CMD_SELECT_FILTER:
+        return cmd_select_filter(app, c);
+    case IMU_PROTO_CMD_GET_SETTING:
+        return cmd_get_setting(app, c);
+    case IMU_PROTO_CMD_SET_SETTING:
+        return cmd_set_setting(app, c);
+    case IMU_PROTO_CMD_INJECT_SAMPLE:
+        return cmd_inject_sample(app, c);
+    case IMU_PROTO_CMD_RESET:
+        o.after = APP_RESTART;
+        return o;
+    case IMU_PROTO_CMD_ENTER_BOOTLOADER:
+        if (!board_has_bootloader()) {
+            return refuse(IMU_PROTO_REASON_NOT_SUPPORTED);
+        }
+        o.after = APP_BOOTLOADER;
+        return o;
+    case IMU_PROTO_CMD_GET_VERSION:
+        app_send_hello(app);
+        return o;
+    case IMU_PROTO_CMD_GET_STATUS:
+        send_status(app);
+        return o;
+    case IMU_PROTO_CMD_SET_INJECTION_MODE:
+        return cmd_set_injection_mode(app, c);
+    default:
+        return refuse(IMU_PROTO_REASON_UNKNOWN_COMMAND);
+    }
+}
+
+/** Answer one received frame; frames other than COMMAND are not for the board and ignored. */
+static app_result_t handle_frame(app_t *app, const imu_proto_frame_t *frame)
+{
+    imu_proto_command_t command;
+    outcome_t o;
+    if (frame->msg_id != IMU_PROTO_MSG_COMMAND ||
+        imu_proto_command_unpack(&command, frame->payload, frame->payload_len) != IMU_PROTO_OK) {
+        return APP_BUSY;
+    }
+    o = run_command(app, &command);
+    send_answer(app, &command, o.reason);
+    if (o.after != APP_BUSY) {
+        board_link_flush(); /* the ACK must leave before the restart */
+    }
+    return o.after;
+}
+
+/* --------------------------------------------------------------------------- init and poll */
+
+void app_init(app_t *app, const app_config_t *config)
+{
+    size_t i;
+    app->config = *config;
+    for (i = 0; i < FILTER_COUNT; ++i) {
+        void *settings = settings_of(&app->settings, &filters[i]);
+        copy_bytes(settings, filters[i].defaults, filters[i].size);
+        *setting_field(settings, &filters[i], 0) = config->sample_rate; /* field 0 of every filter */
+    }
+    restart_filter(app, filter_info(config->initial_filter) != 0 ? config->initial_filter : IMU_FILTER_EECF);
+    app->streaming = 0;
+    app->injection = 0;
+    app->tx_seq = 0;
+    imu_proto_decoder_init(&app->decoder, app->rx_frame, sizeof app->rx_frame);
+    app->dropped_samples = 0;
+    app->sensor_errors = 0;
+    app->sensor_saturations = 0;
+    app->filter_cycles = 0;
+    app->load_permille_q8 = 0;
+    app->failures_since_log = 0;
+    app->error_log_us = 0;
+    app->samples_until_status = 0;
+    board_sample_clock_stop();
+    app_send_hello(app);
+    if (board_start_up_problem() != 0) {
+        send_log(app, IMU_PROTO_LOG_LEVEL_WARNING, board_start_up_problem());
+    }
+    set_up_sensors(app, 1);
+}
+
+app_result_t app_poll(app_t *app)
+{
+    uint8_t received[64];
+    size_t n, i;
+    uint32_t ticks;
+    app_result_t result = APP_IDLE;
+
+    n = board_link_read(received, sizeof received);
+    for (i = 0; i < n; ++i) {
+        imu_proto_frame_t frame;
+        if (imu_proto_decoder_push(&app->decoder, received[i], &frame)) {
+            const app_result_t after = handle_frame(app, &frame);
+            if (after == APP_RESTART || after == APP_BOOTLOADER) {
+                return after; /* what else arrived belongs to the firmware that is going away */
+            }
+        }
+    }
+    if (n == sizeof received) {
+        result = APP_BUSY;
+    }
+
+    ticks = board_sample_ticks();
+    if (ticks > 0 && app->streaming) {
+        app->dropped_samples += ticks - 1; /* ticks that came while the last sample was still at work */
+        live_sample(app);
+        result = APP_BUSY;
+    }
+    return result;
+}

@@ -1,0 +1,277 @@
+/**
+ * @file board_stm32f407.c
+ * @brief The reference board: an STM32F407 with a GY-86 (MPU6050 + HMC5883L) on I2C1 and the
+ *        host on USART1 at 921600 baud. Register level, no vendor library (boards/stm32f4).
+ *
+ * - Clocks: clock_stm32f407.c (8 MHz HSE -> PLL -> 168 MHz; fallbacks HSI -> PLL, HSI alone);
+ *   every clock below is the one actually in use, and what went wrong is the start-up WARNING.
+ * - Host link: USART1 on PA9/PA10 through the ring-buffered driver of boards/stm32f4/uart.h.
+ * - Sensors: gy86_init / gy86_read (drivers/) over i2c_stm32f4.c on I2C1 (PB8/PB9), polled.
+ *   The MPU6050's INT pin is not connected: TIM2 times the samples.
+ * - Time: TIM5 counts microseconds (64 bits with its overflow interrupt), TIM2 raises the
+ *   sample tick, both from the APB1 timer clock (84 MHz); the DWT cycle counter counts CPU
+ *   cycles for STATUS.filter_cycles (board_cycle_hz() = SYSCLK). Nothing waits on the DWT.
+ * - ENTER_BOOTLOADER: a request word in .noinit RAM and a reset; the next start jumps to the ST
+ *   system-memory bootloader (AN2606) before touching the clocks.
+ */
+#include "app.h"
+#include "board.h"
+#include "board_stm32f407.h"
+#include "clock_stm32f407.h"
+#include "gy86.h"
+#include "i2c_stm32f4.h"
+#include "link.h"
+#include "stm32f4.h"
+#include "text.h"
+#include "timers.h"
+
+#define BOARD_NAME "stm32f407-gy86"
+#define BOOTLOADER_REQUEST 0x5B007B00u /* and its complement in the second word */
+
+static clocks_t clocks;
+static i2c_stm32f4_t i2c_dev;
+static i2c_bus_t i2c_bus;
+static gy86_t gy86;
+static int sensors_ready;              /* gy86_init succeeded: reads may go to the bus */
+static char init_failure[SENSOR_STATUS_TEXT_SIZE + 24];
+static char read_failure[SENSOR_STATUS_TEXT_SIZE];
+static char start_up_problem[IMU_PROTO_LOG_SIZE];
+
+/* Kept across a reset (linker script: .noinit is neither loaded nor cleared). */
+static volatile uint32_t bootloader_request[2] __attribute__((section(".noinit")));
+
+void tim2_irq_handler(void);
+void tim5_irq_handler(void);
+
+void tim2_irq_handler(void)
+{
+    timers_tim2_irq();
+}
+
+void tim5_irq_handler(void)
+{
+    timers_tim5_irq();
+}
+
+/* --------------------------------------------------------------------------- start-up */
+
+/**
+ * First thing after a reset, with the reset clocks (the HSI) the bootloader expects: when the
+ * previous run asked for it, forget the request, map the system memory at 0 (SYSCFG_MEMRMP,
+ * RM0090 section 9.2.1, so the bootloader finds its vector table where VTOR = 0 points) and
+ * start it from its own vector table at 0x1FFF0000 (AN2606: STM32F40xxx/41xxx).
+ */
+static void start_bootloader_if_requested(void)
+{
+    const volatile uint32_t *const vectors = (const volatile uint32_t *)BOARD_SYSTEM_MEMORY;
+    if (bootloader_request[0] != BOOTLOADER_REQUEST || bootloader_request[1] != ~BOOTLOADER_REQUEST) {
+        return;
+    }
+    bootloader_request[0] = 0;
+    bootloader_request[1] = 0;
+    RCC->APB2ENR |= RCC_APB2ENR_SYSCFGEN;
+    (void)RCC->APB2ENR;
+    SYSCFG->MEMRMP = (SYSCFG->MEMRMP & ~SYSCFG_MEMRMP_MEM_MODE_MASK) | SYSCFG_MEMRMP_MEM_MODE_SYSTEM_FLASH;
+    jump_to_image(vectors[0], vectors[1]);
+}
+
+static void set_field(volatile uint32_t *reg, uint32_t width, uint32_t position, uint32_t value)
+{
+    const uint32_t mask = ((1u << width) - 1u) << (width * position);
+    *reg = (*reg & ~mask) | (value << (width * position));
+}
+
+/** PA9 USART1_TX (push-pull) and PA10 USART1_RX (pull-up: an unconnected RX reads idle, not
+ *  noise), AF7; the alternate function is selected before the mode (RM0090 section 8.3). */
+static void link_pins_init(void)
+{
+    gpio_t *const gpio = BOARD_LINK_GPIO;
+    gpio->OTYPER &= ~(1u << BOARD_LINK_TX_PIN);
+    set_field(&gpio->OSPEEDR, 2u, BOARD_LINK_TX_PIN, GPIO_SPEED_MEDIUM);
+    set_field(&gpio->OSPEEDR, 2u, BOARD_LINK_RX_PIN, GPIO_SPEED_MEDIUM);
+    set_field(&gpio->PUPDR, 2u, BOARD_LINK_TX_PIN, GPIO_PULL_NONE);
+    set_field(&gpio->PUPDR, 2u, BOARD_LINK_RX_PIN, GPIO_PULL_UP);
+    set_field(&gpio->AFR[1], 4u, BOARD_LINK_TX_PIN - 8u, BOARD_LINK_AF);
+    set_field(&gpio->AFR[1], 4u, BOARD_LINK_RX_PIN - 8u, BOARD_LINK_AF);
+    set_field(&gpio->MODER, 2u, BOARD_LINK_TX_PIN, GPIO_MODE_AF);
+    set_field(&gpio->MODER, 2u, BOARD_LINK_RX_PIN, GPIO_MODE_AF);
+}
+
+/** DWT CYCCNT (ARMv7-M architecture reference manual, C1.8): TRCENA in DEMCR, then CYCCNTENA. */
+static void cycle_counter_init(void)
+{
+    DEMCR |= DEMCR_TRCENA;
+    DWT->CYCCNT = 0;
+    DWT->CTRL |= DWT_CTRL_CYCCNTENA;
+}
+
+/** The start-up WARNING: the clock problem, the baud rate it leads to, the I2C lines. */
+static void describe_start_up(i2c_lines_t lines)
+{
+    text_t t;
+    const uint32_t brr = (clocks.pclk2_hz + BOARD_LINK_BAUD / 2u) / BOARD_LINK_BAUD; /* as uart.c rounds */
+    const uint32_t baud = brr > 0u ? clocks.pclk2_hz / brr : 0u;
+    const uint32_t off = baud > BOARD_LINK_BAUD ? baud - BOARD_LINK_BAUD : BOARD_LINK_BAUD - baud;
+    text_start(&t, start_up_problem, sizeof start_up_problem);
+    if (clocks.problem != 0) {
+        text_add(&t, clocks.problem);
+    }
+    if (off * 100u > BOARD_LINK_BAUD) { /* more than 1 % off */
+        text_add(&t, text_length(start_up_problem) > 0 ? "; " : "");
+        text_add(&t, "USART1 at ");
+        text_add_uint(&t, baud);
+        text_add(&t, " baud");
+    }
+    if (lines != I2C_LINES_IDLE) {
+        text_add(&t, text_length(start_up_problem) > 0 ? "; " : "");
+        text_add(&t, lines == I2C_LINES_FREED   ? "I2C1: SDA was held low at start-up, freed by SCL pulses"
+                     : lines == I2C_LINES_SDA_LOW ? "I2C1: SDA held low, not freed by 9 SCL pulses"
+                                                  : "I2C1: SCL held low at start-up");
+    }
+    (void)text_end(&t);
+}
+
+/* --------------------------------------------------------------------------- board interface */
+
+uint64_t board_time_us(void)
+{
+    return timers_time_us();
+}
+
+uint32_t board_cycles(void)
+{
+    return DWT->CYCCNT;
+}
+
+uint32_t board_cycle_hz(void)
+{
+    return clocks.sysclk_hz;
+}
+
+void board_sample_clock_start(uint32_t rate_mhz)
+{
+    timers_tick_start(clocks.tim1_hz, rate_mhz, BOARD_PRIORITY_TIMERS);
+}
+
+void board_sample_clock_stop(void)
+{
+    timers_tick_stop();
+}
+
+uint32_t board_sample_ticks(void)
+{
+    return timers_tick_take();
+}
+
+board_sensors_result_t board_sensors_init(const char **message)
+{
+    static const uint16_t gyro_dps[4] = {250, 500, 1000, 2000};
+    static const uint8_t acc_g[4] = {2, 4, 8, 16};
+    const gy86_config_t *config = &gy86_default_config;
+    char status_text[SENSOR_STATUS_TEXT_SIZE];
+    const sensor_status_t s = gy86_init(&gy86, &i2c_bus, config);
+    text_t t;
+    text_start(&t, init_failure, sizeof init_failure);
+    sensors_ready = !sensor_failed(&s);
+    if (!sensors_ready) {
+        text_add(&t, "GY-86 not ready: ");
+        text_add(&t, sensor_status_text(&s, status_text, sizeof status_text));
+        *message = text_end(&t);
+        return BOARD_SENSORS_FAILED;
+    }
+    text_add(&t, "GY-86: MPU6050 + HMC5883L ready, +-");
+    text_add_uint(&t, gyro_dps[(unsigned)config->mpu.gyro_range & 3u]);
+    text_add(&t, " deg/s, +-");
+    text_add_uint(&t, acc_g[(unsigned)config->mpu.acc_range & 3u]);
+    text_add(&t, " g, ");
+    text_add_uint(&t, hmc5883l_lsb_per_gauss(config->mag.gain));
+    text_add(&t, " LSB/gauss");
+    *message = text_end(&t);
+    return BOARD_SENSORS_OK;
+}
+
+board_sensors_result_t board_sensors_read(imu_raw_sample_t *raw, int16_t *temperature, const char **message)
+{
+    sensor_status_t s;
+    if (!sensors_ready) {
+        *message = init_failure; /* the application sets the sensors up again once a second */
+        return BOARD_SENSORS_FAILED;
+    }
+    s = gy86_read(&gy86, raw, temperature);
+    if (sensor_failed(&s)) {
+        *message = sensor_status_text(&s, read_failure, sizeof read_failure);
+        return BOARD_SENSORS_FAILED;
+    }
+    return BOARD_SENSORS_OK; /* a magnetometer overflow is delivered: the core flags the clipped axis */
+}
+
+const char *board_start_up_problem(void)
+{
+    return start_up_problem[0] != '\0' ? start_up_problem : 0;
+}
+
+void board_idle(void)
+{
+    const uint32_t primask = irq_save(); /* no interrupt between the check and the WFI is lost */
+    if (!link_has_byte() && !timers_tick_pending()) {
+        wait_for_interrupt(); /* a pending interrupt wakes the core even while PRIMASK masks it */
+    }
+    irq_restore(primask);
+}
+
+void board_restart(void)
+{
+    system_reset();
+}
+
+int board_has_bootloader(void)
+{
+    return 1;
+}
+
+void board_enter_bootloader(void)
+{
+    (void)irq_save();
+    bootloader_request[0] = BOOTLOADER_REQUEST;
+    bootloader_request[1] = ~BOOTLOADER_REQUEST;
+    system_reset(); /* its DSB makes the two stores reach the RAM first */
+}
+
+int main(void)
+{
+    static app_t app;
+    app_config_t config;
+    i2c_lines_t lines;
+
+    start_bootloader_if_requested();
+    clocks_init(&clocks);
+    cycle_counter_init();
+
+    RCC->AHB1ENR |= BOARD_LINK_GPIO_EN | BOARD_I2C_GPIO_EN;
+    RCC->APB1ENR |= RCC_APB1ENR_TIM2EN | RCC_APB1ENR_TIM5EN;
+    RCC->APB2ENR |= RCC_APB2ENR_USART1EN;
+    (void)RCC->APB2ENR; /* the enables take effect before the first access (a read back) */
+
+    timers_clock_init(clocks.tim1_hz, BOARD_PRIORITY_TIMERS);
+    link_pins_init();
+    link_init(clocks.pclk2_hz, BOARD_LINK_BAUD, BOARD_PRIORITY_LINK);
+    lines = i2c_stm32f4_init(&i2c_dev, clocks.pclk1_hz, clocks.hclk_hz, &i2c_bus);
+    describe_start_up(lines);
+
+    config.board_name = BOARD_NAME;
+    config.sample_rate = (imu_real_t)100 << 16;
+    config.initial_filter = IMU_FILTER_ESKF;
+    gy86_sensor_settings(&gy86_default_config, &config.sensor);
+
+    app_init(&app, &config);
+    for (;;) {
+        const app_result_t result = app_poll(&app);
+        if (result == APP_RESTART) {
+            board_restart();
+        } else if (result == APP_BOOTLOADER) {
+            board_enter_bootloader();
+        } else if (result == APP_IDLE) {
+            board_idle();
+        }
+    }
+}
