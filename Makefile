@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 
-.PHONY: setup demo test bench clean
+.PHONY: setup system-packages firmware demo test bench clean
 
 $(BIN)/imulink: pyproject.toml setup.py host/imulink/_build_core.py host/imulink/_protocol_schema.py \
 		$(wildcard firmware/core/*.c firmware/core/*.h)
@@ -12,11 +12,18 @@ $(BIN)/imulink: pyproject.toml setup.py host/imulink/_build_core.py host/imulink
 	$(BIN)/pip install --quiet -e '.[test]'
 	@touch $@
 
-## setup: create .venv and build the package with both C core builds
-setup: $(BIN)/imulink
+## setup: system packages (ARM compiler, QEMU; needs root or sudo), .venv with the package
+## and both C core builds, and every firmware image (native, QEMU, STM32F407)
+setup: system-packages $(BIN)/imulink firmware
 
-## demo: the main job (no hardware): a virtual board streams a simulated run over the
-## frame protocol; the host records it and proves every estimate bit-exact
+system-packages:
+	@sh tools/install-system-packages.sh
+
+firmware: system-packages
+	@$(MAKE) --no-print-directory -C firmware
+
+## demo: the main job (no hardware): the firmware runs as a native process fed by the
+## simulator, streams a simulated minute; the host records it and proves it bit-exact
 demo: setup
 	$(BIN)/imulink demo
 
@@ -24,10 +31,12 @@ demo: setup
 test: setup
 	$(BIN)/python -m pytest -q
 
-## bench: core and protocol throughput benchmarks (results in docs/performance.md)
+## bench: throughput and Cortex-M4 cost benchmarks (results in docs/performance.md)
 bench: setup
 	$(BIN)/python tools/bench_core.py
 	$(BIN)/python tools/bench_protocol.py
+	$(BIN)/python tools/bench_arm.py
 
 clean:
-	rm -rf $(VENV) build host/*.egg-info host/imulink/_core_*.so host/imulink/_core_*.c
+	rm -rf $(VENV) build firmware/build host/*.egg-info host/imulink/_core_*.so host/imulink/_core_*.c \
+		host/imulink/firmware

@@ -1,5 +1,6 @@
 """Hardware in the loop end to end: record, compare, replay, inject and demo against the
-virtual board over a pty and over TCP on 127.0.0.1, through the command line.
+emulated board (the firmware as a native process) over a pty and over TCP on
+127.0.0.1, through the command line. tests/test_qemu.py does the same on the ARM image.
 
 Shown here: a 60 s simulated run at 100 Hz and at 1 kHz records bit-exact over both
 transports; with dropped bytes, flipped bits or garbage the recording still works, the
@@ -20,14 +21,13 @@ from scipy.io import savemat
 
 from imulink import core, hil, protocol, sim
 from imulink.analysis import attitude_errors, rmse
-from imulink.board import FaultConfig, FirmwareFilter, PtyTransport, TcpTransport, VirtualBoard
 from imulink.cli import main
 from imulink.counts import BROAD_PROFILE, DEFAULT_PROFILE, counts_to_si
+from imulink.emulator import EmulatedBoard
 from imulink.link import Link
+from imulink.proxy import FaultConfig
 from imulink.recording import RecordingWriter, load_recording
-
-TRANSPORTS = {"pty": PtyTransport, "tcp": TcpTransport}
-
+from imulink.reference import FirmwareFilter
 
 def run_cli(capsys, *argv) -> tuple[int, str, str]:
     code = main([str(a) for a in argv])
@@ -50,7 +50,7 @@ def assert_one_line_error(err: str, *fragments: str) -> None:
 @pytest.mark.parametrize("transport", ["pty", "tcp"])
 def test_record_60_s_and_compare_bit_exact(tmp_path, capsys, transport, rate_hz):
     path = tmp_path / "run.imulog"
-    with VirtualBoard(TRANSPORTS[transport](), duration_s=60.0, rate_hz=rate_hz) as board:
+    with EmulatedBoard(front=transport, duration_s=60.0, rate_hz=rate_hz) as board:
         code, out, _ = run_cli(capsys, "record", board.address, "-o", path)
     samples = int(60 * rate_hz)
     assert code == 0 and f"recorded {samples} samples and {samples} estimates" in out
@@ -64,7 +64,7 @@ def test_record_60_s_and_compare_bit_exact(tmp_path, capsys, transport, rate_hz)
 def test_recording_snapshot_lets_replay_reproduce_changed_settings(tmp_path):
     """Settings set on the board before recording travel in the file: the replay uses them."""
     path = tmp_path / "kp.imulog"
-    with VirtualBoard(PtyTransport(), duration_s=10.0, filter_name="kf1d") as board:
+    with EmulatedBoard(duration_s=10.0, filter_name="kf1d") as board:
         with Link(board.address) as link:
             link.connect()
             link.command("SET_SETTING", index=1, value=12345)  # q_angle, an odd raw value
@@ -77,7 +77,7 @@ def test_recording_snapshot_lets_replay_reproduce_changed_settings(tmp_path):
 
 def test_eskf_covariance_is_verified_too(tmp_path):
     path = tmp_path / "eskf.imulog"
-    with VirtualBoard(TcpTransport(), duration_s=10.0, filter_name="eskf") as board:
+    with EmulatedBoard(front="tcp", duration_s=10.0, filter_name="eskf") as board:
         hil.record(board.address, path)
     recording = load_recording(path)
     assert (recording.estimates.cov_mantissa[:, :6] >= 2**28).all()
@@ -95,7 +95,9 @@ def test_eskf_covariance_is_verified_too(tmp_path):
 ], ids=["dropped-bytes", "flipped-bits", "garbage"])
 def test_faults_are_counted_and_every_arrived_estimate_is_accounted_for(tmp_path, faults):
     path = tmp_path / "faults.imulog"
-    with VirtualBoard(PtyTransport(), duration_s=30.0, faults=faults) as board:
+    # In real time: the board's stream lasts long enough for the recorder's filter restarts
+    # (and their retries, when an ACK was damaged) to take effect.
+    with EmulatedBoard(duration_s=3.0, rate_hz=1000.0, realtime=True, faults=faults) as board:
         result = hil.record(board.address, path)
     counters = result.counters
     assert counters["crc_errors"] + counters["resyncs"] > 0 and counters["lost_frames"] > 0
@@ -117,7 +119,7 @@ def test_faults_are_counted_and_every_arrived_estimate_is_accounted_for(tmp_path
 def test_one_restart_per_loss_in_real_time(tmp_path):
     """At real time the next sample comes well after the restart's ACK: no second restart meanwhile."""
     path = tmp_path / "realtime.imulog"
-    with VirtualBoard(TcpTransport(), duration_s=5.0, rate_hz=200.0, realtime=True,
+    with EmulatedBoard(front="tcp", duration_s=5.0, rate_hz=200.0, realtime=True,
                       faults=FaultConfig(drop_byte=3e-4, seed=8)) as board:
         result = hil.record(board.address, path, duration_s=1.5)
     recording = load_recording(path)
@@ -128,7 +130,7 @@ def test_one_restart_per_loss_in_real_time(tmp_path):
 
 def test_without_resync_a_lost_sample_ends_verification(tmp_path):
     path = tmp_path / "noresync.imulog"
-    with VirtualBoard(PtyTransport(), duration_s=30.0, faults=FaultConfig(drop_byte=2e-4, seed=1)) as board:
+    with EmulatedBoard(duration_s=30.0, faults=FaultConfig(drop_byte=2e-4, seed=1)) as board:
         result = hil.record(board.address, path, resync=False)
     assert result.filter_restarts == 0
     recording = load_recording(path)
@@ -140,9 +142,9 @@ def test_without_resync_a_lost_sample_ends_verification(tmp_path):
 
 def test_stalls_delay_but_lose_nothing(tmp_path):
     path = tmp_path / "stalls.imulog"
-    with VirtualBoard(TcpTransport(), duration_s=10.0, faults=FaultConfig(stall=0.005, stall_s=0.02, seed=4)) as board:
+    with EmulatedBoard(front="tcp", duration_s=10.0, faults=FaultConfig(stall=0.005, stall_s=0.02, seed=4)) as board:
         result = hil.record(board.address, path)
-        assert board.faults.counts["stalls"] > 0
+        assert board.proxy.faults.counts["stalls"] > 0
     assert result.counters["lost_frames"] == 0 and result.samples == 1000
     assert hil.compare(load_recording(path)).bit_exact
 
@@ -258,7 +260,7 @@ def test_peer_that_is_not_a_board(tmp_path, capsys, payload, heard):
 
 
 def test_schema_mismatch(tmp_path, capsys):
-    with VirtualBoard(PtyTransport(), duration_s=1.0, schema_hash=0x0BADF00D) as board:
+    with EmulatedBoard(duration_s=1.0, schema_hash=0x0BADF00D) as board:
         code, _, err = run_cli(capsys, "record", board.address, "-o", tmp_path / "x.imulog")
     assert code == 2
     assert_one_line_error(err, "protocol mismatch", "0x0BADF00D", f"0x{protocol.SCHEMA_HASH:08X}")
@@ -267,7 +269,7 @@ def test_schema_mismatch(tmp_path, capsys):
 @pytest.mark.parametrize("transport", ["pty", "tcp"])
 def test_disconnect_mid_stream_keeps_the_recording(tmp_path, capsys, transport):
     path = tmp_path / "cut.imulog"
-    board = VirtualBoard(TRANSPORTS[transport](), duration_s=60.0, rate_hz=500.0, realtime=True).start()
+    board = EmulatedBoard(front=transport, duration_s=60.0, rate_hz=500.0, realtime=True).start()
     stopper = threading.Timer(0.8, board.stop)
     stopper.start()
     code, _, err = run_cli(capsys, "record", board.address, "-o", path)
@@ -294,7 +296,7 @@ def test_ctrl_c_stops_the_recording_cleanly(tmp_path):
                 raise KeyboardInterrupt
 
     path = tmp_path / "ctrl-c.imulog"
-    with VirtualBoard(PtyTransport(), duration_s=60.0, rate_hz=200.0, realtime=True) as board:
+    with EmulatedBoard(duration_s=60.0, rate_hz=200.0, realtime=True) as board:
         result = hil.record(board.address, path, progress=InterruptAfter())
     assert result.stop_reason == "interrupted (Ctrl-C)"
     recording = load_recording(path)
@@ -326,7 +328,7 @@ def test_truncated_and_corrupt_recordings(tmp_path, capsys):
 
 def test_inject_simulation_and_recording(tmp_path, capsys):
     path = tmp_path / "src.imulog"
-    with VirtualBoard(PtyTransport(), duration_s=5.0) as board:
+    with EmulatedBoard(duration_s=5.0) as board:
         hil.record(board.address, path)
         code, out, _ = run_cli(capsys, "inject", board.address, "--input", "sim:random:10:200:4")
         assert code == 0 and "injected 2000 samples" in out and "bit-exact: yes (2000 of 2000" in out
@@ -349,14 +351,14 @@ def _broad_like_mat(path, rate_hz: float = 285.714) -> None:
 def test_inject_mat_needs_the_broad_profile(tmp_path, capsys):
     mat = tmp_path / "trial.mat"
     _broad_like_mat(mat)
-    with VirtualBoard(PtyTransport(), duration_s=1.0) as board:
+    with EmulatedBoard(duration_s=1.0) as board:
         code, _, err = run_cli(capsys, "inject", board.address, "--input", mat)
         assert code == 2
         assert_one_line_error(err, "gy86-broad", "can neither read nor set", "--board-profile gy86-broad")
         # a board that runs another profile than declared computes something else: caught
         code, out, _ = run_cli(capsys, "inject", board.address, "--input", mat, "--board-profile", "gy86-broad")
         assert code == 1 and "bit-exact: NO" in out and "first difference: sample " in out
-    with VirtualBoard(PtyTransport(), duration_s=1.0, profile=BROAD_PROFILE) as board:
+    with EmulatedBoard(duration_s=1.0, profile=BROAD_PROFILE) as board:
         code, out, _ = run_cli(capsys, "inject", board.address, "--input", mat, "--board-profile", "gy86-broad")
         assert code == 0 and "bit-exact: yes" in out and "injected 3429 samples" in out
 

@@ -1,6 +1,6 @@
 """The host link (imulink.link): ports, the handshake, commands, counters, failures.
 
-Peers: the virtual board over a pty, pyserial's loop://, and scripted TCP peers on
+Peers: the emulated board (the firmware as a native process) over a pty, pyserial's loop://, and scripted TCP peers on
 127.0.0.1 that answer (or not) exactly as each test needs.
 """
 from __future__ import annotations
@@ -13,8 +13,9 @@ import time
 import pytest
 
 from imulink import protocol
-from imulink.board import FaultConfig, PtyTransport, TcpTransport, VirtualBoard
-from imulink.link import CommandTimeout, Disconnected, Link, NotABoard, PortError
+from imulink.emulator import EmulatedBoard
+from imulink.link import CommandTimeout, Disconnected, Link, NotABoard, PortError, ReceiveTimeout
+from imulink.proxy import FaultConfig
 
 
 class ScriptedPeer:
@@ -58,19 +59,20 @@ def ack(command: protocol.Command, seq: int = 1) -> bytes:
 
 
 STATUS = dict(uptime_ms=1, active_filter=1, sample_rate_mhz=100_000, dropped_samples=0, cpu_load_permille=0,
-              filter_saturations=0, sensor_saturations=0, streaming=0, injection_mode=0)
+              filter_saturations=0, sensor_saturations=0, streaming=0, injection_mode=0, filter_cycles=0,
+              cycle_hz=0, sensor_errors=0)
 
 
 @pytest.fixture
 def board():
-    with VirtualBoard(PtyTransport(), duration_s=30.0) as virtual:
-        yield virtual
+    with EmulatedBoard(duration_s=30.0) as emulated:
+        yield emulated
 
 
 def test_connect_checks_hello(board):
     with Link(board.address) as link:
         fields = link.connect()
-        assert fields["board"] == "emulator" and link.hello == fields
+        assert fields["board"] == "native" and link.hello == fields
 
 
 @pytest.mark.parametrize("command, args, reason", [
@@ -128,8 +130,7 @@ def test_loop_url_echoes_commands_and_is_not_a_board():
 
 
 def test_schema_mismatch_is_refused():
-    with VirtualBoard(PtyTransport(), duration_s=1.0, schema_hash=0x12345678) as virtual, \
-            Link(virtual.address) as link:
+    with EmulatedBoard(duration_s=1.0, schema_hash=0x12345678) as emulated, Link(emulated.address) as link:
         with pytest.raises(protocol.ProtocolMismatch, match=f"0x12345678.*0x{protocol.SCHEMA_HASH:08X}"):
             link.connect()
 
@@ -192,7 +193,7 @@ def test_counters_tap_and_queue(board):
 
 def test_counters_see_damage():
     faults = FaultConfig(drop_byte=2e-3, flip_bit=2e-3, seed=5)
-    with VirtualBoard(PtyTransport(), duration_s=5.0, faults=faults) as virtual, Link(virtual.address) as link:
+    with EmulatedBoard(duration_s=5.0, faults=faults) as emulated, Link(emulated.address) as link:
         link.connect(attempts=10)
         link.command("START_STREAM", attempts=10)
         time.sleep(0.3)
@@ -202,12 +203,12 @@ def test_counters_see_damage():
 
 @pytest.mark.parametrize("transport", ["pty", "tcp"])
 def test_disconnect_is_reported_after_the_queued_messages(transport):
-    virtual = VirtualBoard(PtyTransport() if transport == "pty" else TcpTransport(), duration_s=30.0).start()
-    with Link(virtual.address) as link:
+    emulated = EmulatedBoard(front=transport, duration_s=30.0).start()
+    with Link(emulated.address) as link:
         link.connect()
         link.command("START_STREAM")
         time.sleep(0.1)
-        virtual.stop()
+        emulated.stop()
         received = 0
         with pytest.raises(Disconnected, match="disconnected"):
             deadline = time.monotonic() + 5
@@ -216,3 +217,15 @@ def test_disconnect_is_reported_after_the_queued_messages(transport):
         assert received > 0 and link.failure is not None
         with pytest.raises(Disconnected):
             link.command("GET_STATUS")
+
+
+def test_receive_until_returns_up_to_the_wanted_message_or_names_what_came(board):
+    with Link(board.address) as link:
+        link.connect()
+        link.receive(0)
+        link.send_command("GET_STATUS")
+        messages = link.receive_until(lambda m: m.name == "ACK", 2.0)
+        assert [m.name for m in messages] == ["STATUS", "ACK"]
+        link.send_command("GET_VERSION")
+        with pytest.raises(ReceiveTimeout, match=r"within 0.3 s \(received: HELLO, ACK\)"):
+            link.receive_until(lambda m: m.name == "ESTIMATE", 0.3)

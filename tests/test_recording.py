@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from imulink import protocol
-from imulink.board import FirmwareFilter
+from imulink.reference import FirmwareFilter
 from imulink.counts import BROAD_PROFILE, DEFAULT_PROFILE
 from imulink.recording import (
     KIND_EVENT,

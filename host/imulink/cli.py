@@ -6,7 +6,6 @@ import signal
 import sys
 import time
 
-
 from . import __version__
 
 
@@ -89,7 +88,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 # ---------------------------------------------------------------------------- hardware in the loop
-# The logic lives in imulink.hil (record, replay, compare, inject, demo) and imulink.board
+# The logic lives in imulink.hil (record, replay, compare, inject, demo), imulink.emulator
 # (emulate); these functions only parse, print and turn errors into one line and exit 2.
 
 EXIT_MISMATCH = 1
@@ -101,13 +100,15 @@ def _hil_command(func):
 
     def run(args) -> int:
         from . import core, protocol
+        from .emulator import EmulatorError
         from .hil import HilError
         from .link import LinkError
         from .recording import RecordingError
 
         try:
             return func(args)
-        except (LinkError, protocol.ProtocolError, RecordingError, HilError, core.SettingsError, OSError) as exc:
+        except (LinkError, protocol.ProtocolError, RecordingError, HilError, EmulatorError, core.SettingsError,
+                OSError) as exc:
             print(f"imulink: error: {exc}", file=sys.stderr)
             return EXIT_ERROR
         except KeyboardInterrupt:
@@ -155,45 +156,65 @@ def _hex_int(text: str) -> int:
         raise argparse.ArgumentTypeError(f"not an integer (e.g. 0x1234ABCD): {text!r}") from None
 
 
-@_hil_command
-def _cmd_emulate(args) -> int:
-    import serial
+def _faults(args):
+    from .proxy import FaultConfig
 
-    from . import board
-    from .link import PortError
+    return FaultConfig(drop_byte=args.drop_byte, flip_bit=args.flip_bit, garbage=args.garbage, stall=args.stall,
+                       stall_s=args.stall_duration, seed=args.fault_seed)
 
-    if args.serial is not None:
-        try:
-            transport = board.SerialTransport(args.serial, args.baud)
-        except serial.SerialException as exc:
-            raise PortError(f"cannot open {args.serial}: {exc}") from None
-    elif args.tcp is not None:
-        transport = board.TcpTransport(port=args.tcp)
-    else:
-        transport = board.PtyTransport()
-    faults = board.FaultConfig(drop_byte=args.drop_byte, flip_bit=args.flip_bit, garbage=args.garbage,
-                               stall=args.stall, stall_s=args.stall_duration, seed=args.fault_seed)
-    virtual = board.VirtualBoard(transport, scenario=args.scenario, duration_s=args.duration, rate_hz=args.rate,
-                                 seed=args.seed, filter_name=args.filter, realtime=not args.fast,
-                                 profile=args.profile, faults=faults, schema_hash=args.schema_hash)
-    print(virtual.address, flush=True)
-    pace = "as fast as the link drains" if args.fast else "in real time"
-    print(f"virtual board: {args.scenario} {args.duration:g} s at {args.rate:g} Hz {pace}, filter {args.filter}, "
-          f"profile {args.profile.name}{', faults ' + str(faults) if faults.active else ''}. Ctrl-C stops it.",
-          file=sys.stderr)
-    signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops the board as cleanly as Ctrl-C
-    virtual.start()
+
+def _serve_until_interrupted(describe: str, error) -> int:
+    """Wait for Ctrl-C or SIGTERM (or a failure that `error()` reports); 0 when stopped by the user."""
+    print(describe + " Ctrl-C stops it.", file=sys.stderr)
+    signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops it as cleanly as Ctrl-C
     try:
-        while virtual.error is None:
+        while error() is None:
             time.sleep(0.2)
     except KeyboardInterrupt:
-        pass
-    finally:
-        virtual.stop()
-    if virtual.error is not None:
-        print(f"imulink: error: the virtual board failed: {virtual.error!r}", file=sys.stderr)
-        return EXIT_ERROR
-    return 0
+        return 0
+    print(f"imulink: error: {error()}", file=sys.stderr)
+    return EXIT_ERROR
+
+
+@_hil_command
+def _cmd_emulate(args) -> int:
+    from .emulator import EmulatedBoard
+
+    faults = _faults(args)
+    front = args.serial if args.serial is not None else ("tcp" if args.tcp is not None else "pty")
+    board = EmulatedBoard(args.target, front=front, port=args.tcp or 0, scenario=args.scenario,
+                          duration_s=args.duration, rate_hz=args.rate, seed=args.seed, filter_name=args.filter,
+                          realtime=not args.fast, profile=args.profile, faults=faults, schema_hash=args.schema_hash,
+                          image=args.image, baud=args.baud)
+    with board:
+        print(board.address, flush=True)
+        pace = "as fast as the link drains" if args.fast else "in real time"
+        return _serve_until_interrupted(
+            f"emulated board ({args.target}: {board.image}): {args.scenario} {args.duration:g} s at {args.rate:g} Hz "
+            f"{pace}, filter {args.filter}, profile {args.profile.name}"
+            + (f", faults {faults.describe()}" if faults.active else ""), lambda: board.error)
+
+
+@_hil_command
+def _cmd_proxy(args) -> int:
+    import serial
+
+    from . import proxy
+    from .link import PortError
+
+    faults = _faults(args)
+    front = args.serial if args.serial is not None else ("tcp" if args.tcp is not None else "pty")
+    try:
+        server = proxy.Proxy(args.port, proxy.make_front(front, args.tcp or 0, args.baud), faults=faults,
+                             schema_hash=args.schema_hash, baud=args.baud, connect_timeout_s=0)
+    except serial.SerialException as exc:
+        raise PortError(f"cannot open {args.port}: {exc}") from None
+    with server:
+        print(server.address, flush=True)
+        return _serve_until_interrupted(
+            f"proxy for {args.port}" + (f" with faults {faults.describe()}" if faults.active else "")
+            + (f", HELLO schema hash 0x{args.schema_hash:08X}" if args.schema_hash is not None else ""),
+            lambda: server.error and f"{args.port} failed: {server.error}")
 
 
 @_hil_command
@@ -257,7 +278,7 @@ def _cmd_inject(args) -> int:
 def _cmd_demo(args) -> int:
     from . import hil
 
-    report = hil.demo(transport=args.transport, scenario=args.scenario, duration_s=args.duration, rate_hz=args.rate,
+    report = hil.demo(target=args.target, transport=args.transport, scenario=args.scenario, duration_s=args.duration, rate_hz=args.rate,
                       seed=args.seed, filter_name=args.filter, output=args.output, progress=hil.Progress())
     print(report.format())
     return 0 if report.comparison.bit_exact else EXIT_MISMATCH
@@ -284,50 +305,79 @@ def _add_hil_commands(sub) -> None:
         p.add_argument("--filter", default="eskf", choices=list(core.FILTERS),
                        help="filter active at start-up (default: eskf)")
 
+    def target_arguments(p):
+        p.add_argument("--target", choices=("native", "qemu"), default="native",
+                       help="the firmware as a native process (default) or its ARM image in QEMU's netduinoplus2")
+        p.add_argument("--image", metavar="FILE", help="firmware to run instead of the built one "
+                                                       "(the native executable or the QEMU ELF)")
+
+    def front_arguments(p, what: str, baud: bool = True):
+        where = p.add_mutually_exclusive_group()
+        where.add_argument("--tcp", type=int, nargs="?", const=0, metavar="PORT",
+                           help=f"serve {what} on 127.0.0.1:PORT instead of a pty (no PORT: any free port)")
+        where.add_argument("--serial", metavar="URL", help=f"serve {what} on this serial port or pyserial URL (e.g. "
+                                                           "one end of a null-modem cable)")
+        if baud:
+            p.add_argument("--baud", type=int, default=DEFAULT_BAUD,
+                           help=f"line rate for --serial (default: {DEFAULT_BAUD})")
+
+    def fault_arguments(p):
+        p.add_argument("--schema-hash", type=_hex_int, default=None,
+                       help="rewrite HELLO to report this schema hash (a board built from another protocol definition)")
+        faults = p.add_argument_group("fault injection (board-to-host bytes; deterministic for a seed)")
+        faults.add_argument("--drop-byte", type=_probability, default=0.0, metavar="P",
+                            help="probability that each byte is dropped")
+        faults.add_argument("--flip-bit", type=_probability, default=0.0, metavar="P",
+                            help="probability that each byte has a bit flipped")
+        faults.add_argument("--garbage", type=_probability, default=0.0, metavar="P",
+                            help="probability that random bytes precede a frame")
+        faults.add_argument("--stall", type=_probability, default=0.0, metavar="P",
+                            help="probability that the board goes silent (both ways) before a frame")
+        faults.add_argument("--stall-duration", type=_non_negative_float, default=0.05, metavar="S",
+                            help="length of a stall in s (default: 0.05)")
+        faults.add_argument("--fault-seed", type=int, default=0, metavar="N", help="seed of the faults (default: 0)")
+
     p = sub.add_parser(
-        "demo", help="no hardware: record a virtual board's simulated run and prove it bit-exact",
-        description="Start a virtual board (the fixed-point C core and the sensor simulator behind the frame "
-                    "protocol) in this process, record its simulated run over a TCP loopback or a pty as fast as "
-                    "the link goes, replay the recording through the host build of the same C, and report: "
-                    "frames and losses, bit-exactness, the fixed-vs-float difference, and the accuracy against "
-                    "the simulated truth. Exit status 0 when every estimate is bit-exact, 1 otherwise.")
+        "demo", help="no hardware: record an emulated board's simulated run and prove it bit-exact",
+        description="Start an emulated board (the firmware application as a native process, or its ARM image in "
+                    "QEMU with --target qemu, its sensors fed by the simulator), record its simulated run over a "
+                    "TCP loopback or a pty as fast as the link goes, replay the recording through the host build "
+                    "of the same C, and report: frames and losses, bit-exactness, the fixed-vs-float difference, "
+                    "and the accuracy against the simulated truth. Exit status 0 when every estimate is "
+                    "bit-exact, 1 otherwise.")
     simulation_arguments(p, 60.0)
+    target_arguments(p)
     p.add_argument("--transport", choices=("tcp", "pty"), default="tcp", help="link to the board (default: tcp)")
     p.add_argument("--output", "-o", help="keep the recording here (default: a temporary file)")
     p.set_defaults(func=_cmd_demo)
 
     p = sub.add_parser(
-        "emulate", help="run a virtual board on a pty, a TCP port or a serial port",
-        description="Run a virtual board until Ctrl-C: the fixed-point C core (exactly what the firmware "
-                    "computes) fed by the sensor simulator, answering every protocol command, on a pty (default; "
-                    "its path is printed), a TCP port (socket://127.0.0.1:PORT is printed) or a serial port. "
-                    "Every imulink "
-                    "command works against it. Fault options damage what the board sends, to test a host.")
+        "emulate", help="run an emulated board (native or QEMU) on a pty, a TCP port or a serial port",
+        description="Run an emulated board until Ctrl-C: the firmware application itself, as a native process "
+                    "(default) or as its ARM image in QEMU (--target qemu), its sensors fed by the simulator, on "
+                    "a pty (default; its path is printed), a TCP port (socket://127.0.0.1:PORT is printed) or a "
+                    "serial port. Every imulink command works against it. Fault options put a proxy in front "
+                    "that damages what the board sends, to test a host.")
     simulation_arguments(p, 600.0)
-    where = p.add_mutually_exclusive_group()
-    where.add_argument("--tcp", type=int, nargs="?", const=0, metavar="PORT",
-                       help="listen on 127.0.0.1:PORT instead of a pty (no PORT: any free port)")
-    where.add_argument("--serial", metavar="URL", help="be the board on this serial port or pyserial URL (e.g. one "
-                                                       "end of a null-modem cable)")
-    p.add_argument("--baud", type=int, default=DEFAULT_BAUD, help=f"line rate for --serial (default: {DEFAULT_BAUD})")
-    p.add_argument("--fast", action="store_true", help="stream as fast as the link drains (default: real time)")
+    target_arguments(p)
+    front_arguments(p, "the board")
+    p.add_argument("--fast", action="store_true", help="a sample whenever the host has read the last ones "
+                                                       "(default: real time)")
     p.add_argument("--profile", type=_profile, default=DEFAULT_PROFILE,
                    help="sensor profile: gy86-default (+-8 g) or gy86-broad (+-16 g) (default: gy86-default)")
-    p.add_argument("--schema-hash", type=_hex_int, default=None,
-                   help="schema hash to report in HELLO (emulates a board built from another protocol definition)")
-    faults = p.add_argument_group("fault injection (board-to-host bytes; deterministic for a seed)")
-    faults.add_argument("--drop-byte", type=_probability, default=0.0, metavar="P",
-                        help="probability that each byte is dropped")
-    faults.add_argument("--flip-bit", type=_probability, default=0.0, metavar="P",
-                        help="probability that each byte has a bit flipped")
-    faults.add_argument("--garbage", type=_probability, default=0.0, metavar="P",
-                        help="probability that random bytes precede a frame")
-    faults.add_argument("--stall", type=_probability, default=0.0, metavar="P",
-                        help="probability that the board goes silent before a frame")
-    faults.add_argument("--stall-duration", type=_non_negative_float, default=0.05, metavar="S",
-                        help="length of a stall in s (default: 0.05)")
-    faults.add_argument("--fault-seed", type=int, default=0, metavar="N", help="seed of the faults (default: 0)")
+    fault_arguments(p)
     p.set_defaults(func=_cmd_emulate)
+
+    p = sub.add_parser(
+        "proxy", help="put a fault-injecting proxy in front of any board",
+        description="Hold PORT (a real board, an emulated one, any pyserial URL) open and serve it on a pty "
+                    "(default; its path is printed), a TCP port or a serial port, passing bytes both ways. The "
+                    "fault options damage what the board sends (dropped bytes, flipped bits, garbage, stalls) "
+                    "and --schema-hash rewrites its HELLO: a host's error handling tested on a real board.")
+    port_arguments(p)
+    front_arguments(p, "the proxy", baud=False)
+    fault_arguments(p)
+    p.set_defaults(func=_cmd_proxy)
 
     p = sub.add_parser(
         "record", help="record a board's stream to a file",

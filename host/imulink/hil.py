@@ -13,8 +13,9 @@ build of the same C, inject samples into a board, and the no-hardware demo.
   :func:`export_csv` / :func:`export_npz` write the replay.
 - :func:`inject`: stream samples (a recording, a simulation, a BROAD .mat file) into a
   board in injection mode and compare every answer on the fly.
-- :func:`demo`: a virtual board in-process, a recording of its simulated run,
-  the comparison, and the accuracy against the simulated truth.
+- :func:`demo`: an emulated board (the firmware as a native process or the ARM image
+  in QEMU, fed by the simulator), a recording of its simulated run, the comparison,
+  and the accuracy against the simulated truth.
 """
 from __future__ import annotations
 
@@ -30,10 +31,11 @@ import numpy as np
 
 from . import core, protocol, sim
 from .analysis import angle_difference, attitude_errors, rmse, wrap_deg
-from .board import FirmwareFilter, PtyTransport, TcpTransport, VirtualBoard
 from .counts import BROAD_PROFILE, DEFAULT_PROFILE, SensorProfile, si_to_counts
+from .emulator import EmulatedBoard
 from .link import DEFAULT_BAUD, CommandTimeout, Disconnected, Link, LinkError
 from .recording import Estimates, Recording, RecordingError, RecordingWriter, load_recording
+from .reference import FirmwareFilter
 
 #: Sensor profiles a board can be declared to use (the protocol cannot report them).
 PROFILES = {p.name: p for p in (DEFAULT_PROFILE, BROAD_PROFILE)}
@@ -746,7 +748,8 @@ def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings:
         if different is None:
             identical += 1
         elif first is None:
-            first = f"sample {k}: {different}: board {got[different]}, host {expected[different]}"
+            theirs = list(got[different]) if isinstance(got[different], tuple) else got[different]
+            first = f"sample {k}: {different}: board {theirs}, host {expected[different]}"
         if progress is not None:
             progress.update(f"injecting: {k + 1}/{n} samples, {identical}/{answered} identical, "
                             f"{(k + 1) / (time.monotonic() - started):.0f} samples/s")
@@ -766,6 +769,7 @@ def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings:
 @dataclass
 class DemoReport:
     address: str
+    target: str
     record: RecordResult
     recording: Recording
     comparison: Comparison
@@ -776,7 +780,7 @@ class DemoReport:
         r, c, rec = self.record, self.comparison, self.recording
         lost = rec.counters["lost_frames"]
         lines = [
-            f"virtual board: {self.address} ({rec.hello['board']}, filter {r.filter_name})",
+            f"emulated board: {self.address} ({rec.hello['board']}, {self.target} target, filter {r.filter_name})",
             f"recorded: {r.samples} samples, {r.estimates} estimates, {rec.counters['frames']} frames in "
             f"{r.duration_s:.2f} s ({rec.counters['frames'] / max(r.duration_s, 1e-9):.0f} frames/s); "
             f"lost frames {lost}, CRC errors {rec.counters['crc_errors']}",
@@ -798,27 +802,30 @@ class DemoReport:
         return "\n".join(lines)
 
 
-def demo(*, transport: str = "tcp", scenario: str = "rests", duration_s: float = 60.0, rate_hz: float = 100.0,
-         seed: int = 0, filter_name: str = "eskf", output=None, progress: Progress | None = None) -> DemoReport:
-    """Record a virtual board's simulated run (as fast as the link goes) and verify it.
+def demo(*, target: str = "native", transport: str = "tcp", scenario: str = "rests", duration_s: float = 60.0,
+         rate_hz: float = 100.0, seed: int = 0, filter_name: str = "eskf", output=None,
+         progress: Progress | None = None) -> DemoReport:
+    """Record an emulated board's simulated run (as fast as the link goes) and verify it.
 
-    `output` keeps the recording; by default it goes to a temporary directory.
+    `target` is "native" (the firmware as a host process) or "qemu" (the ARM image in
+    QEMU). `output` keeps the recording; by default it goes to a temporary directory.
     """
     started = time.monotonic()
     if output is None:
         output = Path(tempfile.mkdtemp(prefix="imulink-demo-")) / "demo.imulog"
-    board_transport = TcpTransport() if transport == "tcp" else PtyTransport()
-    with VirtualBoard(board_transport, scenario=scenario, duration_s=duration_s, rate_hz=rate_hz, seed=seed,
-                      filter_name=filter_name) as board:
+    with EmulatedBoard(target, front=transport, scenario=scenario, duration_s=duration_s, rate_hz=rate_hz,
+                       seed=seed, filter_name=filter_name) as board:
         result = record(board.address, output, progress=progress)
-    recording = load_recording(output)
+        recording = load_recording(output)
+        samples = recording.samples
+        truth = board.truth(samples.gyr, samples.acc, samples.mag)
     comparison = compare(recording)
     accuracy = {}
     verified = comparison.verified
     if verified.any():
         rows = comparison.sample_row[verified]
         quat = recording.estimates.quat[verified] / 2.0**_Q["quat"]
-        truth = board.truth(recording.samples.timestamp_us[rows])
-        settled = recording.samples.timestamp_us[rows] >= SETTLE_S * 1e6
-        accuracy = rmse(attitude_errors(quat[settled], truth[settled]))
-    return DemoReport(board.address, result, recording, comparison, accuracy, time.monotonic() - started)
+        settled = rows >= SETTLE_S * rate_hz  # the first samples of the run: alignment and convergence
+        usable = settled & ~np.isnan(truth[rows, 0])
+        accuracy = rmse(attitude_errors(quat[usable], truth[rows][usable]))
+    return DemoReport(board.address, target, result, recording, comparison, accuracy, time.monotonic() - started)

@@ -79,6 +79,10 @@ class CommandTimeout(LinkError):
     """A command got no ACK/NACK after every attempt."""
 
 
+class ReceiveTimeout(LinkError):
+    """The message waited for did not come in time."""
+
+
 class Received(NamedTuple):
     """A decoded message and the host time (time.time(), s) its last byte was read."""
 
@@ -302,6 +306,24 @@ class Link:
         if not items and self._failure is not None:
             raise Disconnected(self._failure)
         return items
+
+    def receive_until(self, predicate, timeout: float = 5.0) -> list[protocol.Message]:
+        """The messages received until one satisfies `predicate` (that one last included).
+
+        Raises ReceiveTimeout after `timeout` s without it, naming what did arrive, and
+        Disconnected like :meth:`receive`.
+        """
+        messages: list[protocol.Message] = []
+        deadline = time.monotonic() + timeout
+        while True:
+            for received in self.receive(max(0.0, min(0.1, deadline - time.monotonic()))):
+                messages.append(received.message)
+                if predicate(received.message):
+                    return messages
+            if time.monotonic() >= deadline:
+                names = ", ".join(m.name for m in messages[-20:]) or "nothing"
+                raise ReceiveTimeout(f"{self.url}: the message waited for did not come within {timeout:g} s "
+                                     f"(received: {names})")
 
     def counters(self) -> dict:
         """Link counters: the decoder's (frames, bytes, crc_errors, resyncs, lost_frames, lost,

@@ -35,7 +35,6 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__, core, protocol
-from .board import RESTARTING_COMMANDS
 from .counts import SensorProfile
 
 MAGIC = b"IMULOG1\n"
@@ -46,7 +45,7 @@ _CRC = struct.Struct("<I")
 #: Longest record body accepted on reading (the writer's are at most one read chunk).
 MAX_BODY = 1 << 24
 _FSYNC_INTERVAL_S = 1.0
-_RESTARTING_IDS = {protocol.COMMAND_IDS[name] for name in RESTARTING_COMMANDS}
+_RESTARTING_IDS = {protocol.COMMAND_IDS[name] for name in protocol.RESTARTING_COMMANDS}
 
 
 class RecordingError(Exception):

@@ -1,0 +1,366 @@
+"""Emulated boards: the firmware application itself, as a native process or as the ARM
+image in QEMU, with the sensor simulator as its sensors.
+
+The board's protocol behaviour has one implementation, in C (firmware/app); this
+module only starts it and feeds it:
+
+- ``target="native"``: firmware/boards/native, a host process serving a pty or a TCP
+  port; it reads its sensor samples from a feed file written here.
+- ``target="qemu"``: the netduinoplus2 image in ``qemu-system-arm``. Its USART1 (the
+  link) is a TCP socket that a :class:`imulink.proxy.Proxy` connects to at once (QEMU
+  starts the firmware only then, so its start-up HELLO and LOG are not lost) and serves
+  to the host as a pty, a TCP port or a serial port, like the native board's; its
+  USART2 (the sensors) is a TCP connection to a :class:`FeedServer` here, which
+  answers every byte the board sends with the next sample frame.
+
+The feed (docs/firmware.md) is one SAMPLE frame per simulated sample and a LOG frame
+at the end. ``realtime=False`` (the default) lets the board take a sample whenever the
+feed has one and the host has read the last ones, so a run goes as fast as the link;
+``realtime=True`` paces samples by the board's own clock. Faults and another schema
+hash are a :class:`~imulink.proxy.Proxy` in front of either target.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import socket
+import subprocess
+import tempfile
+import threading
+from pathlib import Path
+
+import numpy as np
+
+from . import core, protocol, sim
+from .counts import BROAD_PROFILE, DEFAULT_PROFILE, SensorProfile, si_to_counts
+from .proxy import FaultConfig, Proxy, make_front
+
+TARGETS = ("native", "qemu")
+#: The profiles the firmware's --profile option knows (boards/emulated/options.c).
+FIRMWARE_PROFILES = {p.name: p for p in (DEFAULT_PROFILE, BROAD_PROFILE)}
+#: MPU6050 temperature register at 25 degC ((25 - 36.53) * 340).
+TEMPERATURE_25C = -3920
+#: QEMU machine of the qemu target and the ELF the firmware build names for it.
+QEMU_MACHINE = "netduinoplus2"
+_IMAGES = {"native": ("native", "imulink-native"), "qemu": ("qemu", "imulink-qemu-netduinoplus2.elf")}
+_START_TIMEOUT_S = 10.0
+
+
+class EmulatorError(Exception):
+    """An emulated board that cannot be started (no image, no QEMU, a bad option)."""
+
+
+# ---------------------------------------------------------------------------- firmware images
+
+
+def firmware_build_dirs() -> list[Path]:
+    """Where built firmware is looked for, in this order: $IMULINK_FIRMWARE_BUILD, the
+    checkout's firmware/build (`make -C firmware` keeps it current), and the package's own
+    copy of the native board (built when the package was installed)."""
+    dirs = []
+    if os.environ.get("IMULINK_FIRMWARE_BUILD"):
+        dirs.append(Path(os.environ["IMULINK_FIRMWARE_BUILD"]))
+    dirs.append(Path(__file__).resolve().parents[2] / "firmware" / "build")
+    dirs.append(Path(__file__).resolve().parent / "firmware")
+    return dirs
+
+
+def find_image(target: str, image: str | os.PathLike | None = None) -> Path:
+    """The executable (native) or ELF (qemu) of a target; EmulatorError saying how to build it."""
+    if target not in TARGETS:
+        raise EmulatorError(f"unknown target {target!r}; choose one of {', '.join(TARGETS)}")
+    if image is not None:
+        path = Path(image)
+        if not path.is_file():
+            raise EmulatorError(f"firmware image {path} not found")
+        _check_image(target, path)
+        return path
+    subdir, name = _IMAGES[target]
+    for base in firmware_build_dirs():
+        for candidate in (base / subdir / name, base / name):
+            if candidate.is_file():
+                return candidate
+    how = ("`make -C firmware native` (or reinstall the package)" if target == "native" else
+           "`make -C firmware qemu` (it needs arm-none-eabi-gcc: `make setup` installs it)")
+    raise EmulatorError(f"the {target} board's firmware ({name}) is not built: run {how}")
+
+
+#: ELF e_machine values (the ELF specification): what each target's image is built for.
+_ELF_ARM = 40
+#: A string each target's image holds: the QEMU board's HELLO name, the native board's usage line.
+_IMAGE_MARKS = {"native": b"usage: imulink-native", "qemu": b"qemu-stm32f405"}
+
+
+def _check_image(target: str, path: Path) -> None:
+    """EmulatorError unless `path` is an ELF file of `target`'s board."""
+    data = path.read_bytes()
+    if data[:4] != b"\x7fELF":
+        raise EmulatorError(f"{path} is not a firmware image (not an ELF file)")
+    arm = int.from_bytes(data[18:20], "little") == _ELF_ARM
+    if arm != (target == "qemu") or _IMAGE_MARKS[target] not in data:
+        raise EmulatorError(f"{path} is not the {target} board's firmware (an image for another board)")
+
+
+def find_qemu() -> str:
+    path = shutil.which("qemu-system-arm")
+    if path is None:
+        raise EmulatorError("qemu-system-arm not found: install it (Debian: apt-get install qemu-system-arm; "
+                            "`make setup` does)")
+    return path
+
+
+# ---------------------------------------------------------------------------- the sensor feed
+
+
+def feed_frames(simulation: sim.SimResult, profile: SensorProfile = DEFAULT_PROFILE) -> list[bytes]:
+    """The feed of a simulated run: one SAMPLE frame per sample (counts in `profile`),
+    then a LOG frame saying the run is over."""
+    counts = (simulation.gyr_counts, simulation.acc_counts, simulation.mag_counts)
+    if profile != simulation.profile:
+        counts = si_to_counts(simulation.gyr, simulation.acc, simulation.mag, profile)
+    gyr, acc, mag = (c.tolist() for c in counts)
+    period_us = 1e6 / simulation.rate_hz
+    frames = [protocol.encode("SAMPLE", k & 0xFFFF, timestamp_us=round(k * period_us) & 0xFFFFFFFF, index=k,
+                              gyr=gyr[k], acc=acc[k], mag=mag[k], temperature=TEMPERATURE_25C)
+              for k in range(len(gyr))]
+    frames.append(protocol.encode("LOG", len(gyr) & 0xFFFF, level=protocol.LOG_LEVELS["INFO"],
+                                  text=f"end of the simulated run ({len(gyr)} samples)"))
+    return frames
+
+
+class FeedServer:
+    """The sensor feed of a QEMU board: a TCP server on 127.0.0.1 that answers every byte
+    it receives with the next frame of `frames` (the last, the end, repeats).
+    ``served`` counts the sample frames sent."""
+
+    def __init__(self, frames: list[bytes]):
+        self._frames = frames
+        self._server = socket.create_server(("127.0.0.1", 0))
+        self.port = self._server.getsockname()[1]
+        self.served = 0
+        self._thread = threading.Thread(target=self._serve, name="imulink-feed", daemon=True)
+        self._thread.start()
+
+    def _serve(self) -> None:
+        try:
+            client, _ = self._server.accept()
+        except OSError:
+            return  # closed before QEMU connected
+        client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        last = len(self._frames) - 1
+        with client:
+            while True:
+                try:
+                    requests = client.recv(4096)
+                except OSError:
+                    return
+                if not requests:
+                    return
+                out = []
+                for _ in requests:
+                    out.append(self._frames[min(self.served, last)])
+                    self.served = min(self.served + 1, last)
+                try:
+                    client.sendall(b"".join(out))
+                except OSError:
+                    return
+
+    def close(self) -> None:
+        self._server.close()
+
+
+# ---------------------------------------------------------------------------- the board
+
+
+class EmulatedBoard:
+    """An emulated board. ``start()`` launches it (also a context manager), ``stop()`` ends it.
+
+    Args:
+        target: "native" or "qemu".
+        front: what the host opens: "pty" (default), "tcp" (127.0.0.1:`port`, 0 any) or a
+            serial port URL the board should be on (e.g. one end of a null-modem cable).
+        scenario, duration_s, rate_hz, seed: the simulated run the sensors deliver
+            (:func:`imulink.sim.make_scenario`); rate_hz is also the filters' default rate.
+        filter_name: filter active after start-up and RESET.
+        realtime: samples at the board's clock rate; otherwise whenever the feed has one
+            and the host has read the last ones.
+        profile: sensor profile of the emulated GY-86 (its counts and the firmware's scales).
+        faults, schema_hash: a fault proxy in front of the board.
+        image: the firmware to run instead of the built one.
+    """
+
+    def __init__(self, target: str = "native", *, front: str = "pty", port: int = 0, scenario: str = "rests",
+                 duration_s: float = 600.0, rate_hz: float = 100.0, seed: int = 0, filter_name: str = "eecf",
+                 realtime: bool = False, profile: SensorProfile = DEFAULT_PROFILE,
+                 faults: FaultConfig | None = None, schema_hash: int | None = None,
+                 image: str | os.PathLike | None = None, baud: int = 921600):
+        if filter_name not in core.FILTERS:
+            raise EmulatorError(f"unknown filter {filter_name!r}; choose one of {', '.join(core.FILTERS)}")
+        if profile.name not in FIRMWARE_PROFILES or FIRMWARE_PROFILES[profile.name] != profile:
+            raise EmulatorError(f"the firmware knows the sensor profiles {', '.join(FIRMWARE_PROFILES)}, "
+                                f"not {profile.name!r}")
+        self.target = target
+        self.image = find_image(target, image)
+        self._qemu = find_qemu() if target == "qemu" else None
+        self.front, self.port, self.baud = front, port, baud
+        self.rate_hz = float(rate_hz)
+        self.realtime = realtime
+        self.profile = profile
+        self.filter_name = filter_name
+        self.faults = faults if faults is not None and faults.active else None
+        self.schema_hash = schema_hash
+        self.simulation = sim.make_scenario(scenario, duration_s, rate_hz, seed)
+        self._counts = (self.simulation.gyr_counts, self.simulation.acc_counts, self.simulation.mag_counts)
+        if profile != self.simulation.profile:
+            self._counts = si_to_counts(self.simulation.gyr, self.simulation.acc, self.simulation.mag, profile)
+        self._dir: Path | None = None
+        self._process: subprocess.Popen | None = None
+        self._feed: FeedServer | None = None
+        self.proxy: Proxy | None = None
+        self.address: str | None = None
+
+    # ------------------------------------------------------------------ life
+
+    def __enter__(self) -> "EmulatedBoard":
+        return self.start()
+
+    def __exit__(self, *exc_info) -> None:
+        self.stop()
+
+    def _firmware_options(self) -> list[str]:
+        options = ["--profile", self.profile.name, "--rate", f"{self.rate_hz:.6f}", "--filter", self.filter_name]
+        return options if self.realtime else options + ["--fast"]
+
+    def start(self) -> "EmulatedBoard":
+        self._dir = Path(tempfile.mkdtemp(prefix="imulink-board-"))
+        try:
+            frames = feed_frames(self.simulation, self.profile)
+            if self.target == "native":
+                self._start_native(frames)
+            else:
+                self._start_qemu(frames)
+        except BaseException:
+            self.stop()
+            raise
+        return self
+
+    def _needs_proxy(self) -> bool:
+        return self.faults is not None or self.schema_hash is not None or self.front not in ("pty", "tcp")
+
+    def _start_native(self, frames: list[bytes]) -> None:
+        feed = self._dir / "feed.bin"
+        feed.write_bytes(b"".join(frames))
+        direct = not self._needs_proxy()
+        where = (["--pty"] if self.front == "pty" else ["--tcp", str(self.port)]) if direct else ["--tcp", "0"]
+        command = [str(self.image), *where, "--feed", str(feed), *self._firmware_options()]
+        self._process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=open(self._dir / "board.log", "wb"),
+                                         stdin=subprocess.DEVNULL)
+        address = self._read_address()
+        self.address = address if direct else self._start_proxy(address)
+
+    def _read_address(self) -> str:
+        """The first line the native board prints: where it serves."""
+        result: list[bytes] = []
+        reader = threading.Thread(target=lambda: result.append(self._process.stdout.readline()), daemon=True)
+        reader.start()
+        reader.join(_START_TIMEOUT_S)
+        line = result[0].decode(errors="replace").strip() if result else ""
+        if not line:
+            raise EmulatorError(f"the native board did not start: {self._log_tail()}")
+        return line
+
+    def _start_qemu(self, frames: list[bytes]) -> None:
+        self._feed = FeedServer(frames)
+        link_port = _free_port()
+        semihosting = ",".join(["enable=on", "target=native", "arg=imulink-qemu",
+                                *(f"arg={word}" for word in self._firmware_options())])
+        command = [self._qemu, "-M", QEMU_MACHINE, "-nographic", "-monitor", "none", "-kernel", str(self.image),
+                   "-serial", f"tcp:127.0.0.1:{link_port},server=on,wait=on,nodelay=on",
+                   "-serial", f"tcp:127.0.0.1:{self._feed.port},nodelay=on",
+                   "-semihosting-config", semihosting]
+        log = open(self._dir / "board.log", "wb")
+        self._process = subprocess.Popen(command, stdout=log, stderr=log, stdin=subprocess.DEVNULL)
+        try:
+            self.address = self._start_proxy(f"socket://127.0.0.1:{link_port}")
+        except Exception as exc:
+            raise EmulatorError(f"QEMU did not start: {exc}; {self._log_tail()}") from None
+
+    def _start_proxy(self, board_url: str) -> str:
+        front = make_front(self.front if self.front in ("pty", "tcp") else self.front, self.port, self.baud)
+        self.proxy = Proxy(board_url, front, faults=self.faults, schema_hash=self.schema_hash,
+                           connect_timeout_s=_START_TIMEOUT_S).start()
+        return self.proxy.address
+
+    def stop(self) -> None:
+        """Stop the board and everything around it (idempotent)."""
+        if self.proxy is not None:
+            self.proxy.stop()
+            self.proxy = None
+        if self._process is not None:
+            if self._process.poll() is None:
+                self._process.terminate()
+                try:
+                    self._process.wait(timeout=5)
+                except subprocess.TimeoutExpired:
+                    self._process.kill()
+                    self._process.wait()
+            if self._process.stdout is not None:
+                self._process.stdout.close()
+            self._process = None
+        if self._feed is not None:
+            self._feed.close()
+            self._feed = None
+        if self._dir is not None:
+            shutil.rmtree(self._dir, ignore_errors=True)
+            self._dir = None
+
+    @property
+    def error(self) -> str | None:
+        """Why the board stopped on its own (its process exited, its proxy failed), or None."""
+        if self._process is not None and self._process.poll() is not None:
+            return f"the {self.target} board exited with status {self._process.returncode}: {self._log_tail()}"
+        if self.proxy is not None and self.proxy.error is not None:
+            return f"the link to the {self.target} board failed: {self.proxy.error}"
+        return None
+
+    def _log_tail(self) -> str:
+        try:
+            text = (self._dir / "board.log").read_text(errors="replace").strip()
+        except (OSError, TypeError):
+            return "no output"
+        return text.splitlines()[-1] if text else "no output"
+
+    # ------------------------------------------------------------------ truth
+
+    def truth(self, gyr, acc, mag) -> np.ndarray:
+        """True attitude (N,4) of recorded samples, found by their counts: the board reads the
+        feed in order, so each sample is the next simulated one with the same counts (NaN
+        where none matches)."""
+        positions = self.positions(gyr, acc, mag)
+        truth = self.simulation.quat_true[np.maximum(positions, 0)].copy()
+        truth[positions < 0] = np.nan
+        return truth
+
+    def positions(self, gyr, acc, mag) -> np.ndarray:
+        """Position in the simulated run of each recorded sample (see :meth:`truth`); -1 where none."""
+        fed = np.concatenate(self._counts, axis=1)
+        got = np.concatenate([np.asarray(a, np.int16).reshape(-1, 3) for a in (gyr, acc, mag)], axis=1)
+        positions = np.full(len(got), -1, np.int64)
+        start = 0
+        for i, row in enumerate(got):
+            if start < len(fed) and (fed[start] == row).all():  # the usual case: nothing was lost
+                positions[i] = start
+            else:
+                ahead = np.flatnonzero((fed[start:] == row).all(axis=1))
+                if not len(ahead):
+                    continue
+                positions[i] = start + ahead[0]
+            start = positions[i] + 1
+        return positions
+
+
+def _free_port() -> int:
+    """A TCP port on 127.0.0.1 that nobody listens on now (QEMU will)."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]

@@ -1,0 +1,69 @@
+"""imulink.emulator around the firmware: the feed, finding and checking images, the truth
+of recorded samples, and the errors a user meets (a missing or wrong image, a bad option)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from imulink import protocol, sim
+from imulink.cli import main
+from imulink.counts import BROAD_PROFILE, SensorProfile
+from imulink.emulator import EmulatedBoard, EmulatorError, feed_frames, find_image
+
+
+def test_feed_is_one_sample_frame_per_sample_and_a_closing_log():
+    run = sim.make_scenario("turntable", 0.5, 100.0, seed=1)
+    frames = feed_frames(run)
+    messages = [protocol.decode(f) for f in frames]
+    assert [m.name for m in messages] == ["SAMPLE"] * 50 + ["LOG"]
+    np.testing.assert_array_equal([m.fields["gyr"] for m in messages[:-1]], run.gyr_counts)
+    assert messages[-1].fields["text"] == "end of the simulated run (50 samples)"
+    broad = [protocol.decode(f) for f in feed_frames(run, BROAD_PROFILE)]
+    np.testing.assert_allclose(np.array([m.fields["acc"] for m in broad[:-1]]) * 2, run.acc_counts, atol=1)
+
+
+def test_images_are_found_and_checked(tmp_path):
+    native, qemu = find_image("native"), find_image("qemu")
+    assert native.name == "imulink-native" and qemu.name.endswith(".elf") and "netduinoplus2" in qemu.name
+    with pytest.raises(EmulatorError, match="not the qemu board's firmware"):
+        find_image("qemu", native)
+    with pytest.raises(EmulatorError, match="not the native board's firmware"):
+        find_image("native", qemu)
+    text = tmp_path / "notes.txt"
+    text.write_text("hello")
+    with pytest.raises(EmulatorError, match="not a firmware image"):
+        find_image("native", text)
+    with pytest.raises(EmulatorError, match="not found"):
+        find_image("qemu", tmp_path / "missing.elf")
+    with pytest.raises(EmulatorError, match="unknown target"):
+        find_image("fpga")
+
+
+def test_a_missing_build_says_how_to_make_it(tmp_path, monkeypatch):
+    monkeypatch.setattr("imulink.emulator.firmware_build_dirs", lambda: [tmp_path])
+    with pytest.raises(EmulatorError, match=r"not built: run `make -C firmware qemu`"):
+        find_image("qemu")
+
+
+def test_cli_errors_are_one_line(capsys, tmp_path):
+    assert main(["emulate", "--target", "qemu", "--image", str(find_image("native"))]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("imulink: error: ") and "not the qemu board's firmware" in err
+
+
+def test_unknown_profile_is_refused():
+    with pytest.raises(EmulatorError, match="sensor profiles gy86-default, gy86-broad"):
+        EmulatedBoard(profile=SensorProfile(name="mine", acc_lsb_per_g=8192.0))
+
+
+def test_truth_follows_the_feed_across_lost_samples():
+    board = EmulatedBoard(scenario="random", duration_s=5.0)  # not started: truth needs only the simulation
+    run = board.simulation
+    rows = np.r_[3:40, 45:50, 200:210]  # what a recording with two gaps holds
+    positions = board.positions(run.gyr_counts[rows], run.acc_counts[rows], run.mag_counts[rows])
+    np.testing.assert_array_equal(positions, rows)
+    stranger = np.full((1, 3), 1234, np.int16)
+    truth = board.truth(np.r_[run.gyr_counts[rows[:2]], stranger], np.r_[run.acc_counts[rows[:2]], stranger],
+                        np.r_[run.mag_counts[rows[:2]], stranger])
+    np.testing.assert_array_equal(truth[:2], run.quat_true[rows[:2]])
+    assert np.isnan(truth[2]).all()
