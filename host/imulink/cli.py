@@ -348,7 +348,7 @@ def _add_hil_commands(sub) -> None:
     simulation_arguments(p, 60.0)
     target_arguments(p)
     p.add_argument("--transport", choices=("tcp", "pty"), default="tcp", help="link to the board (default: tcp)")
-    p.add_argument("--output", "-o", help="keep the recording here (default: a temporary file)")
+    p.add_argument("--output", "-o", metavar="FILE", help="keep the recording here (default: not kept)")
     p.set_defaults(func=_cmd_demo)
 
     p = sub.add_parser(

@@ -775,6 +775,7 @@ class DemoReport:
     comparison: Comparison
     accuracy: dict
     duration_s: float
+    kept: bool  # whether the recording file was kept (demo(output=...))
 
     def format(self) -> str:
         r, c, rec = self.record, self.comparison, self.recording
@@ -797,7 +798,7 @@ class DemoReport:
             a = self.accuracy
             lines.append(f"accuracy vs simulated truth (RMS after {SETTLE_S:g} s): total {a['total']:.3f} deg, "
                          f"heading {a['heading']:.3f} deg, inclination {a['inclination']:.3f} deg")
-        lines.append(f"recording: {rec.path}")
+        lines.append(f"recording: {rec.path}" if self.kept else "recording: not kept (--output FILE keeps it)")
         lines.append(f"demo took {self.duration_s:.1f} s")
         return "\n".join(lines)
 
@@ -808,15 +809,16 @@ def demo(*, target: str = "native", transport: str = "tcp", scenario: str = "res
     """Record an emulated board's simulated run (as fast as the link goes) and verify it.
 
     `target` is "native" (the firmware as a host process) or "qemu" (the ARM image in
-    QEMU). `output` keeps the recording; by default it goes to a temporary directory.
+    QEMU). `output` keeps the recording; without it the recording lives in a temporary
+    directory that is removed at the end.
     """
     started = time.monotonic()
-    if output is None:
-        output = Path(tempfile.mkdtemp(prefix="imulink-demo-")) / "demo.imulog"
-    with EmulatedBoard(target, front=transport, scenario=scenario, duration_s=duration_s, rate_hz=rate_hz,
-                       seed=seed, filter_name=filter_name) as board:
-        result = record(board.address, output, progress=progress)
-        recording = load_recording(output)
+    with tempfile.TemporaryDirectory(prefix="imulink-demo-") as scratch, \
+            EmulatedBoard(target, front=transport, scenario=scenario, duration_s=duration_s, rate_hz=rate_hz,
+                          seed=seed, filter_name=filter_name) as board:
+        path = Path(output) if output is not None else Path(scratch) / "demo.imulog"
+        result = record(board.address, path, progress=progress)
+        recording = load_recording(path)
         samples = recording.samples
         truth = board.truth(samples.gyr, samples.acc, samples.mag)
     comparison = compare(recording)
@@ -828,4 +830,5 @@ def demo(*, target: str = "native", transport: str = "tcp", scenario: str = "res
         settled = rows >= SETTLE_S * rate_hz  # the first samples of the run: alignment and convergence
         usable = settled & ~np.isnan(truth[rows, 0])
         accuracy = rmse(attitude_errors(quat[usable], truth[rows][usable]))
-    return DemoReport(board.address, target, result, recording, comparison, accuracy, time.monotonic() - started)
+    return DemoReport(board.address, target, result, recording, comparison, accuracy, time.monotonic() - started,
+                      kept=output is not None)
