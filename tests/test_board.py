@@ -14,6 +14,7 @@ import select
 import subprocess
 import time
 import tty
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,6 +25,7 @@ from imulink.link import Link
 from imulink.proxy import FaultConfig, FaultInjector
 from imulink.reference import FirmwareFilter
 
+ROOT = Path(__file__).resolve().parents[1]
 BOARD_NAMES = {"native": "native", "qemu": "qemu-stm32f405"}
 CYCLE_HZ = {"native": 1_000_000_000, "qemu": 1_000_000}
 KP = [f.name for f in core.settings_fields("eecf")].index("kp")
@@ -371,3 +373,28 @@ def test_firmware_filter_uses_the_raw_settings_exactly():
     firmware = FirmwareFilter("kf1d", raw)
     assert firmware.si_settings["q_angle"] * 2.0**40 == raw["q_angle"]
     assert math.isclose(firmware.si_settings["sample_rate"], 250.0)
+
+
+def test_the_application_is_clean_under_the_sanitizers(tmp_path):
+    """The native board built with UBSan and ASan: a stream, injection, settings, a bad
+    command and a reset, without a report (the process stops at the first one)."""
+    build = subprocess.run(["make", "--no-print-directory", "-C", str(ROOT / "firmware"), "native", f"BUILD={tmp_path}",
+                            "CC=gcc -fsanitize=undefined,address -fno-sanitize-recover=all"],
+                           capture_output=True, text=True, timeout=300)
+    assert build.returncode == 0, build.stderr
+    image = tmp_path / "native" / "imulink-native"
+    with EmulatedBoard(image=image, duration_s=3.0, filter_name="eskf") as emulated, Link(emulated.address) as link:
+        link.connect()
+        stream(link, 200)
+        link.command("SET_SETTING", index=0, value=core.to_fixed(250.0, 16))
+        with pytest.raises(protocol.CommandError):
+            link.command("SET_SETTING", index=1, value=-5)
+        link.command("SET_INJECTION_MODE", enabled=1)
+        data = sim.make_scenario("random", 1.0, 250.0, seed=9)
+        for k in range(len(data)):
+            link.command("INJECT_SAMPLE", timestamp_us=0, index=k, gyr=data.gyr_counts[k].tolist(),
+                         acc=data.acc_counts[k].tolist(), mag=data.mag_counts[k].tolist(), temperature=0)
+        link._write(protocol.encode("COMMAND", 0, command=200, command_seq=1, args=b"\x01" * 28))
+        link.command("RESET")
+        link.receive_until(lambda m: m.name == "HELLO" and m.seq == 0)
+        assert emulated.error is None

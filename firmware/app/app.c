@@ -274,7 +274,8 @@ static void sensor_failed(app_t *app, const char *why)
 
 static void update_load(app_t *app, uint32_t work_cycles)
 {
-    const uint64_t period_cycles = (uint64_t)board_cycle_hz() * 1000u / sample_rate_mhz(app); /* at least 10 Hz: every filter refuses less */
+    /* sample_rate_mhz() is at least 10 000: every filter refuses a slower rate */
+    const uint64_t period_cycles = (uint64_t)board_cycle_hz() * 1000u / sample_rate_mhz(app);
     uint64_t permille_q8;
     if (period_cycles == 0) {
         return; /* no cycle counter */
@@ -283,8 +284,10 @@ static void update_load(app_t *app, uint32_t work_cycles)
     if (permille_q8 > 1000u * 256u) {
         permille_q8 = 1000u * 256u;
     }
-    app->load_permille_q8 = (uint32_t)(app->load_permille_q8 +
-                                       (((int32_t)permille_q8 - (int32_t)app->load_permille_q8) >> LOAD_SMOOTHING_SHIFT));
+    /* load += (newest - load) / 64, in Q8 per mille (at most 256 000: the int32 difference fits) */
+    app->load_permille_q8 = (uint32_t)((int32_t)app->load_permille_q8 +
+                                       (((int32_t)permille_q8 - (int32_t)app->load_permille_q8) >>
+                                        LOAD_SMOOTHING_SHIFT));
 }
 
 static void live_sample(app_t *app)

@@ -278,8 +278,9 @@ def _cmd_inject(args) -> int:
 def _cmd_demo(args) -> int:
     from . import hil
 
-    report = hil.demo(target=args.target, transport=args.transport, scenario=args.scenario, duration_s=args.duration, rate_hz=args.rate,
-                      seed=args.seed, filter_name=args.filter, output=args.output, progress=hil.Progress())
+    report = hil.demo(target=args.target, transport=args.transport, scenario=args.scenario, duration_s=args.duration,
+                      rate_hz=args.rate, seed=args.seed, filter_name=args.filter, output=args.output,
+                      progress=hil.Progress())
     print(report.format())
     return 0 if report.comparison.bit_exact else EXIT_MISMATCH
 
