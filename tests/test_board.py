@@ -177,8 +177,8 @@ def test_real_time_pacing(target):
             count += sum(r.message.name == "SAMPLE" for r in link.receive(0.05))
         status = link.command("GET_STATUS").data.fields
     assert 160 <= count <= 240  # 1 s at 200 Hz
-    # an emulated board on a busy 2-core host may now and then get the CPU a period late
-    assert status["dropped_samples"] <= 5 and 0 < status["cpu_load_permille"] < 1000
+    # an emulated board that got the CPU late catches up from its sensor's FIFO: nothing is lost
+    assert status["dropped_samples"] == 0 and 0 < status["cpu_load_permille"] < 1000
 
 
 def test_injection_mode(link):

@@ -7,8 +7,9 @@
  *     imulink-native [--pty | --tcp PORT] [--feed FILE] [--fast] [--profile NAME] [--rate HZ] [--filter NAME]
  *
  * The first line on stdout is what a host opens: the pty's path or socket://127.0.0.1:PORT.
- * Real time (default): samples are due at the sample rate of the wall clock, and when the host
- * does not drain the link, samples are dropped as on a board whose UART buffer is full. Fast
+ * Real time (default): samples are due at the sample rate of the wall clock (late ones are
+ * caught up: boards/emulated/schedule.h), and when the host does not drain the link, samples
+ * are dropped as on a board whose UART buffer is full. Fast
  * (--fast): a sample is due whenever the link has room, so the run goes as fast as the host
  * reads and nothing is dropped. One TCP client at a time; every new one is greeted with HELLO.
  * SIGINT / SIGTERM end the process with status 0.
@@ -34,6 +35,7 @@
 #include "board.h"
 #include "feed.h"
 #include "options.h"
+#include "schedule.h"
 
 /** Bytes a real-time board buffers for a slow or absent host before it drops samples. */
 #define REALTIME_BACKLOG 65536u
@@ -50,7 +52,7 @@ static struct {
     size_t out_len;
     struct timespec origin;
     int clock_running;
-    uint64_t tick_period_ns, next_tick_ns;
+    schedule_t schedule;   /* real time: when samples are due */
     FILE *feed_file;
     const char *feed_path;
     feed_t feed;
@@ -187,8 +189,7 @@ uint32_t board_cycle_hz(void)
 
 void board_sample_clock_start(uint32_t rate_mhz)
 {
-    native.tick_period_ns = 1000000000000ull / rate_mhz;
-    native.next_tick_ns = now_ns() + native.tick_period_ns;
+    schedule_start(&native.schedule, board_time_us(), rate_mhz);
     native.clock_running = 1;
 }
 
@@ -205,20 +206,13 @@ static int fast_sample_due(void)
 
 uint32_t board_sample_ticks(void)
 {
-    uint64_t now, missed;
     if (!native.clock_running) {
         return 0;
     }
     if (native.fast) {
         return (uint32_t)fast_sample_due();
     }
-    now = now_ns();
-    if (now < native.next_tick_ns) {
-        return 0;
-    }
-    missed = (now - native.next_tick_ns) / native.tick_period_ns;
-    native.next_tick_ns += (missed + 1u) * native.tick_period_ns;
-    return (uint32_t)(missed + 1u);
+    return schedule_ticks(&native.schedule, board_time_us());
 }
 
 /* --------------------------------------------------------------------------- sensors */
@@ -274,8 +268,8 @@ void board_idle(void)
     }
     if (native.clock_running) {
         if (!native.fast) {
-            const uint64_t now = now_ns();
-            timeout_ms = now >= native.next_tick_ns ? 0 : (int)((native.next_tick_ns - now + 999999u) / 1000000u);
+            const uint64_t now = board_time_us(), next = schedule_next_us(&native.schedule);
+            timeout_ms = now >= next ? 0 : (int)((next - now + 999u) / 1000u);
         } else if (fast_sample_due()) {
             timeout_ms = 0;
         }

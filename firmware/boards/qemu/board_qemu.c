@@ -16,8 +16,9 @@
  *   drops bytes that arrive while the USART is off, e.g. during a reset).
  * - TIM5 counts microseconds and is also the cycle counter (there is no DWT):
  *   STATUS.cycle_hz is 1000000. Samples are due at exact multiples of the period on that
- *   clock; TIM2 only wakes the core (at 1 kHz, or at the sample rate above it), because
- *   QEMU 7.2's TIM2 restarts each period late and runs about 8 % slow. The timers' clock
+ *   clock (boards/emulated/schedule.h: a late board catches up from the sensor's FIFO);
+ *   TIM2 only wakes the core (at 1 kHz, or at the sample rate above it), because QEMU
+ *   7.2's TIM2 restarts each period late and runs about 8 % slow. The timers' clock
  *   differs between QEMU versions (1 GHz in 7.2, 48 MHz later), so it is measured at
  *   start-up against SysTick, which QEMU clocks at the CPU's 168 MHz.
  * Start-up options come from the semihosting command line (-semihosting-config
@@ -31,6 +32,7 @@
 #include "feed.h"
 #include "link.h"
 #include "options.h"
+#include "schedule.h"
 #include "stm32f4.h"
 #include "text.h"
 #include "timers.h"
@@ -53,9 +55,7 @@ static uint32_t timer_clock_hz;    /* TIM2-5's clock, measured */
 static uint32_t feed_outstanding;  /* samples asked for and not yet decoded */
 static int fast;                   /* --fast: no tick, a sample whenever the feed has one */
 static int streaming;              /* the sample clock runs */
-static uint64_t clock_origin_us;   /* when the sample clock started */
-static uint32_t clock_rate_mhz;    /* its rate */
-static uint64_t ticks_handed_out;  /* sample periods since clock_origin_us given to the application */
+static schedule_t schedule;        /* real time: when samples are due */
 
 /* A sample decoded from the feed and not yet handed to the application. */
 static struct {
@@ -252,9 +252,7 @@ uint32_t board_cycle_hz(void)
 void board_sample_clock_start(uint32_t rate_mhz)
 {
     streaming = 1;
-    clock_origin_us = timers_time_us();
-    clock_rate_mhz = rate_mhz;
-    ticks_handed_out = 0;
+    schedule_start(&schedule, timers_time_us(), rate_mhz);
     feed_request();
     if (!fast) {
         timers_tick_start(timer_clock_hz, rate_mhz > WAKE_RATE_MHZ ? rate_mhz : WAKE_RATE_MHZ, PRIORITY_TIMERS);
@@ -269,19 +267,11 @@ void board_sample_clock_stop(void)
 
 uint32_t board_sample_ticks(void)
 {
-    uint64_t due;
-    uint32_t ticks;
     if (fast) {
         return (uint32_t)(streaming && feed_ready());
     }
     (void)timers_tick_take(); /* the wake-ups; the samples due follow from the clock */
-    if (!streaming) {
-        return 0;
-    }
-    due = (timers_time_us() - clock_origin_us) * clock_rate_mhz / 1000000000u; /* whole periods elapsed */
-    ticks = (uint32_t)(due - ticks_handed_out);
-    ticks_handed_out = due;
-    return ticks;
+    return streaming ? schedule_ticks(&schedule, timers_time_us()) : 0;
 }
 
 board_sensors_result_t board_sensors_init(const char **message)
