@@ -12,16 +12,14 @@ them they fail, saying what is missing (CI installs both: `make setup`).
 """
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from imulink import core, hil, protocol, sim
+from imulink import core, hil, sim
 from imulink.cli import main
 from imulink.counts import BROAD_PROFILE, DEFAULT_PROFILE, si_to_counts
 from imulink.emulator import EmulatedBoard

@@ -286,7 +286,7 @@ class EmulatedBoard:
             raise EmulatorError(f"QEMU did not start: {exc}; {self._log_tail()}") from None
 
     def _start_proxy(self, board_url: str) -> str:
-        front = make_front(self.front if self.front in ("pty", "tcp") else self.front, self.port, self.baud)
+        front = make_front(self.front, self.port, self.baud)
         self.proxy = Proxy(board_url, front, faults=self.faults, schema_hash=self.schema_hash,
                            connect_timeout_s=_START_TIMEOUT_S).start()
         return self.proxy.address

@@ -379,7 +379,7 @@ class Proxy:
             if self._board_fd is not None and not data:
                 raise OSError(f"{self.board_url} closed the connection")
             self._from_board(data)
-        if front.fileno() is not None and front.fileno() in readable or isinstance(front, SerialFront):
+        if (front.fileno() is not None and front.fileno() in readable) or isinstance(front, SerialFront):
             data = front.read()
             if data:
                 self._board.write(data)
