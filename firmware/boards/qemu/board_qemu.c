@@ -30,6 +30,7 @@
 #include "app.h"
 #include "board.h"
 #include "feed.h"
+#include "identification.h"
 #include "link.h"
 #include "options.h"
 #include "schedule.h"
@@ -65,6 +66,8 @@ static struct {
 } next_sample;
 
 void usart2_irq_handler(void);
+APP_IDENTIFICATION("qemu-stm32f405", "STM32F405", 0x413u, 1024u);
+
 void tim2_irq_handler(void);
 void tim5_irq_handler(void);
 void hard_fault_handler(void);
@@ -338,7 +341,7 @@ int main(void)
 {
     static app_t app;
     app_config_t config;
-    options_defaults(&config, "qemu-stm32f405");
+    options_defaults(&config, app_identification.board);
     read_options(&config);
     timer_clock_hz = measure_timer_clock();
     timers_clock_init(timer_clock_hz, PRIORITY_TIMERS);

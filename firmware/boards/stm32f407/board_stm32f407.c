@@ -20,12 +20,12 @@
 #include "clock_stm32f407.h"
 #include "gy86.h"
 #include "i2c_stm32f4.h"
+#include "identification.h"
 #include "link.h"
 #include "stm32f4.h"
 #include "text.h"
 #include "timers.h"
 
-#define BOARD_NAME "stm32f407-gy86"
 #define BOOTLOADER_REQUEST 0x5B007B00u /* and its complement in the second word */
 
 static clocks_t clocks;
@@ -39,6 +39,8 @@ static char start_up_problem[IMU_PROTO_LOG_SIZE];
 
 /* Kept across a reset (linker script: .noinit is neither loaded nor cleared). */
 static volatile uint32_t bootloader_request[2] __attribute__((section(".noinit")));
+
+APP_IDENTIFICATION("stm32f407-gy86", "STM32F407", 0x413u, 1024u);
 
 void tim2_irq_handler(void);
 void tim5_irq_handler(void);
@@ -258,7 +260,7 @@ int main(void)
     lines = i2c_stm32f4_init(&i2c_dev, clocks.pclk1_hz, clocks.hclk_hz, &i2c_bus);
     describe_start_up(lines);
 
-    config.board_name = BOARD_NAME;
+    config.board_name = app_identification.board;
     config.sample_rate = (imu_real_t)100 << 16;
     config.initial_filter = IMU_FILTER_ESKF;
     gy86_sensor_settings(&gy86_default_config, &config.sensor);
