@@ -17,5 +17,6 @@ Each model's module docstring says what is modelled and what is not.
 from .hmc5883l import HMC5883L
 from .i2c import FAILURES, STATUS_CODES, I2CBus, I2CDevice, RegisterDevice
 from .mpu6050 import MPU6050
+from .stm32_bootloader import BootloaderPort, Stm32Bootloader  # noqa: F401  (AN3155 bootloader model)
 
 __all__ = ["FAILURES", "HMC5883L", "I2CBus", "I2CDevice", "MPU6050", "RegisterDevice", "STATUS_CODES"]
