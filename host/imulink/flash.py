@@ -210,6 +210,9 @@ def flash_uart(image: FirmwareImage, url: str, *, enter: str = "manual", baud: i
                 raise FlashError(str(exc)) from None
             raise FlashError(f"{exc}. The board stays in its bootloader: run imulink flash again (if it does not "
                              "answer then, reset it with BOOT0 still high)") from None
+        except Refused as exc:
+            raise FlashError(f"{exc}: a write-protected sector or readout protection? (--unprotect clears readout "
+                             "protection, and the chip erases its whole flash first; docs/flashing.md)") from None
         except BootloaderError as exc:
             raise FlashError(str(exc)) from None
     finally:
