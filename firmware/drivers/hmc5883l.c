@@ -38,23 +38,15 @@ static const imu_real_t mag_scales[8] = {
     IMU_QCONST(100.0 / 330.0, 24),  IMU_QCONST(100.0 / 230.0, 24),
 };
 
-static sensor_status_t config_error(uint8_t reg)
-{
-    sensor_status_t s = sensor_status_ok(SENSOR_CHIP_HMC5883L);
-    s.result = SENSOR_ERR_CONFIG;
-    s.reg = reg;
-    return s;
-}
-
 static sensor_status_t check_config(const hmc5883l_config_t *config)
 {
     if ((unsigned)config->averaging > (unsigned)HMC5883L_AVERAGE_8 ||
         (unsigned)config->rate > (unsigned)HMC5883L_RATE_75HZ ||
         (unsigned)config->bias > (unsigned)HMC5883L_BIAS_NEGATIVE) {
-        return config_error(REG_CONFIG_A);
+        return sensor_status_config(SENSOR_CHIP_HMC5883L, REG_CONFIG_A);
     }
     if ((unsigned)config->gain > (unsigned)HMC5883L_GAIN_230) {
-        return config_error(REG_CONFIG_B);
+        return sensor_status_config(SENSOR_CHIP_HMC5883L, REG_CONFIG_B);
     }
     return sensor_status_ok(SENSOR_CHIP_HMC5883L);
 }

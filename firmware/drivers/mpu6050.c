@@ -84,24 +84,16 @@ typedef struct {
     uint8_t mask;
 } reg_setting_t;
 
-static sensor_status_t config_error(uint8_t reg)
-{
-    sensor_status_t s = sensor_status_ok(SENSOR_CHIP_MPU6050);
-    s.result = SENSOR_ERR_CONFIG;
-    s.reg = reg;
-    return s;
-}
-
 static sensor_status_t check_config(const mpu6050_config_t *config)
 {
     if ((unsigned)config->gyro_range > (unsigned)MPU6050_GYRO_2000DPS) {
-        return config_error(REG_GYRO_CONFIG);
+        return sensor_status_config(SENSOR_CHIP_MPU6050, REG_GYRO_CONFIG);
     }
     if ((unsigned)config->acc_range > (unsigned)MPU6050_ACC_16G) {
-        return config_error(REG_ACCEL_CONFIG);
+        return sensor_status_config(SENSOR_CHIP_MPU6050, REG_ACCEL_CONFIG);
     }
     if (config->dlpf_cfg > MPU6050_DLPF_CFG_MAX) {
-        return config_error(REG_CONFIG);
+        return sensor_status_config(SENSOR_CHIP_MPU6050, REG_CONFIG);
     }
     return sensor_status_ok(SENSOR_CHIP_MPU6050);
 }

@@ -76,6 +76,13 @@ sensor_status_t sensor_status_readback(sensor_chip_t chip, uint8_t reg, uint8_t 
     return s;
 }
 
+sensor_status_t sensor_status_config(sensor_chip_t chip, uint8_t reg)
+{
+    sensor_status_t s = blank(chip, SENSOR_ERR_CONFIG);
+    s.reg = reg;
+    return s;
+}
+
 /* ------------------------------------------------------------------ text assembly */
 
 /** A bounded string being written: never overruns, always NUL-terminated. */

@@ -76,6 +76,9 @@ sensor_status_t sensor_status_identity(sensor_chip_t chip, const uint8_t *got, u
 /** @brief Status "register `reg` reads `got` after writing `wrote`". */
 sensor_status_t sensor_status_readback(sensor_chip_t chip, uint8_t reg, uint8_t wrote, uint8_t got);
 
+/** @brief Status "the configuration asks for a value register `reg` of `chip` cannot hold". */
+sensor_status_t sensor_status_config(sensor_chip_t chip, uint8_t reg);
+
 /**
  * @brief One sentence for a LOG line, "<chip>: <what happened>", written to `buf`.
  * @param status the status to describe.
