@@ -14,12 +14,21 @@ the optical reference is computed as the dataset README defines it:
 
 No alignment of any kind is fitted. Results go to stdout, progress to stderr.
 
+With ``--vqf`` the same metric is computed for VQF (the ``vqf`` package, a maintained
+reference implementation by the authors of BROAD, used for comparison only:
+``VQF(1 / rate).updateBatch(gyr, acc, mag)["quat9D"]`` with its default parameters, on
+the recordings' SI values as stored, not on register counts), and the report says
+whether each selected filter's mean total RMSE beats VQF's. ``vqf`` is not a runtime
+dependency of imulink: ``pip install 'imulink[bench]'`` installs it.
+
 Examples::
 
     .venv/bin/python tools/eval_broad.py
     .venv/bin/python tools/eval_broad.py --filters eecf --arithmetic float \\
         --settings '{"eecf": {"kp": 0.5}}'
     .venv/bin/python tools/eval_broad.py --markdown
+    .venv/bin/python tools/eval_broad.py --markdown --vqf
+    .venv/bin/python tools/eval_broad.py --json --vqf
 """
 from __future__ import annotations
 
@@ -40,6 +49,16 @@ DEFAULT_DATA = REPO_ROOT / ".." / "shared" / "data" / "broad"
 
 #: Exit code for a missing data directory or missing trial files.
 EXIT_NO_DATA = 2
+#: Exit code for --vqf without the vqf package.
+EXIT_NO_VQF = 3
+
+#: The one-line message of --vqf without the vqf package.
+VQF_MISSING = "error: --vqf needs the vqf package (a reference for comparison only): pip install 'imulink[bench]'"
+
+#: Key of the VQF reference in the results of :func:`evaluate`.
+VQF_KEY = ("vqf", "reference")
+
+ERROR_KINDS = ("total", "heading", "inclination")
 
 
 @dataclass
@@ -116,6 +135,77 @@ def fixed_float_difference(q_fixed, q_float) -> float:
     return float(np.rad2deg(np.max(angle_between(q_fixed, q_float))))
 
 
+def import_vqf():
+    """The ``vqf.VQF`` class; ImportError (with the install hint) when vqf is not installed."""
+    try:
+        from vqf import VQF
+    except ImportError as exc:
+        raise ImportError(VQF_MISSING) from exc
+    return VQF
+
+
+def run_vqf(trial: Trial):
+    """VQF's 9D quaternion (w-first, sensor-to-earth ENU) on one trial, default parameters."""
+    VQF = import_vqf()
+    out = VQF(1.0 / trial.rate_hz).updateBatch(np.ascontiguousarray(trial.gyr, dtype=np.float64),
+                                             np.ascontiguousarray(trial.acc, dtype=np.float64),
+                                             np.ascontiguousarray(trial.mag, dtype=np.float64))
+    return out["quat9D"]
+
+
+def _mean_errors(per) -> dict[str, float]:
+    per = list(per)
+    return {k: float(np.mean([e[k] for e in per])) for k in ERROR_KINDS}
+
+
+def evaluate_vqf(trials, log=None) -> dict:
+    """VQF's errors on every trial: {"trials": {name: errors}, "mean": {...}}."""
+    out: dict = {"trials": {}}
+    for trial in trials:
+        t0 = time.perf_counter()
+        err = broad_errors(run_vqf(trial), trial.quat_ref, trial.movement)
+        out["trials"][trial.name] = err
+        if log:
+            log(f"vqf   9D    {trial.name:40s} total {err['total']:7.3f} deg ({time.perf_counter() - t0:.2f} s)")
+    out["mean"] = _mean_errors(out["trials"].values())
+    return out
+
+
+def compare_with_vqf(results, filters, arithmetics) -> list[dict]:
+    """Mean total RMSE of each filter x arithmetic against VQF's (needs results[VQF_KEY]).
+
+    Returns one dict per column: filter, arithmetic, mean (deg), vqf (deg),
+    difference (filter - VQF, deg), beats (filter's mean strictly below VQF's) and
+    trials_better (trials where the filter's total RMSE is below VQF's).
+    """
+    ref = results[VQF_KEY]
+    rows = []
+    for f in filters:
+        for a in arithmetics:
+            r = results[(f, a)]
+            mean, vqf_mean = r["mean"]["total"], ref["mean"]["total"]
+            rows.append({
+                "filter": f, "arithmetic": a, "mean": mean, "vqf": vqf_mean, "difference": mean - vqf_mean,
+                "beats": bool(mean < vqf_mean),
+                "trials_better": int(sum(r["trials"][n]["total"] < ref["trials"][n]["total"] for n in ref["trials"])),
+                "trials": len(ref["trials"]),
+            })
+    return rows
+
+
+def comparison_lines(results, filters, arithmetics) -> list[str]:
+    """One sentence per filter x arithmetic: does its mean total RMSE beat VQF's? (ESKF fixed first.)"""
+    rows = compare_with_vqf(results, filters, arithmetics)
+    rows.sort(key=lambda r: (not (r["filter"] == "eskf" and r["arithmetic"] == "fixed"),))
+    lines = []
+    for r in rows:
+        verdict = "beats" if r["beats"] else "does NOT beat"
+        lines.append(f"{r['filter'].upper()} {r['arithmetic']} {verdict} VQF's mean: total RMSE {r['mean']:.2f} deg vs "
+                     f"VQF {r['vqf']:.2f} deg ({r['difference']:+.2f} deg); better than VQF on "
+                     f"{r['trials_better']} of {r['trials']} trials.")
+    return lines
+
+
 def run_filter(trial: Trial, filter_name: str, arithmetic: str, settings: dict | None = None):
     """Run one filter on one trial with the BROAD register profile; returns a RunResult."""
     from imulink import core
@@ -125,12 +215,15 @@ def run_filter(trial: Trial, filter_name: str, arithmetic: str, settings: dict |
                     arithmetic=arithmetic, profile=BROAD_PROFILE, settings=settings)
 
 
-def evaluate(trials, filters, arithmetics, settings=None, log=None) -> dict:
+def evaluate(trials, filters, arithmetics, settings=None, log=None, vqf: bool = False) -> dict:
     """Errors of every filter x arithmetic on every trial.
 
     Returns {(filter, arithmetic): {"trials": {name: errors}, "mean": {...}}} and, when
-    both arithmetics ran, {(filter, "diff"): {name: max fixed-vs-float deg}}.
+    both arithmetics ran, {(filter, "diff"): {name: max fixed-vs-float deg}}; with
+    `vqf`, also {VQF_KEY: {"trials": ..., "mean": ...}} (ImportError without vqf).
     """
+    if vqf:
+        import_vqf()  # fail before the long part
     settings = settings or {}
     results: dict = {}
     for f in filters:
@@ -153,10 +246,9 @@ def evaluate(trials, filters, arithmetics, settings=None, log=None) -> dict:
             if len(arithmetics) == 2:
                 results[(f, "diff")][trial.name] = fixed_float_difference(quats["fixed"], quats["float"])
         for arith in arithmetics:
-            per = results[(f, arith)]["trials"].values()
-            results[(f, arith)]["mean"] = {
-                k: float(np.mean([e[k] for e in per])) for k in ("total", "heading", "inclination")
-            }
+            results[(f, arith)]["mean"] = _mean_errors(results[(f, arith)]["trials"].values())
+    if vqf:
+        results[VQF_KEY] = evaluate_vqf(trials, log)
     return results
 
 
@@ -191,12 +283,27 @@ def format_text(results, trials, filters, arithmetics) -> str:
             m = r["mean"]
             lines.append(f"  {'mean':{width}s}  {m['total']:8.3f} {m['heading']:8.3f} {m['inclination']:8.3f}")
             lines.append("")
+    if VQF_KEY in results:
+        r = results[VQF_KEY]
+        lines.append("VQF (reference, vqf package, default parameters, quat9D) RMSE, deg")
+        lines.append(f"  {'trial':{width}s}  {'total':>8s} {'heading':>8s} {'inclin.':>8s} {'samples':>8s}")
+        for n in names:
+            e = r["trials"][n]
+            lines.append(f"  {n:{width}s}  {e['total']:8.3f} {e['heading']:8.3f} {e['inclination']:8.3f} {e['n']:8d}")
+        m = r["mean"]
+        lines.append(f"  {'mean':{width}s}  {m['total']:8.3f} {m['heading']:8.3f} {m['inclination']:8.3f}")
+        lines.append("")
+        lines.extend(comparison_lines(results, filters, arithmetics))
     return "\n".join(lines)
 
 
 def format_markdown(results, trials, filters, arithmetics) -> str:
     cols = [(f, a) for f in filters for a in arithmetics]
+    has_vqf = VQF_KEY in results
     head = "| trial | " + " | ".join(f"{f.upper()} {a} total / heading / incl." for f, a in cols)
+    if has_vqf:
+        cols = cols + [VQF_KEY]
+        head += " | VQF (reference) total / heading / incl."
     sep = "|---|" + "---|" * len(cols)
     diff_cols = [f for f in filters if (f, "diff") in results]
     if diff_cols:
@@ -217,8 +324,15 @@ def format_markdown(results, trials, filters, arithmetics) -> str:
         row += " | " + " | ".join(f"{max(results[(f, 'diff')].values()):.4f} (max)" for f in diff_cols)
     lines.append(row + " |")
     lines.append("")
-    lines.append("RMSE in degrees over the movement phase (NaN reference samples skipped); "
-                 "fixed-vs-float: largest angle between the two builds' quaternions over the whole trial, deg.")
+    note = ("RMSE in degrees over the movement phase (NaN reference samples skipped); "
+            "fixed-vs-float: largest angle between the two builds' quaternions over the whole trial, deg.")
+    if has_vqf:
+        note += (" VQF: the vqf package's VQF(1/rate).updateBatch(gyr, acc, mag)['quat9D'], default parameters, "
+                 "on the recordings' SI values.")
+    lines.append(note)
+    if has_vqf:
+        lines.append("")
+        lines.extend(comparison_lines(results, filters, [a for a in arithmetics]))
     return "\n".join(lines)
 
 
@@ -248,7 +362,17 @@ def main(argv=None) -> int:
                    help='JSON settings overrides per filter, e.g. \'{"eecf": {"kp": 0.5}}\'')
     p.add_argument("--markdown", action="store_true", help="print a markdown table instead of text")
     p.add_argument("--json", action="store_true", help="print the results as JSON")
+    p.add_argument("--vqf", action="store_true",
+                   help="add VQF (the vqf package, default parameters) as a reference column; "
+                        "needs pip install 'imulink[bench]'")
     args = p.parse_args(argv)
+
+    if args.vqf:
+        try:
+            import_vqf()
+        except ImportError:
+            print(VQF_MISSING, file=sys.stderr)
+            return EXIT_NO_VQF
 
     settings = {}
     if args.settings:
@@ -277,12 +401,14 @@ def main(argv=None) -> int:
         clipped = si_to_counts(trial.gyr, trial.acc, trial.mag, BROAD_PROFILE, return_saturation=True)[3]
         log(f"{trial.name}: sensor values clipped by {BROAD_PROFILE.name}: {clipped}")
     try:
-        results = evaluate(trials, args.filters, args.arithmetic, settings, log)
+        results = evaluate(trials, args.filters, args.arithmetic, settings, log, vqf=args.vqf)
     except core.SettingsError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2  # a usage error, like argparse's
     if args.json:
         out = {f"{k[0]}/{k[1]}": v for k, v in results.items()}
+        if args.vqf:
+            out["comparison_with_vqf"] = compare_with_vqf(results, args.filters, args.arithmetic)
         print(json.dumps(out, indent=1))
     elif args.markdown:
         print(format_markdown(results, trials, args.filters, args.arithmetic))

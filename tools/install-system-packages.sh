@@ -4,13 +4,48 @@
 #   gcc, make, python3-venv                    the host package and the native board
 #   gcc-arm-none-eabi, libnewlib-arm-none-eabi the ARM images (QEMU board, STM32F407 board)
 #   qemu-system-arm                            the ARM image's tests and `--target qemu`
+#   clang, libclang-rt-N-dev                   the core's campaign under -fsanitize=undefined,integer
+#                                              (tests/test_campaign.py; the sanitizer runtime is only
+#                                              a recommendation of Debian's clang package)
 #
 # Installs only what is missing: as root directly, otherwise through sudo. Exits 1 with the
 # apt-get command to run when it cannot install them itself.
 set -eu
 
-missing=""
 have() { command -v "$1" >/dev/null 2>&1; }
+
+# Install the packages named in $1 (space-separated, leading space), or explain how to.
+install_packages() {
+    echo "imulink: installing system packages:$1"
+    if [ "$(id -u)" = 0 ]; then
+        sudo=""
+    elif have sudo && sudo -n true 2>/dev/null; then
+        sudo="sudo"
+    else
+        echo "imulink: cannot install them without root; run: sudo apt-get install$1" >&2
+        exit 1
+    fi
+    if ! have apt-get; then
+        echo "imulink: no apt-get on this machine; install the equivalents of:$1" >&2
+        exit 1
+    fi
+    $sudo apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends $1
+}
+
+# 0 when clang links a program with the undefined and integer sanitizers.
+clang_sanitizers_link() {
+    dir=$(mktemp -d)
+    echo 'int main(void) { return 0; }' >"$dir/t.c"
+    if clang -fsanitize=undefined,integer "$dir/t.c" -o "$dir/t" >/dev/null 2>&1; then
+        rm -rf "$dir"
+        return 0
+    fi
+    rm -rf "$dir"
+    return 1
+}
+
+missing=""
 have gcc || missing="$missing gcc"
 have make || missing="$missing make"
 python3 -c 'import venv, ensurepip' >/dev/null 2>&1 || missing="$missing python3-venv"
@@ -20,21 +55,16 @@ if ! have arm-none-eabi-gcc || [ "$(arm-none-eabi-gcc -print-file-name=libc_nano
     missing="$missing libnewlib-arm-none-eabi"
 fi
 have qemu-system-arm || missing="$missing qemu-system-arm"
+have clang || missing="$missing clang"
 
-[ -z "$missing" ] && exit 0
+[ -z "$missing" ] || install_packages "$missing"
 
-echo "imulink: installing system packages:$missing"
-if [ "$(id -u)" = 0 ]; then
-    sudo=""
-elif have sudo && sudo -n true 2>/dev/null; then
-    sudo="sudo"
-else
-    echo "imulink: cannot install them without root; run: sudo apt-get install$missing" >&2
-    exit 1
+# The sanitizer runtime of the clang just found or installed (its version is known only now).
+if ! clang_sanitizers_link; then
+    install_packages " libclang-rt-$(clang -dumpversion | cut -d. -f1)-dev"
+    if ! clang_sanitizers_link; then
+        echo "imulink: clang cannot link -fsanitize=undefined,integer (install its compiler-rt runtime)" >&2
+        exit 1
+    fi
 fi
-if ! have apt-get; then
-    echo "imulink: no apt-get on this machine; install the equivalents of:$missing" >&2
-    exit 1
-fi
-$sudo apt-get update -qq
-DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends $missing
+exit 0

@@ -30,6 +30,21 @@
  * implementation-defined/defined on every compiler we target (arithmetic shift).
  * Left shifts of negative values are never used (undefined behaviour): scaling up
  * multiplies by a power of two instead.
+ *
+ * Checked narrowing (debug builds of the fixed build only): with
+ * `-DIMU_CHECK_NARROWING` every narrowing of a 64-bit value to int32 that this
+ * layer performs without saturation (imu_mul / IMU_MUL, IMU_SHR, IMU_HALF,
+ * IMU_TO_INT, IMU_MUL_TO_INT, IMU_NARROW, and the plain IMU_ADD / IMU_SUB, which
+ * are then computed in int64) checks that the value fits int32; when it does not,
+ * it calls imu_narrowing_failed() with the file and line of the call, the macro's
+ * name and the value. The core does not define that function (it has no I/O): the
+ * program that builds the checked core does; the test drivers print the report
+ * and abort. Should the function return, the value is narrowed as in the unchecked
+ * build. Without the macro the definitions below are the unchecked ones, token for
+ * token: the firmware's object code is unchanged. The float build ignores it.
+ *
+ * IMU_NARROW(v): an int64 value the caller has proven to fit, as int32. Use it
+ * instead of a raw (int32_t) cast so that the checked build verifies the proof.
  */
 #ifndef IMU_ARITH_H
 #define IMU_ARITH_H
@@ -99,30 +114,73 @@ static inline int32_t imu_div_sat(int32_t a, int32_t b, int s, uint32_t *sat)
     return imu_sat32(((int64_t)a * ((int64_t)1 << s)) / b, sat);
 }
 
-#define IMU_MUL(a, b, s) imu_mul((a), (b), (s))
 #define IMU_MUL_SAT(a, b, s, sat) imu_mul_sat((a), (b), (s), (sat))
 #define IMU_DIV_SAT(a, b, s, sat) imu_div_sat((a), (b), (s), (sat))
-#define IMU_ADD(a, b) ((a) + (b))
-#define IMU_SUB(a, b) ((a) - (b))
 #define IMU_ADD_SAT(a, b, sat) imu_sat32((int64_t)(a) + (b), (sat))
 #define IMU_SUB_SAT(a, b, sat) imu_sat32((int64_t)(a) - (b), (sat))
 #define IMU_NEG_SAT(a, sat) imu_sat32(-(int64_t)(a), (sat))
-/** Drop s fraction bits (Qn to Q(n-s)), rounded. */
-#define IMU_SHR(a, s) ((int32_t)imu_rshift_round64((a), (s)))
-/** Half of a value, same format, rounded. */
-#define IMU_HALF(a) ((int32_t)imu_rshift_round64((a), 1))
 /** Add s fraction bits (Qn to Q(n+s)), saturated. */
 #define IMU_SHL_SAT(a, s, sat) imu_sat32((int64_t)(a) * ((int64_t)1 << (s)), (sat))
 /** Integer value (counts, sample numbers) to a real in Q`q`; saturated. */
 #define IMU_FROM_INT_SAT(i, q, sat) imu_sat32((int64_t)(i) * ((int64_t)1 << (q)), (sat))
+
+#ifndef IMU_CHECK_NARROWING
+
+#define IMU_MUL(a, b, s) imu_mul((a), (b), (s))
+#define IMU_ADD(a, b) ((a) + (b))
+#define IMU_SUB(a, b) ((a) - (b))
+/** Drop s fraction bits (Qn to Q(n-s)), rounded. */
+#define IMU_SHR(a, s) ((int32_t)imu_rshift_round64((a), (s)))
+/** Half of a value, same format, rounded. */
+#define IMU_HALF(a) ((int32_t)imu_rshift_round64((a), 1))
 /** A real in Q`q` to the nearest integer. */
 #define IMU_TO_INT(a, q) ((int32_t)imu_rshift_round64((a), (q)))
 /** Nearest integer to the product of reals a and b whose Q formats add up to q (result below 2^31). */
 #define IMU_MUL_TO_INT(a, b, q) ((int32_t)imu_rshift_round64((int64_t)(a) * (b), (q)))
+/** An int64 value proven (at the call) to fit int32, as int32. */
+#define IMU_NARROW(v) ((int32_t)(v))
+
+#else /* IMU_CHECK_NARROWING: the same operations, each narrowing checked */
+
+/** Report of a narrowing whose value does not fit int32: defined by the program
+ *  that builds the checked core (see the file comment). */
+void imu_narrowing_failed(const char *file, int line, const char *what, int64_t value);
+
+/** v as int32, reporting (file, line, what) when it does not fit. */
+static inline int32_t imu_narrow_at(int64_t v, const char *file, int line, const char *what)
+{
+    if (v > INT32_MAX || v < INT32_MIN) {
+        imu_narrowing_failed(file, line, what, v);
+    }
+    return (int32_t)v;
+}
+
+/** imu_mul, checked. */
+static inline int32_t imu_mul_at(int32_t a, int32_t b, int s, const char *file, int line)
+{
+    return imu_narrow_at(imu_rshift_round64((int64_t)a * b, s), file, line, "IMU_MUL");
+}
+
+/* Direct calls of imu_mul() are checked too: from here on the name is a macro. */
+#define imu_mul(a, b, s) imu_mul_at((a), (b), (s), __FILE__, __LINE__)
+#define IMU_MUL(a, b, s) imu_mul_at((a), (b), (s), __FILE__, __LINE__)
+#define IMU_ADD(a, b) imu_narrow_at((int64_t)(a) + (b), __FILE__, __LINE__, "IMU_ADD")
+#define IMU_SUB(a, b) imu_narrow_at((int64_t)(a) - (b), __FILE__, __LINE__, "IMU_SUB")
+#define IMU_SHR(a, s) imu_narrow_at(imu_rshift_round64((a), (s)), __FILE__, __LINE__, "IMU_SHR")
+#define IMU_HALF(a) imu_narrow_at(imu_rshift_round64((a), 1), __FILE__, __LINE__, "IMU_HALF")
+#define IMU_TO_INT(a, q) imu_narrow_at(imu_rshift_round64((a), (q)), __FILE__, __LINE__, "IMU_TO_INT")
+#define IMU_MUL_TO_INT(a, b, q) \
+    imu_narrow_at(imu_rshift_round64((int64_t)(a) * (b), (q)), __FILE__, __LINE__, "IMU_MUL_TO_INT")
+#define IMU_NARROW(v) imu_narrow_at((v), __FILE__, __LINE__, "IMU_NARROW")
+
+#endif /* IMU_CHECK_NARROWING */
+
 /** Exact product of two int32 reals as a wide value (Q formats add). */
 #define IMU_WMUL(a, b) ((int64_t)(a) * (b))
 /** Wide value with s fewer fraction bits, rounded. */
 #define IMU_WSHR(v, s) imu_rshift_round64((v), (s))
+/** Wide value to int32 (same Q format), saturated. */
+#define IMU_WIDE_SAT(v, sat) imu_sat32((v), (sat))
 
 #else /* IMU_FLOAT */
 
@@ -150,6 +208,8 @@ typedef double imu_wide_t;
 #define IMU_MUL_TO_INT(a, b, q) IMU_TO_INT((a) * (b), 0)
 #define IMU_WMUL(a, b) ((a) * (b))
 #define IMU_WSHR(v, s) (v)
+#define IMU_WIDE_SAT(v, sat) ((void)(sat), (v))
+#define IMU_NARROW(v) (v)
 
 #endif
 

@@ -172,6 +172,29 @@ static void apply_update(imu_cov_t *c, const imu_wide_t ch[], imu_wide_t sh, imu
 /** Wide Q58 value back to Q30. */
 #define Q58_TO_Q30(v) imu_rshift_round64((v), 28)
 
+/** Exponent that gives a variance (wide, Q`q`, > 0) a mantissa of 29 to 31 bits, so that
+ *  the renormalisation keeps all of its bits whatever its size. */
+static int32_t exponent_for(imu_wide_t var, int q)
+{
+    return var > 0 ? (bit_length((uint64_t)var) - q) / 2 : 0;
+}
+
+/** 1 when r 2^shift exceeds the wide range: the measurement's noise dwarfs its
+ *  sensitivity (a row of rounding-level entries) and it carries no information. */
+static int noise_dwarfs_row(imu_wide_t r, int shift)
+{
+    return shift > 0 && (shift > 62 || r > (WIDE_LIMIT >> shift));
+}
+
+/** Scale state i so that its variance is below 1 (in its units): e_i <= 0 gives
+ *  P_ii = p_ii 2^(2 e_i - 30) < 1; row and column scale with it, P stays PSD. */
+static void cap_unit_variance(imu_cov_t *c, int i)
+{
+    if (c->e[i] > 0) {
+        c->e[i] = 0;
+    }
+}
+
 /** v * w for a wide Q30 value v (any size below 2^62) and a Q30 weight w in [0, 1]. */
 static imu_wide_t wide_mul_q30(imu_wide_t v, imu_q30_t w)
 {
@@ -247,6 +270,31 @@ static void apply_update(imu_cov_t *c, const imu_wide_t ch[], imu_wide_t sh, imu
 
 #define Q58_TO_Q30(v) (v)
 
+static int32_t exponent_for(imu_wide_t var, int q)
+{
+    (void)var;
+    (void)q;
+    return 0;
+}
+
+static int noise_dwarfs_row(imu_wide_t r, int shift)
+{
+    (void)r;
+    (void)shift;
+    return 0;
+}
+
+/* The same power-of-two scaling as the fixed build's exponent change. */
+static void cap_unit_variance(imu_cov_t *c, int i)
+{
+    int j;
+    while (c->p[cell(i, i)] >= 1.0) {
+        for (j = 0; j < c->n; ++j) {
+            c->p[cell(i, j)] *= j == i ? 0.25 : 0.5;
+        }
+    }
+}
+
 static imu_wide_t wide_mul_q30(imu_wide_t v, imu_q30_t w)
 {
     return v * w;
@@ -274,6 +322,7 @@ void imu_cov_init(imu_cov_t *c, int n, const imu_wide_t var[], int var_q, uint32
         c->e[i] = 0;
     }
     for (i = 0; i < n; ++i) {
+        c->e[i] = exponent_for(var[i], var_q);
         w[cell(i, i)] = variance_mantissa(c, i, var[i], var_q, sat);
     }
     renormalize(c, w, sat);
@@ -287,7 +336,7 @@ void imu_cov_reset_state(imu_cov_t *c, int i, imu_wide_t var, int var_q, uint32_
     for (j = 0; j < c->n; ++j) {
         w[cell(i, j)] = 0;
     }
-    c->e[i] = 0;
+    c->e[i] = exponent_for(var, var_q);
     w[cell(i, i)] = variance_mantissa(c, i, var, var_q, sat);
     renormalize(c, w, sat);
 }
@@ -386,6 +435,9 @@ int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu
         /* Q28 * Q30 -> Q58 (below 2^62) -> Q30. */
         q += wide_ldexp(wide_ldexp(ch[i], -2, sat) * hs[i], -28, sat);
     }
+    if (noise_dwarfs_row(r, 30 - r_q - 2 * big)) {
+        return 0; /* no information (not a saturation: the gain would round to zero) */
+    }
     /* sh = w q + r 2^-2E (Q30); q is below 81 * 2^30. */
     sh = wide_mul_q30(q, w) + wide_ldexp(r, 30 - r_q - 2 * big, sat);
     if (sh <= 0) {
@@ -394,6 +446,11 @@ int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu
     }
     apply_update(c, ch, sh, w, z, big, dx, sat);
     return 1;
+}
+
+void imu_cov_cap_unit_variance(imu_cov_t *c, int i)
+{
+    cap_unit_variance(c, i);
 }
 
 void imu_cov_get(const imu_cov_t *c, int i, int j, imu_real_t *mant, int32_t *exp)

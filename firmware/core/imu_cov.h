@@ -15,7 +15,9 @@
  * Scaling and overflow: products are formed in int64; shifts by exponent
  * differences saturate at +-2^62 and count in the caller's counter. A diagonal that
  * rounding drives to zero or below is reset to its smallest normalised value and
- * counted (loss of positive definiteness is never silent).
+ * counted (loss of positive definiteness is never silent). A measurement whose noise
+ * dwarfs its row beyond the wide range (a row of rounding-level entries) carries no
+ * information: it is skipped, and that is not counted as a saturation.
  */
 #ifndef IMU_COV_H
 #define IMU_COV_H
@@ -66,6 +68,14 @@ int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu
 
 /** @brief Zero row and column i and set P_ii = var (a wide value in Q`var_q`): the state is reset. */
 void imu_cov_reset_state(imu_cov_t *c, int i, imu_wide_t var, int var_q, uint32_t *sat);
+
+/**
+ * @brief Keep state i's variance below 1 (its units squared): when it is not, row and
+ *        column i are scaled by the power of two that brings P_ii into [1/4, 1).
+ *        (An angle error beyond a radian has no meaning in a linearised filter, and an
+ *        unbounded variance would make the next correction unbounded too.)
+ */
+void imu_cov_cap_unit_variance(imu_cov_t *c, int i);
 
 /**
  * @brief Element (i, j) as mantissa and exponent: P_ij = mant * 2^(exp - 30) in the

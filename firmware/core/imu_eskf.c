@@ -6,6 +6,7 @@
 
 #include "imu_math.h"
 
+
 enum { ATT = 0, GYRO_BIAS = 3, ACC_BIAS = 6 };
 
 /* Defaults: seed 000's angle random walk; the rest chosen on the BROAD trials
@@ -59,6 +60,23 @@ const int imu_eskf_setting_count = (int)(sizeof imu_eskf_setting_descs / sizeof 
 #define REF_LEARN_TIME IMU_QCONST(10.0, 16)
 /** Below this horizontal share of the unit field (Q30) the heading is not observable. */
 #define MIN_HORIZONTAL_FIELD IMU_QCONST(0.05, 30)
+/** A field acceptable as the first reference, uT, Q16: the earth's is 22-67 uT everywhere;
+ *  below 5 uT it is a magnetometer that has not converted yet (an HMC5883L reads zeros). */
+#define MIN_REF_FIELD IMU_QCONST(5.0, 16)
+#define MAX_REF_FIELD IMU_QCONST(500.0, 16)
+/** A disturbed field that keeps one norm and dip in the earth frame for NEW_FIELD_TIME (s,
+ *  Q16) while the board turns faster than NEW_FIELD_MIN_RATE (rad/s, Q30: 20 deg/s) is
+ *  fixed to the earth, not to the board: it becomes the new reference. */
+#define NEW_FIELD_TIME IMU_QCONST(20.0, 16)
+#define NEW_FIELD_MIN_RATE IMU_QCONST(0.34906585, 30)
+/** Largest specific force and field the filter takes, m/s^2 or uT, Q16 (beyond every range
+ *  of the MPU6050 and HMC5883L): larger values come only from scale settings no real
+ *  sensor has; they are clamped and the sensor counts as clipped, which leaves every sum,
+ *  norm and rotation below with headroom. */
+#define INPUT_LIMIT IMU_QCONST(1024.0, 16)
+/** A specific force above this (m/s^2, Q16; 52 g, beyond 16 of the largest acc_tolerance)
+ *  carries no gravity information, and |a| / g stays within Q24 below it. */
+#define MAX_GRAVITY_NORM IMU_QCONST(512.0, 16)
 /** Three-sample coning coefficients of eq. 15, Q30. */
 #define CONING_13 IMU_QCONST(0.4125, 30) /* 33/80 */
 #define CONING_2 IMU_QCONST(0.7125, 30)  /* 57/80 */
@@ -122,15 +140,21 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
             f->process_var[ACC_BIAS + k] = IMU_WMUL(t, rw_g);
         }
     }
-    /* Low-pass weight T / (tau + T) in [0, 1] (Q16 / Q16 -> Q30; T as Q16). */
-    {
-        const imu_q16_t period_q16 = IMU_SHR(f->period, 14);
-        f->acc_alpha = IMU_DIV_SAT(period_q16, IMU_ADD(s->acc_lowpass, period_q16), 30, &f->saturations);
-    }
+    /* Low-pass weight T / (tau + T) in [0, 1]: T Q30 * 2^24 / (tau Q16 -> Q24 (60 s < 2^30) + T Q24)
+     * -> Q30. T keeps all its bits in the numerator (at 5 kHz a Q16 T would be 0.8 % off the twin's). */
+    f->acc_alpha = IMU_DIV_SAT(f->period,
+                               IMU_ADD(IMU_SHL_SAT(s->acc_lowpass, 8, &f->saturations), IMU_SHR(f->period, 6)), 24,
+                               &f->saturations);
     f->acc_earth_valid = 0;
     for (k = 0; k < 3; ++k) {
         f->acc_earth[k] = 0;
+        f->gyr_sum[k] = 0;
     }
+    imu_rest_init(&f->rest, f->period, &f->saturations);
+    /* arw^2 / T = arw (Q32) * (sample_rate / 3) (Q16): Q48 wide (below 2^62) -> Q24 (below 2^37),
+     * times arw in Q24 (below 2^23) -> Q48, below 2^60. */
+    f->rest_var = IMU_WMUL(IMU_WSHR(IMU_WMUL(s->gyro_arw, s->sample_rate) / 3, 24), IMU_SHR(s->gyro_arw, 8));
+    f->at_rest = 0;
     f->initialised = 0;
     f->in_group = 0;
     f->clipped = 0;
@@ -150,6 +174,12 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
     }
     f->ref_field = 0;
     f->ref_dip = 0;
+    f->cand_field = 0;
+    f->cand_dip = 0;
+    f->cand_steps = 0;
+    f->turning = 0;
+    /* NEW_FIELD_TIME * filter rate, as learn_steps. */
+    f->new_field_steps = IMU_MUL_TO_INT(NEW_FIELD_TIME, s->sample_rate, 32) / 3;
     f->acc_weight = 0;
     f->mag_weight = 0;
     f->cov.n = 0;
@@ -176,21 +206,69 @@ static void align_to(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q16_t mag[
     }
 }
 
-/** Initial attitude (align_to), covariance and field reference. */
+/** 1 when the specific force's norm is within acc_tolerance of gravity (Q16 m/s^2 in). */
+static int near_gravity(const imu_eskf_t *f, const imu_q16_t acc[3])
+{
+    imu_q30_t unit[3];
+    imu_real_t norm;
+    imu_real_t deviation;
+    if (!imu_vec3_normalize(acc, unit, &norm) || norm >= MAX_GRAVITY_NORM) {
+        return 0;
+    }
+    /* |a| / g - 1: Q16 * Q30 >> 22 -> Q24 (below 512 m/s^2: 53 g). */
+    deviation = IMU_SUB(IMU_MUL(norm, f->inv_gravity, 22), IMU_QCONST(1.0, 24));
+    return deviation < IMU_SHR(f->settings.acc_tolerance, 6) && deviation > -IMU_SHR(f->settings.acc_tolerance, 6);
+}
+
+/** Norm and dip of a field (Q16) in the earth frame of the current attitude; 0 for a zero field. */
+static int field_norm_dip(const imu_eskf_t *f, const imu_q16_t mag[3], imu_q16_t *norm, imu_angle_t *dip,
+                          imu_q30_t earth[3], imu_q30_t *horizontal)
+{
+    imu_q30_t unit[3];
+    if (!imu_vec3_normalize(mag, unit, norm)) {
+        return 0;
+    }
+    imu_quat_rotate(f->q, unit, earth);
+    *dip = field_dip(earth, horizontal);
+    return 1;
+}
+
+/**
+ * Take the field as the magnetic reference when it is plausible (an earth-sized norm
+ * with a horizontal share the heading can be read from): the dip and norm are then
+ * learnt anew. Returns 1 when taken.
+ */
+static int acquire_reference(imu_eskf_t *f, const imu_q16_t mag[3])
+{
+    imu_q30_t earth[3], horizontal;
+    imu_q16_t norm;
+    imu_angle_t dip;
+    if (!field_norm_dip(f, mag, &norm, &dip, earth, &horizontal) || norm < MIN_REF_FIELD || norm > MAX_REF_FIELD ||
+        horizontal < MIN_HORIZONTAL_FIELD) {
+        return 0;
+    }
+    f->ref_field = norm;
+    f->ref_dip = dip;
+    f->steps = 0;
+    f->cand_field = 0;
+    f->cand_steps = 0;
+    return 1;
+}
+
+/** Initial attitude (align_to), covariance and, when the field is plausible, its reference. */
 static void initialise(imu_eskf_t *f, const imu_sample_t *s)
 {
     const imu_eskf_settings_t *st = &f->settings;
     imu_wide_t var[9];
-    imu_q30_t unit[3], earth[3], horizontal;
-    imu_real_t norm = 0;
     imu_q30_t acc_std_g;
     int k;
     align_to(f, s->acc, s->mag);
-    if (imu_vec3_normalize(s->mag, unit, &norm)) {
-        imu_quat_rotate(f->q, unit, earth);
-        f->ref_field = norm;
-        f->ref_dip = field_dip(earth, &horizontal);
+    f->ref_field = 0;
+    if ((s->clipped & IMU_CLIPPED_MAG) == 0) {
+        (void)acquire_reference(f, s->mag);
     }
+    /* A first sample away from 1 g (a tap, free fall) gives no tilt: align again at the first calm step. */
+    f->realign = (s->clipped & IMU_CLIPPED_ACC) != 0 || !near_gravity(f, s->acc);
     /* Variances in Q56: attitude Q28^2 = Q56 (at most 3.2^2 * 2^56 < 2^60); gyro bias Q30^2 = Q60
      * and acc bias in g (Q24 * Q30 >> 24 -> Q30)^2 = Q60, both shifted down by 4. */
     acc_std_g = IMU_MUL(st->init_acc_bias_std, f->inv_gravity, 24);
@@ -203,26 +281,76 @@ static void initialise(imu_eskf_t *f, const imu_sample_t *s)
     f->initialised = 1;
 }
 
-/** Three-sample rotation vector of eq. 15 from the buffered increments (Q30 rad, each below 0.1). */
-static void rotation_vector(imu_q30_t t[3][3], imu_q30_t phi[3])
+/** Three-sample rotation vector of eq. 15 from the buffered increments (Q30 rad, each at most
+ *  1 rad): t1 + t2 + t3 + 33/80 t1 x t3 + 57/80 (t2 x t3 - t2 x t1). Up to 5.3 rad, so the
+ *  vector is wide (Q30 in int64); every cross product is of two vectors of at most 1 rad. */
+static void rotation_vector(imu_q30_t t[3][3], imu_wide_t phi[3])
 {
-    imu_q30_t c13[3], diff[3], c2[3];
+    imu_q30_t c13[3], c23[3], c21[3];
     int k;
-    for (k = 0; k < 3; ++k) {
-        diff[k] = IMU_SUB(t[2][k], t[0][k]);
-    }
     imu_vec3_cross(t[0], t[2], c13);
-    imu_vec3_cross(t[1], diff, c2);
+    imu_vec3_cross(t[1], t[2], c23);
+    imu_vec3_cross(t[1], t[0], c21);
     for (k = 0; k < 3; ++k) {
-        phi[k] = IMU_ADD(IMU_ADD(IMU_ADD(t[0][k], t[1][k]), t[2][k]),
-                         IMU_ADD(IMU_MUL(CONING_13, c13[k], 30), IMU_MUL(CONING_2, c2[k], 30)));
+        /* Q30 * Q30 -> Q60, each product below 2^60: the sum fits int64. */
+        const imu_wide_t coning = IMU_WMUL(CONING_13, c13[k]) + IMU_WMUL(CONING_2, c23[k]) - IMU_WMUL(CONING_2, c21[k]);
+        phi[k] = (imu_wide_t)t[0][k] + t[1][k] + t[2][k] + IMU_WSHR(coning, 30);
     }
 }
 
-/** Covariance time update over one filter period with rotation vector phi. */
-static void predict_covariance(imu_eskf_t *f, const imu_q30_t phi[3])
+/** dq = exp(phi / 2) for a wide rotation vector (Q30 rad, up to 5.3 rad): applied in equal
+ *  parts of at most half a radian per component, within imu_quat_integrate's 1 rad limit. */
+static void rotation_quaternion(const imu_wide_t phi[3], imu_q30_t dq[4])
+{
+    const imu_wide_t half_rad = IMU_WMUL(IMU_QCONST(0.5, 30), IMU_QCONST(1.0, 0)); /* Q30 */
+    imu_wide_t largest = 0;
+    imu_q30_t part[3];
+    int parts = 1, k;
+    for (k = 0; k < 3; ++k) {
+        const imu_wide_t a = phi[k] < 0 ? -phi[k] : phi[k];
+        largest = a > largest ? a : largest;
+    }
+    while (largest >= parts * half_rad) {
+        ++parts;
+    }
+    for (k = 0; k < 3; ++k) {
+        part[k] = (imu_q30_t)(phi[k] / parts); /* at most 0.5 rad: fits Q30 */
+    }
+    dq[0] = IMU_ONE_Q30;
+    dq[1] = dq[2] = dq[3] = 0;
+    for (k = 0; k < parts; ++k) {
+        imu_quat_integrate(dq, part);
+    }
+}
+
+/** Scale a Q30 rotation vector down to at most 1 rad, direction kept. */
+static void limit_to_one_radian(imu_q30_t v[3])
+{
+    const imu_q30_t half_rad = IMU_QCONST(0.5, 30);
+    imu_q30_t unit[3];
+    imu_real_t norm;
+    int k;
+    if (v[0] < half_rad && v[0] > -half_rad && v[1] < half_rad && v[1] > -half_rad && v[2] < half_rad &&
+        v[2] > -half_rad) {
+        return; /* below 0.87 rad: nothing to do (and no square root) */
+    }
+    if (imu_vec3_normalize(v, unit, &norm) && norm > IMU_ONE_Q30) {
+        for (k = 0; k < 3; ++k) {
+            v[k] = unit[k];
+        }
+    }
+}
+
+/**
+ * Covariance time update over one filter period whose attitude increment is dq:
+ * Phi_att,att = R(dq)^T (the exact transition of the attitude error; the first-order
+ * I - [phi x] lets the variance grow without bound in fast rotation), Phi_att,bias = -T I.
+ * The attitude variances are then kept below 1 rad^2.
+ */
+static void predict_covariance(imu_eskf_t *f, const imu_q30_t dq[4])
 {
     imu_q30_t m[IMU_COV_MAX][IMU_COV_MAX];
+    imu_q30_t row[3];
     const int n = imu_eskf_state_count(f);
     int i, j;
     for (i = 0; i < n; ++i) {
@@ -230,14 +358,11 @@ static void predict_covariance(imu_eskf_t *f, const imu_q30_t phi[3])
             m[i][j] = i == j ? IMU_ONE_Q30 : 0;
         }
     }
-    /* Phi_att,att = I - [phi x] (w T = phi); Phi_att,bias = -T I. */
-    m[0][1] = phi[2];
-    m[0][2] = -phi[1];
-    m[1][0] = -phi[2];
-    m[1][2] = phi[0];
-    m[2][0] = phi[1];
-    m[2][1] = -phi[0];
     for (i = 0; i < 3; ++i) {
+        imu_quat_matrix_row(dq, i, row);
+        for (j = 0; j < 3; ++j) {
+            m[ATT + j][ATT + i] = row[j]; /* transpose */
+        }
         m[ATT + i][GYRO_BIAS + i] = -f->period;
     }
     /* The angle variances are Q64 and the bias variances Q80: bringing the angle
@@ -253,15 +378,20 @@ static void predict_covariance(imu_eskf_t *f, const imu_q30_t phi[3])
         }
         imu_cov_predict(&f->cov, m, qvar, 64, &f->saturations);
     }
+    for (i = 0; i < 3; ++i) {
+        imu_cov_cap_unit_variance(&f->cov, ATT + i);
+    }
 }
 
-/** x <- (u . x) u for a 3-vector x and a unit vector u (both Q30). */
-static void project_onto(imu_q30_t x[3], const imu_q30_t u[3])
+/** x <- (u . x) u for a 3-vector x (Q30, any value) and a unit vector u (Q30). */
+static void project_onto(imu_q30_t x[3], const imu_q30_t u[3], uint32_t *sat)
 {
-    const imu_q30_t along = IMU_ADD(IMU_ADD(IMU_MUL(x[0], u[0], 30), IMU_MUL(x[1], u[1], 30)), IMU_MUL(x[2], u[2], 30));
+    /* Q30 * Q30 -> Q60: three products below 2^61 each. */
+    const imu_q30_t along =
+        IMU_WIDE_SAT(IMU_WSHR(IMU_WMUL(x[0], u[0]) + IMU_WMUL(x[1], u[1]) + IMU_WMUL(x[2], u[2]), 30), sat);
     int k;
     for (k = 0; k < 3; ++k) {
-        x[k] = IMU_MUL(along, u[k], 30);
+        x[k] = IMU_MUL(along, u[k], 30); /* |u_k| <= 1 */
     }
 }
 
@@ -278,12 +408,12 @@ static void scalar_update(imu_eskf_t *f, const imu_q30_t h[9], imu_q30_t z, imu_
     const int n = imu_eskf_state_count(f);
     int i;
     for (i = 0; i < n; ++i) {
-        z = IMU_SUB_SAT(z, IMU_MUL(h[i], dx_total[i], 30), &f->saturations);
+        z = IMU_SUB_SAT(z, IMU_MUL_SAT(h[i], dx_total[i], 30, &f->saturations), &f->saturations);
     }
     if (imu_cov_update(&f->cov, h, r, r_q, z, w, dx, &f->saturations)) {
         if (vertical_only != 0) {
-            project_onto(&dx[ATT], vertical_only);
-            project_onto(&dx[GYRO_BIAS], vertical_only);
+            project_onto(&dx[ATT], vertical_only, &f->saturations);
+            project_onto(&dx[GYRO_BIAS], vertical_only, &f->saturations);
             for (i = ACC_BIAS; i < n; ++i) {
                 dx[i] = 0;
             }
@@ -301,19 +431,23 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q30_
     imu_q30_t unit[3];
     imu_real_t norm;
     imu_q30_t h[9];
-    imu_q30_t noise_g;
+    imu_real_t noise_g; /* specific-force noise in g, Q26 (up to 100 m/s^2 over 9 m/s^2: 11 g) */
     int k, i;
     if (!imu_vec3_normalize(acc, unit, &norm)) {
         f->acc_weight = 0;
         return;
     }
-    /* |a| / g - 1: Q16 * Q30 >> 22 -> Q24. */
+    if (norm >= MAX_GRAVITY_NORM) {
+        f->acc_weight = 0; /* beyond 16 tolerances of any setting: no gravity information */
+        return;
+    }
+    /* |a| / g - 1: Q16 * Q30 >> 22 -> Q24 (below 512 m/s^2: 53 g). */
     f->acc_weight = imu_deviation_weight(IMU_SUB(IMU_MUL(norm, f->inv_gravity, 22), IMU_QCONST(1.0, 24)),
                                      IMU_SHR(st->acc_tolerance, 6), &f->saturations);
     if (f->acc_weight == 0) {
         return; /* far from 1 g (taps, free fall): no gravity information */
     }
-    noise_g = IMU_MUL(st->acc_noise, f->inv_gravity, 24); /* Q24 * Q30 >> 24 -> Q30 (g) */
+    noise_g = IMU_MUL(st->acc_noise, f->inv_gravity, 28); /* Q24 * Q30 >> 28 -> Q26 (g) */
     for (k = 0; k < 3; ++k) {
         /* Row k of [[v x], 0, I]. */
         const imu_q30_t cross[3][3] = {{0, -up[2], up[1]}, {up[2], 0, -up[0]}, {-up[1], up[0], 0}};
@@ -328,49 +462,130 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q30_
             h[ATT + i] = cross[k][i];
         }
         h[ACC_BIAS + k] = IMU_ONE_Q30;
-        scalar_update(f, h, z, IMU_WMUL(noise_g, noise_g), 60, f->acc_weight, 0, dx);
+        scalar_update(f, h, z, IMU_WMUL(noise_g, noise_g), 52, f->acc_weight, 0, dx);
     }
 }
 
-/** Heading measurement from the horizontal field; tracks the field reference while undisturbed. */
+/** Attitude error variance back to init_attitude_std^2, its correlations cleared. */
+static void restart_attitude_uncertainty(imu_eskf_t *f)
+{
+    const imu_wide_t var = IMU_WMUL(f->settings.init_attitude_std, f->settings.init_attitude_std); /* Q56 */
+    int k;
+    for (k = 0; k < 3; ++k) {
+        imu_cov_reset_state(&f->cov, ATT + k, var, 56, &f->saturations);
+    }
+    f->acc_earth_valid = 0; /* its earth frame was the lost one */
+}
+
+/**
+ * Weight (Q30) of a field of norm `norm` (uT, Q16) and dip `dip` against a reference
+ * field: the product of the norm and dip deviation weights; *w_norm gets the first.
+ */
+static imu_q30_t field_weight(imu_eskf_t *f, imu_q16_t norm, imu_angle_t dip, imu_q16_t ref_norm,
+                              imu_angle_t ref_dip, imu_q30_t *w_norm)
+{
+    const imu_eskf_settings_t *st = &f->settings;
+    /* |m| / ref beyond 64 is far outside any tolerance (and the Q24 ratio's range). */
+    if (IMU_MUL(norm, IMU_QCONST(1.0 / 64.0, 30), 30) >= ref_norm) {
+        *w_norm = 0;
+        return 0;
+    }
+    /* Norm deviation |m| / ref - 1 (Q16 / Q16 -> Q24) and dip deviation (Q29 -> Q24). */
+    *w_norm = imu_deviation_weight(IMU_SUB(IMU_DIV_SAT(norm, ref_norm, 24, &f->saturations), IMU_QCONST(1.0, 24)),
+                                   IMU_SHR(st->mag_tolerance, 6), &f->saturations);
+    return IMU_MUL(*w_norm,
+                   imu_deviation_weight(IMU_SHR(imu_angle_diff(dip, ref_dip), 5), IMU_SHR(st->dip_tolerance, 6),
+                                        &f->saturations),
+                   30);
+}
+
+/** x <- x + rate (target - x) for a field norm (Q16) and dip (Q29); rate Q30 in [0, 1]. */
+static void follow_field(imu_q16_t *field, imu_angle_t *dip, imu_q16_t target_field, imu_angle_t target_dip,
+                         imu_q30_t rate)
+{
+    *field = IMU_ADD(*field, IMU_MUL(rate, IMU_SUB(target_field, *field), 30)); /* both below 2^28 */
+    *dip = imu_angle_add(*dip, IMU_MUL(rate, imu_angle_diff(target_dip, *dip), 30));
+}
+
+/**
+ * A disturbed field: track it as a candidate reference; once it has kept its norm and
+ * dip for NEW_FIELD_TIME of turning, it is fixed to the earth and becomes the reference.
+ */
+static void track_candidate(imu_eskf_t *f, imu_q16_t norm, imu_angle_t dip)
+{
+    imu_q30_t w_norm;
+    if (f->cand_field > 0 && field_weight(f, norm, dip, f->cand_field, f->cand_dip, &w_norm) >= IMU_QCONST(0.5, 30)) {
+        follow_field(&f->cand_field, &f->cand_dip, norm, dip, IMU_MUL(f->period, LEARN_RATE, 30));
+        f->cand_steps += f->turning;
+        if (f->cand_steps >= f->new_field_steps) {
+            f->ref_field = f->cand_field;
+            f->ref_dip = f->cand_dip;
+            f->cand_field = 0;
+            f->cand_steps = 0;
+        }
+    } else if (norm >= MIN_REF_FIELD && norm <= MAX_REF_FIELD) {
+        f->cand_field = norm;
+        f->cand_dip = dip;
+        f->cand_steps = 0;
+    }
+}
+
+/** The heading (roll and pitch kept) from the field: the reference was just acquired. */
+static void align_heading(imu_eskf_t *f, const imu_q16_t mag[3])
+{
+    imu_angle_t euler[3];
+    imu_quat_to_euler(f->q, euler);
+    euler[2] = imu_heading_from_mag(mag, euler[0], euler[1]);
+    imu_euler_to_quat(euler, f->q);
+}
+
+/** Heading measurement from the horizontal field; learns and tracks the field reference. */
 static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_q30_t up[3], imu_q30_t dx[9])
 {
     const imu_eskf_settings_t *st = &f->settings;
-    imu_q30_t unit[3], earth[3], horizontal;
-    imu_real_t norm;
+    imu_q30_t earth[3], horizontal;
+    imu_q16_t norm;
     imu_angle_t dip;
     imu_q30_t h[9], z, sigma, w_norm;
     int i;
     f->mag_weight = 0;
-    if (!imu_vec3_normalize(mag, unit, &norm) || f->ref_field <= 0) {
+    if (f->ref_field <= 0) {
+        /* No reference yet (a magnetometer that read zeros or nonsense so far). */
+        if (acquire_reference(f, mag)) {
+            align_heading(f, mag);
+            restart_attitude_uncertainty(f);
+        }
         return;
     }
-    imu_quat_rotate(f->q, unit, earth);
-    dip = field_dip(earth, &horizontal);
-    if (horizontal < MIN_HORIZONTAL_FIELD) {
+    if (!field_norm_dip(f, mag, &norm, &dip, earth, &horizontal) || horizontal < MIN_HORIZONTAL_FIELD) {
         return;
     }
-    /* Norm deviation |m| / ref - 1 (Q16 / Q16 -> Q24) and dip deviation (Q29 -> Q24). */
-    w_norm = imu_deviation_weight(IMU_SUB(IMU_DIV_SAT(norm, f->ref_field, 24, &f->saturations), IMU_QCONST(1.0, 24)),
-                              IMU_SHR(st->mag_tolerance, 6), &f->saturations);
-    f->mag_weight = IMU_MUL(w_norm,
-                            imu_deviation_weight(IMU_SHR(imu_angle_diff(dip, f->ref_dip), 5),
-                                             IMU_SHR(st->dip_tolerance, 6), &f->saturations),
-                            30);
+    f->mag_weight = field_weight(f, norm, dip, f->ref_field, f->ref_dip, &w_norm);
     if (f->steps < f->learn_steps) {
-        /* Learning: the first dip came from an unconverged attitude; follow the
-         * measured dip quickly (time constant 1 s) and let only the norm gate. */
-        const imu_q30_t rate = IMU_MUL(f->period, LEARN_RATE, 30);
-        f->ref_dip = imu_angle_add(f->ref_dip, IMU_MUL(rate, imu_angle_diff(dip, f->ref_dip), 30));
+        /* Learning: the first norm and dip came from one sample and an unconverged
+         * attitude; follow the measured ones quickly (time constant 1 s) and let only
+         * the norm gate. */
+        follow_field(&f->ref_field, &f->ref_dip, norm, dip, IMU_MUL(f->period, LEARN_RATE, 30));
         f->mag_weight = w_norm;
     } else if (f->mag_weight >= IMU_QCONST(0.5, 30)) {
         /* Undisturbed: follow slow changes of the reference (time constant 30 s). */
-        const imu_q30_t rate = IMU_MUL(f->period, REF_RATE, 30);
-        f->ref_field = IMU_ADD(f->ref_field, IMU_MUL(rate, IMU_SUB(norm, f->ref_field), 30));
-        f->ref_dip = imu_angle_add(f->ref_dip, IMU_MUL(rate, imu_angle_diff(dip, f->ref_dip), 30));
+        follow_field(&f->ref_field, &f->ref_dip, norm, dip, IMU_MUL(f->period, REF_RATE, 30));
+        f->cand_field = 0;
+        f->cand_steps = 0;
+    } else {
+        track_candidate(f, norm, dip);
     }
     if (f->mag_weight == 0) {
         return;
+    }
+    /* sigma = mag_noise / (horizontal field in uT), Q16 / Q16 -> Q24. A horizontal field
+     * below 1/64 of the noise carries no heading information (and sigma stays below 64). */
+    {
+        const imu_q16_t horizontal_ut = IMU_MUL(horizontal, norm, 30);
+        if (horizontal_ut <= IMU_MUL(st->mag_noise, IMU_QCONST(1.0 / 64.0, 30), 30)) {
+            return;
+        }
+        sigma = IMU_DIV_SAT(st->mag_noise, horizontal_ut, 24, &f->saturations);
     }
     /* z = sin(heading error) = east share of the horizontal field; H = [v^T, 0, 0].
      * (The sine, rather than the angle, also softens large innovations.) */
@@ -381,15 +596,7 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_q30_
     for (i = 0; i < 3; ++i) {
         h[ATT + i] = up[i];
     }
-    /* sigma = mag_noise / (horizontal field in uT), Q16 / Q16 -> Q30 (clamped: a tiny horizontal field means no heading). */
-    {
-        const imu_q16_t horizontal_ut = IMU_MUL(horizontal, norm, 30);
-        if (horizontal_ut <= 0) {
-            return;
-        }
-        sigma = IMU_DIV_SAT(st->mag_noise, horizontal_ut, 30, &f->saturations);
-    }
-    scalar_update(f, h, z, IMU_WMUL(sigma, sigma), 60, f->mag_weight, up, dx);
+    scalar_update(f, h, z, IMU_WMUL(sigma, sigma), 48, f->mag_weight, up, dx);
 }
 
 /**
@@ -420,8 +627,9 @@ static void lowpass_specific_force(imu_eskf_t *f, imu_q16_t acc[3])
     }
 }
 
-/** v <- v + (R dtheta) x v: an earth-frame vector (Q16) after the estimate turned by dtheta (sensor frame, Q30). */
-static void turn_earth_vector(const imu_eskf_t *f, imu_q16_t v[3], const imu_q30_t dtheta[3])
+/** v <- v + (R dtheta) x v: an earth-frame vector (Q16) after the estimate turned by dtheta
+ *  (sensor frame, Q30, at most 1 rad). */
+static void turn_earth_vector(imu_eskf_t *f, imu_q16_t v[3], const imu_q30_t dtheta[3])
 {
     imu_q30_t u[3];
     imu_q16_t c[3];
@@ -431,50 +639,76 @@ static void turn_earth_vector(const imu_eskf_t *f, imu_q16_t v[3], const imu_q30
     c[1] = IMU_SUB(IMU_MUL(u[2], v[0], 30), IMU_MUL(u[0], v[2], 30));
     c[2] = IMU_SUB(IMU_MUL(u[0], v[1], 30), IMU_MUL(u[1], v[0], 30));
     for (k = 0; k < 3; ++k) {
-        v[k] = IMU_ADD(v[k], c[k]);
+        v[k] = IMU_ADD_SAT(v[k], c[k], &f->saturations);
     }
 }
 
-/** 1 when the specific force's norm is within acc_tolerance of gravity (Q16 m/s^2 in). */
-static int near_gravity(const imu_eskf_t *f, const imu_q16_t acc[3])
+/**
+ * At rest the gyroscope reads its bias: z = low-passed rate - bias estimate, H = I on the
+ * gyro-bias states, variance arw^2 / T: the noise of one filter period's mean rate (the
+ * low-passed rate has less, arw^2 / (2 tau), but consecutive steps share it: counted once
+ * per step it would make the bias look known far better than it is).
+ */
+static void rest_update(imu_eskf_t *f, imu_q30_t dx[9])
 {
-    imu_q30_t unit[3];
-    imu_real_t norm;
-    imu_real_t deviation;
-    if (!imu_vec3_normalize(acc, unit, &norm)) {
-        return 0;
+    const imu_rate_t *rate = imu_rest_rate(&f->rest);
+    imu_q30_t h[9];
+    int k, i;
+    for (k = 0; k < 3; ++k) {
+        /* Q24 -> Q30 (below 2 rad/s: at rest) minus the bias, Q30. */
+        const imu_q30_t z =
+            IMU_SUB_SAT(IMU_SHL_SAT(rate[k], 6, &f->saturations), f->gyro_bias[k], &f->saturations);
+        for (i = 0; i < 9; ++i) {
+            h[i] = 0;
+        }
+        h[GYRO_BIAS + k] = IMU_ONE_Q30;
+        scalar_update(f, h, z, f->rest_var, 48, IMU_ONE_Q30, 0, dx);
     }
-    /* |a| / g - 1: Q16 * Q30 >> 22 -> Q24 (up to 128 g). */
-    deviation = IMU_SUB(IMU_MUL(norm, f->inv_gravity, 22), IMU_QCONST(1.0, 24));
-    return deviation < IMU_SHR(f->settings.acc_tolerance, 6) && deviation > -IMU_SHR(f->settings.acc_tolerance, 6);
 }
 
-/** Attitude error variance back to init_attitude_std^2, its correlations cleared. */
-static void restart_attitude_uncertainty(imu_eskf_t *f)
+/** 1 when a rotation vector (wide Q30) is longer than `angle` (Q30 rad). */
+static int longer_than(const imu_wide_t phi[3], imu_q30_t angle)
 {
-    const imu_wide_t var = IMU_WMUL(f->settings.init_attitude_std, f->settings.init_attitude_std); /* Q56 */
+    imu_wide_t sum = 0; /* Q60: three squares below 2^60 each */
     int k;
     for (k = 0; k < 3; ++k) {
-        imu_cov_reset_state(&f->cov, ATT + k, var, 56, &f->saturations);
+        if (phi[k] >= IMU_ONE_Q30 || phi[k] <= -IMU_ONE_Q30) {
+            return 1;
+        }
+        sum += IMU_WMUL((imu_q30_t)phi[k], (imu_q30_t)phi[k]);
     }
-    f->acc_earth_valid = 0; /* its earth frame was the lost one */
+    return sum > IMU_WMUL(angle, angle);
 }
 
 /** One filter step at the end of a group of three samples. */
 static void filter_step(imu_eskf_t *f)
 {
-    imu_q30_t phi[3], up[3], dx[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+    imu_wide_t phi[3];
+    imu_q30_t dq[4], q_prev[4], up[3], dx[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
     imu_q16_t acc[3], mag[3];
+    imu_rate_t gyr[3], bias[3];
     int k;
     rotation_vector(f->increments, phi);
-    imu_quat_integrate(f->q, phi);
-    predict_covariance(f, phi);
+    rotation_quaternion(phi, dq);
+    for (k = 0; k < 4; ++k) {
+        q_prev[k] = f->q[k];
+    }
+    imu_quat_mul(q_prev, dq, f->q);
+    imu_quat_normalize(f->q);
+    predict_covariance(f, dq);
+    f->turning = longer_than(phi, IMU_MUL(NEW_FIELD_MIN_RATE, f->period, 30));
     for (k = 0; k < 3; ++k) {
         acc[k] = f->acc_sum[k] / 3;
         mag[k] = f->mag_sum[k] / 3;
         f->acc_sum[k] = 0;
         f->mag_sum[k] = 0;
+        gyr[k] = IMU_SHL_SAT(f->gyr_sum[k] / 3, 2, &f->saturations); /* Q22 -> Q24 */
+        f->gyr_sum[k] = 0;
+        bias[k] = IMU_SHR(f->gyro_bias[k], 6);
     }
+    /* Rest: still, and the specific force is gravity (not free fall). */
+    f->at_rest = imu_rest_update(&f->rest, gyr, bias, acc, &f->saturations) &&
+                 (f->clipped & (IMU_CLIPPED_GYR | IMU_CLIPPED_ACC)) == 0 && near_gravity(f, acc);
     if ((f->clipped & IMU_CLIPPED_GYR) != 0) {
         /* A clipped gyroscope lost an unknown part of the rotation (any angle): the
          * attitude restarts from gravity and the field at the first calm step. */
@@ -497,9 +731,14 @@ static void filter_step(imu_eskf_t *f)
     } else {
         f->mag_weight = 0;
     }
+    if (f->at_rest) {
+        rest_update(f, dx);
+    }
     f->clipped = 0;
     /* Inject and reset the error state; the low-passed specific force follows the
-     * estimated earth frame's correction (exp(R dtheta)). */
+     * estimated earth frame's correction (exp(R dtheta)). A correction beyond a radian
+     * is no small error: it is limited to one radian (the next steps do the rest). */
+    limit_to_one_radian(&dx[ATT]);
     turn_earth_vector(f, f->acc_earth, &dx[ATT]);
     imu_quat_integrate(f->q, &dx[ATT]);
     for (k = 0; k < 3; ++k) {
@@ -516,7 +755,8 @@ static void filter_step(imu_eskf_t *f)
     }
 }
 
-/** v <- v - theta x v: a sensor-frame vector (Q16) seen from the frame turned by theta (Q30 rad, small). */
+/** v <- v - theta x v: a sensor-frame vector (Q16, below 2^29) seen from the frame turned by
+ *  theta (Q30 rad, at most 1 rad): the result stays below 2^30. */
 static void rotate_back(imu_q16_t v[3], const imu_q30_t theta[3])
 {
     const imu_q16_t c0 = IMU_SUB(IMU_MUL(theta[1], v[2], 30), IMU_MUL(theta[2], v[1], 30));
@@ -527,30 +767,68 @@ static void rotate_back(imu_q16_t v[3], const imu_q30_t theta[3])
     v[2] = IMU_SUB(v[2], c2);
 }
 
-void imu_eskf_update(imu_eskf_t *f, const imu_sample_t *s)
+/** A specific force or field clamped to +-INPUT_LIMIT; `bit` is set in *clipped when it was beyond. */
+static void clamp_input(const imu_q16_t in[3], imu_q16_t out[3], unsigned bit, unsigned *clipped)
 {
     int k;
-    if (!f->initialised) {
-        initialise(f, s);
-        return;
+    for (k = 0; k < 3; ++k) {
+        out[k] = in[k] > INPUT_LIMIT ? INPUT_LIMIT : (in[k] < -INPUT_LIMIT ? -INPUT_LIMIT : in[k]);
+        if (out[k] != in[k]) {
+            *clipped |= bit;
+        }
     }
+}
+
+/** This sample's bias-corrected gyro increment, rad, Q30, at most 1 rad. */
+static void gyro_increment(imu_eskf_t *f, const imu_rate_t gyr[3], imu_q30_t theta[3])
+{
+    imu_wide_t wide[3]; /* Q30 rad: |rate| < 130 rad/s times dt < 1/30 s */
+    int big = 0, k;
     for (k = 0; k < 3; ++k) {
         /* Bias-corrected rate (Q24 - Q30 >> 6) times dt (Q30) >> 24 -> rad Q30. */
-        const imu_rate_t w = IMU_SUB_SAT(s->gyr[k], IMU_SHR(f->gyro_bias[k], 6), &f->saturations);
-        f->increments[f->in_group][k] = IMU_MUL_SAT(w, f->dt, 24, &f->saturations);
+        const imu_rate_t w = IMU_SUB_SAT(gyr[k], IMU_SHR(f->gyro_bias[k], 6), &f->saturations);
+        wide[k] = IMU_WSHR(IMU_WMUL(w, f->dt), 24);
+        big = big || wide[k] >= IMU_ONE_Q30 || wide[k] <= -IMU_ONE_Q30;
     }
+    for (k = 0; k < 3; ++k) {
+        /* Beyond 1 rad per sample a quarter keeps the direction and fits Q30 (below 1.1 rad). */
+        theta[k] = (imu_q30_t)(big ? wide[k] / 4 : wide[k]);
+    }
+    limit_to_one_radian(theta);
+}
+
+void imu_eskf_update(imu_eskf_t *f, const imu_sample_t *s)
+{
+    imu_q16_t acc[3], mag[3];
+    imu_q30_t *theta;
+    int k;
+    unsigned clipped = s->clipped;
+    clamp_input(s->acc, acc, IMU_CLIPPED_ACC, &clipped);
+    clamp_input(s->mag, mag, IMU_CLIPPED_MAG, &clipped);
+    if (!f->initialised) {
+        imu_sample_t first = *s;
+        for (k = 0; k < 3; ++k) {
+            first.acc[k] = acc[k];
+            first.mag[k] = mag[k];
+        }
+        first.clipped = clipped;
+        initialise(f, &first);
+        return;
+    }
+    theta = f->increments[f->in_group];
+    gyro_increment(f, s->gyr, theta);
     /* The group's sums are kept in the frame of the latest sample: rotate them by
      * this sample's increment (v <- v - theta x v) before adding the new values, so
      * the measurement matches the attitude at the end of the group. */
-    rotate_back(f->acc_sum, f->increments[f->in_group]);
-    rotate_back(f->mag_sum, f->increments[f->in_group]);
+    rotate_back(f->acc_sum, theta);
+    rotate_back(f->mag_sum, theta);
     for (k = 0; k < 3; ++k) {
-        /* Three sensor values (each below 2^27 in Q16) sum without overflow. */
-        f->acc_sum[k] = IMU_ADD(f->acc_sum[k], s->acc[k]);
-        f->mag_sum[k] = IMU_ADD(f->mag_sum[k], s->mag[k]);
+        f->acc_sum[k] = IMU_ADD_SAT(f->acc_sum[k], acc[k], &f->saturations);
+        f->mag_sum[k] = IMU_ADD_SAT(f->mag_sum[k], mag[k], &f->saturations);
+        f->gyr_sum[k] = IMU_ADD(f->gyr_sum[k], IMU_SHR(s->gyr[k], 2)); /* three below 2^29 each */
     }
-    f->clipped |= s->clipped;
-    imu_quat_integrate(f->q_out, f->increments[f->in_group]);
+    f->clipped |= clipped;
+    imu_quat_integrate(f->q_out, theta);
     if (++f->in_group == 3) {
         f->in_group = 0;
         filter_step(f);

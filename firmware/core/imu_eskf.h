@@ -8,8 +8,10 @@
  * units of g, so that every measurement coefficient is at most 1).
  *
  * Propagation (eq. 15-16): gyro samples are consumed three at a time; their
- * bias-corrected increments form the three-sample rotation vector
- * phi = t1 + t2 + t3 + 33/80 t1 x t3 + 57/80 t2 x (t3 - t1), and q <- q (x) exp(phi).
+ * bias-corrected increments (each limited to 1 rad: a sample rate far too low for the
+ * motion) form the three-sample rotation vector
+ * phi = t1 + t2 + t3 + 33/80 t1 x t3 + 57/80 t2 x (t3 - t1) (up to 5.3 rad, kept wide),
+ * and q <- q (x) exp(phi).
  * The filter (covariance and measurements) therefore runs at a third of the
  * sensor rate, whatever that rate is (a sensor rate that is not a multiple of
  * three gives a non-integer filter rate, which is fine: T = 3 / sample_rate).
@@ -17,11 +19,14 @@
  * received so far, so every sample has an up-to-date estimate; an incomplete
  * group at the end of a stream is simply not yet fused.
  *
- * Covariance (eq. 17-18): Phi = I + F T, F = [[-[w x], -I, 0], [0, 0, 0], [0, 0, 0]]
- * (with w T = phi), and Q = diag(arw^2, rrw^2, acc_bias_rw^2) T, the Allan-variance
+ * Covariance (eq. 17-18): Phi = [[R(phi)^T, -T I, 0], [0, I, 0], [0, 0, I]], the exact
+ * transition of the attitude error (the seed's first-order I - [phi x] inflates the
+ * variance step after step in fast rotation), and Q = diag(arw^2, rrw^2, acc_bias_rw^2) T,
+ * the Allan-variance
  * angle random walk and rate random walk directly; the seed's
  * Gamma = (I + T F) G T adds only terms of order T^2 to this Q, dropped here.
- * Stored in block-floating form (imu_cov.h).
+ * Stored in block-floating form (imu_cov.h); the attitude variances are kept below
+ * 1 rad^2 (imu_cov_cap_unit_variance).
  *
  * Measurements (eq. 8-9), as sequential scalar updates (no matrix inverse):
  * - gravity: a / g = v + [v x] dtheta + ba, three components, where v is the
@@ -43,9 +48,17 @@
  * a field whose norm or dip departs from the reference (a magnet nearby)
  * down-weight their measurement smoothly: w = 1 / (1 + d^2)^2 with d the
  * deviation over its tolerance; the effective variance is R / w. The reference
- * norm is the first sample's; the reference dip is learnt during the first 10 s
- * (the initial attitude may be off by degrees), then both follow slow changes
- * (time constant 30 s) while the field is undisturbed.
+ * field is acquired from the first plausible field (5-500 uT, unclipped, with a
+ * horizontal share; an HMC5883L reads zeros before its first conversion: the heading
+ * is then aligned when the first plausible field comes); its norm and dip are learnt
+ * during the next 10 s (time constant 1 s: one sample's noise and an unconverged
+ * attitude), then follow slow changes (time constant 30 s) while the field is
+ * undisturbed. A disturbed field that keeps one norm and dip in the earth frame for
+ * 20 s while the board turns (faster than 20 deg/s) is fixed to the earth, not to the
+ * board: it becomes the new reference.
+ *
+ * Rest (imu_rest.h): when the board lies still, the gyroscope reads its bias; the
+ * low-passed rate is then a measurement of the bias states (variance arw^2 / T).
  *
  * A sensor at its register limit is not trusted: a clipped accelerometer or
  * magnetometer skips its update for that step; after a clipped gyroscope (an
@@ -53,22 +66,26 @@
  * re-aligned from gravity and the field at the first step whose specific force is
  * within acc_tolerance of g, with the initial attitude uncertainty.
  *
- * After each filter step the error is injected (q <- q (x) exp(dtheta), biases
- * += their errors) and the error state restarts at zero.
+ * After each filter step the error is injected (q <- q (x) exp(dtheta), dtheta
+ * limited to 1 rad; biases += their errors) and the error state restarts at zero.
+ *
+ * Inputs beyond 1024 m/s^2 or 1024 uT (beyond every MPU6050 and HMC5883L range; only
+ * scale settings no real sensor has produce them) are clamped and count as clipped.
  */
 #ifndef IMU_ESKF_H
 #define IMU_ESKF_H
 
 #include "imu_common.h"
 #include "imu_cov.h"
+#include "imu_rest.h"
 #include "imu_sensor.h"
 
 /** Settings. All fields are imu_real_t: Q format in the fixed build as written. */
 typedef struct {
-    imu_real_t sample_rate;        /**< sensor rate (filter rate x 3), Hz, Q16, [30, 32768) */
-    imu_real_t gyro_arw;           /**< gyro angle random walk, rad/sqrt(s), Q32, [0, 0.5) */
-    imu_real_t gyro_rrw;           /**< gyro rate random walk, rad/s/sqrt(s), Q40, [0, 1.9e-3) */
-    imu_real_t acc_bias_rw;        /**< accelerometer bias random walk, m/s^2/sqrt(s), Q32, [0, 0.5) */
+    imu_real_t sample_rate;        /**< sensor rate (filter rate x 3), Hz, Q16, [30, 32767] */
+    imu_real_t gyro_arw;           /**< gyro angle random walk, rad/sqrt(s), Q32, [0, 0.49] */
+    imu_real_t gyro_rrw;           /**< gyro rate random walk, rad/s/sqrt(s), Q40, [0, 1.9e-3] */
+    imu_real_t acc_bias_rw;        /**< accelerometer bias random walk, m/s^2/sqrt(s), Q32, [0, 0.49] */
     imu_real_t acc_noise;          /**< specific-force noise per filter step, m/s^2, Q24, [1e-3, 100] */
     imu_real_t mag_noise;          /**< horizontal magnetic field noise per filter step, uT, Q16, [1e-3, 1000] */
     imu_real_t init_attitude_std;  /**< initial attitude uncertainty, rad, Q28, [1e-4, 3.2] */
@@ -101,6 +118,10 @@ typedef struct {
     int32_t learn_steps;          /**< filter steps of the magnetic dip learning phase */
     imu_q30_t increments[3][3];   /**< bias-corrected gyro increments of the group, rad, Q30 */
     imu_q16_t acc_sum[3];         /**< sum of the group's specific force, m/s^2, Q16 */
+    imu_real_t gyr_sum[3];        /**< sum of the group's angular rate, rad/s, Q22 (three times 128 rad/s fit) */
+    imu_rest_t rest;              /**< rest detection on the group means */
+    int at_rest;                  /**< 1 when the last filter step was at rest */
+    imu_wide_t rest_var;          /**< variance of the rest measurement of the bias, (rad/s)^2, Q48 */
     imu_q16_t mag_sum[3];         /**< sum of the group's magnetic field, uT, Q16 */
     imu_q30_t q[4];               /**< attitude at the last filter step, Q30 */
     imu_q30_t q_out[4];           /**< attitude at the last sample, Q30 */
@@ -108,6 +129,11 @@ typedef struct {
     imu_q30_t acc_bias[3];        /**< in units of g, Q30 */
     imu_q16_t ref_field;          /**< reference field norm, uT, Q16 */
     imu_angle_t ref_dip;          /**< reference dip (below the horizon positive), rad, Q29 */
+    imu_q16_t cand_field;         /**< candidate reference field norm while disturbed, uT, Q16; 0: none */
+    imu_angle_t cand_dip;         /**< candidate reference dip, rad, Q29 */
+    int32_t cand_steps;           /**< turning filter steps the candidate has held */
+    int32_t new_field_steps;      /**< filter steps of NEW_FIELD_TIME */
+    int turning;                  /**< 1 when the last filter step turned faster than 20 deg/s */
     imu_q30_t acc_alpha;          /**< low-pass weight T / (acc_lowpass + T), Q30 */
     imu_q16_t acc_earth[3];       /**< low-passed specific force in the estimated earth frame, m/s^2, Q16 */
     int acc_earth_valid;          /**< 0 until the low-pass has its first value */

@@ -121,7 +121,7 @@ void imu_quat_normalize(imu_q30_t q[4])
         /* |q|^2 - 1 in Q60. Within 2^-10 of unit norm (every step of a filter),
          * one Newton step for 1/sqrt(x) around 1, (3 - x) / 2, is exact to
          * ~1e-6 * (x - 1) and needs no square root. */
-        const int64_t excess = (int64_t)(sum - ((uint64_t)1 << 60));
+        const int64_t excess = (int64_t)sum - ((int64_t)1 << 60); /* sum below 2^62: exact */
         if (excess < ((int64_t)1 << 50) && excess > -((int64_t)1 << 50)) {
             inv = ((int64_t)1 << 30) - imu_rshift_round64(excess, 31); /* Q30 */
         } else {

@@ -11,7 +11,7 @@ from cffi import FFI
 
 ROOT = Path(__file__).resolve().parents[2]
 CORE_DIR = ROOT / "firmware" / "core"
-CORE_SOURCES = ["imu_math.c", "imu_sensor.c", "imu_cov.c", "imu_eecf.c", "imu_kf1d.c", "imu_eskf.c", "imu_filter.c",
+CORE_SOURCES = ["imu_math.c", "imu_sensor.c", "imu_cov.c", "imu_rest.c", "imu_eecf.c", "imu_kf1d.c", "imu_eskf.c", "imu_filter.c",
                 "imu_proto.c"]
 
 _TYPEDEFS = {

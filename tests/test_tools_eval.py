@@ -1,0 +1,222 @@
+"""The evaluation tools run: tools/eval_broad.py (VQF reference), tools/agreement.py (rate
+mode), tools/eval_consistency.py (ESKF NEES). Short versions only: the numbers themselves
+are the tools' output, reported with the commands that produce them."""
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from imulink import sim
+from imulink.sim import quat as Q
+
+TOOLS = Path(__file__).resolve().parents[1] / "tools"
+BROAD = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "broad"
+
+
+def _load(name):
+    spec = importlib.util.spec_from_file_location(f"_tool_{name}", TOOLS / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+eval_broad = _load("eval_broad")
+agreement = _load("agreement")
+consistency = _load("eval_consistency")
+
+
+def _has_vqf() -> bool:
+    try:
+        import vqf  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+# --- eval_consistency ------------------------------------------------------------------
+
+@pytest.mark.parametrize("dof, runs", [(1, 1), (2, 20), (3, 20), (3, 50), (9, 7)])
+def test_chi2_bounds_are_scipys(dof, runs):
+    from scipy.stats import chi2
+
+    lo, hi = consistency.chi2_bounds(dof, runs)
+    assert lo == pytest.approx(chi2.ppf(0.025, runs * dof) / runs, rel=1e-12)
+    assert hi == pytest.approx(chi2.ppf(0.975, runs * dof) / runs, rel=1e-12)
+    assert lo < dof < hi
+
+
+def test_chi2_bounds_hold_95_percent_of_simulated_averages():
+    rng = np.random.default_rng(0)
+    dof, runs = 3, 20
+    lo, hi = consistency.chi2_bounds(dof, runs)
+    averages = (rng.standard_normal((20000, runs, dof)) ** 2).sum(axis=2).mean(axis=1)
+    inside = np.mean((averages >= lo) & (averages <= hi))
+    assert 0.94 < inside < 0.96
+
+
+def test_error_rotvec_is_the_eskf_convention():
+    rng = np.random.default_rng(1)
+    q_est = Q.normalize(rng.standard_normal((50, 4)))
+    dtheta = rng.standard_normal((50, 3)) * 0.3
+    q_true = Q.multiply(q_est, Q.from_rotvec(dtheta))  # true = estimate (x) exp(dtheta)
+    np.testing.assert_allclose(consistency.error_rotvec(q_est, q_true), dtheta, atol=1e-12)
+    np.testing.assert_allclose(consistency.error_rotvec(-q_est, q_true), dtheta, atol=1e-12)  # q and -q
+    np.testing.assert_allclose(consistency.error_rotvec(q_est, q_est), 0.0, atol=1e-15)
+
+
+def test_group_nees_splits_attitude_into_tilt_and_heading():
+    rng = np.random.default_rng(2)
+    t = 40
+    up = rng.standard_normal((t, 3))
+    up /= np.linalg.norm(up, axis=1, keepdims=True)
+    basis = np.concatenate([consistency._perpendicular_basis(up), up[:, :, None]], axis=2)  # (t, 3, 3)
+    # Attitude covariance diagonal in the (tilt, tilt, vertical) basis: the NEES add up.
+    variances = rng.uniform(0.1, 2.0, (t, 3))
+    p_att = np.einsum("tik,tk,tjk->tij", basis, variances, basis)
+    cov = np.zeros((t, 6, 6))
+    cov[:, :3, :3] = p_att
+    cov[:, 3:, 3:] = np.eye(3) * 4.0
+    att = rng.standard_normal((t, 3))
+    bias = np.tile([2.0, 0.0, 0.0], (t, 1))
+    out = consistency.group_nees(att, bias, cov, up)
+    np.testing.assert_allclose(out["tilt"] + out["heading"], out["attitude"], rtol=1e-10)
+    np.testing.assert_allclose(out["heading"], np.einsum("ti,ti->t", up, att) ** 2 / variances[:, 2], rtol=1e-10)
+    np.testing.assert_allclose(out["gyro_bias"], 1.0)
+    assert "acc_bias" not in out
+
+
+@pytest.mark.parametrize("acc_bias", [False, True])
+def test_consistency_runs_on_a_tiny_scenario(acc_bias):
+    cfg = consistency.Config(duration_s=12.0, runs=2, every_s=0.3, skip_s=3.0, acc_bias=acc_bias)
+    results = consistency.evaluate(["static", "slow-nomag"], cfg)
+    groups = {"attitude", "tilt", "heading", "gyro_bias"} | ({"acc_bias"} if acc_bias else set())
+    for scenario in ("static", "slow-nomag"):
+        r = results[scenario]
+        assert set(r["groups"]) == groups
+        assert r["saturations"] == 0
+        for g, s in r["groups"].items():
+            assert s["dof"] == consistency.GROUP_DOF[g]
+            assert np.all(np.isfinite(s["average"])) and np.all(s["average"] >= 0)
+            assert np.isfinite(s["mean"]) and s["mean"] >= 0
+            assert (s["lower"], s["upper"]) == consistency.chi2_bounds(s["dof"], cfg.runs)
+            assert s["inside"] + s["below"] + s["above"] == pytest.approx(1.0)
+    json.dumps(consistency.to_json(results, cfg))  # serialisable
+    assert "| static | tilt (2) |" in consistency.format_markdown(results, cfg)
+
+
+def test_consistency_command_line(capsys):
+    assert consistency.main(["--runs", "2", "--duration", "8", "--skip", "2", "--scenarios", "static",
+                             "--arithmetic", "fixed,float", "--markdown"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("| static | attitude (3) |") == 2
+    assert "ESKF fixed build" in out and "ESKF float build" in out
+
+
+def test_consistency_no_magnetometer_means_zero_field():
+    cfg = consistency.Config(duration_s=3.0, runs=1)
+    data, acc_bias = consistency.simulate_run("static-nomag", 3, cfg, cfg.filter_settings())
+    assert not np.any(data.mag_counts)
+    np.testing.assert_array_equal(acc_bias, 0.0)
+    with_mag, _ = consistency.simulate_run("static", 3, cfg, cfg.filter_settings())
+    assert np.all(np.abs(with_mag.mag_counts).sum(axis=1) > 0)
+
+
+# --- agreement: rate mode --------------------------------------------------------------
+
+def test_chunked_agreement_equals_one_call():
+    scenario = sim.make_scenario("random", 10.0, 100.0, seed=3)
+    for name in ("eecf", "eskf"):
+        one = agreement.agreement(name, scenario)
+        chunked = agreement.agreement_chunked(name, scenario, chunk=7)
+        assert chunked == one
+
+
+def test_rate_sweep_short():
+    rates = [30.0, 100.0, 1000.0]
+    rows = agreement.rate_sweep(["eecf", "kf1d", "eskf"], rates, [0], 3.0)
+    assert [(r["filter"], r["rate_hz"]) for r in rows] == [(f, r) for f in ("eecf", "kf1d", "eskf") for r in rates]
+    for r in rows:
+        assert r["samples"] == int(round(3.0 * r["rate_hz"]))
+        assert np.isfinite(r["max_deg"]) and r["max_deg"] >= r["p99_deg"] >= 0
+    md = agreement.format_rates(rows, ["eecf", "kf1d", "eskf"], rates, [0], 3.0, markdown=True)
+    assert "| filter | 30 Hz | 100 Hz | 1000 Hz |" in md
+    assert md.splitlines()[-1].startswith(("PASS", "FAIL"))
+
+
+def test_rate_mode_command_line(capsys):
+    rc = agreement.main(["--rates", "30,5000", "--duration", "1", "--filters", "eskf", "--markdown"])
+    out = capsys.readouterr()
+    assert rc in (0, 1)
+    assert "| ESKF | 30 | 0 |" in out.out and "| ESKF | 5000 | 0 |" in out.out
+    assert "5000 Hz seed 0" in out.err  # progress on stderr
+    rc = agreement.main(["--rates", "100", "--duration", "1", "--filters", "kf1d", "--json"])
+    rows = json.loads(capsys.readouterr().out)["rows"]
+    assert rc == (0 if rows[0]["max_deg"] <= agreement.LIMIT_DEG else 1)
+    assert rows[0]["samples"] == 100
+
+
+def test_rate_mode_below_the_eskf_range_is_a_usage_error(capsys):
+    assert agreement.main(["--rates", "20", "--duration", "1", "--filters", "eskf"]) == 2
+    assert "sample_rate" in capsys.readouterr().err
+
+
+# --- eval_broad: the VQF reference -----------------------------------------------------
+
+def _fake_broad_dir(tmp_path, seconds=20.0, rate=100.0):
+    """One simulated trial in BROAD's .mat layout (truth as the optical reference)."""
+    from scipy.io import savemat
+
+    data = sim.make_scenario("rests", seconds, rate, seed=5)
+    ref = data.quat_true.copy()
+    ref[:5] = np.nan  # the optical reference loses the marker now and then
+    savemat(tmp_path / "99_simulated.mat", {
+        "imu_gyr": data.gyr, "imu_acc": data.acc, "imu_mag": data.mag, "opt_quat": ref,
+        "movement": np.ones((len(data), 1), dtype=np.uint8), "sampling_rate": np.array([[rate]]),
+    })
+    return tmp_path
+
+
+def test_vqf_missing_is_a_one_line_error(tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "vqf", None)  # import vqf -> ImportError
+    assert eval_broad.main(["--vqf", "--data", str(tmp_path)]) == eval_broad.EXIT_NO_VQF
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert "pip install 'imulink[bench]'" in err
+
+
+def test_without_vqf_the_existing_outputs_are_unchanged(tmp_path, capsys):
+    data = _fake_broad_dir(tmp_path)
+    assert eval_broad.main(["--data", str(data), "--filters", "eskf", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert set(out) == {"eskf/fixed", "eskf/float", "eskf/diff"}
+    assert eval_broad.main(["--data", str(data), "--filters", "eecf", "--arithmetic", "fixed", "--markdown"]) == 0
+    assert "VQF" not in capsys.readouterr().out
+
+
+@pytest.mark.skipif(not _has_vqf(), reason="vqf not installed (pip install 'imulink[bench]')")
+def test_vqf_reference_column(tmp_path, capsys):
+    data = _fake_broad_dir(tmp_path)
+    assert eval_broad.main(["--data", str(data), "--filters", "eskf", "--markdown", "--vqf"]) == 0
+    out = capsys.readouterr().out
+    assert "VQF (reference) total / heading / incl." in out
+    assert "| 99_simulated |" in out
+    assert "ESKF fixed beats VQF's mean" in out or "ESKF fixed does NOT beat VQF's mean" in out
+    assert eval_broad.main(["--data", str(data), "--filters", "eskf", "--arithmetic", "fixed", "--json",
+                            "--vqf"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    vqf = out["vqf/reference"]["trials"]["99_simulated"]
+    assert 0 <= vqf["total"] < 10 and vqf["n"] == 2000 - 5
+    (row,) = out["comparison_with_vqf"]
+    assert row["filter"] == "eskf" and row["vqf"] == pytest.approx(vqf["total"])
+
+
+@pytest.mark.skipif(not BROAD.is_dir(), reason="BROAD data not present beside the repository")
+@pytest.mark.skipif(not _has_vqf(), reason="vqf not installed (pip install 'imulink[bench]')")
+def test_vqf_on_a_broad_trial():
+    trial = eval_broad.load_trial(BROAD / "02_undisturbed_slow_rotation_B.mat")
+    err = eval_broad.broad_errors(eval_broad.run_vqf(trial), trial.quat_ref, trial.movement)
+    assert err["total"] < 3.0  # VQF's published accuracy class (1.4 deg here)
