@@ -53,12 +53,18 @@ SENSOR_FIELDS = (("gyro_scale", 40), ("acc_scale", 32), ("mag_scale", 24))
 SETTINGS = {
     "eecf": {
         "standard": {"kp": 1.0, "kp_mag": 1.0, "ki": 0.02, "bias_limit": 0.1745, "align_time": 2.0,
-                     "align_tau": 0.5},
+                     "align_tau": 0.5, "ki_mag": 0.02, "rest_time": 1.5, "rest_tau": 0.5, "rest_gyro": 0.05236,
+                     "rest_acc": 0.5, "rest_turn": 0.008727, "rest_kp": 4.0, "rest_kp_mag": 0.8,
+                     "acc_tolerance": 0.2, "rest_bias_tau": 20.0},
         "tuned": {"kp": 2.5, "kp_mag": 0.4, "ki": 0.08, "bias_limit": 0.05, "align_time": 1.0,
-                  "align_tau": 0.2},
-        # No alignment at all: the filter starts from the identity quaternion.
+                  "align_tau": 0.2, "ki_mag": 0.04, "rest_time": 1.0, "rest_tau": 0.3, "rest_gyro": 0.03,
+                  "rest_acc": 0.3, "rest_turn": 0.005, "rest_kp": 2.0, "rest_kp_mag": 0.5,
+                  "acc_tolerance": 0.5, "rest_bias_tau": 5.0},
+        # No alignment and no rest detection: the filter starts from the identity quaternion.
         "no_align": {"kp": 5.0, "kp_mag": 3.0, "ki": 0.3, "bias_limit": 0.5, "align_time": 0.0,
-                     "align_tau": 0.0},
+                     "align_tau": 0.0, "ki_mag": 0.3, "rest_time": 0.0, "rest_tau": 0.0, "rest_gyro": 0.0,
+                     "rest_acc": 1.0, "rest_turn": 0.5, "rest_kp": 5.0, "rest_kp_mag": 3.0,
+                     "acc_tolerance": 1.9, "rest_bias_tau": 0.0},
     },
     "kf1d": {
         "standard": {"q_angle": 1e-5, "q_bias": 1e-8, "r_angle": 0.01, "r_heading": 0.01},

@@ -6,31 +6,51 @@
 
 #include "imu_math.h"
 
+/* Defaults. kp, kp_mag and the alignment's are tuned on BROAD (docs/accuracy.md); the
+ * others follow from the sensors' data: seed 000's gyroscope (ARW 0.049 deg/sqrt(s)), the
+ * MPU6050's accelerometer (0.02 m/s^2 rms at 100 Hz) and zero-rate offset (+-20 deg/s),
+ * the HMC5883L's field noise (0.2 uT on a horizontal field near 19 uT). */
 const imu_eecf_settings_t imu_eecf_default_settings = {
-    IMU_QCONST(100.0, 16), /* sample_rate, Hz */
-    IMU_QCONST(0.1, 16),   /* kp, 1/s (tuned on BROAD, docs/accuracy.md) */
-    IMU_QCONST(0.01, 16),  /* kp_mag, 1/s (tuned on BROAD) */
-    IMU_QCONST(0.0, 16),   /* ki, 1/s^2 (tuned on BROAD: bias from the still alignment only) */
-    IMU_QCONST(0.1745, 24), /* bias_limit, rad/s (10 deg/s) */
-    IMU_QCONST(2.0, 16),   /* align_time, s */
-    IMU_QCONST(1.0, 16),   /* align_tau, s (tuned on BROAD) */
+    IMU_QCONST(100.0, 16),    /* sample_rate, Hz */
+    IMU_QCONST(0.1, 16),      /* kp, 1/s (tuned on BROAD) */
+    IMU_QCONST(0.01, 16),     /* kp_mag, 1/s (tuned on BROAD) */
+    IMU_QCONST(0.0025, 30),   /* ki, 1/s^2: kp^2 / 4, the critically damped PI loop */
+    IMU_QCONST(0.4363, 24),   /* bias_limit, rad/s: 25 deg/s, beyond the MPU6050's +-20 deg/s offset */
+    IMU_QCONST(2.0, 16),      /* align_time, s */
+    IMU_QCONST(1.0, 16),      /* align_tau, s (tuned on BROAD) */
+    IMU_QCONST(0.000025, 30), /* ki_mag, 1/s^2: kp_mag^2 / 4 */
+    IMU_QCONST(1.5, 16),      /* rest_time, s (VQF's rest time) */
+    IMU_QCONST(0.5, 16),      /* rest_tau, s (VQF's rest low-pass): mean gyro noise 0.05 deg/s */
+    IMU_QCONST(0.05236, 24),  /* rest_gyro, rad/s: 3 deg/s, 6 sigma of the gyro noise per sample at 100 Hz */
+    IMU_QCONST(0.5, 16),      /* rest_acc, m/s^2 (VQF's): 25 sigma of the accelerometer noise, no motion */
+    IMU_QCONST(0.008727, 30), /* rest_turn, rad: 0.5 deg, 10 sigma of the field mean's direction */
+    IMU_QCONST(4.0, 16),      /* rest_kp, 1/s: gyro ARW / accelerometer noise density (8.6e-4 / 2.0e-4) */
+    IMU_QCONST(0.8, 16),      /* rest_kp_mag, 1/s: gyro ARW / heading noise density (8.6e-4 / 1.05e-3) */
+    IMU_QCONST(0.2, 24),      /* acc_tolerance, m/s^2: 10 sigma of the accelerometer noise */
+    IMU_QCONST(20.0, 16),     /* rest_bias_tau, s: ARW / RRW (0.049 deg/sqrt(s) / 0.0024 deg/s/sqrt(s)) */
 };
 
 #define DESC(field, q, unit) {#field, offsetof(imu_eecf_settings_t, field), q, unit}
 const imu_setting_desc_t imu_eecf_setting_descs[] = {
-    DESC(sample_rate, 16, "Hz"), DESC(kp, 16, "1/s"),         DESC(kp_mag, 16, "1/s"),
-    DESC(ki, 16, "1/s^2"),       DESC(bias_limit, 24, "rad/s"), DESC(align_time, 16, "s"),
-    DESC(align_tau, 16, "s"),
+    DESC(sample_rate, 16, "Hz"),  DESC(kp, 16, "1/s"),          DESC(kp_mag, 16, "1/s"),
+    DESC(ki, 30, "1/s^2"),        DESC(bias_limit, 24, "rad/s"), DESC(align_time, 16, "s"),
+    DESC(align_tau, 16, "s"),     DESC(ki_mag, 30, "1/s^2"),    DESC(rest_time, 16, "s"),
+    DESC(rest_tau, 16, "s"),      DESC(rest_gyro, 24, "rad/s"), DESC(rest_acc, 16, "m/s^2"),
+    DESC(rest_turn, 30, "rad"),   DESC(rest_kp, 16, "1/s"),     DESC(rest_kp_mag, 16, "1/s"),
+    DESC(acc_tolerance, 24, "m/s^2"), DESC(rest_bias_tau, 16, "s"),
 };
 #undef DESC
 const int imu_eecf_setting_count = (int)(sizeof imu_eecf_setting_descs / sizeof imu_eecf_setting_descs[0]);
 
-/** Largest spread (max - min) of each gyro axis over an alignment at rest: 10 deg/s in rad/s, Q24
- *  (noise of a consumer MEMS gyro, e.g. seed 000: 0.5 deg/s rms at 100 Hz, stays well inside). */
-#define STILL_GYRO_SPAN IMU_QCONST(0.17453, 24)
-
 /** Below this horizontal share of the unit field (Q30) the heading is not observable. */
 #define MIN_HORIZONTAL_FIELD IMU_QCONST(0.05, 30)
+
+/** Gravity before the first rest measures it, m/s^2, Q16. */
+#define STANDARD_GRAVITY IMU_QCONST(9.80665, 16)
+
+/** | |acc| - g | beyond 32 m/s^2 (16 of the largest acc_tolerance) has weight 0 anyway:
+ *  clamped there, in Q16, so that it fits Q24. */
+#define GRAVITY_DEVIATION_CLAMP IMU_QCONST(32.0, 16)
 
 void imu_eecf_init(imu_eecf_t *f)
 {
@@ -47,9 +67,14 @@ imu_status_t imu_eecf_set_settings(imu_eecf_t *f, const imu_eecf_settings_t *s)
     imu_q16_t dt_q16;
     int i;
     if (s->sample_rate < IMU_QCONST(10.0, 16) || !in_range(s->kp, 0, IMU_QCONST(100.0, 16)) ||
-        !in_range(s->kp_mag, 0, IMU_QCONST(100.0, 16)) || !in_range(s->ki, 0, IMU_QCONST(1.0, 16)) ||
-        !in_range(s->bias_limit, 0, IMU_QCONST(1.0, 24)) || !in_range(s->align_time, 0, IMU_QCONST(60.0, 16)) ||
-        !in_range(s->align_tau, 0, IMU_QCONST(10.0, 16))) {
+        !in_range(s->kp_mag, 0, IMU_QCONST(100.0, 16)) || !in_range(s->ki, 0, IMU_QCONST(1.0, 30)) ||
+        !in_range(s->ki_mag, 0, IMU_QCONST(1.0, 30)) || !in_range(s->bias_limit, 0, IMU_QCONST(1.0, 24)) ||
+        !in_range(s->align_time, 0, IMU_QCONST(60.0, 16)) || !in_range(s->align_tau, 0, IMU_QCONST(10.0, 16)) ||
+        !in_range(s->rest_time, 0, IMU_QCONST(60.0, 16)) || !in_range(s->rest_tau, 0, IMU_QCONST(10.0, 16)) ||
+        !in_range(s->rest_gyro, 0, IMU_QCONST(1.0, 24)) || !in_range(s->rest_acc, 0, IMU_QCONST(100.0, 16)) ||
+        !in_range(s->rest_turn, 0, IMU_QCONST(0.5, 30)) || !in_range(s->rest_kp, 0, IMU_QCONST(100.0, 16)) ||
+        !in_range(s->rest_kp_mag, 0, IMU_QCONST(100.0, 16)) || s->acc_tolerance <= 0 ||
+        s->acc_tolerance > IMU_QCONST(1.9, 24) || !in_range(s->rest_bias_tau, 0, IMU_QCONST(1000.0, 16))) {
         return IMU_ERR_RANGE;
     }
     f->settings = *s;
@@ -57,19 +82,39 @@ imu_status_t imu_eecf_set_settings(imu_eecf_t *f, const imu_eecf_settings_t *s)
     /* dt = 1 / rate: 2^46 / rate_q16 < 2^31 for rates above 0.5 Hz. */
     f->dt = IMU_DIV_SAT(IMU_QCONST(1.0, 16), s->sample_rate, 30, &f->saturations);
     dt_q16 = IMU_SHR(f->dt, 14);
-    /* alpha = dt / (tau + dt) in [0, 1], Q30. */
+    /* alpha = dt / (tau + dt) in [0, 1], Q30 (tau <= 10 s: the sum fits Q16). */
     f->align_alpha = IMU_DIV_SAT(dt_q16, IMU_ADD(s->align_tau, dt_q16), 30, &f->saturations);
-    /* At most 60 s * 32768 Hz < 2^31 samples. */
+    f->rest_alpha = IMU_DIV_SAT(dt_q16, IMU_ADD(s->rest_tau, dt_q16), 30, &f->saturations);
+    /* rest_bias_tau <= 1000 s: the sum fits Q16 too. */
+    f->bias_alpha = IMU_DIV_SAT(dt_q16, IMU_ADD(s->rest_bias_tau, dt_q16), 30, &f->saturations);
+    /* ki (Q30, <= 1) * dt (Q30, <= 0.1) >> 26 -> Q34, at most 0.1 * 2^34 < 2^31. */
+    f->ki_dt = IMU_MUL(s->ki, f->dt, 26);
+    f->ki_mag_dt = IMU_MUL(s->ki_mag, f->dt, 26);
+    /* At most 60 s * 32768 Hz < 2^31 samples; 10 s * 32768 Hz + 1 for the warm-up. */
     f->align_samples = IMU_MUL_TO_INT(s->align_time, s->sample_rate, 32);
+    f->rest_confirm = IMU_MUL_TO_INT(s->rest_time, s->sample_rate, 32);
+    f->rest_warmup = IMU_MUL_TO_INT(s->rest_tau, s->sample_rate, 32) + 1;
+    /* At most 1000 s * 32768 Hz + 1 < 2^25 samples. */
+    f->bias_warmup = IMU_MUL_TO_INT(s->rest_bias_tau, s->sample_rate, 32) + 1;
     f->sample_count = 0;
+    f->rest_count = 0;
+    f->acc_still_count = 0;
+    f->mag_still_count = 0;
+    f->gyr_count = 0;
+    f->acc_turn_limit = 0;
+    f->mag_turn_limit = 0;
+    f->gravity = STANDARD_GRAVITY;
+    f->acc_ref_norm = STANDARD_GRAVITY;
     f->q[0] = IMU_ONE_Q30;
     for (i = 0; i < 3; ++i) {
         f->q[i + 1] = 0;
         f->integral[i] = 0;
         f->align_euler[i] = 0;
-        f->align_gyro_mean[i] = 0;
-        f->align_gyro_min[i] = 0;
-        f->align_gyro_max[i] = 0;
+        f->gyr_mean[i] = 0;
+        f->acc_mean[i] = 0;
+        f->mag_mean[i] = 0;
+        f->acc_turn_ref[i] = 0;
+        f->mag_turn_ref[i] = 0;
     }
     return IMU_OK;
 }
@@ -78,6 +123,184 @@ int imu_eecf_aligning(const imu_eecf_t *f)
 {
     return f->sample_count < f->align_samples;
 }
+
+int imu_eecf_at_rest(const imu_eecf_t *f)
+{
+    return f->rest_count >= f->rest_warmup && f->acc_still_count >= f->rest_confirm &&
+           f->mag_still_count >= f->rest_confirm;
+}
+
+/* ---- Rest detection ---------------------------------------------------------------- */
+
+/**
+ * 1 when |a - b| is below `limit` (strictly when `strict`, else at most `limit`), for
+ * two vectors of one Q format and a limit in that format, 0 <= limit < 2^30.
+ * Each difference is checked first, so the three squares summed are below 2^60 each.
+ */
+static int distance_within(const imu_real_t a[3], const imu_real_t b[3], imu_real_t limit, int strict,
+                           uint32_t *sat)
+{
+    imu_wide_t sum = 0; /* squared distance, Q of a times two */
+    imu_wide_t limit2;
+    int k;
+    for (k = 0; k < 3; ++k) {
+        const imu_real_t d = IMU_SUB_SAT(a[k], b[k], sat);
+        if (strict ? (d >= limit || d <= -limit) : (d > limit || d < -limit)) {
+            return 0;
+        }
+        sum += IMU_WMUL(d, d); /* wide: below 3 * 2^60 */
+    }
+    limit2 = IMU_WMUL(limit, limit);
+    return strict ? sum < limit2 : sum <= limit2;
+}
+
+/** The turn test of the specific force compares the run's mean against this from now on. */
+static void take_acc_reference(imu_eecf_t *f)
+{
+    imu_q30_t unit[3];
+    imu_real_t norm;
+    int k;
+    for (k = 0; k < 3; ++k) {
+        f->acc_turn_ref[k] = f->acc_mean[k];
+    }
+    /* Limit |v| rest_turn: |v| (Q16, int32) * rest_turn (Q30, <= 0.5) >> 30 -> Q16,
+     * at most 2^30. A zero vector has limit 0 and never fails. */
+    if (imu_vec3_normalize(f->acc_turn_ref, unit, &norm)) {
+        f->acc_turn_limit = IMU_MUL(norm, f->settings.rest_turn, 30);
+        f->acc_ref_norm = norm;
+    } else {
+        f->acc_turn_limit = 0;
+    }
+    f->acc_still_count = 0;
+}
+
+/** The same for the field (a board without magnetometer reads zero: never fails). */
+static void take_mag_reference(imu_eecf_t *f)
+{
+    imu_q30_t unit[3];
+    imu_real_t norm;
+    int k;
+    for (k = 0; k < 3; ++k) {
+        f->mag_turn_ref[k] = f->mag_mean[k];
+    }
+    f->mag_turn_limit = imu_vec3_normalize(f->mag_turn_ref, unit, &norm) ? IMU_MUL(norm, f->settings.rest_turn, 30) : 0;
+    f->mag_still_count = 0;
+}
+
+/** First-order low-pass y += alpha (x - y) of three values of one Q format: y stays
+ *  between its old value and x (alpha in [0, 1]), so the sum cannot overflow. */
+static void lowpass3(imu_real_t y[3], const imu_real_t x[3], imu_q30_t alpha, uint32_t *sat)
+{
+    int k;
+    for (k = 0; k < 3; ++k) {
+        y[k] = IMU_ADD(y[k], IMU_MUL(alpha, IMU_SUB_SAT(x[k], y[k], sat), 30));
+    }
+}
+
+/** Running mean (weight 1/(n+1) for the sample after n) while that weighs more than
+ *  `alpha`, low-pass with weight alpha after; n + 1 < 2^25 where it divides. */
+static imu_q30_t mean_weight(int32_t n, int32_t warmup, imu_q30_t alpha, uint32_t *sat)
+{
+    if (n < warmup) {
+        return IMU_DIV_SAT(IMU_FROM_INT_SAT(1, 0, sat), IMU_FROM_INT_SAT(n + 1, 0, sat), 30, sat);
+    }
+    return alpha;
+}
+
+/** The gyroscope mean starts again at this sample. */
+static void restart_gyro_mean(imu_eecf_t *f, const imu_sample_t *s)
+{
+    int k;
+    for (k = 0; k < 3; ++k) {
+        f->gyr_mean[k] = s->gyr[k];
+    }
+    f->gyr_count = 1;
+}
+
+/**
+ * Rest tests of one sample (see imu_eecf.h). A run is a stretch of samples whose
+ * gyroscope and specific force stayed steady. The means of specific force and field
+ * start with the run: running means for rest_tau, first-order low-passes with that
+ * time constant after. Restarting them with each run keeps the motion before it out:
+ * the turn tests see no low-pass settling. Once they have settled, each turn test
+ * counts the samples since its reference; a turn beyond rest_turn takes a new
+ * reference and restarts the count. The gyroscope mean starts with the run too, and
+ * again whenever a turn test fails (its readings held a rotation, not only bias): a
+ * running mean for rest_bias_tau, a low-pass after.
+ */
+static void rest_update(imu_eecf_t *f, const imu_sample_t *s)
+{
+    int k;
+    if (f->rest_count > 0) {
+        /* The run so far holds rest_count samples, the gyroscope mean gyr_count. */
+        const imu_q30_t alpha = mean_weight(f->rest_count, f->rest_warmup, f->rest_alpha, &f->saturations);
+        lowpass3(f->acc_mean, s->acc, alpha, &f->saturations);
+        lowpass3(f->mag_mean, s->mag, alpha, &f->saturations);
+        lowpass3(f->gyr_mean, s->gyr, mean_weight(f->gyr_count, f->bias_warmup, f->bias_alpha, &f->saturations),
+                 &f->saturations);
+        if (f->gyr_count < INT32_MAX) {
+            ++f->gyr_count;
+        }
+        /* Steady gyroscope and accelerometer: the sample's deviations from the means
+         * (limits below 2^25 in their formats). */
+        if (distance_within(s->gyr, f->gyr_mean, f->settings.rest_gyro, 1, &f->saturations) &&
+            distance_within(s->acc, f->acc_mean, f->settings.rest_acc, 1, &f->saturations)) {
+            /* The counts stop below 2^31 - 1. */
+            if (f->rest_count < INT32_MAX) {
+                ++f->rest_count;
+            }
+            if (f->rest_count == f->rest_warmup) {
+                take_acc_reference(f);
+                take_mag_reference(f);
+            } else if (f->rest_count > f->rest_warmup) {
+                /* Gravity turned: a slow rotation about a horizontal axis, or a steady
+                 * acceleration began. The field turned: a slow rotation, or the field
+                 * changed. */
+                if (!distance_within(f->acc_mean, f->acc_turn_ref, f->acc_turn_limit, 0, &f->saturations)) {
+                    take_acc_reference(f);
+                    restart_gyro_mean(f, s);
+                } else if (f->acc_still_count < INT32_MAX) {
+                    ++f->acc_still_count;
+                }
+                if (!distance_within(f->mag_mean, f->mag_turn_ref, f->mag_turn_limit, 0, &f->saturations)) {
+                    take_mag_reference(f);
+                    restart_gyro_mean(f, s);
+                } else if (f->mag_still_count < INT32_MAX) {
+                    ++f->mag_still_count;
+                }
+            }
+            return;
+        }
+    }
+    /* A new run starts at this sample. */
+    for (k = 0; k < 3; ++k) {
+        f->acc_mean[k] = s->acc[k];
+        f->mag_mean[k] = s->mag[k];
+    }
+    restart_gyro_mean(f, s);
+    f->rest_count = 1;
+    f->acc_still_count = 0;
+    f->mag_still_count = 0;
+    if (f->rest_warmup == 1) {
+        take_acc_reference(f);
+        take_mag_reference(f);
+    }
+}
+
+/** 1 when the run is steady and gravity has not turned for rest_time: no linear
+ *  acceleration, the attitude may follow the accelerometer and magnetometer closely. */
+static int quiet(const imu_eecf_t *f)
+{
+    return f->rest_count >= f->rest_warmup && f->acc_still_count >= f->rest_confirm;
+}
+
+/** Clamp of a wide value to +-limit. */
+static imu_wide_t clamp_wide(imu_wide_t v, imu_wide_t limit)
+{
+    return v > limit ? limit : (v < -limit ? -limit : v);
+}
+
+/* ---- Alignment --------------------------------------------------------------------- */
 
 /** Mean of the filled part of a moving-average window (n samples). Each entry is a
  *  sensor value below 2^27 in Q16 (2048 m/s^2 or uT), so the sum of 8 fits. */
@@ -93,27 +316,23 @@ static void window_mean(imu_q16_t window[IMU_EECF_AVG_LEN][3], int n, imu_q16_t 
     }
 }
 
-/** One alignment step: seed 004 eq. 4-8. */
+/** One alignment step: seed 004 eq. 4-8. The rest tests of this sample ran before. */
 static void align_step(imu_eecf_t *f, const imu_sample_t *s)
 {
     const int slot = f->sample_count % IMU_EECF_AVG_LEN;
     const int filled = f->sample_count < IMU_EECF_AVG_LEN ? f->sample_count + 1 : IMU_EECF_AVG_LEN;
+    /* Every sample so far passed the rest tests and neither turn test restarted: the
+     * board has been still (the counts reach at most the sample number, < 2^31). */
+    const int still = f->rest_count == f->sample_count + 1 &&
+                      (f->rest_count < f->rest_warmup ||
+                       (f->acc_still_count == f->rest_count - f->rest_warmup &&
+                        f->mag_still_count == f->rest_count - f->rest_warmup));
     imu_q16_t acc[3], mag[3];
     imu_angle_t meas[3];
     int k;
     for (k = 0; k < 3; ++k) {
         f->acc_window[slot][k] = s->acc[k];
         f->mag_window[slot][k] = s->mag[k];
-        if (f->sample_count == 0 || s->gyr[k] < f->align_gyro_min[k]) {
-            f->align_gyro_min[k] = s->gyr[k];
-        }
-        if (f->sample_count == 0 || s->gyr[k] > f->align_gyro_max[k]) {
-            f->align_gyro_max[k] = s->gyr[k];
-        }
-        /* Running mean: the difference of two rates (< 2^31) over the sample number. */
-        f->align_gyro_mean[k] = IMU_ADD(f->align_gyro_mean[k],
-                                        IMU_SUB_SAT(s->gyr[k], f->align_gyro_mean[k], &f->saturations) /
-                                            (f->sample_count + 1));
     }
     window_mean(f->acc_window, filled, acc, &f->saturations);
     window_mean(f->mag_window, filled, mag, &f->saturations);
@@ -126,16 +345,14 @@ static void align_step(imu_eecf_t *f, const imu_sample_t *s)
             f->align_euler[k] = meas[k];
         }
     } else {
-        /* Gyro propagation (eq. 7), with the running gyro mean removed (a bias
-         * would tilt the angles and, through the tilt compensation, the
-         * heading). Beyond the seed's small-angle rates, the attitude of the
-         * current angles is advanced exactly and read back, so an alignment
-         * under motion stays consistent. */
+        /* Gyro propagation (eq. 7) with the raw rates: whether their mean is a bias or
+         * a steady rotation is known only at the end (see below). Beyond the seed's
+         * small-angle rates, the attitude of the current angles is advanced exactly
+         * and read back, so an alignment under motion stays consistent. */
         imu_q30_t theta[3];
         imu_angle_t pred[3];
         for (k = 0; k < 3; ++k) {
-            const imu_rate_t w = IMU_SUB_SAT(s->gyr[k], f->align_gyro_mean[k], &f->saturations);
-            theta[k] = IMU_MUL_SAT(w, f->dt, 24, &f->saturations); /* Q24 * Q30 >> 24 -> rad Q30 */
+            theta[k] = IMU_MUL_SAT(s->gyr[k], f->dt, 24, &f->saturations); /* Q24 * Q30 >> 24 -> rad Q30 */
         }
         imu_quat_integrate(f->q, theta); /* f->q holds the quaternion of align_euler */
         imu_quat_to_euler(f->q, pred);
@@ -149,22 +366,29 @@ static void align_step(imu_eecf_t *f, const imu_sample_t *s)
             f->align_euler[k] = imu_angle_add(pred[k], IMU_MUL(f->align_alpha, innovation, 30));
         }
     }
-    imu_euler_to_quat(f->align_euler, f->q);
-    if (f->sample_count + 1 == f->align_samples) {
-        /* A board that stayed still (every gyro axis within STILL_GYRO_SPAN)
-         * read its bias: start the integral there. After an alignment under
-         * motion the mean is no bias estimate, and the integral starts at zero. */
-        const imu_q30_t limit = IMU_SHL_SAT(f->settings.bias_limit, 6, &f->saturations);
-        int still = 1;
+    if (f->sample_count + 1 == f->align_samples && still) {
+        /* Still through the whole alignment: steady gyroscope and accelerometer, and
+         * gravity and field did not turn (a turntable's steady rate is no bias). The
+         * mean gyroscope reading (of every sample, unless the alignment is longer than
+         * rest_bias_tau) is the bias: the integral starts there. The attitude is then
+         * best measured directly: eq. 4-5 on the run's mean specific force and field
+         * (their mean over the last rest_tau), free of the gyro bias that the
+         * complementary filter integrated. After an alignment under motion the
+         * complementary filter's angles stand and the integral starts at zero (the
+         * first rest or the PI loop finds the bias). */
+        const imu_wide_t limit = IMU_WMUL(f->settings.bias_limit, IMU_ONE_Q30); /* Q24 -> Q54, <= 2^54 */
         for (k = 0; k < 3; ++k) {
-            still = still && IMU_SUB_SAT(f->align_gyro_max[k], f->align_gyro_min[k], &f->saturations) < STILL_GYRO_SPAN;
+            /* Q24 (< 2^31) times 2^30 -> Q54, below 2^61. */
+            f->integral[k] = clamp_wide(-IMU_WMUL(f->gyr_mean[k], IMU_ONE_Q30), limit);
         }
-        for (k = 0; k < 3 && still; ++k) {
-            imu_q30_t integral = IMU_NEG_SAT(IMU_SHL_SAT(f->align_gyro_mean[k], 6, &f->saturations), &f->saturations);
-            f->integral[k] = integral > limit ? limit : (integral < -limit ? -limit : integral);
+        if (imu_tilt_from_acc(f->acc_mean, &f->align_euler[0], &f->align_euler[1])) {
+            f->align_euler[2] = imu_heading_from_mag(f->mag_mean, f->align_euler[0], f->align_euler[1]);
         }
     }
+    imu_euler_to_quat(f->align_euler, f->q);
 }
+
+/* ---- Filtering --------------------------------------------------------------------- */
 
 void imu_eecf_update(imu_eecf_t *f, const imu_sample_t *s)
 {
@@ -173,12 +397,43 @@ void imu_eecf_update(imu_eecf_t *f, const imu_sample_t *s)
     imu_q30_t e_acc[3] = {0, 0, 0}; /* gravity error, rad (small-angle), Q30 */
     imu_q30_t e_mag[3] = {0, 0, 0}; /* heading error mapped to the sensor frame, Q30 */
     imu_q30_t theta[3];       /* rotation vector of this step, rad, Q30 */
+    imu_q30_t acc_weight = 0; /* weight of the gravity error in the integral, Q30 */
+    imu_q16_t acc_norm;       /* |acc|, m/s^2, Q16 */
+    const imu_wide_t limit = IMU_WMUL(f->settings.bias_limit, IMU_ONE_Q30); /* Q24 -> Q54, <= 2^54 */
+    imu_q16_t kp, kp_mag;     /* proportional gains of this sample, 1/s, Q16 */
     int k;
 
+    rest_update(f, s);
     if (imu_eecf_aligning(f)) {
         align_step(f, s);
         ++f->sample_count;
         return;
+    }
+
+    if (imu_eecf_at_rest(f)) {
+        /* At rest the mean gyroscope reading is the bias: the integral (minus the
+         * bias) follows it with time constant rest_tau. Difference in Q24
+         * (saturated), times alpha (Q30, <= 1) -> Q54 below 2^61; the integral is at
+         * most 2^54 before: no overflow. */
+        for (k = 0; k < 3; ++k) {
+            const imu_rate_t current = IMU_NARROW(IMU_WSHR(f->integral[k], 30)); /* Q54 -> Q24, |.| <= 2^24 */
+            const imu_rate_t diff =
+                IMU_SUB_SAT(IMU_NEG_SAT(f->gyr_mean[k], &f->saturations), current, &f->saturations);
+            f->integral[k] = clamp_wide(f->integral[k] + IMU_WMUL(diff, f->rest_alpha), limit);
+        }
+    }
+    if (quiet(f)) {
+        /* No linear acceleration (steady accelerometer, gravity unturned): the
+         * attitude follows the accelerometer and magnetometer with the gains for
+         * their noise alone, and |acc| is the gravity the integral's weight uses. A
+         * slow steady rotation about the vertical may be quiet: it changes nothing
+         * of this. */
+        kp = f->settings.rest_kp;
+        kp_mag = f->settings.rest_kp_mag;
+        f->gravity = f->acc_ref_norm;
+    } else {
+        kp = f->settings.kp;
+        kp_mag = f->settings.kp_mag;
     }
 
     /* Propagate with the gyroscope first: sample k covers the interval ending at
@@ -190,8 +445,17 @@ void imu_eecf_update(imu_eecf_t *f, const imu_sample_t *s)
     imu_quat_integrate(f->q, theta);
 
     imu_quat_matrix_row(f->q, 2, up); /* R^T e_z */
-    if (imu_vec3_normalize(s->acc, unit, 0)) {
+    if (imu_vec3_normalize(s->acc, unit, &acc_norm)) {
+        /* | |acc| - g |, Q16, clamped to 32 m/s^2 (< 2^22), then Q24 (< 2^30). */
+        imu_q16_t deviation = IMU_SUB_SAT(acc_norm, f->gravity, &f->saturations);
         imu_vec3_cross(unit, up, e_acc);
+        if (deviation > GRAVITY_DEVIATION_CLAMP) {
+            deviation = GRAVITY_DEVIATION_CLAMP;
+        } else if (deviation < -GRAVITY_DEVIATION_CLAMP) {
+            deviation = -GRAVITY_DEVIATION_CLAMP;
+        }
+        acc_weight = imu_deviation_weight(IMU_SHL_SAT(deviation, 8, &f->saturations), f->settings.acc_tolerance,
+                                          &f->saturations);
     }
     if (imu_vec3_normalize(s->mag, unit, 0)) {
         /* Field in the estimated earth frame; its east share over its horizontal
@@ -209,23 +473,19 @@ void imu_eecf_update(imu_eecf_t *f, const imu_sample_t *s)
     }
 
     for (k = 0; k < 3; ++k) {
-        /* Integral: e (Q30, |e| <= 2) * ki (Q16) >> 16 -> rad/s^2 Q30; * dt >> 30 -> rad/s Q30. */
-        const imu_q30_t e_sum = IMU_ADD_SAT(e_acc[k], e_mag[k], &f->saturations);
-        const imu_q30_t limit = IMU_SHL_SAT(f->settings.bias_limit, 6, &f->saturations);
-        imu_q30_t integral = IMU_ADD_SAT(
-            f->integral[k], IMU_MUL_SAT(IMU_MUL_SAT(e_sum, f->settings.ki, 16, &f->saturations), f->dt, 30, &f->saturations),
-            &f->saturations);
+        /* Integral, Q54: the errors weighted by the accelerometer's agreement with
+         * gravity (Q30 * Q30 >> 30, at most 1 + rounding), times ki dt (Q34, < 2^31)
+         * -> Q64 below 2^62, >> 10 -> Q54 below 2^52 per term; |I| <= 2^54 before:
+         * no overflow, and the clamp keeps |I| <= bias_limit. */
+        const imu_wide_t increment = IMU_WSHR(IMU_WMUL(IMU_MUL(acc_weight, e_acc[k], 30), f->ki_dt), 10) +
+                                     IMU_WSHR(IMU_WMUL(IMU_MUL(acc_weight, e_mag[k], 30), f->ki_mag_dt), 10);
         imu_rate_t rate;
-        if (integral > limit) {
-            integral = limit;
-        } else if (integral < -limit) {
-            integral = -limit;
-        }
-        f->integral[k] = integral;
+        f->integral[k] = clamp_wide(f->integral[k] + increment, limit);
         /* Correction rate kp e_acc + kp_mag e_mag + I; kp (Q16) * e (Q30) >> 22 -> Q24. */
-        rate = IMU_MUL_SAT(f->settings.kp, e_acc[k], 22, &f->saturations);
-        rate = IMU_ADD_SAT(rate, IMU_MUL_SAT(f->settings.kp_mag, e_mag[k], 22, &f->saturations), &f->saturations);
-        rate = IMU_ADD_SAT(rate, IMU_SHR(integral, 6), &f->saturations);
+        rate = IMU_MUL_SAT(kp, e_acc[k], 22, &f->saturations);
+        rate = IMU_ADD_SAT(rate, IMU_MUL_SAT(kp_mag, e_mag[k], 22, &f->saturations), &f->saturations);
+        /* I (Q54, |I| <= 2^54) >> 30 -> Q24, at most 2^24: it fits int32. */
+        rate = IMU_ADD_SAT(rate, IMU_NARROW(IMU_WSHR(f->integral[k], 30)), &f->saturations);
         /* rad/s Q24 * s Q30 >> 24 -> rad Q30 (below 2 for |rate| dt < 2). */
         theta[k] = IMU_MUL_SAT(rate, f->dt, 24, &f->saturations);
     }
@@ -240,6 +500,7 @@ void imu_eecf_get(const imu_eecf_t *f, imu_output_t *out)
     }
     imu_quat_to_euler(f->q, out->euler);
     for (k = 0; k < 3; ++k) {
-        out->gyro_bias[k] = -IMU_SHR(f->integral[k], 6);
+        /* Q54 -> Q24, |I| <= 2^54: fits, and its negation too. */
+        out->gyro_bias[k] = -IMU_NARROW(IMU_WSHR(f->integral[k], 30));
     }
 }

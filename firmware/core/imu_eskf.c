@@ -627,8 +627,16 @@ static void lowpass_specific_force(imu_eskf_t *f, imu_q16_t acc[3])
     }
 }
 
+/** x clamped to +-INPUT_LIMIT (Q16). */
+static imu_q16_t within_input_limit(imu_q16_t x)
+{
+    return x > INPUT_LIMIT ? INPUT_LIMIT : (x < -INPUT_LIMIT ? -INPUT_LIMIT : x);
+}
+
 /** v <- v + (R dtheta) x v: an earth-frame vector (Q16) after the estimate turned by dtheta
- *  (sensor frame, Q30, at most 1 rad). */
+ *  (sensor frame, Q30, at most 1 rad). The first-order turn lengthens v by up to sqrt(2)
+ *  per call: kept within the inputs' limit, which a low-passed specific force cannot leave
+ *  (and so that R^T v fits Q16 in lowpass_specific_force). */
 static void turn_earth_vector(imu_eskf_t *f, imu_q16_t v[3], const imu_q30_t dtheta[3])
 {
     imu_q30_t u[3];
@@ -639,7 +647,7 @@ static void turn_earth_vector(imu_eskf_t *f, imu_q16_t v[3], const imu_q30_t dth
     c[1] = IMU_SUB(IMU_MUL(u[2], v[0], 30), IMU_MUL(u[0], v[2], 30));
     c[2] = IMU_SUB(IMU_MUL(u[0], v[1], 30), IMU_MUL(u[1], v[0], 30));
     for (k = 0; k < 3; ++k) {
-        v[k] = IMU_ADD_SAT(v[k], c[k], &f->saturations);
+        v[k] = within_input_limit(IMU_ADD_SAT(v[k], c[k], &f->saturations));
     }
 }
 
@@ -772,7 +780,7 @@ static void clamp_input(const imu_q16_t in[3], imu_q16_t out[3], unsigned bit, u
 {
     int k;
     for (k = 0; k < 3; ++k) {
-        out[k] = in[k] > INPUT_LIMIT ? INPUT_LIMIT : (in[k] < -INPUT_LIMIT ? -INPUT_LIMIT : in[k]);
+        out[k] = within_input_limit(in[k]);
         if (out[k] != in[k]) {
             *clipped |= bit;
         }

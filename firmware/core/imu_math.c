@@ -272,6 +272,80 @@ void imu_sincos(imu_angle_t angle, imu_q30_t *s, imu_q30_t *c)
     *s = (imu_q30_t)(negate ? -vy : vy);
 }
 
+/** (v >> s) rounded to nearest, ties to even, for s in [1, 62] and |v| < 2^62. Unbiased
+ *  and odd-symmetric (v and -v give opposite results): unlike ties toward +inf, the
+ *  rounding adds no drift of its own direction. (int64_t is two's complement: the mask
+ *  reads the low bits of negative values too.) */
+static int64_t rshift_round_even64(int64_t v, int s)
+{
+    const int64_t half = (int64_t)1 << (s - 1);
+    int64_t r = (v + half) >> s; /* ties up */
+    if ((v & (((int64_t)1 << s) - 1)) == half && (r & 1) != 0) {
+        r -= 1; /* a tie went up to an odd value: its even neighbour is one below */
+    }
+    return r;
+}
+
+/**
+ * q <- normalize(q (x) (w, v)): the product with a rotation step whose vector part v
+ * carries one more fraction bit than the quaternion (w: Q30, v: Q31, |v| <= sin(1/2)),
+ * so that the half angle of a small step is exact instead of rounded to Q30, and the
+ * normalisation applied before the one rounding to Q30.
+ *
+ * Product: the w terms are doubled to Q61 and every sum is formed exactly in int64:
+ * each output is sum_i +-q_a(i) d_i over the four components d of the step, so every
+ * partial sum is at most |q| |(w, v)| (Cauchy-Schwarz): below 2^62 (Q61) while
+ * |q| |(w, v)| < 2 (unit quaternions, up to |q| = 2 as imu_quat_normalize takes).
+ *
+ * Normalisation: |q (x) dq|^2 = |q|^2 |dq|^2 = 1 + eps with eps from the two norms
+ * (Q58, exact to 2^-58). For |eps| < 2^-11 (every filter step: q was normalised by the
+ * previous step, the step's series are exact to 2e-5) the product is scaled by
+ * 1/sqrt(1 + eps) = 1 - eps/2 + 3 eps^2/8 (error below 2^-34) in Q61, and rounded
+ * once, ties to even. Rounding first and scaling by a factor quantised to Q30 (as
+ * imu_quat_normalize does) shortens the components above 1/2 by one LSB while those
+ * below keep theirs: a rotation about the attitude's own axis of up to 1e-9 rad per
+ * step, the same whichever way the board turns. Larger eps: rounded, then
+ * imu_quat_normalize.
+ */
+static void quat_mul_step_normalized(imu_q30_t q[4], imu_q30_t w, const int32_t v[3])
+{
+    const int64_t w2 = (int64_t)w * 2; /* Q31 */
+    const int64_t one58 = (int64_t)1 << 58;
+    const int64_t near = (int64_t)1 << 47; /* 2^-11 in Q58 */
+    int64_t r[4];                          /* the product, Q61 */
+    int64_t a = -one58;                    /* |q|^2 - 1, Q58: four squares (< 2^62) / 4, minus 1 */
+    int64_t b;                             /* |dq|^2 - 1, Q58 */
+    int i;
+    r[0] = (int64_t)q[0] * w2 - (int64_t)q[1] * v[0] - (int64_t)q[2] * v[1] - (int64_t)q[3] * v[2];
+    r[1] = (int64_t)q[0] * v[0] + (int64_t)q[1] * w2 + (int64_t)q[2] * v[2] - (int64_t)q[3] * v[1];
+    r[2] = (int64_t)q[0] * v[1] - (int64_t)q[1] * v[2] + (int64_t)q[2] * w2 + (int64_t)q[3] * v[0];
+    r[3] = (int64_t)q[0] * v[2] + (int64_t)q[1] * v[1] - (int64_t)q[2] * v[0] + (int64_t)q[3] * w2;
+    for (i = 0; i < 4; ++i) {
+        a += ((int64_t)q[i] * q[i]) >> 2; /* at most 2^60 each: the sum stays below 2^62 */
+    }
+    /* w^2 (Q60, w <= 2^30) / 4 plus |v|^2 (Q62, each v at most 2^30) / 16: below 2^59. */
+    b = (((int64_t)w * w) >> 2) + (((int64_t)v[0] * v[0]) >> 4) + (((int64_t)v[1] * v[1]) >> 4) +
+        (((int64_t)v[2] * v[2]) >> 4) - one58;
+    if (a < near && a > -near && b < near && b > -near) {
+        /* eps = a + b + a b, Q58, |eps| < 2^49 (|a b| < 2^36 from the Q29 factors). */
+        const int64_t eps = a + b + (a >> 29) * (b >> 29);
+        const int64_t eps29 = eps >> 29; /* Q29, |eps29| < 2^20 */
+        /* k = eps/2 - 3 eps^2/8 in Q40 (|k| < 2^30): Q58 >> 19, and Q58 >> 21 for 3/8. */
+        const int64_t k = (eps >> 19) - ((3 * eps29 * eps29) >> 21);
+        for (i = 0; i < 4; ++i) {
+            /* r (Q61, |r| < 2^62) >> 31 is Q30 below 2^31; times k (Q40) is Q70 below 2^61;
+             * >> 9 -> Q61. The truncations cost 2^-9 LSB of the result. */
+            const int64_t c = ((r[i] >> 31) * k) >> 9;
+            q[i] = IMU_NARROW(rshift_round_even64(r[i] - c, 31)); /* |r - c| < 2^62: below 2^31 */
+        }
+        return;
+    }
+    for (i = 0; i < 4; ++i) {
+        q[i] = IMU_NARROW(rshift_round_even64(r[i], 31)); /* |r| < 2^62: below 2^31 */
+    }
+    imu_quat_normalize(q);
+}
+
 void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3])
 {
     /* |theta|^2 in Q60 (three squares below 2^62 each: below 2^64 unsigned). */
@@ -297,17 +371,16 @@ void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3])
     /* cos x = 1 - x^2/2 + x^4/24; sin(x)/x = 1 - x^2/6 + x^4/120 (Q30). */
     const int32_t cos_x = IMU_ONE_Q30 - x2 / 2 + x4 / 24;
     const int32_t sinc_x = IMU_ONE_Q30 - x2 / 6 + x4 / 120;
-    imu_q30_t dq[4];
-    imu_q30_t out[4];
-    dq[0] = cos_x;
+    int32_t half_step[3]; /* sin(x) * step / |step| = sinc * step / 2, Q31 */
     for (i = 0; i < 3; ++i) {
-        dq[i + 1] = imu_mul(sinc_x, step[i], 31); /* sinc * step / 2 */
+        /* sinc (<= 2^30) * step (|step| <= 2^30) / 2 in Q31: Q60 >> 30, magnitude at
+         * most 2^30. Exact for steps below 4.3e-5 rad (sinc = 1); otherwise rounded
+         * symmetrically, so a step and its opposite give opposite half angles. (In Q30
+         * with ties toward +inf every odd step gained 2^-31 of half angle whatever its
+         * sign: a drift of 9.3e-10 rad per step on each axis.) */
+        half_step[i] = IMU_NARROW(rshift_round_even64((int64_t)sinc_x * step[i], 30));
     }
-    imu_quat_mul(q, dq, out);
-    for (i = 0; i < 4; ++i) {
-        q[i] = out[i];
-    }
-    imu_quat_normalize(q);
+    quat_mul_step_normalized(q, cos_x, half_step);
 }
 
 /** Sum of two Q30 products (Q60 in int64). */
