@@ -172,10 +172,8 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
     for (k = 1; k < 4; ++k) {
         f->q[k] = f->q_out[k] = 0;
     }
-    f->ref_field = 0;
-    f->ref_dip = 0;
-    f->cand_field = 0;
-    f->cand_dip = 0;
+    f->ref.norm = f->ref.dip = 0;
+    f->cand.norm = f->cand.dip = 0;
     f->cand_steps = 0;
     f->turning = 0;
     /* NEW_FIELD_TIME * filter rate, as learn_steps. */
@@ -233,6 +231,23 @@ static int field_norm_dip(const imu_eskf_t *f, const imu_q16_t mag[3], imu_q16_t
     return 1;
 }
 
+/** A field's norm (uT, Q16) and dip (rad, Q29) from their Q46 / Q59 form. */
+static imu_q16_t reference_norm(const imu_eskf_field_t *field)
+{
+    return IMU_NARROW(IMU_WSHR(field->norm, 30)); /* at most the largest input norm, 1774 uT */
+}
+
+static imu_angle_t reference_dip(const imu_eskf_field_t *field)
+{
+    return IMU_NARROW(IMU_WSHR(field->dip, 30)); /* within +-pi/2 */
+}
+
+static void set_reference(imu_eskf_field_t *field, imu_q16_t norm, imu_angle_t dip)
+{
+    field->norm = IMU_WMUL(norm, IMU_ONE_Q30);
+    field->dip = IMU_WMUL(dip, IMU_ONE_Q30);
+}
+
 /**
  * Take the field as the magnetic reference when it is plausible (an earth-sized norm
  * with a horizontal share the heading can be read from): the dip and norm are then
@@ -247,10 +262,9 @@ static int acquire_reference(imu_eskf_t *f, const imu_q16_t mag[3])
         horizontal < MIN_HORIZONTAL_FIELD) {
         return 0;
     }
-    f->ref_field = norm;
-    f->ref_dip = dip;
+    set_reference(&f->ref, norm, dip);
     f->steps = 0;
-    f->cand_field = 0;
+    f->cand.norm = 0;
     f->cand_steps = 0;
     return 1;
 }
@@ -263,7 +277,7 @@ static void initialise(imu_eskf_t *f, const imu_sample_t *s)
     imu_q30_t acc_std_g;
     int k;
     align_to(f, s->acc, s->mag);
-    f->ref_field = 0;
+    f->ref.norm = 0;
     if ((s->clipped & IMU_CLIPPED_MAG) == 0) {
         (void)acquire_reference(f, s->mag);
     }
@@ -481,10 +495,12 @@ static void restart_attitude_uncertainty(imu_eskf_t *f)
  * Weight (Q30) of a field of norm `norm` (uT, Q16) and dip `dip` against a reference
  * field: the product of the norm and dip deviation weights; *w_norm gets the first.
  */
-static imu_q30_t field_weight(imu_eskf_t *f, imu_q16_t norm, imu_angle_t dip, imu_q16_t ref_norm,
-                              imu_angle_t ref_dip, imu_q30_t *w_norm)
+static imu_q30_t field_weight(imu_eskf_t *f, imu_q16_t norm, imu_angle_t dip, const imu_eskf_field_t *ref,
+                              imu_q30_t *w_norm)
 {
     const imu_eskf_settings_t *st = &f->settings;
+    const imu_q16_t ref_norm = reference_norm(ref);
+    const imu_angle_t ref_dip = reference_dip(ref);
     /* |m| / ref beyond 64 is far outside any tolerance (and the Q24 ratio's range). */
     if (IMU_MUL(norm, IMU_QCONST(1.0 / 64.0, 30), 30) >= ref_norm) {
         *w_norm = 0;
@@ -499,12 +515,12 @@ static imu_q30_t field_weight(imu_eskf_t *f, imu_q16_t norm, imu_angle_t dip, im
                    30);
 }
 
-/** x <- x + rate (target - x) for a field norm (Q16) and dip (Q29); rate Q30 in [0, 1]. */
-static void follow_field(imu_q16_t *field, imu_angle_t *dip, imu_q16_t target_field, imu_angle_t target_dip,
-                         imu_q30_t rate)
+/** field <- field + rate (target - field) for the norm (Q16) and dip (Q29, within +-pi/2);
+ *  rate Q30 in [0, 1]. */
+static void follow_field(imu_eskf_field_t *field, imu_q16_t norm, imu_angle_t dip, imu_q30_t rate)
 {
-    *field = IMU_ADD(*field, IMU_MUL(rate, IMU_SUB(target_field, *field), 30)); /* both below 2^28 */
-    *dip = imu_angle_add(*dip, IMU_MUL(rate, imu_angle_diff(target_dip, *dip), 30));
+    field->norm += IMU_WMUL(rate, IMU_SUB(norm, reference_norm(field))); /* both below 2^28 */
+    field->dip += IMU_WMUL(rate, IMU_SUB(dip, reference_dip(field)));
 }
 
 /**
@@ -514,18 +530,16 @@ static void follow_field(imu_q16_t *field, imu_angle_t *dip, imu_q16_t target_fi
 static void track_candidate(imu_eskf_t *f, imu_q16_t norm, imu_angle_t dip)
 {
     imu_q30_t w_norm;
-    if (f->cand_field > 0 && field_weight(f, norm, dip, f->cand_field, f->cand_dip, &w_norm) >= IMU_QCONST(0.5, 30)) {
-        follow_field(&f->cand_field, &f->cand_dip, norm, dip, IMU_MUL(f->period, LEARN_RATE, 30));
+    if (f->cand.norm > 0 && field_weight(f, norm, dip, &f->cand, &w_norm) >= IMU_QCONST(0.5, 30)) {
+        follow_field(&f->cand, norm, dip, IMU_MUL(f->period, LEARN_RATE, 30));
         f->cand_steps += f->turning;
         if (f->cand_steps >= f->new_field_steps) {
-            f->ref_field = f->cand_field;
-            f->ref_dip = f->cand_dip;
-            f->cand_field = 0;
+            f->ref = f->cand;
+            f->cand.norm = 0;
             f->cand_steps = 0;
         }
     } else if (norm >= MIN_REF_FIELD && norm <= MAX_REF_FIELD) {
-        f->cand_field = norm;
-        f->cand_dip = dip;
+        set_reference(&f->cand, norm, dip);
         f->cand_steps = 0;
     }
 }
@@ -549,7 +563,7 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_q30_
     imu_q30_t h[9], z, sigma, w_norm;
     int i;
     f->mag_weight = 0;
-    if (f->ref_field <= 0) {
+    if (f->ref.norm <= 0) {
         /* No reference yet (a magnetometer that read zeros or nonsense so far). */
         if (acquire_reference(f, mag)) {
             align_heading(f, mag);
@@ -560,17 +574,17 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_q30_
     if (!field_norm_dip(f, mag, &norm, &dip, earth, &horizontal) || horizontal < MIN_HORIZONTAL_FIELD) {
         return;
     }
-    f->mag_weight = field_weight(f, norm, dip, f->ref_field, f->ref_dip, &w_norm);
+    f->mag_weight = field_weight(f, norm, dip, &f->ref, &w_norm);
     if (f->steps < f->learn_steps) {
         /* Learning: the first norm and dip came from one sample and an unconverged
          * attitude; follow the measured ones quickly (time constant 1 s) and let only
          * the norm gate. */
-        follow_field(&f->ref_field, &f->ref_dip, norm, dip, IMU_MUL(f->period, LEARN_RATE, 30));
+        follow_field(&f->ref, norm, dip, IMU_MUL(f->period, LEARN_RATE, 30));
         f->mag_weight = w_norm;
     } else if (f->mag_weight >= IMU_QCONST(0.5, 30)) {
         /* Undisturbed: follow slow changes of the reference (time constant 30 s). */
-        follow_field(&f->ref_field, &f->ref_dip, norm, dip, IMU_MUL(f->period, REF_RATE, 30));
-        f->cand_field = 0;
+        follow_field(&f->ref, norm, dip, IMU_MUL(f->period, REF_RATE, 30));
+        f->cand.norm = 0;
         f->cand_steps = 0;
     } else {
         track_candidate(f, norm, dip);
@@ -599,6 +613,12 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_q30_
     scalar_update(f, h, z, IMU_WMUL(sigma, sigma), 48, f->mag_weight, up, dx);
 }
 
+/** Component k of the low-passed specific force, m/s^2, Q16. */
+static imu_q16_t acc_earth_q16(const imu_eskf_t *f, int k)
+{
+    return IMU_NARROW(IMU_WSHR(f->acc_earth[k], 30)); /* kept within +-INPUT_LIMIT */
+}
+
 /**
  * Low-pass the specific force in the estimated earth frame, where rotations do
  * not change gravity but a back-and-forth translation averages out (time
@@ -608,46 +628,48 @@ static void lowpass_specific_force(imu_eskf_t *f, imu_q16_t acc[3])
 {
     imu_q30_t rows[3][3];
     imu_q16_t earth[3];
+    imu_q16_t smooth[3];
     int r, k;
     for (r = 0; r < 3; ++r) {
         imu_quat_matrix_row(f->q, r, rows[r]);
         /* Q30 * Q16 >> 30 -> Q16; |R a| = |a|. */
         earth[r] = IMU_ADD(IMU_ADD(IMU_MUL(rows[r][0], acc[0], 30), IMU_MUL(rows[r][1], acc[1], 30)),
                            IMU_MUL(rows[r][2], acc[2], 30));
-    }
-    for (r = 0; r < 3; ++r) {
+        /* alpha (Q30) * (earth - smooth) (Q16, both within 1774 m/s^2) -> Q46. */
         f->acc_earth[r] = f->acc_earth_valid
-                              ? IMU_ADD(f->acc_earth[r], IMU_MUL(f->acc_alpha, IMU_SUB(earth[r], f->acc_earth[r]), 30))
-                              : earth[r];
+                              ? f->acc_earth[r] + IMU_WMUL(f->acc_alpha, IMU_SUB(earth[r], acc_earth_q16(f, r)))
+                              : IMU_WMUL(earth[r], IMU_ONE_Q30);
+        smooth[r] = acc_earth_q16(f, r);
     }
     f->acc_earth_valid = 1;
     for (k = 0; k < 3; ++k) {
-        acc[k] = IMU_ADD(IMU_ADD(IMU_MUL(rows[0][k], f->acc_earth[0], 30), IMU_MUL(rows[1][k], f->acc_earth[1], 30)),
-                         IMU_MUL(rows[2][k], f->acc_earth[2], 30));
+        acc[k] = IMU_ADD(IMU_ADD(IMU_MUL(rows[0][k], smooth[0], 30), IMU_MUL(rows[1][k], smooth[1], 30)),
+                         IMU_MUL(rows[2][k], smooth[2], 30));
     }
 }
 
-/** x clamped to +-INPUT_LIMIT (Q16). */
-static imu_q16_t within_input_limit(imu_q16_t x)
+/**
+ * The low-passed specific force after the estimate turned by dtheta (sensor frame, Q30, at
+ * most 1 rad): v <- v + (R dtheta) x v. The first-order turn lengthens v by up to sqrt(2)
+ * per call: kept within the inputs' limit, which a low-passed specific force cannot leave
+ * (and so that R^T v fits Q16 in lowpass_specific_force).
+ */
+static void turn_acc_earth(imu_eskf_t *f, const imu_q30_t dtheta[3])
 {
-    return x > INPUT_LIMIT ? INPUT_LIMIT : (x < -INPUT_LIMIT ? -INPUT_LIMIT : x);
-}
-
-/** v <- v + (R dtheta) x v: an earth-frame vector (Q16) after the estimate turned by dtheta
- *  (sensor frame, Q30, at most 1 rad). The first-order turn lengthens v by up to sqrt(2)
- *  per call: kept within the inputs' limit, which a low-passed specific force cannot leave
- *  (and so that R^T v fits Q16 in lowpass_specific_force). */
-static void turn_earth_vector(imu_eskf_t *f, imu_q16_t v[3], const imu_q30_t dtheta[3])
-{
+    const imu_wide_t limit = IMU_WMUL(INPUT_LIMIT, IMU_ONE_Q30);
     imu_q30_t u[3];
-    imu_q16_t c[3];
+    imu_q16_t v[3];
     int k;
     imu_quat_rotate(f->q, dtheta, u);
-    c[0] = IMU_SUB(IMU_MUL(u[1], v[2], 30), IMU_MUL(u[2], v[1], 30));
-    c[1] = IMU_SUB(IMU_MUL(u[2], v[0], 30), IMU_MUL(u[0], v[2], 30));
-    c[2] = IMU_SUB(IMU_MUL(u[0], v[1], 30), IMU_MUL(u[1], v[0], 30));
     for (k = 0; k < 3; ++k) {
-        v[k] = within_input_limit(IMU_ADD_SAT(v[k], c[k], &f->saturations));
+        v[k] = acc_earth_q16(f, k);
+    }
+    /* Q30 * Q16 -> Q46, each product below 2^57. */
+    f->acc_earth[0] += IMU_WMUL(u[1], v[2]) - IMU_WMUL(u[2], v[1]);
+    f->acc_earth[1] += IMU_WMUL(u[2], v[0]) - IMU_WMUL(u[0], v[2]);
+    f->acc_earth[2] += IMU_WMUL(u[0], v[1]) - IMU_WMUL(u[1], v[0]);
+    for (k = 0; k < 3; ++k) {
+        f->acc_earth[k] = f->acc_earth[k] > limit ? limit : (f->acc_earth[k] < -limit ? -limit : f->acc_earth[k]);
     }
 }
 
@@ -688,6 +710,21 @@ static int longer_than(const imu_wide_t phi[3], imu_q30_t angle)
     return sum > IMU_WMUL(angle, angle);
 }
 
+/**
+ * A group's mean from its sum (same Q format, |sum| < 2^31 - 1), rounded to nearest: a
+ * truncating division pulls every mean towards zero by a third of an LSB on average, an
+ * error the slow states (the low-passed specific force, the field reference) keep
+ * instead of averaging it out.
+ */
+static imu_real_t mean_of_three(imu_real_t sum)
+{
+#ifdef IMU_FIXED
+    return (sum >= 0 ? sum + 1 : sum - 1) / 3;
+#else
+    return sum / 3;
+#endif
+}
+
 /** One filter step at the end of a group of three samples. */
 static void filter_step(imu_eskf_t *f)
 {
@@ -706,11 +743,11 @@ static void filter_step(imu_eskf_t *f)
     predict_covariance(f, dq);
     f->turning = longer_than(phi, IMU_MUL(NEW_FIELD_MIN_RATE, f->period, 30));
     for (k = 0; k < 3; ++k) {
-        acc[k] = f->acc_sum[k] / 3;
-        mag[k] = f->mag_sum[k] / 3;
+        acc[k] = mean_of_three(f->acc_sum[k]);
+        mag[k] = mean_of_three(f->mag_sum[k]);
         f->acc_sum[k] = 0;
         f->mag_sum[k] = 0;
-        gyr[k] = IMU_SHL_SAT(f->gyr_sum[k] / 3, 2, &f->saturations); /* Q22 -> Q24 */
+        gyr[k] = IMU_SHL_SAT(mean_of_three(f->gyr_sum[k]), 2, &f->saturations); /* Q22 -> Q24 */
         f->gyr_sum[k] = 0;
         bias[k] = IMU_SHR(f->gyro_bias[k], 6);
     }
@@ -747,7 +784,7 @@ static void filter_step(imu_eskf_t *f)
      * estimated earth frame's correction (exp(R dtheta)). A correction beyond a radian
      * is no small error: it is limited to one radian (the next steps do the rest). */
     limit_to_one_radian(&dx[ATT]);
-    turn_earth_vector(f, f->acc_earth, &dx[ATT]);
+    turn_acc_earth(f, &dx[ATT]);
     imu_quat_integrate(f->q, &dx[ATT]);
     for (k = 0; k < 3; ++k) {
         f->gyro_bias[k] = IMU_ADD_SAT(f->gyro_bias[k], dx[GYRO_BIAS + k], &f->saturations);
@@ -780,7 +817,7 @@ static void clamp_input(const imu_q16_t in[3], imu_q16_t out[3], unsigned bit, u
 {
     int k;
     for (k = 0; k < 3; ++k) {
-        out[k] = within_input_limit(in[k]);
+        out[k] = in[k] > INPUT_LIMIT ? INPUT_LIMIT : (in[k] < -INPUT_LIMIT ? -INPUT_LIMIT : in[k]);
         if (out[k] != in[k]) {
             *clipped |= bit;
         }

@@ -103,6 +103,14 @@ extern const imu_eskf_settings_t imu_eskf_default_settings;
 extern const imu_setting_desc_t imu_eskf_setting_descs[];
 extern const int imu_eskf_setting_count;
 
+/** A magnetic field's norm and dip, with 30 fraction bits more than the measured ones: the
+ *  reference follows a field with a time constant of up to 30 s, whose step at a high rate is
+ *  a fraction of a Q16 or Q29 LSB (rounded, it would stop up to 0.4 uT short). */
+typedef struct {
+    imu_wide_t norm; /**< uT, Q46 */
+    imu_wide_t dip;  /**< below the horizon positive, rad, Q59 */
+} imu_eskf_field_t;
+
 /** State. All members are private. */
 typedef struct {
     imu_eskf_settings_t settings;
@@ -127,15 +135,15 @@ typedef struct {
     imu_q30_t q_out[4];           /**< attitude at the last sample, Q30 */
     imu_q30_t gyro_bias[3];       /**< rad/s, Q30 */
     imu_q30_t acc_bias[3];        /**< in units of g, Q30 */
-    imu_q16_t ref_field;          /**< reference field norm, uT, Q16 */
-    imu_angle_t ref_dip;          /**< reference dip (below the horizon positive), rad, Q29 */
-    imu_q16_t cand_field;         /**< candidate reference field norm while disturbed, uT, Q16; 0: none */
-    imu_angle_t cand_dip;         /**< candidate reference dip, rad, Q29 */
+    imu_eskf_field_t ref;         /**< reference field; norm 0: none yet */
+    imu_eskf_field_t cand;        /**< candidate reference field while disturbed; norm 0: none */
     int32_t cand_steps;           /**< turning filter steps the candidate has held */
     int32_t new_field_steps;      /**< filter steps of NEW_FIELD_TIME */
     int turning;                  /**< 1 when the last filter step turned faster than 20 deg/s */
     imu_q30_t acc_alpha;          /**< low-pass weight T / (acc_lowpass + T), Q30 */
-    imu_q16_t acc_earth[3];       /**< low-passed specific force in the estimated earth frame, m/s^2, Q16 */
+    imu_wide_t acc_earth[3];      /**< low-passed specific force in the estimated earth frame, m/s^2, Q46:
+                                       a step of the low-pass or of a correction's turn is a fraction of a
+                                       Q16 LSB at high rates, and such rounding errors repeat step after step */
     int acc_earth_valid;          /**< 0 until the low-pass has its first value */
     imu_q30_t acc_weight;         /**< weight of the last gravity update, Q30 */
     imu_q30_t mag_weight;         /**< weight of the last heading update, Q30 */
