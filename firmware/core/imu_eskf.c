@@ -168,9 +168,9 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
         f->acc_sum[k] = 0;
         f->mag_sum[k] = 0;
     }
-    f->q[0] = f->q_out[0] = IMU_ONE_Q30;
+    f->q[0] = f->q_out[0] = f->injected[0] = IMU_ONE_Q30;
     for (k = 1; k < 4; ++k) {
-        f->q[k] = f->q_out[k] = 0;
+        f->q[k] = f->q_out[k] = f->injected[k] = 0;
     }
     f->ref.norm = f->ref.dip = 0;
     f->cand.norm = f->cand.dip = 0;
@@ -356,8 +356,9 @@ static void limit_to_one_radian(imu_q30_t v[3])
 }
 
 /**
- * Covariance time update over one filter period whose attitude increment is dq:
- * Phi_att,att = R(dq)^T (the exact transition of the attitude error; the first-order
+ * Covariance time update over one filter period whose frame turned by dq (the last
+ * correction and the step's rotation): Phi_att,att = R(dq)^T (the exact transition of
+ * the attitude error; the first-order
  * I - [phi x] lets the variance grow without bound in fast rotation), Phi_att,bias = -T I.
  * The attitude variances are then kept below 1 rad^2.
  */
@@ -487,7 +488,9 @@ static void restart_attitude_uncertainty(imu_eskf_t *f)
     int k;
     for (k = 0; k < 3; ++k) {
         imu_cov_reset_state(&f->cov, ATT + k, var, 56, &f->saturations);
+        f->injected[k + 1] = 0; /* the new variances belong to the new frame */
     }
+    f->injected[0] = IMU_ONE_Q30;
     f->acc_earth_valid = 0; /* its earth frame was the lost one */
 }
 
@@ -729,7 +732,7 @@ static imu_real_t mean_of_three(imu_real_t sum)
 static void filter_step(imu_eskf_t *f)
 {
     imu_wide_t phi[3];
-    imu_q30_t dq[4], q_prev[4], up[3], dx[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+    imu_q30_t dq[4], q_prev[4], turn[4], up[3], dx[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
     imu_q16_t acc[3], mag[3];
     imu_rate_t gyr[3], bias[3];
     int k;
@@ -740,7 +743,14 @@ static void filter_step(imu_eskf_t *f)
     }
     imu_quat_mul(q_prev, dq, f->q);
     imu_quat_normalize(f->q);
-    predict_covariance(f, dq);
+    /* The error state lives in the estimate's frame, which turned by the last correction
+     * and by this step's rotation: P turns with both. (Turned by the step alone, P's
+     * unobservable heading direction lags the estimated vertical after every tilt
+     * correction, and the gravity updates then shrink the heading variance although
+     * they carry no heading information: without a magnetometer the filter became
+     * overconfident in heading. The first-order reset I - [dtheta/2 x] halves that.) */
+    imu_quat_mul(f->injected, dq, turn);
+    predict_covariance(f, turn);
     f->turning = longer_than(phi, IMU_MUL(NEW_FIELD_MIN_RATE, f->period, 30));
     for (k = 0; k < 3; ++k) {
         acc[k] = mean_of_three(f->acc_sum[k]);
@@ -786,6 +796,11 @@ static void filter_step(imu_eskf_t *f)
     limit_to_one_radian(&dx[ATT]);
     turn_acc_earth(f, &dx[ATT]);
     imu_quat_integrate(f->q, &dx[ATT]);
+    f->injected[0] = IMU_ONE_Q30;
+    for (k = 0; k < 3; ++k) {
+        f->injected[k + 1] = 0;
+    }
+    imu_quat_integrate(f->injected, &dx[ATT]);
     for (k = 0; k < 3; ++k) {
         f->gyro_bias[k] = IMU_ADD_SAT(f->gyro_bias[k], dx[GYRO_BIAS + k], &f->saturations);
         if (imu_eskf_state_count(f) == 9) {

@@ -133,6 +133,7 @@ typedef struct {
     imu_q16_t mag_sum[3];         /**< sum of the group's magnetic field, uT, Q16 */
     imu_q30_t q[4];               /**< attitude at the last filter step, Q30 */
     imu_q30_t q_out[4];           /**< attitude at the last sample, Q30 */
+    imu_q30_t injected[4];        /**< the last correction's rotation exp(dtheta), Q30 (see filter_step) */
     imu_q30_t gyro_bias[3];       /**< rad/s, Q30 */
     imu_q30_t acc_bias[3];        /**< in units of g, Q30 */
     imu_eskf_field_t ref;         /**< reference field; norm 0: none yet */
