@@ -62,9 +62,27 @@ static int in_range(imu_real_t v, imu_real_t lo, imu_real_t hi)
     return v >= lo && v <= hi;
 }
 
+/**
+ * Weight dt / (tau + dt) of a first-order low-pass with time constant tau (s, Q16,
+ * at most 1000) sampled every dt (s, Q30, at most 0.1), Q30 in [0, 1].
+ *
+ * The numerator keeps all of dt's bits (Q30 * 2^16 / Q16 -> Q30, below 2^43 before
+ * the division). Rounded to Q16 it would carry the time constant's error: at 5 kHz
+ * dt is 13.1 LSB of Q16, rounded to 13, and every low-pass ran 0.8 % slow (at 1 kHz
+ * 65.5 LSB, 0.7 % fast), which moved the fixed build's alignment up to 0.2 deg away
+ * from the float twin's. The denominator's Q16 rounding (at most 2^-17 s) is small
+ * beside tau + dt. With tau near zero it may lift the quotient above one: clamped
+ * there (the float value is one). dt >= 2^15 (rates below 32768 Hz): the
+ * denominator is at least 2.
+ */
+static imu_q30_t lowpass_weight(imu_q30_t dt, imu_q16_t tau, uint32_t *sat)
+{
+    const imu_q30_t alpha = IMU_DIV_SAT(dt, IMU_ADD(tau, IMU_SHR(dt, 14)), 16, sat);
+    return alpha > IMU_ONE_Q30 ? IMU_ONE_Q30 : alpha;
+}
+
 imu_status_t imu_eecf_set_settings(imu_eecf_t *f, const imu_eecf_settings_t *s)
 {
-    imu_q16_t dt_q16;
     int i;
     if (s->sample_rate < IMU_QCONST(10.0, 16) || !in_range(s->kp, 0, IMU_QCONST(100.0, 16)) ||
         !in_range(s->kp_mag, 0, IMU_QCONST(100.0, 16)) || !in_range(s->ki, 0, IMU_QCONST(1.0, 30)) ||
@@ -81,12 +99,10 @@ imu_status_t imu_eecf_set_settings(imu_eecf_t *f, const imu_eecf_settings_t *s)
     f->saturations = 0;
     /* dt = 1 / rate: 2^46 / rate_q16 < 2^31 for rates above 0.5 Hz. */
     f->dt = IMU_DIV_SAT(IMU_QCONST(1.0, 16), s->sample_rate, 30, &f->saturations);
-    dt_q16 = IMU_SHR(f->dt, 14);
-    /* alpha = dt / (tau + dt) in [0, 1], Q30 (tau <= 10 s: the sum fits Q16). */
-    f->align_alpha = IMU_DIV_SAT(dt_q16, IMU_ADD(s->align_tau, dt_q16), 30, &f->saturations);
-    f->rest_alpha = IMU_DIV_SAT(dt_q16, IMU_ADD(s->rest_tau, dt_q16), 30, &f->saturations);
-    /* rest_bias_tau <= 1000 s: the sum fits Q16 too. */
-    f->bias_alpha = IMU_DIV_SAT(dt_q16, IMU_ADD(s->rest_bias_tau, dt_q16), 30, &f->saturations);
+    /* Low-pass weights dt / (tau + dt), Q30 (see lowpass_weight). */
+    f->align_alpha = lowpass_weight(f->dt, s->align_tau, &f->saturations);
+    f->rest_alpha = lowpass_weight(f->dt, s->rest_tau, &f->saturations);
+    f->bias_alpha = lowpass_weight(f->dt, s->rest_bias_tau, &f->saturations);
     /* ki (Q30, <= 1) * dt (Q30, <= 0.1) >> 26 -> Q34, at most 0.1 * 2^34 < 2^31. */
     f->ki_dt = IMU_MUL(s->ki, f->dt, 26);
     f->ki_mag_dt = IMU_MUL(s->ki_mag, f->dt, 26);
