@@ -336,7 +336,8 @@ def format_markdown(results, trials, filters, arithmetics) -> str:
     return "\n".join(lines)
 
 
-def _csv_choice(value: str, allowed, what: str) -> list[str]:
+def csv_choice(value: str, allowed, what: str) -> list[str]:
+    """argparse type: a comma-separated list whose items are all in `allowed`."""
     items = [v.strip() for v in value.split(",") if v.strip()]
     bad = [v for v in items if v not in allowed]
     if bad or not items:
@@ -353,10 +354,10 @@ def main(argv=None) -> int:
                    help="directory with the BROAD .mat files (default: ../shared/data/broad "
                         "relative to the repository root)")
     p.add_argument("--filters", default=",".join(core.FILTERS),
-                   type=lambda v: _csv_choice(v, list(core.FILTERS), "filter"),
+                   type=lambda v: csv_choice(v, list(core.FILTERS), "filter"),
                    help=f"comma-separated filters (default: {','.join(core.FILTERS)})")
     p.add_argument("--arithmetic", default="fixed,float",
-                   type=lambda v: _csv_choice(v, list(core.ARITHMETICS), "arithmetic"),
+                   type=lambda v: csv_choice(v, list(core.ARITHMETICS), "arithmetic"),
                    help="comma-separated arithmetics: fixed, float (default: fixed,float)")
     p.add_argument("--settings", default=None,
                    help='JSON settings overrides per filter, e.g. \'{"eecf": {"kp": 0.5}}\'')

@@ -62,8 +62,12 @@ import json
 import sys
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from eval_broad import csv_choice  # noqa: E402  (a sibling script: its argparse list type)
 
 #: Scenario names, in table order.
 SCENARIOS = ("static", "slow", "static-nomag", "slow-nomag")
@@ -394,20 +398,12 @@ def plot(results, cfg: Config, path) -> bool:
     return True
 
 
-def _csv(value: str, allowed, what: str) -> list[str]:
-    items = [v.strip() for v in value.split(",") if v.strip()]
-    bad = [v for v in items if v not in allowed]
-    if bad or not items:
-        raise argparse.ArgumentTypeError(f"unknown {what} {bad or value!r}; choose from {', '.join(allowed)}")
-    return items
-
-
 def main(argv=None) -> int:
     from imulink import core
 
     p = argparse.ArgumentParser(description="ESKF covariance consistency (NEES against chi-square bounds) on "
                                             "simulations whose noise matches the filter settings.")
-    p.add_argument("--scenarios", default=",".join(SCENARIOS), type=lambda v: _csv(v, SCENARIOS, "scenario"),
+    p.add_argument("--scenarios", default=",".join(SCENARIOS), type=lambda v: csv_choice(v, SCENARIOS, "scenario"),
                    help=f"comma-separated scenarios (default: {','.join(SCENARIOS)})")
     p.add_argument("--runs", type=int, default=Config.runs, help=f"Monte-Carlo runs (default {Config.runs})")
     p.add_argument("--duration", type=float, default=Config.duration_s,
@@ -418,7 +414,7 @@ def main(argv=None) -> int:
     p.add_argument("--skip", type=float, default=Config.skip_s,
                    help=f"statistics over t >= SKIP seconds (default {Config.skip_s:g})")
     p.add_argument("--first-seed", type=int, default=Config.first_seed, help="seed of the first run (default 1)")
-    p.add_argument("--arithmetic", default="fixed", type=lambda v: _csv(v, list(core.ARITHMETICS), "arithmetic"),
+    p.add_argument("--arithmetic", default="fixed", type=lambda v: csv_choice(v, list(core.ARITHMETICS), "arithmetic"),
                    help="comma-separated builds: fixed, float (default fixed)")
     p.add_argument("--acc-bias", action="store_true",
                    help="estimate the accelerometer bias (9 states) and simulate one drawn from the prior")
