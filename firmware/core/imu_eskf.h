@@ -67,7 +67,8 @@
  * within acc_tolerance of g, with the initial attitude uncertainty.
  *
  * After each filter step the error is injected (q <- q (x) exp(dtheta), dtheta
- * limited to 1 rad; biases += their errors) and the error state restarts at zero.
+ * limited to 1 rad; biases += their errors) and the error state restarts at zero; the
+ * next prediction turns P by that correction as well as by the step's rotation.
  *
  * Inputs beyond 1024 m/s^2 or 1024 uT (beyond every MPU6050 and HMC5883L range; only
  * scale settings no real sensor has produce them) are clamped and count as clipped.
