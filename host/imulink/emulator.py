@@ -33,6 +33,8 @@ import numpy as np
 
 from . import core, protocol, sim
 from .counts import BROAD_PROFILE, DEFAULT_PROFILE, SensorProfile, si_to_counts
+from .files import FileError, read_regular_file
+from .firmware_image import MAX_IMAGE_BYTES
 from .proxy import FaultConfig, Proxy, make_front
 
 TARGETS = ("native", "qemu")
@@ -93,7 +95,10 @@ _IMAGE_MARKS = {"native": b"usage: imulink-native", "qemu": b"qemu-stm32f405"}
 
 def _check_image(target: str, path: Path) -> None:
     """EmulatorError unless `path` is an ELF file of `target`'s board."""
-    data = path.read_bytes()
+    try:
+        data = read_regular_file(path, MAX_IMAGE_BYTES)
+    except FileError as exc:
+        raise EmulatorError(str(exc)) from None
     if data[:4] != b"\x7fELF":
         raise EmulatorError(f"{path} is not a firmware image (not an ELF file)")
     arm = int.from_bytes(data[18:20], "little") == _ELF_ARM

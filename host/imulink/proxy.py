@@ -30,6 +30,7 @@ import numpy as np
 import serial
 
 from . import protocol
+from .link import PortError
 
 #: Bytes from the board that may wait for a slow host before the proxy stops reading the board.
 BACKLOG_BYTES = 1 << 16
@@ -240,10 +241,13 @@ class TcpFront:
 
 class SerialFront:
     """Any pyserial URL or device (one end of a null-modem cable, for example), polled.
-    Raises serial.SerialException when the port cannot be opened."""
+    Raises PortError when the port cannot be opened."""
 
     def __init__(self, url: str, baud: int = 921600):
-        self._port = serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=0)
+        try:
+            self._port = serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=0)
+        except (serial.SerialException, ValueError) as exc:  # ValueError: an unknown URL scheme, a bad baud rate
+            raise PortError(f"cannot open {url}: {exc}") from None
         self.address = url
         self.connections = 1
 
