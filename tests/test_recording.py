@@ -142,7 +142,8 @@ def test_a_flipped_bit_anywhere_costs_only_its_record(tmp_path):
 def test_flipped_length_bit_mid_file_keeps_the_rest(tmp_path):
     """The reported fault: one flipped bit in a length field used to turn the rest of the
     file into a 'truncated tail'."""
-    path = _write(tmp_path / "l.imulog", [_setting_frames()] + [_stream_frames([k], seq=100 + 2 * k) for k in range(30)])
+    chunks = [_setting_frames()] + [_stream_frames([k], seq=100 + 2 * k) for k in range(30)]
+    path = _write(tmp_path / "l.imulog", chunks)
     spans = _record_spans(path)
     middle = spans[len(spans) // 2][0]
     for bit in (0, 13, 23, 30):  # small and large lengths alike

@@ -236,18 +236,12 @@ def _cmd_emulate(args) -> int:
 
 @_command
 def _cmd_proxy(args) -> int:
-    import serial
-
     from . import proxy
-    from .link import PortError
 
     faults = _faults(args)
     front = args.serial if args.serial is not None else ("tcp" if args.tcp is not None else "pty")
-    try:
-        server = proxy.Proxy(args.port, proxy.make_front(front, args.tcp or 0, args.baud), faults=faults,
-                             schema_hash=args.schema_hash, baud=args.baud, connect_timeout_s=0)
-    except serial.SerialException as exc:
-        raise PortError(f"cannot open {args.port}: {exc}") from None
+    server = proxy.Proxy(args.port, proxy.make_front(front, args.tcp or 0, args.baud), faults=faults,
+                         schema_hash=args.schema_hash, baud=args.baud, connect_timeout_s=0)
     with server:
         print(server.address, flush=True)
         return _serve_until_interrupted(
@@ -278,16 +272,16 @@ def _cmd_replay(args) -> int:
     from .files import check_output, write_replacing
     from .recording import load_recording
 
-    outputs = [p for p in (args.csv or (None if args.npz else Path(args.file).with_suffix(".csv")), args.npz) if p]
-    if len(outputs) == 2 and Path(outputs[0]).absolute() == Path(outputs[1]).absolute():
-        raise UsageError(f"--csv and --npz name the same file {outputs[0]}")
-    for output in outputs:  # before the work: a replay never writes over its recording
-        check_output(output, inputs=[args.file])
+    csv_path = args.csv or (None if args.npz else Path(args.file).with_suffix(".csv"))
+    if csv_path and args.npz and Path(csv_path).absolute() == Path(args.npz).absolute():
+        raise UsageError(f"--csv and --npz name the same file {csv_path}")
+    for output in (csv_path, args.npz):  # before the work: a replay never writes over its recording
+        if output:
+            check_output(output, inputs=[args.file])
     recording = load_recording(args.file)
     run = hil.host_run(recording)
     comparison = hil.compare(recording, run)
     columns = hil.replay_columns(recording, run, comparison)
-    csv_path = args.csv or (None if args.npz else outputs[0])
     print(hil.format_comparison(recording, comparison))
     if csv_path:
         write_replacing(csv_path, lambda path: hil.export_csv(columns, path), inputs=[args.file])

@@ -73,8 +73,6 @@ def find_image(target: str, image: str | os.PathLike | None = None) -> Path:
         raise EmulatorError(f"unknown target {target!r}; choose one of {', '.join(TARGETS)}")
     if image is not None:
         path = Path(image)
-        if not path.is_file():
-            raise EmulatorError(f"firmware image {path} not found")
         _check_image(target, path)
         return path
     subdir, name = _IMAGES[target]
@@ -201,6 +199,7 @@ class EmulatedBoard:
                  image: str | os.PathLike | None = None, baud: int = 921600):
         if filter_name not in core.FILTERS:
             raise EmulatorError(f"unknown filter {filter_name!r}; choose one of {', '.join(core.FILTERS)}")
+        core.Filter(filter_name, rate_hz)  # SettingsError for a rate the filter is not made for (nor the host's replay)
         if profile.name not in FIRMWARE_PROFILES or FIRMWARE_PROFILES[profile.name] != profile:
             raise EmulatorError(f"the firmware knows the sensor profiles {', '.join(FIRMWARE_PROFILES)}, "
                                 f"not {profile.name!r}")

@@ -73,7 +73,7 @@ def create_beside(target) -> tuple[int, Path]:
     descriptor and path."""
     target = Path(target)
     while True:
-        candidate = target.with_name(f".{target.name}.{secrets.token_hex(4)}.partial")
+        candidate = target.with_name(f".{target.stem}.{secrets.token_hex(4)}.partial{target.suffix}")
         try:
             return os.open(candidate, os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_EXCL, 0o666), candidate
         except FileExistsError:

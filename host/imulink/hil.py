@@ -280,7 +280,8 @@ class _StreamRecorder:
                     streaming = streaming or item.message is start_ack
                 if writer.failure is not None:
                     self._stop_stream()
-                    self._abort(RecordingError, f"{writer.failure}; the recording ends there", "is readable up to there")
+                    self._abort(RecordingError, f"{writer.failure}; the recording ends there",
+                                "is readable up to there")
                 if now - last_heard > silence_s:
                     self._abort(ReceiveTimeout, f"{link.url} sent nothing for {silence_s:g} s: the board stopped "
                                                 "streaming unannounced or hangs (--silence-timeout sets the wait)")
@@ -520,8 +521,8 @@ def format_comparison(recording: Recording, comparison: Comparison) -> str:
     if recording.damaged:
         spans = ", ".join(f"{length} bytes at byte {offset}" for offset, length in recording.damaged[:5])
         more = f" and {len(recording.damaged) - 5} more" if len(recording.damaged) > 5 else ""
-        lines.append(f"DAMAGED FILE: skipped {len(recording.damaged)} span(s) that are not valid records ({spans}{more}); "
-                     "the frames they held are missing")
+        lines.append(f"DAMAGED FILE: skipped {len(recording.damaged)} span(s) that are not valid records "
+                     f"({spans}{more}); the frames they held are missing")
     c = comparison
     unverifiable = ~c.verified
     leftover = int((unverifiable & recording.estimates.leftover).sum())
@@ -618,7 +619,8 @@ def export_npz(recording: Recording, run: HostRun, columns: dict[str, np.ndarray
     raw.update({f"host_fixed_{k}": v for k, v in run.fixed.items()})
     meta = {"header": recording.header, "hello": recording.hello, "status": recording.status,
             "counters": recording.counters, "events": recording.events}
-    np.savez_compressed(path, **columns, **raw, metadata=np.array(json.dumps(meta, default=str)))
+    with open(path, "wb") as out:  # a file object: numpy would add ".npz" to a path without it
+        np.savez_compressed(out, **columns, **raw, metadata=np.array(json.dumps(meta, default=str)))
 
 
 # ---------------------------------------------------------------------------- inject
@@ -702,7 +704,8 @@ def _load_broad(path: Path) -> InjectionInput:
         raise HilError(f"{path} is not {what}: {type(exc).__name__}: {exc}") from None
     n = len(gyr)
     if n < 2 or any(a.shape != (n, 3) for a in (gyr, acc, mag)) or (truth is not None and truth.shape != (n, 4)):
-        shapes = ", ".join(f"{k} {np.shape(data[k])}" for k in ("imu_gyr", "imu_acc", "imu_mag", "opt_quat") if k in data)
+        shapes = ", ".join(f"{k} {np.shape(data[k])}" for k in ("imu_gyr", "imu_acc", "imu_mag", "opt_quat")
+                           if k in data)
         raise HilError(f"{path} is not {what}: the arrays are {shapes}")
     if not 0 < rate < math.inf:
         raise HilError(f"{path}: sampling_rate {rate!r} is not a positive number of Hz")

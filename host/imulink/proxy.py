@@ -317,7 +317,8 @@ class Proxy:
 
     @staticmethod
     def _open_board(url: str, baud: int, timeout_s: float):
-        """Open the board's port; a socket that is not listening yet is retried until `timeout_s`."""
+        """Open the board's port; a socket that is not listening yet is retried until
+        `timeout_s`, then PortError (at once for a URL pyserial does not know)."""
         deadline = time.monotonic() + timeout_s
         while True:
             try:
@@ -325,9 +326,9 @@ class Proxy:
                 if url.startswith("socket://"):
                     port._socket.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                 return port
-            except serial.SerialException:
-                if time.monotonic() > deadline:
-                    raise
+            except (serial.SerialException, ValueError) as exc:
+                if isinstance(exc, ValueError) or time.monotonic() > deadline:
+                    raise PortError(f"cannot open {url}: {exc}") from None
                 time.sleep(0.02)
 
     @property

@@ -331,8 +331,10 @@ class Recording:
         fields = core.settings_fields(name)
         missing = [f.name for i, f in enumerate(fields) if i not in reported]
         if missing:
+            why = (f"the file is damaged, and its {len(self.damaged)} skipped span(s) may have held them"
+                   if self.damaged else "record with `imulink record`, which reads them first")
             raise RecordingError(f"{self.path}: the settings of {name} were not recorded (missing: "
-                                 f"{', '.join(missing)}); record with `imulink record`, which reads them first")
+                                 f"{', '.join(missing)}); {why}")
         for i, f in enumerate(fields):
             if reported[i]["name"] != f.name or reported[i]["frac_bits"] != f.frac_bits:
                 raise RecordingError(f"{self.path}: the board's setting {i} of {name} is {reported[i]['name']} "
