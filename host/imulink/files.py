@@ -1,8 +1,9 @@
 """The user's files: inputs read only when they are regular files of a bounded size, and
 outputs that never destroy what was there unless the job succeeded.
 
-- :func:`read_regular_file`: a FIFO or a device (/dev/zero) would block or never end, and
-  a huge file would exhaust memory, so only regular files up to a size are read.
+- :func:`check_regular_file` / :func:`read_regular_file`: a FIFO or a device (/dev/zero)
+  would block or never end, and a huge file would exhaust memory, so only regular files
+  up to a size are read.
 - :func:`create_beside`: a new file next to a target, created exclusively (never an
   existing file truncated), for output that takes the target's name only when complete.
 - :func:`publish`: give such a file its final name, replacing an existing file only when
@@ -26,8 +27,8 @@ def _describe(exc: OSError) -> str:
     return exc.strerror or str(exc)
 
 
-def check_regular_file(path, max_bytes: int) -> int:
-    """The size of `path`; FileError unless it is a regular file of at most `max_bytes`."""
+def check_regular_file(path, max_bytes: int) -> None:
+    """FileError unless `path` is a regular file of at most `max_bytes`."""
     path = Path(path)
     try:
         info = path.stat()
@@ -37,7 +38,6 @@ def check_regular_file(path, max_bytes: int) -> int:
         raise FileError(f"{path} is not a regular file (a directory, FIFO or device cannot be read as one)")
     if info.st_size > max_bytes:
         raise FileError(f"{path} is {info.st_size} bytes, more than the {max_bytes} this command reads")
-    return info.st_size
 
 
 def read_regular_file(path, max_bytes: int) -> bytes:
