@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from imulink import _core_fixed, core, sim
-from imulink.counts import BROAD_PROFILE, DEFAULT_PROFILE
+from imulink.counts import BROAD_PROFILE, DEFAULT_PROFILE, SensorDataError
 
 RATE = 100.0
 FILTER_NAMES = sorted(core.FILTERS)
@@ -147,6 +147,40 @@ def test_mismatched_shapes(shapes):
     arrays = [np.zeros(s, dtype=np.int16) for s in shapes]
     with pytest.raises(ValueError, match=r"sensor arrays must all be \(N,3\)"):
         core.run_counts("eecf", *arrays, RATE)
+
+
+@pytest.mark.parametrize("arithmetic", ARITHS)
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_nan_or_infinite_si_input_is_refused(data, arithmetic, bad):
+    """NaN has no sensor count and an infinite reading is a broken input: neither may
+    become an arbitrary count (an all-NaN input used to give an identity quaternion)."""
+    acc = data.acc.copy()
+    acc[17, 1] = bad
+    with pytest.raises(SensorDataError, match=r"acc: 1 value\(s\) are NaN or infinite \(the first in sample 17\)"):
+        core.run("eecf", data.gyr, acc, data.mag, RATE, arithmetic)
+    with pytest.raises(SensorDataError, match="gyr: 150 value"):
+        core.run("eecf", np.full((50, 3), np.nan), data.acc[:50], data.mag[:50], RATE, arithmetic)
+
+
+@pytest.mark.parametrize("values, message", [
+    (np.full((50, 3), 32768), r"gyr: 150 value\(s\) lie outside the int16 range"),
+    (np.full((50, 3), -40000.0), r"gyr: 150 value\(s\) lie outside the int16 range"),
+    (np.full((50, 3), 1.5), r"gyr: 150 value\(s\) are not whole counts"),
+    (np.full((50, 3), np.nan), r"gyr: 150 value\(s\) are NaN or infinite"),
+    (np.full((50, 3), "1"), "counts must be integers"),
+])
+def test_counts_that_a_register_cannot_hold_are_refused(values, message):
+    """Counts beyond int16 used to wrap and fractions to be cut, silently."""
+    zeros = np.zeros((50, 3), np.int16)
+    with pytest.raises(SensorDataError, match=message):
+        core.run_counts("eecf", values, zeros, zeros, RATE)
+
+
+def test_counts_of_any_integer_type_or_whole_floats_are_accepted(data):
+    expected = core.run_counts("eecf", data.gyr_counts, data.acc_counts, data.mag_counts, RATE).raw["quat"]
+    got = core.run_counts("eecf", data.gyr_counts.astype(np.int64), data.acc_counts.astype(np.float64),
+                          data.mag_counts.tolist(), RATE).raw["quat"]
+    np.testing.assert_array_equal(got, expected)
 
 
 # --------------------------------------------------------------------------- settings

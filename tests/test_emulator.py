@@ -33,7 +33,7 @@ def test_images_are_found_and_checked(tmp_path):
     text.write_text("hello")
     with pytest.raises(EmulatorError, match="not a firmware image"):
         find_image("native", text)
-    with pytest.raises(EmulatorError, match="not found"):
+    with pytest.raises(EmulatorError, match="cannot read .*missing.elf: No such file or directory"):
         find_image("qemu", tmp_path / "missing.elf")
     with pytest.raises(EmulatorError, match="unknown target"):
         find_image("fpga")

@@ -326,3 +326,17 @@ def test_make_scenario(name):
 def test_make_scenario_unknown_name():
     with pytest.raises(ValueError):
         sim.make_scenario("nope", 10.0, 100.0)
+
+
+@pytest.mark.parametrize("name, duration, rate, seed, message", [
+    ("rests", float("nan"), 100.0, 0, "must be positive finite numbers"),
+    ("rests", float("inf"), 100.0, 0, "must be positive finite numbers"),
+    ("rests", 10.0, -1.0, 0, "must be positive finite numbers"),
+    ("rests", 0.01, 100.0, 0, "a trajectory needs from 2 to"),
+    ("random", 1.0, 1e9, 0, "a trajectory needs from 2 to"),  # 1e9 samples: tens of GB, refused at once
+    ("static", 1.0, 100.0, -1, "the seed must be an integer from 0"),
+    ("nowhere", 1.0, 100.0, 0, "unknown scenario"),
+])
+def test_impossible_scenarios_are_refused(name, duration, rate, seed, message):
+    with pytest.raises(sim.ScenarioError, match=message):
+        sim.make_scenario(name, duration, rate, seed)

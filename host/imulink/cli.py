@@ -1,22 +1,86 @@
-"""The `imulink` command line."""
+"""The `imulink` command line.
+
+Every command ends with one of the exit statuses in EXIT_STATUS_HELP; every failure is one
+line `imulink: error: ...` on stderr, never a traceback.
+"""
 from __future__ import annotations
 
 import argparse
+import math
 import signal
 import sys
 import time
 
 from . import __version__
 
+EXIT_MISMATCH = 1
+EXIT_ERROR = 2
+EXIT_INTERRUPTED = 130
+EXIT_STATUS_HELP = """exit status:
+  0    success
+  1    not proven bit-exact: an estimate differs from the host build, none could be
+       verified, or the recording is damaged (compare, inject, demo)
+  2    a usage error or a failure (argument, port, board, file, disk), said in one line
+       "imulink: error: ..."
+  130  interrupted (Ctrl-C or SIGTERM); a recording is closed and readable"""
 
+
+class UsageError(Exception):
+    """Arguments that do not make sense together (each alone passed its type check)."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """Usage errors in one line, like every other error."""
+
+    def error(self, message):
+        self.exit(EXIT_ERROR, f"imulink: error: {message} (see `{self.prog} --help`)\n")
+
+
+def _command(func):
+    """Run a command: known errors print `imulink: error: ...` and exit 2; Ctrl-C and
+    SIGTERM exit 130."""
+
+    def run(args) -> int:
+        from . import core, protocol
+        from .counts import SensorDataError
+        from .emulator import EmulatorError
+        from .files import FileError
+        from .flash import FlashError
+        from .hil import HilError
+        from .link import LinkError
+        from .recording import RecordingError
+        from .sim import ScenarioError
+
+        signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops a command as cleanly as Ctrl-C
+        try:
+            return func(args)
+        except (LinkError, protocol.ProtocolError, RecordingError, HilError, EmulatorError, FlashError, FileError,
+                core.SettingsError, ScenarioError, SensorDataError, UsageError, OSError) as exc:
+            print(f"imulink: error: {exc}", file=sys.stderr)
+            return EXIT_ERROR
+        except KeyboardInterrupt:
+            print("imulink: interrupted", file=sys.stderr)
+            return EXIT_INTERRUPTED
+
+    run.__doc__ = func.__doc__
+    return run
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+@_command
 def _cmd_simulate(args) -> int:
     from . import core, sim
     from .analysis import angle_difference, attitude_errors, rmse
 
     filters = _parse_filters(args.filters)
+    if args.settle >= args.duration:
+        raise UsageError(f"--settle {args.settle:g} s leaves nothing of the {args.duration:g} s run to evaluate")
     print(f"simulating {args.scenario!r}: {args.duration:g} s at {args.rate:g} Hz, seed {args.seed}", file=sys.stderr)
     result = sim.make_scenario(args.scenario, args.duration, args.rate, seed=args.seed)
-    settle = min(int(args.settle * args.rate), len(result.t) - 1)
+    settle = int(args.settle * args.rate)
     print(f"samples: {len(result.t)}; errors are RMS after the first {args.settle:g} s, in degrees")
     header = f"{'filter':<6} {'arith':<6} {'total':>8} {'heading':>8} {'incl.':>8} {'sat':>5} {'samples/s':>11}"
     print(header)
@@ -36,6 +100,7 @@ def _cmd_simulate(args) -> int:
     return 0
 
 
+@_command
 def _cmd_filters(args) -> int:
     from . import core
 
@@ -52,15 +117,17 @@ def _parse_filters(text: str) -> list[str]:
 
     names = [n.strip() for n in text.split(",") if n.strip()] if text != "all" else list(core.FILTERS)
     unknown = [n for n in names if n not in core.FILTERS]
-    if unknown:
-        raise SystemExit(f"imulink: unknown filter(s) {', '.join(unknown)}; choose from {', '.join(core.FILTERS)}")
+    if unknown or not names:
+        raise UsageError(f"unknown filter(s) {', '.join(unknown) or repr(text)}; choose from "
+                         f"{', '.join(core.FILTERS)} (comma-separated) or all")
     return names
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="imulink",
         description="Hardware-in-the-loop companion for fixed-point MEMS attitude-estimation firmware.",
+        epilog=EXIT_STATUS_HELP, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"imulink {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
@@ -73,9 +140,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="trajectory (default: random)")
     p.add_argument("--duration", type=_positive_float, default=300.0, help="seconds to simulate (default: 300)")
     p.add_argument("--rate", type=_positive_float, default=100.0, help="sample rate in Hz (default: 100)")
-    p.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
-    p.add_argument("--settle", type=float, default=10.0, help="seconds excluded from the error statistics "
-                                                               "(alignment and convergence, default: 10)")
+    p.add_argument("--seed", type=_seed, default=0, help="random seed (default: 0)")
+    p.add_argument("--settle", type=_non_negative_float, default=10.0,
+                   help="seconds excluded from the error statistics (alignment and convergence, default: 10); "
+                        "shorter than --duration")
     p.add_argument("--filters", default="all", help="comma-separated filter names (default: all)")
     p.set_defaults(func=_cmd_simulate)
 
@@ -89,39 +157,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 # ---------------------------------------------------------------------------- hardware in the loop
 # The logic lives in imulink.hil (record, replay, compare, inject, demo), imulink.emulator
-# (emulate); these functions only parse, print and turn errors into one line and exit 2.
-
-EXIT_MISMATCH = 1
-EXIT_ERROR = 2
-
-
-def _hil_command(func):
-    """Run a HIL command: known errors print `imulink: error: ...` and exit 2, Ctrl-C exits 130."""
-
-    def run(args) -> int:
-        from . import core, protocol
-        from .emulator import EmulatorError
-        from .flash import FlashError
-        from .hil import HilError
-        from .link import LinkError
-        from .recording import RecordingError
-
-        try:
-            return func(args)
-        except (LinkError, protocol.ProtocolError, RecordingError, HilError, EmulatorError, FlashError,
-                core.SettingsError, OSError) as exc:
-            print(f"imulink: error: {exc}", file=sys.stderr)
-            return EXIT_ERROR
-        except KeyboardInterrupt:
-            print("imulink: interrupted", file=sys.stderr)
-            return 130
-
-    run.__doc__ = func.__doc__
-    return run
-
-
-def _interrupt(signum, frame):
-    raise KeyboardInterrupt
+# (emulate); these functions only parse and print.
 
 
 def _profile(name: str):
@@ -133,28 +169,31 @@ def _profile(name: str):
         raise argparse.ArgumentTypeError(f"unknown sensor profile {name!r}; choose from {', '.join(PROFILES)}") from None
 
 
-def _probability(text: str) -> float:
-    value = _non_negative_float(text)
-    if value > 1:
-        raise argparse.ArgumentTypeError(f"a probability must be in [0, 1]: {text!r}")
-    return value
+def _in_range(parse, low, high, requirement: str):
+    """An argument type: `parse(text)` within [low, high] (NaN never is), else `requirement`
+    in the error. Every number from the user is bounded, so none can ask for an
+    impossible allocation or wait."""
+
+    def convert(text: str):
+        try:
+            value = parse(text)
+        except ValueError:
+            value = None
+        if value is None or not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"{requirement}, not {text!r}")
+        return value
+
+    return convert
 
 
-def _non_negative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not value >= 0:
-        raise argparse.ArgumentTypeError(f"must not be negative: {text!r}")
-    return value
-
-
-def _hex_int(text: str) -> int:
-    try:
-        return int(text, 0)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not an integer (e.g. 0x1234ABCD): {text!r}") from None
+_positive_float = _in_range(float, math.ulp(0.0), sys.float_info.max, "must be a positive finite number")
+_non_negative_float = _in_range(float, 0.0, sys.float_info.max, "must be a finite number from 0")
+_probability = _in_range(float, 0.0, 1.0, "must be a probability from 0 to 1")
+_seed = _in_range(int, 0, 2**32 - 1, "must be an integer from 0 to 4294967295")
+_tcp_port = _in_range(int, 0, 65535, "must be a TCP port from 0 to 65535 (0: any free port)")
+_baud = _in_range(int, 1, 100_000_000, "must be a baud rate from 1 to 100000000")
+_u32 = _in_range(lambda text: int(text, 0), 0, 0xFFFFFFFF,
+                 "must be an integer from 0 to 0xFFFFFFFF (e.g. 0x1234ABCD)")
 
 
 def _faults(args):
@@ -167,7 +206,6 @@ def _faults(args):
 def _serve_until_interrupted(describe: str, error) -> int:
     """Wait for Ctrl-C or SIGTERM (or a failure that `error()` reports); 0 when stopped by the user."""
     print(describe + " Ctrl-C stops it.", file=sys.stderr)
-    signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops it as cleanly as Ctrl-C
     try:
         while error() is None:
             time.sleep(0.2)
@@ -177,7 +215,7 @@ def _serve_until_interrupted(describe: str, error) -> int:
     return EXIT_ERROR
 
 
-@_hil_command
+@_command
 def _cmd_emulate(args) -> int:
     from .emulator import EmulatedBoard
 
@@ -196,20 +234,14 @@ def _cmd_emulate(args) -> int:
             + (f", faults {faults.describe()}" if faults.active else ""), lambda: board.error)
 
 
-@_hil_command
+@_command
 def _cmd_proxy(args) -> int:
-    import serial
-
     from . import proxy
-    from .link import PortError
 
     faults = _faults(args)
     front = args.serial if args.serial is not None else ("tcp" if args.tcp is not None else "pty")
-    try:
-        server = proxy.Proxy(args.port, proxy.make_front(front, args.tcp or 0, args.baud), faults=faults,
-                             schema_hash=args.schema_hash, baud=args.baud, connect_timeout_s=0)
-    except serial.SerialException as exc:
-        raise PortError(f"cannot open {args.port}: {exc}") from None
+    server = proxy.Proxy(args.port, proxy.make_front(front, args.tcp or 0, args.baud), faults=faults,
+                         schema_hash=args.schema_hash, baud=args.baud, connect_timeout_s=0)
     with server:
         print(server.address, flush=True)
         return _serve_until_interrupted(
@@ -218,42 +250,49 @@ def _cmd_proxy(args) -> int:
             lambda: server.error and f"{args.port} failed: {server.error}")
 
 
-@_hil_command
+@_command
 def _cmd_record(args) -> int:
     from . import hil
 
     result = hil.record(args.port, args.output, duration_s=args.duration, baud=args.baud, profile=args.profile,
-                        resync=not args.no_resync, progress=hil.Progress())
+                        resync=not args.no_resync, silence_timeout_s=args.silence_timeout, force=args.force,
+                        progress=hil.Progress())
     print(f"recorded {result.samples} samples and {result.estimates} estimates of {result.filter_name} in "
           f"{result.duration_s:.1f} s to {result.path} ({result.stop_reason}); "
           f"{hil.link_summary(result.counters)}"
           + (f"; filter restarts after lost samples: {result.filter_restarts}" if result.filter_restarts else ""))
-    return 0
+    return EXIT_INTERRUPTED if result.interrupted else 0
 
 
-@_hil_command
+@_command
 def _cmd_replay(args) -> int:
     from pathlib import Path
 
     from . import hil
+    from .files import check_output, write_replacing
     from .recording import load_recording
 
+    csv_path = args.csv or (None if args.npz else Path(args.file).with_suffix(".csv"))
+    if csv_path and args.npz and Path(csv_path).absolute() == Path(args.npz).absolute():
+        raise UsageError(f"--csv and --npz name the same file {csv_path}")
+    for output in (csv_path, args.npz):  # before the work: a replay never writes over its recording
+        if output:
+            check_output(output, inputs=[args.file])
     recording = load_recording(args.file)
     run = hil.host_run(recording)
     comparison = hil.compare(recording, run)
     columns = hil.replay_columns(recording, run, comparison)
-    csv_path = args.csv or (None if args.npz else Path(args.file).with_suffix(".csv"))
     print(hil.format_comparison(recording, comparison))
     if csv_path:
-        hil.export_csv(columns, csv_path)
+        write_replacing(csv_path, lambda path: hil.export_csv(columns, path), inputs=[args.file])
         print(f"CSV: {csv_path} ({len(recording.samples)} rows, {len(columns)} columns)")
     if args.npz:
-        hil.export_npz(recording, run, columns, args.npz)
+        write_replacing(args.npz, lambda path: hil.export_npz(recording, run, columns, path), inputs=[args.file])
         print(f"NPZ: {args.npz}")
     return 0
 
 
-@_hil_command
+@_command
 def _cmd_compare(args) -> int:
     from . import hil
     from .recording import load_recording
@@ -264,7 +303,7 @@ def _cmd_compare(args) -> int:
     return 0 if comparison.bit_exact else EXIT_MISMATCH
 
 
-@_hil_command
+@_command
 def _cmd_inject(args) -> int:
     from . import hil
 
@@ -275,14 +314,16 @@ def _cmd_inject(args) -> int:
     return 0 if result.bit_exact else EXIT_MISMATCH
 
 
-@_hil_command
+@_command
 def _cmd_demo(args) -> int:
     from . import hil
 
     report = hil.demo(target=args.target, transport=args.transport, scenario=args.scenario, duration_s=args.duration,
                       rate_hz=args.rate, seed=args.seed, filter_name=args.filter, output=args.output,
-                      progress=hil.Progress())
+                      force=args.force, progress=hil.Progress())
     print(report.format())
+    if report.record.interrupted:
+        return EXIT_INTERRUPTED
     return 0 if report.comparison.bit_exact else EXIT_MISMATCH
 
 
@@ -309,7 +350,7 @@ def _flash_method(args) -> str:
     return name if name in SWD_PORTS else "uart"
 
 
-@_hil_command
+@_command
 def _cmd_flash(args) -> int:
     from . import flash
     from .firmware_image import ImageError, load_image
@@ -369,7 +410,7 @@ def _cmd_flash(args) -> int:
     return 0
 
 
-@_hil_command
+@_command
 def _cmd_ports(args) -> int:
     from . import ports
 
@@ -378,14 +419,14 @@ def _cmd_ports(args) -> int:
 
 
 def _add_hil_commands(sub) -> None:
-    from . import core, sim
+    from . import core, hil, sim
     from .counts import DEFAULT_PROFILE
     from .link import DEFAULT_BAUD
 
     def port_arguments(p):
         p.add_argument("port", metavar="PORT", help="serial device (/dev/ttyACM0, COM3) or pyserial URL "
                                                      "(socket://HOST:PORT, rfc2217://HOST:PORT, loop://)")
-        p.add_argument("--baud", type=int, default=DEFAULT_BAUD,
+        p.add_argument("--baud", type=_baud, default=DEFAULT_BAUD,
                        help=f"line rate of a real serial port (default: {DEFAULT_BAUD}; ignored by sockets and ptys)")
 
     def simulation_arguments(p, duration: float, scenario: str = "rests"):
@@ -394,7 +435,7 @@ def _add_hil_commands(sub) -> None:
         p.add_argument("--duration", type=_positive_float, default=duration,
                        help=f"seconds of simulated data (default: {duration:g})")
         p.add_argument("--rate", type=_positive_float, default=100.0, help="sample rate in Hz (default: 100)")
-        p.add_argument("--seed", type=int, default=0, help="seed of the simulation (default: 0)")
+        p.add_argument("--seed", type=_seed, default=0, help="seed of the simulation (default: 0)")
         p.add_argument("--filter", default="eskf", choices=list(core.FILTERS),
                        help="filter active at start-up (default: eskf)")
 
@@ -406,16 +447,16 @@ def _add_hil_commands(sub) -> None:
 
     def front_arguments(p, what: str, baud: bool = True):
         where = p.add_mutually_exclusive_group()
-        where.add_argument("--tcp", type=int, nargs="?", const=0, metavar="PORT",
+        where.add_argument("--tcp", type=_tcp_port, nargs="?", const=0, metavar="PORT",
                            help=f"serve {what} on 127.0.0.1:PORT instead of a pty (no PORT: any free port)")
         where.add_argument("--serial", metavar="URL", help=f"serve {what} on this serial port or pyserial URL (e.g. "
                                                            "one end of a null-modem cable)")
         if baud:
-            p.add_argument("--baud", type=int, default=DEFAULT_BAUD,
+            p.add_argument("--baud", type=_baud, default=DEFAULT_BAUD,
                            help=f"line rate for --serial (default: {DEFAULT_BAUD})")
 
     def fault_arguments(p):
-        p.add_argument("--schema-hash", type=_hex_int, default=None,
+        p.add_argument("--schema-hash", type=_u32, default=None,
                        help="rewrite HELLO to report this schema hash (a board built from another protocol definition)")
         faults = p.add_argument_group("fault injection (board-to-host bytes; deterministic for a seed)")
         faults.add_argument("--drop-byte", type=_probability, default=0.0, metavar="P",
@@ -428,7 +469,7 @@ def _add_hil_commands(sub) -> None:
                             help="probability that the board goes silent (both ways) before a frame")
         faults.add_argument("--stall-duration", type=_non_negative_float, default=0.05, metavar="S",
                             help="length of a stall in s (default: 0.05)")
-        faults.add_argument("--fault-seed", type=int, default=0, metavar="N", help="seed of the faults (default: 0)")
+        faults.add_argument("--fault-seed", type=_seed, default=0, metavar="N", help="seed of the faults (default: 0)")
 
     p = sub.add_parser(
         "demo", help="no hardware: record an emulated board's simulated run and prove it bit-exact",
@@ -442,6 +483,7 @@ def _add_hil_commands(sub) -> None:
     target_arguments(p)
     p.add_argument("--transport", choices=("tcp", "pty"), default="tcp", help="link to the board (default: tcp)")
     p.add_argument("--output", "-o", metavar="FILE", help="keep the recording here (default: not kept)")
+    p.add_argument("--force", action="store_true", help="replace an existing --output file")
     p.set_defaults(func=_cmd_demo)
 
     p = sub.add_parser(
@@ -492,11 +534,11 @@ def _add_hil_commands(sub) -> None:
     p.add_argument("image", metavar="IMAGE", help="firmware image: .elf, .hex or .bin")
     p.add_argument("port", metavar="PORT", nargs="?", help="serial port of the UART bootloader, or swd / pyocd / openocd")
     p.add_argument("--method", choices=("uart", "pyocd", "openocd"), help="how to flash (default: from PORT)")
-    p.add_argument("--address", type=_hex_int, help="load address of a raw .bin image (e.g. 0x08000000)")
+    p.add_argument("--address", type=_u32, help="load address of a raw .bin image (e.g. 0x08000000)")
     p.add_argument("--enter", choices=("manual", "command", "dtr-rts"), default="manual",
                    help="how the board gets into its bootloader (default: manual)")
-    p.add_argument("--baud", type=int, default=115200, help="bootloader baud rate (default: 115200, AN3155's highest)")
-    p.add_argument("--link-baud", type=int, default=DEFAULT_BAUD,
+    p.add_argument("--baud", type=_baud, default=115200, help="bootloader baud rate (default: 115200, AN3155's highest)")
+    p.add_argument("--link-baud", type=_baud, default=DEFAULT_BAUD,
                    help=f"the firmware's link rate, for its HELLO after the start (default: {DEFAULT_BAUD})")
     p.add_argument("--link", metavar="PORT", help="SWD: the board's serial port, to check its HELLO after the start")
     p.add_argument("--target", default="stm32f407vg",
@@ -528,14 +570,23 @@ def _add_hil_commands(sub) -> None:
         description="Connect (GET_VERSION -> HELLO, schema hash checked), write the board's HELLO, STATUS and "
                     "every setting of its active filter into the recording, restart the filter so the "
                     "recording starts at sample 0, then stream and capture every received byte with its host "
-                    "time until --duration, the end of the board's stream, or Ctrl-C. The file is append-only "
-                    "and flushed as it grows: after a crash or a disconnect everything received is kept. "
-                    "After a lost SAMPLE the filter is restarted (unless --no-resync), so that the rest of the "
-                    "recording can still be verified bit for bit.")
+                    "time until --duration, the end of the board's stream, or Ctrl-C (exit status 130). The file "
+                    "is append-only and flushed as it grows: after a crash, a disconnect, a silent board or a "
+                    "full disk everything received before is kept, and the command ends with one line saying "
+                    "so (exit status 2). The file takes its name only once the board has answered. After a lost "
+                    "SAMPLE the filter is restarted (unless --no-resync), so that the rest of the recording can "
+                    "still be verified bit for bit.")
     port_arguments(p)
-    p.add_argument("--output", "-o", required=True, help="recording file to write (e.g. run.imulog)")
+    p.add_argument("--output", "-o", required=True, help="recording file to write (e.g. run.imulog); an existing "
+                                                          "file is refused unless --force")
+    p.add_argument("--force", action="store_true", help="replace an existing output file (once the board has "
+                                                        "answered: a wrong port leaves it untouched)")
     p.add_argument("--duration", type=_positive_float, help="seconds to record (default: until the stream ends "
                                                            "or Ctrl-C)")
+    p.add_argument("--silence-timeout", type=_positive_float, metavar="S",
+                   help=f"seconds without a frame after which the board counts as silent: the recording ends "
+                        f"with an error (default: {hil.SILENCE_MIN_S:g} s or {hil.SILENCE_PERIODS} sample periods "
+                        "at the board's rate, whichever is longer)")
     p.add_argument("--profile", type=_profile, default=DEFAULT_PROFILE,
                    help="the board's sensor profile, stored for replay (default: gy86-default); the protocol "
                         "cannot report it")
@@ -548,7 +599,8 @@ def _add_hil_commands(sub) -> None:
                     "board ran (fixed point and float twin, with the recorded settings and sensor profile). "
                     "Writes one row per sample: inputs in SI units, the board's estimate, the host fixed and "
                     "float outputs, and whether the board's estimate was identical; units are in the column "
-                    "names. Without --csv or --npz the CSV goes next to the recording.")
+                    "names. Without --csv or --npz the CSV goes next to the recording. An output is written "
+                    "under a temporary name and renamed when complete; the recording itself is never written over.")
     p.add_argument("file", metavar="FILE", help="recording written by `imulink record` or `imulink demo`")
     p.add_argument("--csv", help="CSV file to write")
     p.add_argument("--npz", help="numpy .npz file to write (also the raw integers and the metadata)")
@@ -559,8 +611,9 @@ def _add_hil_commands(sub) -> None:
         description="Compare every estimate of a recording with the host fixed-point build, bit for bit, and "
                     "report the counts of identical frames, the first differing frame and field with both "
                     "values, and the fixed-vs-float statistics. Estimates after a lost sample of their filter "
-                    "run cannot be reproduced and are reported as unverifiable. Exit status 0 when every "
-                    "verifiable estimate is identical, 1 on any difference (or when none can be verified).")
+                    "run cannot be reproduced and are reported as unverifiable. Damaged parts of the file are "
+                    "skipped and reported by offset. Exit status 0 when every verifiable estimate is identical, "
+                    "1 on any difference, when none can be verified, or when the file is damaged.")
     p.add_argument("file", metavar="FILE", help="recording to check")
     p.set_defaults(func=_cmd_compare)
 
@@ -582,16 +635,6 @@ def _add_hil_commands(sub) -> None:
     p.add_argument("--board-profile", type=_profile, default=DEFAULT_PROFILE,
                    help="the sensor profile the board runs with (default: gy86-default); it must match the input's")
     p.set_defaults(func=_cmd_inject)
-
-
-def _positive_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not a number: {text!r}") from None
-    if not value > 0:
-        raise argparse.ArgumentTypeError(f"must be positive: {text!r}")
-    return value
 
 
 def main(argv: list[str] | None = None) -> int:

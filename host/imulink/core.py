@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import _core_fixed, _core_float
-from .counts import DEFAULT_PROFILE, SensorProfile, si_to_counts
+from .counts import DEFAULT_PROFILE, SensorProfile, check_counts, si_to_counts
 
 ARITHMETICS = ("fixed", "float")
 
@@ -177,8 +177,10 @@ class Filter:
         return self.mod.lib.imu_filter_set_settings(self._handle, struct) == 0
 
     def run_counts(self, gyr_counts, acc_counts, mag_counts) -> RunResult:
+        """Run on register counts: (N,3) integers in the int16 range (SensorDataError otherwise)."""
         ffi, lib = self.mod.ffi, self.mod.lib
-        arrays = [np.ascontiguousarray(a, dtype=np.int16) for a in (gyr_counts, acc_counts, mag_counts)]
+        arrays = [check_counts(name, a) for name, a in (("gyr", gyr_counts), ("acc", acc_counts),
+                                                         ("mag", mag_counts))]
         n = arrays[0].shape[0]
         for a in arrays:
             if a.ndim != 2 or a.shape != (n, 3):
@@ -266,7 +268,8 @@ class Filter:
 
 def run_counts(filter_name: str, gyr_counts, acc_counts, mag_counts, rate_hz: float, arithmetic: str = "fixed",
                settings: dict | None = None, profile: SensorProfile = DEFAULT_PROFILE) -> RunResult:
-    """Run a filter on raw register counts ((N,3) int16 arrays)."""
+    """Run a filter on raw register counts ((N,3) integers in the int16 range; anything
+    else raises counts.SensorDataError)."""
     return Filter(filter_name, rate_hz, arithmetic, settings, profile).run_counts(gyr_counts, acc_counts, mag_counts)
 
 
@@ -275,7 +278,9 @@ def run(filter_name: str, gyr, acc, mag, rate_hz: float, arithmetic: str = "fixe
     """Run a filter on SI arrays: gyr (N,3) rad/s, acc (N,3) m/s^2, mag (N,3) uT.
 
     The arrays are first converted to counts with :func:`imulink.counts.si_to_counts`
-    and `profile`, so fixed and float runs see identical inputs.
+    and `profile`, so fixed and float runs see identical inputs: values beyond a
+    sensor's range are clipped to it as the sensor saturates, NaN or infinite values
+    raise SensorDataError.
     """
     g, a, m = si_to_counts(gyr, acc, mag, profile)
     return run_counts(filter_name, g, a, m, rate_hz, arithmetic, settings, profile)

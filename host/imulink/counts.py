@@ -72,8 +72,23 @@ DEFAULT_PROFILE = SensorProfile()
 BROAD_PROFILE = SensorProfile(name="gy86-broad", acc_lsb_per_g=2048.0)
 
 
-def _to_counts(x: np.ndarray, scale: float, limits: tuple[int, int]) -> tuple[np.ndarray, int]:
-    counts = np.rint(np.asarray(x, dtype=np.float64) / scale)
+class SensorDataError(ValueError):
+    """Sensor data no sensor delivers: NaN or infinite values, counts that are not
+    integers or lie outside the 16-bit registers."""
+
+
+def _reject(name: str, bad: np.ndarray, what: str) -> None:
+    """SensorDataError if any value is `bad`, saying how many and where the first is."""
+    if bad.any():
+        raise SensorDataError(f"{name}: {int(bad.sum())} value(s) {what} (the first in sample "
+                              f"{int(np.argwhere(bad)[0][0])})")
+
+
+def _to_counts(name: str, x, scale: float, limits: tuple[int, int]) -> tuple[np.ndarray, int]:
+    x = np.asarray(x, dtype=np.float64)
+    # a NaN has no count, and an infinite reading is a broken input rather than a saturated sensor
+    _reject(name, ~np.isfinite(x), "are NaN or infinite")
+    counts = np.rint(x / scale)
     saturated = int(np.count_nonzero((counts < limits[0]) | (counts > limits[1])))
     return np.clip(counts, limits[0], limits[1]).astype(np.int16), saturated
 
@@ -86,19 +101,35 @@ def si_to_counts(gyr, acc, mag, profile: SensorProfile = DEFAULT_PROFILE, return
         acc: (N,3) specific force in m/s^2.
         mag: (N,3) magnetic field in uT.
         profile: full-scale settings; values are rounded to the nearest count and
-            clipped to each register's range, like the real sensor saturates.
+            clipped to each register's range, like the real sensor saturates. NaN or
+            infinite values raise SensorDataError.
         return_saturation: also return the number of clipped values per sensor.
 
     Returns:
         (gyr_counts, acc_counts, mag_counts) as (N,3) int16 arrays, plus a dict
         {"gyr": n, "acc": n, "mag": n} of clipped values when requested.
     """
-    g, sg = _to_counts(gyr, profile.gyro_scale, profile.gyro_limits)
-    a, sa = _to_counts(acc, profile.acc_scale, profile.acc_limits)
-    m, sm = _to_counts(mag, profile.mag_scale, profile.mag_limits)
+    g, sg = _to_counts("gyr", gyr, profile.gyro_scale, profile.gyro_limits)
+    a, sa = _to_counts("acc", acc, profile.acc_scale, profile.acc_limits)
+    m, sm = _to_counts("mag", mag, profile.mag_scale, profile.mag_limits)
     if return_saturation:
         return g, a, m, {"gyr": sg, "acc": sa, "mag": sm}
     return g, a, m
+
+
+def check_counts(name: str, counts) -> np.ndarray:
+    """`counts` as a C-contiguous int16 array; SensorDataError unless every value is an
+    integer in the int16 range (a cast would wrap or truncate them silently)."""
+    array = np.asarray(counts)
+    if array.dtype == np.int16:
+        return np.ascontiguousarray(array)
+    if array.dtype.kind not in "iuf":
+        raise SensorDataError(f"{name}: counts must be integers, not {array.dtype}")
+    if array.dtype.kind == "f":
+        _reject(name, ~np.isfinite(array), "are NaN or infinite")
+        _reject(name, array != np.rint(array), "are not whole counts")
+    _reject(name, (array < -32768) | (array > 32767), "lie outside the int16 range of a sensor register")
+    return np.ascontiguousarray(array, dtype=np.int16)
 
 
 def counts_to_si(gyr_counts, acc_counts, mag_counts, profile: SensorProfile = DEFAULT_PROFILE):

@@ -33,6 +33,8 @@ import numpy as np
 
 from . import core, protocol, sim
 from .counts import BROAD_PROFILE, DEFAULT_PROFILE, SensorProfile, si_to_counts
+from .files import FileError, read_regular_file
+from .firmware_image import MAX_IMAGE_BYTES
 from .proxy import FaultConfig, Proxy, make_front
 
 TARGETS = ("native", "qemu")
@@ -71,8 +73,6 @@ def find_image(target: str, image: str | os.PathLike | None = None) -> Path:
         raise EmulatorError(f"unknown target {target!r}; choose one of {', '.join(TARGETS)}")
     if image is not None:
         path = Path(image)
-        if not path.is_file():
-            raise EmulatorError(f"firmware image {path} not found")
         _check_image(target, path)
         return path
     subdir, name = _IMAGES[target]
@@ -93,7 +93,10 @@ _IMAGE_MARKS = {"native": b"usage: imulink-native", "qemu": b"qemu-stm32f405"}
 
 def _check_image(target: str, path: Path) -> None:
     """EmulatorError unless `path` is an ELF file of `target`'s board."""
-    data = path.read_bytes()
+    try:
+        data = read_regular_file(path, MAX_IMAGE_BYTES)
+    except FileError as exc:
+        raise EmulatorError(str(exc)) from None
     if data[:4] != b"\x7fELF":
         raise EmulatorError(f"{path} is not a firmware image (not an ELF file)")
     arm = int.from_bytes(data[18:20], "little") == _ELF_ARM
@@ -196,6 +199,7 @@ class EmulatedBoard:
                  image: str | os.PathLike | None = None, baud: int = 921600):
         if filter_name not in core.FILTERS:
             raise EmulatorError(f"unknown filter {filter_name!r}; choose one of {', '.join(core.FILTERS)}")
+        core.Filter(filter_name, rate_hz)  # SettingsError for a rate the filter is not made for (nor the host's replay)
         if profile.name not in FIRMWARE_PROFILES or FIRMWARE_PROFILES[profile.name] != profile:
             raise EmulatorError(f"the firmware knows the sensor profiles {', '.join(FIRMWARE_PROFILES)}, "
                                 f"not {profile.name!r}")

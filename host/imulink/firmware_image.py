@@ -17,6 +17,8 @@ import struct
 from dataclasses import dataclass
 from pathlib import Path
 
+from .files import FileError, read_regular_file
+
 ID_MAGIC = b"IMULNKID"
 _ID_LAYOUT = struct.Struct("<8sHH16s16s3BBIHH")
 _ELF_HEADER = struct.Struct("<16sHHIIIIIHHHHHH")
@@ -92,11 +94,9 @@ def load_image(path, address: int | None = None) -> FirmwareImage:
     """Read an ELF, Intel HEX (.hex, .ihex) or raw binary (.bin, with `address`) image."""
     path = Path(path)
     try:
-        if path.stat().st_size > MAX_IMAGE_BYTES:
-            raise ImageError(f"{path} is {path.stat().st_size} bytes: too big to be firmware")
-        data = path.read_bytes()
-    except OSError as exc:
-        raise ImageError(f"cannot read {path}: {exc.strerror or exc}") from None
+        data = read_regular_file(path, MAX_IMAGE_BYTES)
+    except FileError as exc:
+        raise ImageError(str(exc)) from None
     if data[:4] == b"\x7fELF":
         fmt, segments = "elf", _elf_segments(path, data)
     elif path.suffix.lower() in (".hex", ".ihex") or data[:1] == b":":

@@ -26,14 +26,16 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NoReturn
 
 import numpy as np
 
 from . import core, protocol, sim
 from .analysis import angle_difference, attitude_errors, rmse, wrap_deg
-from .counts import BROAD_PROFILE, DEFAULT_PROFILE, SensorProfile, si_to_counts
+from .counts import BROAD_PROFILE, DEFAULT_PROFILE, SensorDataError, SensorProfile, si_to_counts
 from .emulator import EmulatedBoard
-from .link import DEFAULT_BAUD, CommandTimeout, Disconnected, Link, LinkError
+from .files import FileError, check_regular_file, check_writable_target, create_beside, publish
+from .link import COMMAND_ATTEMPTS, DEFAULT_BAUD, CommandTimeout, Disconnected, Link, LinkError, ReceiveTimeout
 from .recording import Estimates, Recording, RecordingError, RecordingWriter, load_recording
 from .reference import FirmwareFilter
 
@@ -125,6 +127,17 @@ def _leave_injection_mode(link: Link) -> None:
 # ---------------------------------------------------------------------------- record
 
 
+#: Attempts of each command of the recorder: over a link that loses 1 % of its bytes a
+#: SETTING and its ACK both arrive about one time in two, and the snapshot is some twenty
+#: commands, each of which must get through.
+RECORD_COMMAND_ATTEMPTS = 12
+#: A stream that sends no frame for this long (or for SILENCE_PERIODS sample periods at the
+#: board's rate, whichever is longer) has gone silent: the board hangs or stopped unannounced.
+SILENCE_MIN_S = 2.0
+SILENCE_PERIODS = 20
+INTERRUPTED = "interrupted"
+
+
 @dataclass
 class RecordResult:
     path: Path
@@ -137,37 +150,62 @@ class RecordResult:
     duration_s: float
     counters: dict
 
+    @property
+    def interrupted(self) -> bool:
+        """Whether Ctrl-C (or SIGTERM) ended the recording."""
+        return self.stop_reason == INTERRUPTED
+
+
+def default_silence_timeout(status: dict) -> float:
+    """Seconds without a frame after which a stream at the STATUS's sample rate is silent."""
+    rate_hz = status["sample_rate_mhz"] / 1000.0
+    return max(SILENCE_MIN_S, SILENCE_PERIODS / rate_hz) if rate_hz > 0 else SILENCE_MIN_S
+
 
 def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAULT_BAUD,
-           profile: SensorProfile = DEFAULT_PROFILE, resync: bool = True, progress: Progress | None = None) -> RecordResult:
+           profile: SensorProfile = DEFAULT_PROFILE, resync: bool = True, silence_timeout_s: float | None = None,
+           force: bool = False, progress: Progress | None = None) -> RecordResult:
     """Record a board's stream to `path` until `duration_s` s have passed, the board stops
-    streaming (STATUS.streaming = 0), or Ctrl-C.
+    streaming (STATUS.streaming = 0), or Ctrl-C (then `interrupted`).
 
-    The file keeps everything received up to a failure: a disconnect raises
-    Disconnected after the file was closed cleanly. Nothing is left behind when the
-    board cannot be reached or refuses the handshake.
+    An existing `path` is refused before the port is opened unless `force`. The file is
+    written under a temporary name beside `path` until the board has answered the
+    handshake and the snapshot; only then does it take the name `path` (replacing the
+    old file with `force`): a wrong port, a peer that is not a board, a failure before
+    streaming leave no file behind and the old one untouched.
+
+    The file keeps everything received up to a failure, and is closed cleanly: a
+    disconnect raises Disconnected; a stream silent for `silence_timeout_s` (default
+    :func:`default_silence_timeout`) raises ReceiveTimeout; a write error (a full disk)
+    raises RecordingError at once.
     """
     path = Path(path)
-    writer = RecordingWriter(path, url, profile)
+    check_writable_target(path, replace=force)
+    fd, temporary = create_beside(path)
+    writer = RecordingWriter(path, url, profile, fd=fd)
     try:
-        link = Link(url, baud, tap=writer.received)  # the file holds every byte from the moment the port opens
+        # the file holds every byte from the moment the port opens
+        link = Link(url, baud, tap=writer.received, attempts=RECORD_COMMAND_ATTEMPTS)
         try:
-            hello, filter_id, filter_name = _snapshot(link, writer)
+            hello, filter_id, filter_name, status = _snapshot(link, writer)
+            writer.check()
+            publish(temporary, path, replace=force)
         except BaseException:
             link.close()
             raise
     except BaseException:
         writer.close()
-        path.unlink(missing_ok=True)
+        temporary.unlink(missing_ok=True)
         raise
+    silence = silence_timeout_s or default_silence_timeout(status)
     with writer, link:
-        return _StreamRecorder(link, writer, filter_id, resync, progress).run(hello, filter_name, duration_s)
+        return _StreamRecorder(link, writer, filter_id, resync, progress).run(hello, filter_name, duration_s, silence)
 
 
-def _snapshot(link: Link, writer: RecordingWriter) -> tuple[dict, int, str]:
+def _snapshot(link: Link, writer: RecordingWriter) -> tuple[dict, int, str, dict]:
     """Handshake, quiet the board, read its state and settings into the recording, and
     restart its filter so the recording starts at sample index 0. Returns the HELLO
-    fields, the active filter's id and name."""
+    fields, the active filter's id and name, and the STATUS fields."""
     hello = link.connect()
     writer.event("connected", hello=hello)
     link.command("STOP_STREAM")
@@ -178,7 +216,7 @@ def _snapshot(link: Link, writer: RecordingWriter) -> tuple[dict, int, str]:
     writer.event("snapshot", status=status, filter=filter_name,
                  settings={s["name"]: s["value"] for s in settings.values()})
     link.command("SELECT_FILTER", filter_id=filter_id)
-    return hello, filter_id, filter_name
+    return hello, filter_id, filter_name, status
 
 
 class _StreamRecorder:
@@ -224,37 +262,40 @@ class _StreamRecorder:
             self._restart = (self.link.send_command("SELECT_FILTER", filter_id=self.filter_id), time.monotonic())
             self.restarts += 1
 
-    def run(self, hello: dict, filter_name: str, duration_s: float | None) -> RecordResult:
+    def run(self, hello: dict, filter_name: str, duration_s: float | None, silence_s: float) -> RecordResult:
         link, writer = self.link, self.writer
         start_ack = link.command("START_STREAM").ack
-        started = time.monotonic()
+        started = last_heard = time.monotonic()
         writer.event("stream_started", filter=filter_name)
         streaming = False  # messages before the START_STREAM ACK belong to the snapshot
         try:
             while self.stop_reason is None:
-                for received in link.receive(timeout=0.1):
+                received = link.receive(timeout=0.1)
+                now = time.monotonic()
+                if received:
+                    last_heard = now
+                for item in received:
                     if streaming:
-                        self._follow(received.message)
-                    streaming = streaming or received.message is start_ack
+                        self._follow(item.message)
+                    streaming = streaming or item.message is start_ack
+                if writer.failure is not None:
+                    self._stop_stream()
+                    self._abort(RecordingError, f"{writer.failure}; the recording ends there",
+                                "is readable up to there")
+                if now - last_heard > silence_s:
+                    self._abort(ReceiveTimeout, f"{link.url} sent nothing for {silence_s:g} s: the board stopped "
+                                                "streaming unannounced or hangs (--silence-timeout sets the wait)")
                 self._restart_if_needed()
-                elapsed = time.monotonic() - started
+                elapsed = now - started
                 if duration_s is not None and elapsed >= duration_s:
                     self.stop_reason = f"{duration_s:g} s recorded"
                 if self.progress is not None and self.progress.due():
                     self.progress.update(self._status_line(elapsed, link.counters()))
         except KeyboardInterrupt:
-            self.stop_reason = "interrupted (Ctrl-C)"
+            self.stop_reason = INTERRUPTED
         except Disconnected as exc:
-            counters = link.counters()
-            writer.event("stopped", reason=str(exc), counters=counters)
-            if self.progress is not None:
-                self.progress.done()
-            raise Disconnected(f"{exc}; {writer.path} keeps the {counters['frames']} frames received before "
-                               "(complete and readable)") from None
-        try:
-            link.command("STOP_STREAM")
-        except (LinkError, protocol.ProtocolError):
-            pass  # the recording is complete either way; the board may be gone
+            self._abort(Disconnected, str(exc))
+        self._stop_stream()
         counters = link.counters()
         writer.event("stopped", reason=self.stop_reason, counters=counters)
         elapsed = time.monotonic() - started
@@ -263,6 +304,21 @@ class _StreamRecorder:
             self.progress.done()
         return RecordResult(writer.path, hello, filter_name, self.samples, self.estimates, self.restarts,
                             self.stop_reason, elapsed, counters)
+
+    def _stop_stream(self) -> None:
+        try:  # the recording is complete either way, and the board may be gone: no long retries
+            self.link.command("STOP_STREAM", attempts=COMMAND_ATTEMPTS)
+        except (LinkError, protocol.ProtocolError):
+            pass
+
+    def _abort(self, error: type[Exception], reason: str, kept: str | None = None) -> NoReturn:
+        """End the recording on a failure: a last event, and `error` saying what the file keeps."""
+        counters = self.link.counters()
+        self.writer.event("stopped", reason=reason, counters=counters)
+        if self.progress is not None:
+            self.progress.done()
+        kept = kept or f"keeps the {counters['frames']} frames received before (complete and readable)"
+        raise error(f"{reason}; {self.writer.path} {kept}")
 
     def _status_line(self, elapsed: float, counters: dict) -> str:
         return (f"recording {elapsed:6.1f} s: {self.samples} samples, {link_summary(counters)}"
@@ -374,7 +430,9 @@ class Comparison:
     host could reproduce it (its filter run complete up to it); identical, verified and
     equal in every field. fixed_vs_float: over the verified estimates, the rotation angle
     between the board's quaternion and the float twin's (deg: max, mean, rms), the
-    largest Euler angle difference (deg) and gyro bias difference (deg/s).
+    largest Euler angle difference (deg) and gyro bias difference (deg/s). damaged: the
+    recording's damaged spans; what they held was not compared, so a damaged recording
+    is never bit-exact.
     """
 
     sample_row: np.ndarray
@@ -382,6 +440,7 @@ class Comparison:
     identical: np.ndarray
     first_difference: Difference | None
     fixed_vs_float: dict
+    damaged: list[tuple[int, int]]
 
     @property
     def estimates(self) -> int:
@@ -397,7 +456,7 @@ class Comparison:
 
     @property
     def bit_exact(self) -> bool:
-        return self.verified_count > 0 and self.identical_count == self.verified_count
+        return self.verified_count > 0 and self.identical_count == self.verified_count and not self.damaged
 
 
 def _sample_rows(recording: Recording) -> np.ndarray:
@@ -430,7 +489,7 @@ def compare(recording: Recording, run: HostRun | None = None) -> Comparison:
                            getattr(estimates, name)[position].tolist(), run.fixed[name][row].tolist())
     return Comparison(sample_row, verified, identical, first,
                       _fixed_vs_float(estimates, positions, run.float_quat[rows], run.float_euler[rows],
-                                      run.float_gyro_bias[rows]))
+                                      run.float_gyro_bias[rows]), recording.damaged)
 
 
 def _fixed_vs_float(estimates: Estimates, positions, float_quat, float_euler, float_bias) -> dict:
@@ -459,13 +518,29 @@ def format_comparison(recording: Recording, comparison: Comparison) -> str:
                  f"{recording.segments} filter run(s)"
                  + (f"; ignored a truncated tail of {recording.truncated_bytes} bytes"
                     if recording.truncated_bytes else ""))
+    if recording.damaged:
+        spans = ", ".join(f"{length} bytes at byte {offset}" for offset, length in recording.damaged[:5])
+        more = f" and {len(recording.damaged) - 5} more" if len(recording.damaged) > 5 else ""
+        lines.append(f"DAMAGED FILE: skipped {len(recording.damaged)} span(s) that are not valid records "
+                     f"({spans}{more}); the frames they held are missing")
     c = comparison
+    unverifiable = ~c.verified
+    leftover = int((unverifiable & recording.estimates.leftover).sum())
+    lost = int(unverifiable.sum()) - leftover
+    reasons = [text for count, text in (
+        (leftover, f"{leftover} left over from a stream the board was already sending when the recording began"),
+        (lost, f"{lost} after a lost sample of their filter run")) if count]
     lines.append(f"estimates: {c.estimates} received, {c.verified_count} verifiable, {c.identical_count} identical, "
-                 f"{c.verified_count - c.identical_count} different, {c.estimates - c.verified_count} unverifiable "
-                 "(a sample of their filter run was lost)")
+                 f"{c.verified_count - c.identical_count} different, {c.estimates - c.verified_count} unverifiable"
+                 + (f" ({'; '.join(reasons)})" if reasons else ""))
     if c.first_difference is not None:
         lines.append(f"first difference: {c.first_difference}")
-    verdict = "yes" if c.bit_exact else ("no estimate to verify" if not c.verified_count else "NO")
+    if c.bit_exact:
+        verdict = "yes"
+    elif c.verified_count and c.identical_count == c.verified_count:
+        verdict = "not proven: the recording is damaged"
+    else:
+        verdict = "no estimate to verify" if not c.verified_count else "NO"
     lines.append(f"bit-exact: {verdict}")
     ff = comparison.fixed_vs_float
     if ff:
@@ -544,7 +619,8 @@ def export_npz(recording: Recording, run: HostRun, columns: dict[str, np.ndarray
     raw.update({f"host_fixed_{k}": v for k, v in run.fixed.items()})
     meta = {"header": recording.header, "hello": recording.hello, "status": recording.status,
             "counters": recording.counters, "events": recording.events}
-    np.savez_compressed(path, **columns, **raw, metadata=np.array(json.dumps(meta, default=str)))
+    with open(path, "wb") as out:  # a file object: numpy would add ".npz" to a path without it
+        np.savez_compressed(out, **columns, **raw, metadata=np.array(json.dumps(meta, default=str)))
 
 
 # ---------------------------------------------------------------------------- inject
@@ -566,25 +642,15 @@ class InjectionInput:
     truth: np.ndarray | None = None
 
 
+#: Largest .mat file read as an input (BROAD trials are a few MB).
+MAX_MAT_BYTES = 256 << 20
+
+
 def load_injection_input(spec: str) -> InjectionInput:
     """`sim:SCENARIO[:DURATION_S[:RATE_HZ[:SEED]]]` (default 60 s at 100 Hz, seed 0),
     a BROAD .mat file (converted to counts with BROAD_PROFILE) or a recording."""
     if spec.startswith("sim:"):
-        parts = spec.split(":")[1:]
-        if not 1 <= len(parts) <= 4 or parts[0] not in sim.SCENARIOS:
-            raise HilError(f"bad simulated input {spec!r}: use sim:SCENARIO[:DURATION_S[:RATE_HZ[:SEED]]] "
-                           f"with SCENARIO one of {', '.join(sim.SCENARIOS)}")
-        try:
-            duration = float(parts[1]) if len(parts) > 1 else 60.0
-            rate = float(parts[2]) if len(parts) > 2 else 100.0
-            seed = int(parts[3]) if len(parts) > 3 else 0
-        except ValueError:
-            raise HilError(f"bad simulated input {spec!r}: duration and rate must be numbers, seed an integer") from None
-        if duration <= 0 or rate <= 0:
-            raise HilError(f"bad simulated input {spec!r}: duration and rate must be positive")
-        run = sim.make_scenario(parts[0], duration, rate, seed)
-        return InjectionInput(f"simulated {parts[0]} ({duration:g} s at {rate:g} Hz, seed {seed})", run.gyr_counts,
-                              run.acc_counts, run.mag_counts, rate, run.profile, truth=run.quat_true)
+        return _simulated_input(spec)
     path = Path(spec)
     if not path.exists():
         raise HilError(f"input {spec!r} not found (give a recording, a BROAD .mat file or sim:SCENARIO:SECONDS)")
@@ -599,18 +665,54 @@ def load_injection_input(spec: str) -> InjectionInput:
                           raw_settings["sample_rate"] / 2.0**16, recording.profile, name, raw_settings)
 
 
+def _simulated_input(spec: str) -> InjectionInput:
+    usage = f"use sim:SCENARIO[:DURATION_S[:RATE_HZ[:SEED]]] with SCENARIO one of {', '.join(sim.SCENARIOS)}"
+    parts = spec.split(":")[1:]
+    if not 1 <= len(parts) <= 4 or parts[0] not in sim.SCENARIOS:
+        raise HilError(f"bad simulated input {spec!r}: {usage}")
+    try:
+        duration = float(parts[1]) if len(parts) > 1 else 60.0
+        rate = float(parts[2]) if len(parts) > 2 else 100.0
+        seed = int(parts[3]) if len(parts) > 3 else 0
+    except ValueError:
+        raise HilError(f"bad simulated input {spec!r}: duration and rate must be numbers, seed an integer") from None
+    try:
+        run = sim.make_scenario(parts[0], duration, rate, seed)
+    except sim.ScenarioError as exc:
+        raise HilError(f"bad simulated input {spec!r}: {exc}") from None
+    return InjectionInput(f"simulated {parts[0]} ({duration:g} s at {rate:g} Hz, seed {seed})", run.gyr_counts,
+                          run.acc_counts, run.mag_counts, rate, run.profile, truth=run.quat_true)
+
+
 def _load_broad(path: Path) -> InjectionInput:
     from scipy.io import loadmat
 
     try:
+        check_regular_file(path, MAX_MAT_BYTES)
+    except FileError as exc:
+        raise HilError(str(exc)) from None
+    what = "a BROAD trial (.mat with imu_gyr, imu_acc, imu_mag as N x 3 arrays and sampling_rate)"
+    try:
         data = loadmat(str(path))
+    except Exception as exc:  # scipy raises many kinds (ValueError, TypeError, MatReadError, ...) for a bad file
+        raise HilError(f"{path} is not a readable .mat file ({type(exc).__name__}: {exc})") from None
+    try:
         gyr, acc, mag = (np.asarray(data[k], np.float64) for k in ("imu_gyr", "imu_acc", "imu_mag"))
-        rate = float(np.asarray(data["sampling_rate"]).ravel()[0])
+        rate = float(np.asarray(data["sampling_rate"], np.float64).ravel()[0])
         truth = np.asarray(data["opt_quat"], np.float64) if "opt_quat" in data else None
-    except (OSError, ValueError, KeyError) as exc:
-        raise HilError(f"{path} is not a BROAD trial (.mat with imu_gyr, imu_acc, imu_mag, sampling_rate): "
-                       f"{exc}") from None
-    g, a, m = si_to_counts(gyr, acc, mag, BROAD_PROFILE)
+    except (KeyError, ValueError, TypeError, IndexError) as exc:
+        raise HilError(f"{path} is not {what}: {type(exc).__name__}: {exc}") from None
+    n = len(gyr)
+    if n < 2 or any(a.shape != (n, 3) for a in (gyr, acc, mag)) or (truth is not None and truth.shape != (n, 4)):
+        shapes = ", ".join(f"{k} {np.shape(data[k])}" for k in ("imu_gyr", "imu_acc", "imu_mag", "opt_quat")
+                           if k in data)
+        raise HilError(f"{path} is not {what}: the arrays are {shapes}")
+    if not 0 < rate < math.inf:
+        raise HilError(f"{path}: sampling_rate {rate!r} is not a positive number of Hz")
+    try:
+        g, a, m = si_to_counts(gyr, acc, mag, BROAD_PROFILE)
+    except SensorDataError as exc:
+        raise HilError(f"{path}: {exc}") from None
     return InjectionInput(f"BROAD trial {path.stem} ({len(g)} samples at {rate:g} Hz)", g, a, m, rate, BROAD_PROFILE,
                           truth=truth)
 
@@ -626,7 +728,7 @@ class InjectResult:
     first_difference: str | None
     filter_name: str
     duration_s: float
-    accuracy: dict | None
+    accuracy: dict | None  # RMS errors in deg (total, heading, inclination) over `samples` answered samples
 
     @property
     def bit_exact(self) -> bool:
@@ -635,20 +737,22 @@ class InjectResult:
 
 def format_inject(result: InjectResult) -> str:
     """The human report of `imulink inject`."""
+    unanswered = result.samples - result.answered
     lines = [f"input: {result.description}",
              f"injected {result.samples} samples into {result.filter_name} in {result.duration_s:.1f} s "
              f"({result.samples / max(result.duration_s, 1e-9):.0f} samples/s): {result.answered} answered, "
-             f"{result.answers_lost} answers lost"
-             + (f", filter restarts after unanswered samples: {result.filter_restarts}"
-                if result.filter_restarts else "")]
+             f"{unanswered} unanswered"
+             + (f" ({result.answers_lost} answers lost on the way, {result.filter_restarts} samples without any reply, "
+                "after each of which the filter was restarted)" if unanswered else "")]
     lines.append(f"bit-exact: {'yes' if result.bit_exact else 'NO'} ({result.identical} of {result.answered} "
                  "answers identical to the host fixed-point build)")
     if result.first_difference:
         lines.append(f"first difference: {result.first_difference}")
     if result.accuracy:
         a = result.accuracy
-        lines.append(f"accuracy vs truth (RMS after {SETTLE_S:g} s): total {a['total']:.3f} deg, "
-                     f"heading {a['heading']:.3f} deg, inclination {a['inclination']:.3f} deg")
+        lines.append(f"accuracy vs truth (RMS after {SETTLE_S:g} s, over the {a['samples']} answered samples): "
+                     f"total {a['total']:.3f} deg, heading {a['heading']:.3f} deg, "
+                     f"inclination {a['inclination']:.3f} deg")
     return "\n".join(lines)
 
 
@@ -756,9 +860,11 @@ def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings:
     if progress is not None:
         progress.done()
     accuracy = None
-    if source.truth is not None and answered:
-        settle = int(SETTLE_S * source.rate_hz)
-        accuracy = rmse(attitude_errors(board_quat[settle:], source.truth[settle:]))
+    if source.truth is not None:
+        usable = ~np.isnan(board_quat[:, 0]) & ~np.isnan(source.truth[:, 0])  # answered, and a truth to compare
+        usable[:int(SETTLE_S * source.rate_hz)] = False
+        if usable.any():
+            accuracy = {**rmse(attitude_errors(board_quat[usable], source.truth[usable])), "samples": int(usable.sum())}
     return InjectResult(source.description, n, answered, identical, lost, restarts, first, name,
                         time.monotonic() - started, accuracy)
 
@@ -804,20 +910,22 @@ class DemoReport:
 
 
 def demo(*, target: str = "native", transport: str = "tcp", scenario: str = "rests", duration_s: float = 60.0,
-         rate_hz: float = 100.0, seed: int = 0, filter_name: str = "eskf", output=None,
+         rate_hz: float = 100.0, seed: int = 0, filter_name: str = "eskf", output=None, force: bool = False,
          progress: Progress | None = None) -> DemoReport:
     """Record an emulated board's simulated run (as fast as the link goes) and verify it.
 
     `target` is "native" (the firmware as a host process) or "qemu" (the ARM image in
-    QEMU). `output` keeps the recording; without it the recording lives in a temporary
-    directory that is removed at the end.
+    QEMU). `output` keeps the recording (an existing file only with `force`); without it
+    the recording lives in a temporary directory that is removed at the end.
     """
     started = time.monotonic()
+    if output is not None:
+        check_writable_target(output, replace=force)  # before the board is started
     with tempfile.TemporaryDirectory(prefix="imulink-demo-") as scratch, \
             EmulatedBoard(target, front=transport, scenario=scenario, duration_s=duration_s, rate_hz=rate_hz,
                           seed=seed, filter_name=filter_name) as board:
         path = Path(output) if output is not None else Path(scratch) / "demo.imulog"
-        result = record(board.address, path, progress=progress)
+        result = record(board.address, path, force=force, progress=progress)
         recording = load_recording(path)
         samples = recording.samples
         truth = board.truth(samples.gyr, samples.acc, samples.mag)

@@ -42,8 +42,12 @@ from . import protocol
 DEFAULT_BAUD = 921600
 #: Seconds one command attempt waits for its ACK or NACK.
 COMMAND_TIMEOUT_S = 0.5
-#: Attempts of an idempotent command before CommandTimeout.
+#: Attempts of an idempotent command before CommandTimeout (a Link's default).
 COMMAND_ATTEMPTS = 3
+#: Each retry waits this much longer than the attempt before, up to COMMAND_TIMEOUT_MAX_S:
+#: a board that is slow to answer (still sending its stream at a low baud rate) gets time.
+RETRY_BACKOFF = 1.5
+COMMAND_TIMEOUT_MAX_S = 2.0
 #: Messages the receive queue holds before it drops the oldest.
 QUEUE_SIZE = 200_000
 
@@ -146,14 +150,19 @@ class Link:
             loop://, rfc2217://host:port).
         baud: line rate of a real serial port.
         tap: called in the reader thread as ``tap(chunk, host_time)`` for every chunk of
-            received bytes, before they are decoded (used to record the raw stream).
+            received bytes, before they are decoded (used to record the raw stream); it
+            must not raise.
         queue_size: messages kept for :meth:`receive` before the oldest are dropped.
+        attempts: attempts of each idempotent command unless a call says otherwise
+            (more for a link that loses many frames).
     """
 
-    def __init__(self, url: str, baud: int = DEFAULT_BAUD, tap=None, queue_size: int = QUEUE_SIZE):
+    def __init__(self, url: str, baud: int = DEFAULT_BAUD, tap=None, queue_size: int = QUEUE_SIZE,
+                 attempts: int = COMMAND_ATTEMPTS):
         self.url = url
         self.hello: dict | None = None
         self.tap = tap
+        self.attempts = attempts
         self._port = self._open(url, baud)
         self._fileno = self._port_fileno()
         self._decoder = protocol.FrameDecoder()
@@ -384,32 +393,46 @@ class Link:
             raise protocol.CommandError(reason, f"the board refused {pending.describe()}")
         return Reply(answer, pending.data)
 
-    def command(self, name: str, timeout: float = COMMAND_TIMEOUT_S, attempts: int = COMMAND_ATTEMPTS,
+    def command(self, name: str, timeout: float = COMMAND_TIMEOUT_S, attempts: int | None = None,
                 **args) -> Reply:
-        """Send a command and wait for its ACK (and data); retry idempotent commands.
+        """Send a command and wait for its ACK (and data); retry idempotent commands
+        (`attempts`, default the link's), each retry waiting longer (RETRY_BACKOFF).
 
         A reply whose data message was lost on the way (ACK without it) counts as a
         failed attempt. Raises CommandError (NACK, with the reason), CommandTimeout or
         Disconnected.
         """
-        tries = 1 if name in NOT_IDEMPOTENT else attempts
-        for _ in range(tries):
+        tries = 1 if name in NOT_IDEMPOTENT else (attempts or self.attempts)
+        wait = waited = 0.0
+        for attempt in range(tries):
+            wait = timeout if attempt == 0 else min(wait * RETRY_BACKOFF, max(timeout, COMMAND_TIMEOUT_MAX_S))
             pending = self.send_command(name, **args)
-            reply = self.wait(pending, timeout)
+            reply = self.wait(pending, wait)
             if reply is not None and (pending.reply_name is None or reply.data is not None
                                       or name in NOT_IDEMPOTENT):
                 return reply
+            waited += wait
         raise CommandTimeout(f"no answer to {pending.describe()} from {self.url} after {tries} attempt(s) "
-                             f"of {timeout:g} s")
+                             f"in {waited:.3g} s")
 
-    def connect(self, timeout: float = COMMAND_TIMEOUT_S, attempts: int = COMMAND_ATTEMPTS) -> dict:
+    def connect(self, timeout: float = COMMAND_TIMEOUT_S, attempts: int | None = None) -> dict:
         """The handshake: GET_VERSION, wait for HELLO, check its schema hash.
 
+        Attempts beyond COMMAND_ATTEMPTS are made only while the peer sends something:
+        they help a board on a lossy link, not a port where nothing answers.
         Returns the HELLO fields. Raises NotABoard when nothing answers like an imulink
         board, ProtocolMismatch when the board was built from another protocol definition.
         """
+        attempts = attempts or self.attempts
+        first = min(attempts, COMMAND_ATTEMPTS)
+        started = time.monotonic()
         try:
-            reply = self.command("GET_VERSION", timeout=timeout, attempts=attempts)
+            try:
+                reply = self.command("GET_VERSION", timeout=timeout, attempts=first)
+            except CommandTimeout:
+                if attempts == first or not self.counters()["bytes"]:
+                    raise
+                reply = self.command("GET_VERSION", timeout=timeout, attempts=attempts - first)
         except CommandTimeout:
             if self.hello is not None:  # an unsolicited HELLO: a board that did not understand us
                 protocol.check_hello(self.hello)
@@ -421,9 +444,9 @@ class Link:
                          f"({counters['crc_errors']} CRC errors, {counters['resyncs']} resyncs)")
             else:
                 heard = f"received {counters['frames']} frames but no HELLO"
-            raise NotABoard(f"no imulink board answered on {self.url} within {timeout * attempts:g} s: {heard}. "
-                            "Is it an imulink board, running, and (for a serial port) at the right baud rate?") from None
+            raise NotABoard(f"no imulink board answered on {self.url} within {time.monotonic() - started:.1f} s: "
+                            f"{heard}. Is it an imulink board, running, and (for a serial port) at the right baud "
+                            "rate?") from None
         protocol.check_hello(reply.data.fields)
         self.hello = reply.data.fields
         return reply.data.fields
-

@@ -30,6 +30,7 @@ import numpy as np
 import serial
 
 from . import protocol
+from .link import PortError
 
 #: Bytes from the board that may wait for a slow host before the proxy stops reading the board.
 BACKLOG_BYTES = 1 << 16
@@ -240,10 +241,13 @@ class TcpFront:
 
 class SerialFront:
     """Any pyserial URL or device (one end of a null-modem cable, for example), polled.
-    Raises serial.SerialException when the port cannot be opened."""
+    Raises PortError when the port cannot be opened."""
 
     def __init__(self, url: str, baud: int = 921600):
-        self._port = serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=0)
+        try:
+            self._port = serial.serial_for_url(url, baudrate=baud, timeout=0, write_timeout=0)
+        except (serial.SerialException, ValueError) as exc:  # ValueError: an unknown URL scheme, a bad baud rate
+            raise PortError(f"cannot open {url}: {exc}") from None
         self.address = url
         self.connections = 1
 
@@ -313,7 +317,8 @@ class Proxy:
 
     @staticmethod
     def _open_board(url: str, baud: int, timeout_s: float):
-        """Open the board's port; a socket that is not listening yet is retried until `timeout_s`."""
+        """Open the board's port; a socket that is not listening yet is retried until
+        `timeout_s`, then PortError (at once for a URL pyserial does not know)."""
         deadline = time.monotonic() + timeout_s
         while True:
             try:
@@ -321,9 +326,9 @@ class Proxy:
                 if url.startswith("socket://"):
                     port._socket.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                 return port
-            except serial.SerialException:
-                if time.monotonic() > deadline:
-                    raise
+            except (serial.SerialException, ValueError) as exc:
+                if isinstance(exc, ValueError) or time.monotonic() > deadline:
+                    raise PortError(f"cannot open {url}: {exc}") from None
                 time.sleep(0.02)
 
     @property

@@ -10,11 +10,15 @@ sensor profile), RECEIVED (a chunk of bytes exactly as read from the port, frame
 and damage alike), EVENT (JSON: connected, snapshot, stream started, stopped with the
 reason and the link counters, ...). Records of unknown kinds are skipped.
 
-Every record is one write() to a file opened for appending, and the file is fsync'ed
-about once a second: a crash or a pulled cable leaves at worst a partial last record.
-:func:`read_records` detects such a truncated tail (a record running past the end of
-the file, a bad CRC on the very last record, zero fill) and ignores it, keeping
-everything before; damage anywhere else is :class:`RecordingCorrupt`.
+Every record is written whole (short writes are completed) to a file opened for
+appending, and the file is fsync'ed about once a second: a crash, a pulled cable or a
+full disk leaves at worst a partial last record. :func:`read_records` checks every
+record's CRC; where a record is damaged it looks for the next valid one and reports
+the damaged span by offset. Bytes after which no valid record follows are a truncated
+tail (a partial last record, zero fill): ignored, everything before kept.
+
+:func:`load_recording` refuses a recording whose header names another protocol
+version or schema hash than this host's: its frames would be misread.
 
 :func:`load_recording` decodes the frames of a file into numpy tables of samples and
 estimates, split into *segments*: runs of the filter from sample index 0 (a filter
@@ -23,8 +27,11 @@ begins a new segment).
 """
 from __future__ import annotations
 
+import errno
 import json
+import math
 import os
+import re
 import struct
 import threading
 import time
@@ -36,24 +43,29 @@ import numpy as np
 
 from . import __version__, core, protocol
 from .counts import SensorProfile
+from .files import FileError, read_regular_file
 
 MAGIC = b"IMULOG1\n"
 FORMAT_VERSION = 1
 KIND_HEADER, KIND_RECEIVED, KIND_EVENT = 1, 2, 3
 _RECORD_HEAD = struct.Struct("<IBd")
 _CRC = struct.Struct("<I")
-#: Longest record body accepted on reading (the writer's are at most one read chunk).
-MAX_BODY = 1 << 24
+#: Longest record body accepted on reading (the writer's are at most one read chunk or
+#: an event): below 2**24, so the top byte of a valid length field is always 0.
+MAX_BODY = (1 << 24) - 1
+#: Largest recording read: its frames are decoded in memory, about 13 GB at this size
+#: (some 2 h of ESKF at 1 kHz).
+MAX_FILE_BYTES = 1 << 30
+_KNOWN_KINDS = (KIND_HEADER, KIND_RECEIVED, KIND_EVENT)
+#: Where a record of a known kind may start: its length's top byte (0), then its kind.
+#: Looking for these (in C) instead of trying every offset keeps resynchronisation fast.
+_RECORD_START = re.compile(b"\\x00[" + bytes(_KNOWN_KINDS) + b"]")
 _FSYNC_INTERVAL_S = 1.0
 _RESTARTING_IDS = {protocol.COMMAND_IDS[name] for name in protocol.RESTARTING_COMMANDS}
 
 
 class RecordingError(Exception):
     """A file that is not a readable imulink recording (or lacks what is asked of it)."""
-
-
-class RecordingCorrupt(RecordingError):
-    """A recording damaged somewhere other than its tail."""
 
 
 # ---------------------------------------------------------------------------- writing
@@ -65,40 +77,74 @@ def profile_to_json(profile: SensorProfile) -> dict:
 
 
 def profile_from_json(data: dict) -> SensorProfile:
-    return SensorProfile(name=data["name"], gyro_lsb_per_dps=data["gyro_lsb_per_dps"],
-                         acc_lsb_per_g=data["acc_lsb_per_g"], mag_lsb_per_gauss=data["mag_lsb_per_gauss"])
+    """The profile a header names; ValueError unless its sensitivities are positive numbers."""
+    sensitivities = {key: data[key] for key in ("gyro_lsb_per_dps", "acc_lsb_per_g", "mag_lsb_per_gauss")}
+    for key, value in sensitivities.items():
+        if type(value) not in (int, float) or not 0 < value < math.inf:
+            raise ValueError(f"{key} is {value!r}, not a positive number")
+    if not isinstance(data["name"], str):
+        raise ValueError(f"name is {data['name']!r}, not a string")
+    return SensorProfile(name=data["name"], **sensitivities)
 
 
 class RecordingWriter:
     """Appends records to a new recording file; thread-safe (the link's reader thread
-    writes RECEIVED records while the main thread writes events)."""
+    writes RECEIVED records while the main thread writes events).
 
-    def __init__(self, path, port: str, profile: SensorProfile):
+    `path` is created and must not exist: an existing file is never truncated. `fd`
+    instead: the file already created at `path` (:func:`imulink.files.create_beside`).
+
+    A write that fails (a full disk, the file-size limit) ends all writing: `failure`
+    says why and :meth:`check` raises it. The file keeps every record written before
+    it, and at worst part of one, which readers ignore as a truncated tail. Writing
+    never raises, so that a failure cannot kill the reader thread that writes.
+    """
+
+    def __init__(self, path, port: str, profile: SensorProfile, fd: int | None = None):
         self.path = Path(path)
         self._lock = threading.Lock()
-        try:
-            self._fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_APPEND, 0o644)
-        except OSError as exc:
-            raise RecordingError(f"cannot create {self.path}: {exc.strerror}") from None
+        if fd is None:
+            try:
+                fd = os.open(self.path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | os.O_APPEND, 0o666)
+            except OSError as exc:
+                raise RecordingError(f"cannot create {self.path}: {exc.strerror}") from None
+        self._fd = fd
         self._last_sync = time.monotonic()
         self.bytes_received = 0
-        os.write(self._fd, MAGIC)
+        self.failure: str | None = None
+        self._write_bytes(MAGIC)
         header = {"format": "imulink-recording", "format_version": FORMAT_VERSION, "imulink": __version__,
                   "protocol_version": protocol.PROTOCOL_VERSION, "schema_hash": protocol.SCHEMA_HASH,
                   "port": port, "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
                   "profile": profile_to_json(profile)}
         self._write(KIND_HEADER, time.time(), json.dumps(header).encode())
 
-    def _write(self, kind: int, host_time: float, body: bytes) -> None:
-        head = _RECORD_HEAD.pack(len(body), kind, host_time)
-        record = head + body + _CRC.pack(zlib.crc32(body, zlib.crc32(head)))
-        with self._lock:
-            if self._fd < 0:
-                return  # closed: late bytes from a reader thread that is shutting down
-            os.write(self._fd, record)
+    def _write_bytes(self, data: bytes) -> None:
+        """Write all of `data` (a write may be short, near a size limit) or note the failure."""
+        if self._fd < 0 or self.failure is not None:
+            return  # closed (late bytes from a reader thread shutting down), or failed before
+        view = memoryview(data)
+        try:
+            while view:
+                written = os.write(self._fd, view)
+                if not written:  # never seen on a regular file; looping on it would hang
+                    raise OSError(errno.EIO, "the file takes no more bytes")
+                view = view[written:]
             if time.monotonic() - self._last_sync > _FSYNC_INTERVAL_S:
                 os.fsync(self._fd)
                 self._last_sync = time.monotonic()
+        except OSError as exc:
+            self.failure = f"cannot write {self.path}: {exc.strerror}"
+
+    def _write(self, kind: int, host_time: float, body: bytes) -> None:
+        head = _RECORD_HEAD.pack(len(body), kind, host_time)
+        with self._lock:
+            self._write_bytes(head + body + _CRC.pack(zlib.crc32(body, zlib.crc32(head))))
+
+    def check(self) -> None:
+        """Raise RecordingError if a write failed."""
+        if self.failure is not None:
+            raise RecordingError(self.failure)
 
     def received(self, chunk: bytes, host_time: float) -> None:
         """Append a chunk of received bytes (the Link's `tap`)."""
@@ -112,7 +158,10 @@ class RecordingWriter:
     def close(self) -> None:
         with self._lock:
             if self._fd >= 0:
-                os.fsync(self._fd)
+                try:
+                    os.fsync(self._fd)
+                except OSError as exc:
+                    self.failure = self.failure or f"cannot write {self.path}: {exc.strerror}"
                 os.close(self._fd)
                 self._fd = -1
 
@@ -128,42 +177,75 @@ class RecordingWriter:
 
 @dataclass
 class LogRecord:
+    offset: int  # of its first byte in the file
     kind: int
     time: float
     body: bytes
 
 
-def read_records(path) -> tuple[list[LogRecord], int]:
-    """The records of a file and the number of bytes of a truncated tail that was ignored.
+@dataclass
+class RecordFile:
+    """What :func:`read_records` found: the valid records, the damaged spans skipped
+    between them (byte offset, length), and the length of a truncated tail."""
 
-    Raises RecordingError when the file is missing or not a recording, RecordingCorrupt
-    when a record before the tail is damaged.
+    records: list[LogRecord]
+    damaged: list[tuple[int, int]]
+    truncated_bytes: int
+
+
+def read_records(path) -> RecordFile:
+    """The records of a file, the damaged spans between them and the truncated tail.
+
+    A record that is not whole and CRC-valid where one should start is damage: the
+    reader looks for the next valid record of a known kind after it and goes on from
+    there. Only when none follows are the remaining bytes a truncated tail (what a
+    crash leaves: a partial last record, zero fill). Raises RecordingError when the
+    file cannot be read or is not a recording.
     """
     path = Path(path)
     try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise RecordingError(f"cannot read {path}: {exc.strerror}") from None
+        data = read_regular_file(path, MAX_FILE_BYTES)
+    except FileError as exc:
+        raise RecordingError(str(exc)) from None
     if not data.startswith(MAGIC):
         raise RecordingError(f"{path} is not an imulink recording (it does not start with {MAGIC!r})")
-    records, offset, end = [], len(MAGIC), len(data)
+    records, damaged = [], []
+    offset, end = len(MAGIC), len(data)
     while offset < end:
-        remaining = end - offset
-        if remaining < _RECORD_HEAD.size + _CRC.size:
-            return records, remaining  # a partial record header
-        length, kind, host_time = _RECORD_HEAD.unpack_from(data, offset)
-        stop = offset + _RECORD_HEAD.size + length
-        if length <= MAX_BODY and stop + _CRC.size > end:
-            return records, remaining  # the last record was cut short
-        if length > MAX_BODY or zlib.crc32(memoryview(data)[offset:stop]) != _CRC.unpack_from(data, stop)[0]:
-            if stop + _CRC.size == end or data.count(0, offset) == remaining:
-                return records, remaining  # a last record written in part, or the zero fill a crash may leave
-            problem = f"impossible record length {length}" if length > MAX_BODY else "CRC mismatch"
-            raise RecordingCorrupt(f"{path} is corrupt at byte {offset} (record {len(records)}): {problem}, "
-                                   f"{remaining} bytes from there")
-        records.append(LogRecord(kind, host_time, data[offset + _RECORD_HEAD.size:stop]))
-        offset = stop + _CRC.size
-    return records, 0
+        record = _record_at(data, offset)
+        if record is None:
+            following = _next_record(data, offset + 1)
+            if following is None:
+                return RecordFile(records, damaged, end - offset)
+            damaged.append((offset, following - offset))
+            offset = following
+            continue
+        records.append(record)
+        offset += _RECORD_HEAD.size + len(record.body) + _CRC.size
+    return RecordFile(records, damaged, 0)
+
+
+def _record_at(data: bytes, offset: int) -> LogRecord | None:
+    """The record starting at `offset` if it is whole and its CRC matches, else None."""
+    if len(data) - offset < _RECORD_HEAD.size + _CRC.size:
+        return None
+    length, kind, host_time = _RECORD_HEAD.unpack_from(data, offset)
+    stop = offset + _RECORD_HEAD.size + length
+    if length > MAX_BODY or stop + _CRC.size > len(data):
+        return None
+    if zlib.crc32(memoryview(data)[offset:stop]) != _CRC.unpack_from(data, stop)[0]:
+        return None
+    return LogRecord(offset, kind, host_time, data[offset + _RECORD_HEAD.size:stop])
+
+
+def _next_record(data: bytes, start: int) -> int | None:
+    """The offset of the first valid record of a known kind at or after `start`."""
+    position = start + 3  # the length's top byte, where _RECORD_START matches
+    while (match := _RECORD_START.search(data, position)) is not None:
+        if _record_at(data, match.start() - 3) is not None:
+            return match.start() - 3
+        position = match.start() + 1
+    return None
 
 
 # ---------------------------------------------------------------------------- decoded recordings
@@ -189,10 +271,13 @@ class Samples:
 @dataclass
 class Estimates:
     """ESTIMATE frames in arrival order: the board's raw integers (Q30 quat, Q24 gyro
-    bias, Q29 euler, covariance mantissa/exponent pairs, saturation counts)."""
+    bias, Q29 euler, covariance mantissa/exponent pairs, saturation counts).
+    leftover: received before the recording's snapshot, from a stream that was already
+    running when the recording began (e.g. left by a recorder that was killed)."""
 
     host_time: np.ndarray
     segment: np.ndarray
+    leftover: np.ndarray
     index: np.ndarray
     filter_id: np.ndarray
     quat: np.ndarray
@@ -216,6 +301,7 @@ class Recording:
     hello / status: the first HELLO and STATUS (the snapshot taken before streaming).
     settings: filter_id -> setting index -> SETTING fields (the last value received).
     counters: the frame decoder's counters over the whole recorded byte stream.
+    damaged: (byte offset, length) of each damaged span of the file that was skipped.
     truncated_bytes: bytes of a damaged tail that were ignored.
     segments: number of filter runs (see the module docstring).
     """
@@ -231,6 +317,7 @@ class Recording:
     estimates: Estimates
     logs: list[tuple[float, int, str]]
     counters: dict
+    damaged: list[tuple[int, int]]
     truncated_bytes: int
     segments: int
 
@@ -244,8 +331,10 @@ class Recording:
         fields = core.settings_fields(name)
         missing = [f.name for i, f in enumerate(fields) if i not in reported]
         if missing:
+            why = (f"the file is damaged, and its {len(self.damaged)} skipped span(s) may have held them"
+                   if self.damaged else "record with `imulink record`, which reads them first")
             raise RecordingError(f"{self.path}: the settings of {name} were not recorded (missing: "
-                                 f"{', '.join(missing)}); record with `imulink record`, which reads them first")
+                                 f"{', '.join(missing)}); {why}")
         for i, f in enumerate(fields):
             if reported[i]["name"] != f.name or reported[i]["frac_bits"] != f.frac_bits:
                 raise RecordingError(f"{self.path}: the board's setting {i} of {name} is {reported[i]['name']} "
@@ -283,21 +372,17 @@ class _Segmenter:
 def load_recording(path) -> Recording:
     """Read and decode a recording file (see the module docstring)."""
     path = Path(path)
-    records, truncated = read_records(path)
-    if not records or records[0].kind != KIND_HEADER:
-        raise RecordingError(f"{path} has no header record")
-    header = json.loads(records[0].body)
-    if header.get("format_version") != FORMAT_VERSION:
-        raise RecordingError(f"{path}: recording format {header.get('format_version')!r} is not supported "
-                             f"(this imulink reads format {FORMAT_VERSION})")
+    found = read_records(path)
+    records = found.records
+    header, profile = _header(path, records)
+    events = [(record.offset, {"time": record.time, **_json_object(path, record, "event")})
+              for record in records if record.kind == KIND_EVENT]
+    snapshot_at = next((offset for offset, event in events if event.get("event") == "snapshot"), -1)
     decoder, segmenter = protocol.FrameDecoder(), _Segmenter()
-    events, logs, settings = [], [], {}
+    logs, settings = [], {}
     hello = status = None
     samples, estimates = [], []
     for record in records[1:]:
-        if record.kind == KIND_EVENT:
-            events.append({"time": record.time, **json.loads(record.body)})
-            continue
         if record.kind != KIND_RECEIVED:
             continue
         for message in decoder.feed(record.body):
@@ -305,7 +390,7 @@ def load_recording(path) -> Recording:
             if name == "SAMPLE":
                 samples.append((record.time, segmenter.place(fields["index"]), fields))
             elif name == "ESTIMATE":
-                estimates.append((record.time, segmenter.place(fields["index"]), fields))
+                estimates.append((record.time, segmenter.place(fields["index"]), record.offset < snapshot_at, fields))
             elif name == "ACK" and fields["command"] in _RESTARTING_IDS:
                 segmenter.restart()
             elif name == "HELLO":
@@ -318,14 +403,43 @@ def load_recording(path) -> Recording:
                 settings.setdefault(fields["filter_id"], {})[fields["index"]] = fields
             elif name == "LOG":
                 logs.append((record.time, fields["level"], fields["text"]))
-    try:
-        profile = profile_from_json(header["profile"])
-    except (KeyError, TypeError) as exc:
-        raise RecordingError(f"{path}: header without a valid sensor profile ({exc})") from None
     sample_table, estimate_table = _sample_table(samples), _estimate_table(estimates)
     segments = len(set(sample_table.segment.tolist()) | set(estimate_table.segment.tolist()))
-    return Recording(path, header, profile, events, hello, status, settings, sample_table, estimate_table, logs,
-                     decoder.counters(), truncated, segments)
+    return Recording(path, header, profile, [event for _, event in events], hello, status, settings, sample_table,
+                     estimate_table, logs, decoder.counters(), found.damaged, found.truncated_bytes, segments)
+
+
+def _json_object(path: Path, record: LogRecord, what: str) -> dict:
+    """The JSON object in a header or event record (whose CRC may be right and its text not)."""
+    try:
+        value = json.loads(record.body)
+    except (ValueError, RecursionError):  # not UTF-8, not JSON, or nested too deep
+        value = None
+    if not isinstance(value, dict):
+        raise RecordingError(f"{path}: the {what} record at byte {record.offset} is not a JSON object")
+    return value
+
+
+def _header(path: Path, records: list[LogRecord]) -> tuple[dict, SensorProfile]:
+    """The header and sensor profile; RecordingError unless this imulink can decode the file:
+    its frames are decoded with this host's protocol schema, so the file's must be the same."""
+    if not records or records[0].kind != KIND_HEADER or records[0].offset != len(MAGIC):
+        raise RecordingError(f"{path} has no header record (the record at byte {len(MAGIC)} is missing or damaged)")
+    header = _json_object(path, records[0], "header")
+    if header.get("format_version") != FORMAT_VERSION:
+        raise RecordingError(f"{path}: recording format {header.get('format_version')!r} is not supported "
+                             f"(this imulink reads format {FORMAT_VERSION})")
+    version, schema = header.get("protocol_version"), header.get("schema_hash")
+    if version != protocol.PROTOCOL_VERSION or schema != protocol.SCHEMA_HASH:
+        schema_text = f"0x{schema:08X}" if isinstance(schema, int) else repr(schema)
+        raise RecordingError(f"{path} was recorded with protocol v{version!r}, schema hash {schema_text}; this "
+                             f"imulink decodes v{protocol.PROTOCOL_VERSION}, 0x{protocol.SCHEMA_HASH:08X}: read it "
+                             f"with the imulink that recorded it (version {header.get('imulink', 'unknown')})")
+    try:
+        profile = profile_from_json(header["profile"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise RecordingError(f"{path}: header without a valid sensor profile ({exc})") from None
+    return header, profile
 
 
 def _sample_table(rows) -> Samples:
@@ -343,10 +457,11 @@ def _sample_table(rows) -> Samples:
 
 
 def _estimate_table(rows) -> Estimates:
-    f = [r[2] for r in rows]
+    f = [r[3] for r in rows]
     return Estimates(
         host_time=np.array([r[0] for r in rows], np.float64),
         segment=np.array([r[1] for r in rows], np.int32),
+        leftover=np.array([r[2] for r in rows], bool),
         index=np.array([x["index"] for x in f], np.int64),
         filter_id=np.array([x["filter_id"] for x in f], np.int64),
         quat=np.array([x["quat"] for x in f], np.int64).reshape(-1, 4),

@@ -12,10 +12,14 @@ Typical use::
 """
 from __future__ import annotations
 
+import numbers
+
 from . import quat
 from .sensors import AccModel, GyroModel, MagModel, SensorSuite, SimResult, simulate
 from .trajectories import (
     DEFAULT_INITIAL,
+    MAX_SAMPLES,
+    ScenarioError,
     Trajectory,
     integrate_gyro,
     motion_with_rests,
@@ -28,6 +32,8 @@ __all__ = [
     "quat",
     "Trajectory",
     "DEFAULT_INITIAL",
+    "MAX_SAMPLES",
+    "ScenarioError",
     "integrate_gyro",
     "static",
     "turntable",
@@ -56,8 +62,14 @@ def make_scenario(name: str, duration_s: float, rate_hz: float, seed: int = 0) -
             (:func:`motion_with_rests`).
         duration_s: length in s.
         rate_hz: sample rate in Hz.
-        seed: seed of the trajectory (where random) and of the sensor noise.
+        seed: seed of the trajectory (where random) and of the sensor noise, an integer
+            from 0.
+
+    Raises ScenarioError for an unknown name, a negative seed, and a duration and rate
+    that are not finite or make fewer than 2 or more than MAX_SAMPLES samples.
     """
+    if not isinstance(seed, numbers.Integral) or seed < 0:
+        raise ScenarioError(f"the seed must be an integer from 0, not {seed!r}")
     if name == "static":
         traj = static(duration_s, rate_hz)
     elif name == "turntable":
@@ -67,5 +79,5 @@ def make_scenario(name: str, duration_s: float, rate_hz: float, seed: int = 0) -
     elif name == "rests":
         traj = motion_with_rests(duration_s, rate_hz, seed=seed)
     else:
-        raise ValueError(f"unknown scenario {name!r}; expected one of {SCENARIOS}")
+        raise ScenarioError(f"unknown scenario {name!r}; expected one of {SCENARIOS}")
     return simulate(traj, SensorSuite.default(), seed=seed)

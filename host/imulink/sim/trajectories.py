@@ -18,6 +18,7 @@ All constructors are deterministic for a given ``seed`` (``numpy.random.default_
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -97,11 +98,23 @@ def integrate_gyro(q0, gyr, dt: float) -> np.ndarray:
     return Q.cumulative_product(steps)
 
 
+#: Most samples a trajectory may have: a simulation holds some 450 bytes per sample
+#: (4.5 GB at this size).
+MAX_SAMPLES = 10_000_000
+
+
+class ScenarioError(ValueError):
+    """Simulation arguments no trajectory can be made of (the message says which)."""
+
+
 def _n_samples(duration_s: float, rate_hz: float) -> int:
-    n = int(round(duration_s * rate_hz))
-    if n < 2:
-        raise ValueError("a trajectory needs at least 2 samples (duration_s * rate_hz >= 2)")
-    return n
+    if not (0 < duration_s < math.inf and 0 < rate_hz < math.inf):
+        raise ScenarioError(f"duration {duration_s!r} s and rate {rate_hz!r} Hz must be positive finite numbers")
+    n = duration_s * rate_hz
+    if not 2 <= round(n) <= MAX_SAMPLES:
+        raise ScenarioError(f"{duration_s:g} s at {rate_hz:g} Hz is {n:.4g} samples; a trajectory needs from 2 "
+                            f"to {MAX_SAMPLES} samples")
+    return int(round(n))
 
 
 def _initial(initial) -> np.ndarray:
