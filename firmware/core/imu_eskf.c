@@ -488,9 +488,7 @@ static void restart_attitude_uncertainty(imu_eskf_t *f)
     int k;
     for (k = 0; k < 3; ++k) {
         imu_cov_reset_state(&f->cov, ATT + k, var, 56, &f->saturations);
-        f->injected[k + 1] = 0; /* the new variances belong to the new frame */
     }
-    f->injected[0] = IMU_ONE_Q30;
     f->acc_earth_valid = 0; /* its earth frame was the lost one */
 }
 
