@@ -42,12 +42,13 @@ from pathlib import Path
 import numpy as np
 
 from imulink.analysis import attitude_errors, rmse
+from imulink.broad import BroadError, load_broad
 from imulink.counts import BROAD_PROFILE, si_to_counts
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_DATA = REPO_ROOT / ".." / "shared" / "data" / "broad"
 
-#: Exit code for a missing data directory or missing trial files.
+#: Exit code for a missing data directory, missing trial files or a file that is not a trial.
 EXIT_NO_DATA = 2
 #: Exit code for --vqf without the vqf package.
 EXIT_NO_VQF = 3
@@ -78,20 +79,13 @@ class Trial:
 
 
 def load_trial(path) -> Trial:
-    """Load one BROAD trial (.mat, MATLAB 5) with scipy.io.loadmat."""
-    from scipy.io import loadmat
-
-    path = Path(path)
-    d = loadmat(str(path))
-    return Trial(
-        name=path.stem,
-        gyr=np.ascontiguousarray(d["imu_gyr"], dtype=np.float64),
-        acc=np.ascontiguousarray(d["imu_acc"], dtype=np.float64),
-        mag=np.ascontiguousarray(d["imu_mag"], dtype=np.float64),
-        quat_ref=np.ascontiguousarray(d["opt_quat"], dtype=np.float64),
-        movement=np.asarray(d["movement"]).ravel().astype(bool),
-        rate_hz=float(np.asarray(d["sampling_rate"]).ravel()[0]),
-    )
+    """Load one BROAD trial (:func:`imulink.broad.load_broad`); BroadError when it lacks
+    the optical reference or the movement mask the metric needs."""
+    trial = load_broad(path)
+    if trial.quat_ref is None or trial.movement is None:
+        raise BroadError(f"{path} has no opt_quat or movement: the metric needs both")
+    return Trial(name=trial.name, gyr=trial.gyr, acc=trial.acc, mag=trial.mag, quat_ref=trial.quat_ref,
+                 movement=trial.movement, rate_hz=trial.rate_hz)
 
 
 def trial_paths(data_dir) -> list[Path]:
@@ -397,7 +391,11 @@ def main(argv=None) -> int:
         print(msg, file=sys.stderr, flush=True)
 
     log(f"loading {len(paths)} trials from {args.data.resolve()}")
-    trials = [load_trial(x) for x in paths]
+    try:
+        trials = [load_trial(x) for x in paths]
+    except BroadError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return EXIT_NO_DATA
     for trial in trials:
         clipped = si_to_counts(trial.gyr, trial.acc, trial.mag, BROAD_PROFILE, return_saturation=True)[3]
         log(f"{trial.name}: sensor values clipped by {BROAD_PROFILE.name}: {clipped}")

@@ -32,9 +32,10 @@ import numpy as np
 
 from . import core, protocol, sim
 from .analysis import angle_difference, attitude_errors, rmse, wrap_deg
+from .broad import BroadError, load_broad
 from .counts import BROAD_PROFILE, DEFAULT_PROFILE, SensorDataError, SensorProfile, si_to_counts
 from .emulator import EmulatedBoard
-from .files import FileError, check_regular_file, check_writable_target, create_beside, publish
+from .files import check_writable_target, create_beside, publish
 from .link import COMMAND_ATTEMPTS, DEFAULT_BAUD, CommandTimeout, Disconnected, Link, LinkError, ReceiveTimeout
 from .recording import Estimates, Recording, RecordingError, RecordingWriter, load_recording
 from .reference import FirmwareFilter
@@ -642,10 +643,6 @@ class InjectionInput:
     truth: np.ndarray | None = None
 
 
-#: Largest .mat file read as an input (BROAD trials are a few MB).
-MAX_MAT_BYTES = 256 << 20
-
-
 def load_injection_input(spec: str) -> InjectionInput:
     """`sim:SCENARIO[:DURATION_S[:RATE_HZ[:SEED]]]` (default 60 s at 100 Hz, seed 0),
     a BROAD .mat file (converted to counts with BROAD_PROFILE) or a recording."""
@@ -685,36 +682,16 @@ def _simulated_input(spec: str) -> InjectionInput:
 
 
 def _load_broad(path: Path) -> InjectionInput:
-    from scipy.io import loadmat
-
     try:
-        check_regular_file(path, MAX_MAT_BYTES)
-    except FileError as exc:
+        trial = load_broad(path)
+    except BroadError as exc:
         raise HilError(str(exc)) from None
-    what = "a BROAD trial (.mat with imu_gyr, imu_acc, imu_mag as N x 3 arrays and sampling_rate)"
     try:
-        data = loadmat(str(path))
-    except Exception as exc:  # scipy raises many kinds (ValueError, TypeError, MatReadError, ...) for a bad file
-        raise HilError(f"{path} is not a readable .mat file ({type(exc).__name__}: {exc})") from None
-    try:
-        gyr, acc, mag = (np.asarray(data[k], np.float64) for k in ("imu_gyr", "imu_acc", "imu_mag"))
-        rate = float(np.asarray(data["sampling_rate"], np.float64).ravel()[0])
-        truth = np.asarray(data["opt_quat"], np.float64) if "opt_quat" in data else None
-    except (KeyError, ValueError, TypeError, IndexError) as exc:
-        raise HilError(f"{path} is not {what}: {type(exc).__name__}: {exc}") from None
-    n = len(gyr)
-    if n < 2 or any(a.shape != (n, 3) for a in (gyr, acc, mag)) or (truth is not None and truth.shape != (n, 4)):
-        shapes = ", ".join(f"{k} {np.shape(data[k])}" for k in ("imu_gyr", "imu_acc", "imu_mag", "opt_quat")
-                           if k in data)
-        raise HilError(f"{path} is not {what}: the arrays are {shapes}")
-    if not 0 < rate < math.inf:
-        raise HilError(f"{path}: sampling_rate {rate!r} is not a positive number of Hz")
-    try:
-        g, a, m = si_to_counts(gyr, acc, mag, BROAD_PROFILE)
+        g, a, m = si_to_counts(trial.gyr, trial.acc, trial.mag, BROAD_PROFILE)
     except SensorDataError as exc:
         raise HilError(f"{path}: {exc}") from None
-    return InjectionInput(f"BROAD trial {path.stem} ({len(g)} samples at {rate:g} Hz)", g, a, m, rate, BROAD_PROFILE,
-                          truth=truth)
+    return InjectionInput(f"BROAD trial {path.stem} ({len(g)} samples at {trial.rate_hz:g} Hz)", g, a, m,
+                          trial.rate_hz, BROAD_PROFILE, truth=trial.quat_ref)
 
 
 @dataclass
