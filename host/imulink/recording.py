@@ -38,6 +38,7 @@ import time
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -369,11 +370,16 @@ class _Segmenter:
         return self.segment
 
 
-def load_recording(path) -> Recording:
-    """Read and decode a recording file (see the module docstring)."""
+def load_recording(path, progress: Callable[[int, int], None] | None = None) -> Recording:
+    """Read and decode a recording file (see the module docstring).
+
+    progress: called with (bytes decoded, bytes in all) before each record: frames are
+    decoded in Python, some 30 000 samples a second, so a long recording takes minutes.
+    """
     path = Path(path)
     found = read_records(path)
     records = found.records
+    total = records[-1].offset + len(records[-1].body) if records else 0
     header, profile = _header(path, records)
     events = [(record.offset, {"time": record.time, **_json_object(path, record, "event")})
               for record in records if record.kind == KIND_EVENT]
@@ -383,6 +389,8 @@ def load_recording(path) -> Recording:
     hello = status = None
     samples, estimates = [], []
     for record in records[1:]:
+        if progress is not None:
+            progress(record.offset, total)
         if record.kind != KIND_RECEIVED:
             continue
         for message in decoder.feed(record.body):
@@ -403,6 +411,8 @@ def load_recording(path) -> Recording:
                 settings.setdefault(fields["filter_id"], {})[fields["index"]] = fields
             elif name == "LOG":
                 logs.append((record.time, fields["level"], fields["text"]))
+    if progress is not None:
+        progress(total, total)
     sample_table, estimate_table = _sample_table(samples), _estimate_table(estimates)
     segments = len(set(sample_table.segment.tolist()) | set(estimate_table.segment.tolist()))
     return Recording(path, header, profile, [event for _, event in events], hello, status, settings, sample_table,
