@@ -1,7 +1,8 @@
 """Allan deviation (imulink.allan, `imulink allan`): the curve against allantools, the
 intervals against their stated confidence, the noise terms against noise of known
 coefficients (the simulator's GyroModel among them), the filter settings against the C
-core's ranges.
+core's ranges, and the command line on CSV files, an emulated board's recording and bad
+inputs.
 
 The truths are the coefficients the noise was made with, and textbook closed forms
 (IEEE Std 952 Annex C; the Allan variance of a first-order Gauss-Markov process), never
@@ -11,18 +12,22 @@ for the check to mean something.
 """
 from __future__ import annotations
 
+import json
 import math
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from imulink import allan, core
+from imulink import allan, cli, core
 from imulink.allan import AllanError, FLOOR_OVER_BIAS_INSTABILITY, allan_curve, axis_terms
 from imulink.sim.sensors import GyroModel
 
 BROAD = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "broad"
+CLI = [sys.executable, "-c", "import sys\nfrom imulink.cli import main\nsys.exit(main())"]
 
 
 def within(term, truth: float, factor: float = 3.0) -> bool:
@@ -275,3 +280,127 @@ def test_broad_rest():
         assert all(t.value is None for t in terms["rrw"])  # 40 s show no random walk
     # a MEMS gyro of BROAD's kind: between 0.1 and 10 deg/sqrt(h)
     assert all(0.1 < t.value * 180 / math.pi * 60 < 10 for t in result.sensors["gyro"].terms["arw"])
+
+
+# ---------------------------------------------------------------------------- the command line
+
+
+def run_cli(*args, cwd=None) -> subprocess.CompletedProcess:
+    return subprocess.run(CLI + [str(a) for a in args], capture_output=True, text=True, timeout=120, cwd=cwd,
+                          stdin=subprocess.DEVNULL)
+
+
+def assert_error(result: subprocess.CompletedProcess, fragment: str) -> None:
+    """Exit status 2 and a single line `imulink: error: ...` on stderr, no traceback."""
+    assert result.returncode == 2, (result.returncode, result.stderr)
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("imulink: error: ") and fragment in lines[0], result.stderr
+
+
+def write_csv(path: Path, n: int = 36_000, rate: float = 100.0, seed: int = 11, start_us: int = 2**32 - 5_000_000,
+              gyro_density: float = 1e-3, acc_density: float = 2e-3) -> Path:
+    """A CSV with the columns of `imulink replay --csv` that allan reads, board timestamps
+    that wrap past 2^32, and white noise of known density on every axis."""
+    rng = np.random.default_rng(seed)
+    stamps = (start_us + np.round(np.arange(n) * 1e6 / rate).astype(np.int64)) % 2**32
+    gyr = white(3 * n, rate, gyro_density, rng).reshape(n, 3)
+    acc = white(3 * n, rate, acc_density, rng).reshape(n, 3) + [0.0, 0.0, 9.81]
+    with open(path, "w") as out:
+        columns = allan.CSV_COLUMNS["gyr"] + allan.CSV_COLUMNS["acc"]
+        out.write("host_time_s,timestamp_us,segment,index," + ",".join(columns) + ",mag_x_uT\n")
+        for k in range(n):
+            out.write(f"{k * 0.001:.3f},{stamps[k]},0,{k}," + ",".join(f"{v:.9g}" for v in (*gyr[k], *acc[k]))
+                      + ",20.5\n")
+    return path
+
+
+@pytest.fixture(scope="module")
+def csv_file(tmp_path_factory) -> Path:
+    return write_csv(tmp_path_factory.mktemp("csv") / "still.csv")
+
+
+def test_cli_json(csv_file):
+    result = run_cli("allan", csv_file, "--json")
+    assert result.returncode == 0, result.stderr
+    out = json.loads(result.stdout)
+    assert out["sample_rate_hz"] == pytest.approx(100.0) and out["samples"] == 36_000
+    for key, truth in (("gyro_arw", 1e-3), ("acc_vrw", 2e-3)):
+        assert len(out[key]) == 3 and len(out[f"{key}_uncertainty"]) == 3
+        for value, uncertainty in zip(out[key], out[f"{key}_uncertainty"]):
+            assert abs(value - truth) <= 3 * uncertainty and uncertainty < 0.03 * truth
+    for key in ("gyro_bias_instability", "gyro_rrw", "acc_bias_instability", "acc_rrw"):
+        assert out[key] == [None] * 3 and all(out[f"{key}_reason"])  # 6 minutes of white noise: no floor
+        assert out[f"{key}_uncertainty"] == [None] * 3
+    tau = out["tau_s"]
+    assert tau[0] == pytest.approx(0.01) and len(out["gyro_adev"]) == len(tau) and len(out["acc_adev"][0]) == 3
+    assert out["units"]["gyro_arw"].startswith("rad/s/sqrt(Hz)") and out["units"]["acc_rrw"] == "m/s^2/sqrt(s)"
+
+
+def test_cli_report_plots_and_settings(csv_file, tmp_path):
+    png, svg = tmp_path / "allan.png", tmp_path / "allan.svg"
+    result = run_cli("allan", csv_file, "--plot", png, "--settings", "eskf")
+    assert result.returncode == 0, result.stderr
+    assert "angle random walk" in result.stdout and "deg/sqrt(h)" in result.stdout
+    assert "velocity random walk" in result.stdout and "not identified" in result.stdout
+    settings = dict(line.split("#")[0].strip().split("=") for line in result.stdout.splitlines()
+                    if "=" in line.split("#")[0] and not line.startswith(" "))
+    assert float(settings["gyro_arw"]) == pytest.approx(1e-3, rel=0.05)
+    assert float(settings["acc_noise"]) == pytest.approx(2e-3 * math.sqrt(100 / 3), rel=0.05)
+    assert "gyro_rrw" not in settings and "acc_bias_rw is left at its default" in result.stdout
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    result = run_cli("allan", csv_file, "--plot", svg, "--json")
+    assert result.returncode == 0, result.stderr
+    json.loads(result.stdout)  # the plot's line went to stderr
+    assert b"<svg" in svg.read_bytes()[:1000]
+
+
+def test_cli_plot_without_matplotlib(csv_file, tmp_path, monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib -> ImportError
+    assert cli.main(["allan", str(csv_file), "--plot", str(tmp_path / "a.png")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "pip install 'imulink[plot]'" in err
+    assert not (tmp_path / "a.png").exists()
+
+
+def test_cli_recording_of_an_emulated_board(tmp_path):
+    """A static run of the emulated board (the simulator's seed 000 gyros, 0.02 m/s^2 per
+    sample on the accelerometer), recorded as fast as the link goes: its timestamps are the
+    host's pace, so the board's declared rate is used."""
+    from imulink import hil
+    from imulink.emulator import EmulatedBoard
+
+    path = tmp_path / "still.imulog"
+    with EmulatedBoard(front="tcp", scenario="static", duration_s=120.0, rate_hz=100.0, filter_name="kf1d") as board:
+        hil.record(board.address, path)
+    result = run_cli("allan", path, "--json", "--settings", "eskf")
+    assert result.returncode == 0, result.stderr
+    out = json.loads(result.stdout)
+    assert out["sample_rate_hz"] == 100.0 and out["samples"] == 12_000
+    model = GyroModel.seed000()
+    for axis in range(3):
+        value, uncertainty = out["gyro_arw"][axis], out["gyro_arw_uncertainty"][axis]
+        assert abs(value - model.arw[axis]) <= 3 * uncertainty < 0.05 * model.arw[axis]
+        value, uncertainty = out["acc_vrw"][axis], out["acc_vrw_uncertainty"][axis]
+        assert abs(value - 0.02 / math.sqrt(100.0)) <= 3 * uncertainty < 0.001
+    assert out["settings"]["values"]["gyro_arw"] == pytest.approx(max(out["gyro_arw"]))
+    assert out["settings"]["units"]["gyro_arw"] == "rad/s^0.5"
+
+
+def test_cli_bad_inputs(tmp_path, csv_file):
+    assert_error(run_cli("allan", tmp_path / "nothing.imulog"), "cannot read")
+    assert_error(run_cli("allan", tmp_path / "nothing.csv"), "cannot read")
+    short = write_csv(tmp_path / "short.csv", n=50)
+    assert_error(run_cli("allan", short), "holds 50 samples: an Allan analysis needs at least 72")
+    lines = csv_file.read_text().splitlines()
+    (tmp_path / "backwards.csv").write_text("\n".join(lines[:100] + [lines[101], lines[100]] + lines[102:]) + "\n")
+    assert_error(run_cli("allan", tmp_path / "backwards.csv"), "do not increase at sample 100")
+    (tmp_path / "gap.csv").write_text("\n".join(lines[:100] + lines[110:]) + "\n")
+    assert_error(run_cli("allan", tmp_path / "gap.csv"), "gap")
+    (tmp_path / "columns.csv").write_text("time_s,x\n0,1\n")
+    assert_error(run_cli("allan", tmp_path / "columns.csv"), "gyr_x_rad_s")
+    assert_error(run_cli("allan", csv_file, "--plot", tmp_path / "a.pdf"), "name it .png or .svg")
+    as_png = tmp_path / "still.png"  # an input named like a plot: --plot must not write over it
+    as_png.write_bytes(csv_file.read_bytes())
+    assert_error(run_cli("allan", as_png, "--plot", as_png), "is an input of this command")
+    (tmp_path / "text.imulog").write_text("hello\n")
+    assert_error(run_cli("allan", tmp_path / "text.imulog"), "is not an imulink recording")

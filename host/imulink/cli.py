@@ -42,6 +42,7 @@ def _command(func):
 
     def run(args) -> int:
         from . import core, protocol
+        from .allan import AllanError
         from .counts import SensorDataError
         from .emulator import EmulatorError
         from .files import FileError
@@ -55,7 +56,7 @@ def _command(func):
         try:
             return func(args)
         except (LinkError, protocol.ProtocolError, RecordingError, HilError, EmulatorError, FlashError, FileError,
-                core.SettingsError, ScenarioError, SensorDataError, UsageError, OSError) as exc:
+                core.SettingsError, ScenarioError, SensorDataError, AllanError, UsageError, OSError) as exc:
             print(f"imulink: error: {exc}", file=sys.stderr)
             return EXIT_ERROR
         except KeyboardInterrupt:
@@ -112,6 +113,66 @@ def _cmd_filters(args) -> int:
     return 0
 
 
+#: A job that ends within this many seconds shows no progress at all.
+PROGRESS_AFTER_S = 2.0
+
+
+def _late_progress():
+    """A status line on stderr (hil.Progress) that appears only once the job has run for
+    PROGRESS_AFTER_S: returns (status, phase), phase(name) giving a (done, total) callback."""
+    from .hil import Progress
+
+    status, started = Progress(), time.monotonic()
+
+    def phase(name: str):
+        def report(done: int, total: int) -> None:
+            if time.monotonic() - started >= PROGRESS_AFTER_S:
+                status.update(f"{name}: {100.0 * done / max(total, 1):3.0f} %")
+        return report
+
+    return status, phase
+
+
+@_command
+def _cmd_allan(args) -> int:
+    import json
+    from pathlib import Path
+
+    from . import allan, core
+    from .files import check_output, write_replacing
+
+    if args.plot:  # before the work: a plot that cannot be written is known at once
+        allan.plot_format(args.plot)
+        allan.check_plotting()
+        check_output(args.plot, inputs=[args.input])
+    status, phase = _late_progress()
+    try:
+        record = allan.load_static(args.input, progress=phase(f"reading {Path(args.input).name}"))
+        result = allan.analyse(record, args.confidence, progress=phase("Allan deviation"))
+    finally:
+        status.done()
+    derived = allan.derive_settings(allan.to_json(result), args.settings) if args.settings else None
+    units = {f.name: f.unit for f in core.settings_fields(args.settings)} if args.settings else {}
+    if args.json:
+        out = allan.to_json(result)
+        if derived is not None:
+            out["settings"] = {"filter": args.settings, "values": derived.values,
+                               "units": {name: units[name] for name in derived.values}, "notes": derived.notes}
+        print(json.dumps(out, indent=1))
+    else:
+        print(allan.format_report(result))
+        if derived is not None:
+            print(f"\n{args.settings} settings from the noise terms (SI):")
+            for name, value in derived.values.items():
+                print(f"{name}={value:.6g}  # {units[name]}")
+            for note in derived.notes:
+                print(f"# {note}")
+    if args.plot:
+        write_replacing(args.plot, lambda path: allan.plot(result, path), inputs=[args.input])
+        print(f"plot: {args.plot}", file=sys.stderr if args.json else sys.stdout)
+    return 0
+
+
 def _parse_filters(text: str) -> list[str]:
     from . import core
 
@@ -151,6 +212,40 @@ def build_parser() -> argparse.ArgumentParser:
                        description="List each filter's settings: default value, SI unit and fixed-point format.")
     p.add_argument("--filters", default="all", help="comma-separated filter names (default: all)")
     p.set_defaults(func=_cmd_filters)
+
+    p = sub.add_parser(
+        "allan", help="Allan deviation of a static recording: the sensors' noise terms",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Compute the overlapping Allan deviation of every gyroscope and accelerometer axis of a\n"
+                    "STATIC recording (the board lies still on a steady surface the whole time; an hour or\n"
+                    "two shows all three terms) at averaging times tau = 1, 2, 4, ... samples up to a ninth\n"
+                    "of the record, with chi-square intervals, and read the noise terms off the curve as\n"
+                    "IEEE Std 952 does:\n"
+                    "  white noise       the -1/2 slope's value at tau = 1 s: angle random walk (gyroscope,\n"
+                    "                    rad/sqrt(s), deg/sqrt(h)), velocity random walk (accelerometer)\n"
+                    "  bias instability  the floor of the curve / 0.664 (rad/s, deg/h; m/s^2)\n"
+                    "  rate random walk  the +1/2 slope's value at tau = 3 s (rad/s/sqrt(s), deg/h/sqrt(h))\n"
+                    "A term the curve does not show (a record too short for the +1/2 slope, a curve still\n"
+                    "falling at its end) is reported as not identified, with the reason.\n\n"
+                    "INPUT is one of:\n"
+                    "  FILE.imulog (any name)  a recording: imulink record PORT -o still.imulog --duration 7200\n"
+                    "  FILE.csv                a CSV of `imulink replay --csv` (timestamp_us or time_s, and\n"
+                    "                          gyr_x_rad_s.. and/or acc_x_m_s2.. columns)\n"
+                    "  FILE.mat                a BROAD trial: its longest rest (where movement is false)\n"
+                    "The samples must be evenly spaced, without gaps (the rate comes from the timestamps).\n\n"
+                    "Outputs: a table of the deviation per tau and the terms per axis with their\n"
+                    "uncertainty (half the interval at --confidence); --json the same in SI; --plot the\n"
+                    "curves; --settings a filter's settings that follow from the terms (name=value, SI).\n"
+                    "docs/calibration.md explains the method and the settings.")
+    p.add_argument("input", metavar="INPUT", help="the static recording: a recording, a replay CSV or a BROAD .mat")
+    p.add_argument("--json", action="store_true", help="print the curves and the terms as JSON, in SI units")
+    p.add_argument("--plot", metavar="FILE", help="draw the curves to FILE, .png or .svg (needs matplotlib: "
+                                                  "pip install 'imulink[plot]')")
+    p.add_argument("--settings", metavar="FILTER", choices=("eskf", "kf1d"),
+                   help="also print the settings of FILTER (eskf or kf1d) that follow from the terms")
+    p.add_argument("--confidence", type=_in_range(float, 0.01, 0.999, "must be a probability from 0.01 to 0.999"),
+                   default=0.683, help="confidence of the intervals (default: 0.683, one standard deviation)")
+    p.set_defaults(func=_cmd_allan)
     _add_hil_commands(sub)
     return parser
 
