@@ -121,9 +121,11 @@ def overlapping_adev(rate: np.ndarray, rate_hz: float, sizes: np.ndarray | None 
     y = np.asarray(rate, dtype=np.float64)
     n = y.shape[0]
     sizes = cluster_sizes(n) if sizes is None else np.asarray(sizes, dtype=np.int64)
-    x = np.empty(n + 1)
+    x = np.empty(n + 1)  # the only array of the record's length: 8 bytes a sample
     x[0] = 0.0
-    np.cumsum(y - y.mean(), out=x[1:])
+    x[1:] = y
+    x[1:] -= y.mean()
+    np.cumsum(x[1:], out=x[1:])
     adev = np.empty(len(sizes))
     for i, m in enumerate(sizes):
         terms = n + 1 - 2 * m
