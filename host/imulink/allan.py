@@ -155,10 +155,11 @@ def edf(samples: int, m: int, alpha: int) -> float:
                                       5 N^2 / (4m (N + 3m)) beyond
     * alpha = -2 (random walk):       (N - 2) / (m (N - 3)^2) ((N - 1)^2 - 3m (N - 1) + 4m^2)
 
-    Greenhall's exact algorithm differs from them by up to some 15 %, which moves an
-    interval's ends by a few percent of their distance from the value. (allantools'
-    edf_simple has 2 (N - 2) / (2.3 N - 4.9) for flicker at m = 1, which stays below 1
-    however long the record; Greenhall's algorithm gives 0.9 N there, as the square does.)
+    Greenhall's exact algorithm (allantools.ci.edf_greenhall) differs from them by up to
+    16 % for m >= 2 and a third for a random walk at m = 1, which changes an interval's
+    width by up to 8 % (15 %). (allantools' edf_simple has 2 (N - 2) / (2.3 N - 4.9) for
+    flicker at m = 1, which stays below 1 however long the record; Greenhall's algorithm
+    gives 0.9 N there, as the squared numerator does.)
     """
     n, m = float(samples + 1), float(m)
     if alpha == 2:
