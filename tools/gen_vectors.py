@@ -67,9 +67,9 @@ SETTINGS = {
                      "acc_tolerance": 1.9, "rest_bias_tau": 0.0},
     },
     "kf1d": {
-        "standard": {"q_angle": 1e-5, "q_bias": 1e-8, "r_angle": 0.01, "r_heading": 0.01},
-        "tuned": {"q_angle": 1e-4, "q_bias": 2e-7, "r_angle": 0.003, "r_heading": 0.02},
-        "no_align": {"q_angle": 5e-4, "q_bias": 4e-6, "r_angle": 2e-6, "r_heading": 0.03},
+        "standard": {"q_angle": 1e-5, "q_bias": 1e-8, "r_angle": 0.01, "r_heading": 0.01, "acc_tolerance": 0.2},
+        "tuned": {"q_angle": 1e-4, "q_bias": 2e-7, "r_angle": 0.003, "r_heading": 0.02, "acc_tolerance": 0.5},
+        "no_align": {"q_angle": 5e-4, "q_bias": 4e-6, "r_angle": 2e-6, "r_heading": 0.03, "acc_tolerance": 1.9},
     },
     "eskf": {
         # Seed 000's noise terms, 9 states, no low-pass: the paths of the source document.

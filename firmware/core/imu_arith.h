@@ -114,8 +114,39 @@ static inline int32_t imu_div_sat(int32_t a, int32_t b, int s, uint32_t *sat)
     return imu_sat32(((int64_t)a * ((int64_t)1 << s)) / b, sat);
 }
 
+/** a * b / (c * 2^s), rounded to nearest (ties away from zero) and saturated, the
+ *  product kept whole: one rounding where a quotient first rounded to a Q format
+ *  and then multiplied would carry its relative error into every use.
+ *  c > 0 and s in [0, 31] required (callers check). */
+static inline int32_t imu_muldiv_sat(int32_t a, int32_t b, int32_t c, int s, uint32_t *sat)
+{
+    const int64_t num = (int64_t)a * b;                /* |num| <= 2^62 */
+    const int64_t den = (int64_t)c * ((int64_t)1 << s); /* 0 < den < 2^62 */
+    const int64_t half = den / 2;
+    return imu_sat32((num >= 0 ? num + half : num - half) / den, sat);
+}
+
+/** (v + *residual) >> s, rounded and saturated, with the rounding error left in
+ *  *residual for the next call (error feedback): a value added every sample then
+ *  sums exactly, where rounding it alone would add the same error every time a
+ *  value repeats, and drift. |v| < 2^62, s in [1, 62]; a saturated result drops
+ *  the residual. */
+static inline int32_t imu_wshr_feedback_sat(int64_t v, int s, int64_t *residual, uint32_t *sat)
+{
+    const int64_t total = v + *residual;
+    const int64_t rounded = imu_rshift_round64(total, s);
+    if (rounded > INT32_MAX || rounded < INT32_MIN) {
+        *residual = 0;
+        return imu_sat32(rounded, sat);
+    }
+    *residual = total - rounded * ((int64_t)1 << s);
+    return (int32_t)rounded;
+}
+
 #define IMU_MUL_SAT(a, b, s, sat) imu_mul_sat((a), (b), (s), (sat))
 #define IMU_DIV_SAT(a, b, s, sat) imu_div_sat((a), (b), (s), (sat))
+#define IMU_WSHR_FEEDBACK_SAT(v, s, residual, sat) imu_wshr_feedback_sat((v), (s), (residual), (sat))
+#define IMU_MULDIV_SAT(a, b, c, s, sat) imu_muldiv_sat((a), (b), (c), (s), (sat))
 #define IMU_ADD_SAT(a, b, sat) imu_sat32((int64_t)(a) + (b), (sat))
 #define IMU_SUB_SAT(a, b, sat) imu_sat32((int64_t)(a) - (b), (sat))
 #define IMU_NEG_SAT(a, sat) imu_sat32(-(int64_t)(a), (sat))
@@ -195,6 +226,8 @@ typedef double imu_wide_t;
 #define IMU_MUL(a, b, s) ((a) * (b))
 #define IMU_MUL_SAT(a, b, s, sat) ((void)(sat), (a) * (b))
 #define IMU_DIV_SAT(a, b, s, sat) ((void)(sat), (a) / (b))
+#define IMU_MULDIV_SAT(a, b, c, s, sat) ((void)(sat), (a) * (b) / (c))
+#define IMU_WSHR_FEEDBACK_SAT(v, s, residual, sat) ((void)(residual), (void)(sat), (v))
 #define IMU_ADD(a, b) ((a) + (b))
 #define IMU_SUB(a, b) ((a) - (b))
 #define IMU_ADD_SAT(a, b, sat) ((void)(sat), (a) + (b))
