@@ -98,9 +98,10 @@ def integrate_gyro(q0, gyr, dt: float) -> np.ndarray:
     return Q.cumulative_product(steps)
 
 
-#: Most samples a trajectory may have: a simulation holds some 450 bytes per sample
-#: (4.5 GB at this size).
-MAX_SAMPLES = 10_000_000
+#: Most samples a trajectory may have: an hour at 5 kHz, the fastest rate the
+#: filters are checked at (tools/agreement.py). A simulation holds some 450 bytes
+#: per sample (8 GB at this size).
+MAX_SAMPLES = 18_000_000
 
 
 class ScenarioError(ValueError):
