@@ -113,9 +113,9 @@ static void correct(imu_kf1d_t *f, imu_kf1d_axis_t *a, imu_angle_t measured, imu
  * in the sensor frame: heading is clockwise), which equals adding them to the
  * angles to second order. Written back through Euler angles instead, every sample
  * would round the attitude through a conversion whose error is a fixed function of
- * the attitude, which adds up in slow motion: the fixed and float builds then part
- * by 0.074 deg in an hour of random motion at 5 kHz, 0.035 deg this way
- * (tools/agreement.py --rates 1000,5000 --filters kf1d).
+ * the attitude, which adds up in slow motion: it about doubled the fixed-vs-float
+ * difference in an hour of random motion at 5 kHz (tools/agreement.py --rates 5000
+ * --filters kf1d).
  *
  * The pitch axis takes the measured roll `roll_m` (Q29 rad), equal to the
  * estimated roll when the accelerometer agrees with the estimate: near the gimbal
