@@ -51,14 +51,15 @@ def test_acc_tolerance_is_range_checked(value):
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_fixed_and_float_agree_at_5khz(seed):
-    """Two minutes of random motion at 5 kHz: 0.0011 and 0.0017 deg; before, 0.0126 deg
+    """Two minutes of random motion at 5 kHz: 0.0036 and 0.0034 deg; before, 0.0126 deg
     (seed 0) and 0.0103 deg (seed 1), and 14 deg after an hour. The filter's gains in
     random motion are sensitive enough that a q_bias 0.05 % off parts the float build
     from itself by 0.07 deg in an hour at 1 kHz, so every constant rounding counted (the
     Euler round trip of each correction, the Q24 bias step, q_bias dt, gains truncated
-    to Q30), and so did the full-weight tilt of an accelerating board. The hour:
+    to Q30), and so did the full-weight tilt of an accelerating board and bias
+    estimates acting backwards upside down. The hour:
     tools/agreement.py --rates."""
     scenario = sim.make_scenario("random", 120, 5000.0, seed)
     result = agreement_chunked("kf1d", scenario)
-    assert result["max_deg"] < 0.005
+    assert result["max_deg"] < 0.006
     assert result["saturations_fixed"] == 0

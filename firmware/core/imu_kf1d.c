@@ -64,20 +64,23 @@ imu_status_t imu_kf1d_set_settings(imu_kf1d_t *f, const imu_kf1d_settings_t *s)
 
 /**
  * Prediction of one axis: angle = predicted (read from the propagated attitude),
- * P = A P A^T + Q dt; bias_noise is this sample's q_bias dt (rad^2/s^2, Q42).
+ * P = A P A^T + Q dt with A = [[1, -c dt], [0, 1]]; c (`coupling`, Q30, in [-1, 1])
+ * is how much of the paired gyro axis' bias reaches this angle's rate at the
+ * current attitude; bias_noise is this sample's q_bias dt (rad^2/s^2, Q42).
  */
 static void predict(imu_kf1d_t *f, imu_kf1d_axis_t *a, imu_angle_t predicted, imu_real_t q_angle,
-                    imu_real_t bias_noise)
+                    imu_real_t bias_noise, imu_q30_t coupling)
 {
     uint32_t *sat = &f->saturations;
     const imu_q30_t dt = f->dt;
-    /* t = dt P11 - 2 P01 + q_angle (rad^2/s, Q40): Q30 * Q42 >> 32 -> Q40. */
-    imu_real_t t = IMU_MUL_SAT(dt, a->p11, 32, sat);
+    const imu_q30_t cdt = IMU_MUL(dt, coupling, 30); /* s, Q30 */
+    /* t = c dt P11 - 2 P01 (rad^2/s, Q40): Q30 * Q42 >> 32 -> Q40. */
+    imu_real_t t = IMU_MUL_SAT(cdt, a->p11, 32, sat);
     t = IMU_SUB_SAT(t, IMU_ADD_SAT(a->p01, a->p01, sat), sat);
-    t = IMU_ADD_SAT(t, q_angle, sat);
     a->angle = predicted;
-    a->p00 = IMU_ADD_SAT(a->p00, IMU_MUL_SAT(dt, t, 35, sat), sat);          /* Q30*Q40>>35 -> Q35 */
-    a->p01 = IMU_SUB_SAT(a->p01, IMU_MUL_SAT(dt, a->p11, 32, sat), sat);     /* Q30*Q42>>32 -> Q40 */
+    a->p00 = IMU_ADD_SAT(a->p00, IMU_ADD_SAT(IMU_MUL_SAT(cdt, t, 35, sat), IMU_MUL_SAT(dt, q_angle, 35, sat), sat),
+                         sat);                                               /* Q30*Q40>>35 -> Q35 */
+    a->p01 = IMU_SUB_SAT(a->p01, IMU_MUL_SAT(cdt, a->p11, 32, sat), sat);    /* Q30*Q42>>32 -> Q40 */
     a->p11 = IMU_ADD_SAT(a->p11, bias_noise, sat);
 }
 
@@ -144,6 +147,7 @@ void imu_kf1d_update(imu_kf1d_t *f, const imu_sample_t *s)
     const int have_tilt = imu_tilt_from_acc(s->acc, &roll_m, &pitch_m);
     const int have_mag = s->mag[0] != 0 || s->mag[1] != 0 || s->mag[2] != 0;
     imu_angle_t predicted[3];
+    imu_q30_t sp_pred, cp_pred; /* sin and cos of the predicted pitch, Q30 */
     int k;
 
     if (!f->initialised) {
@@ -184,8 +188,22 @@ void imu_kf1d_update(imu_kf1d_t *f, const imu_sample_t *s)
                                            sat); /* Q48*Q30 = Q78 >> 36 -> Q42 */
         imu_quat_integrate(f->quat, theta);
         imu_quat_to_euler(f->quat, predicted);
-        for (k = 0; k < 3; ++k) {
-            predict(f, &f->axis[k], predicted[k], f->settings.q_angle, bias_noise);
+        {
+            /* The biases' reach (Euler kinematics): pitch rate = w_x cos r + w_z sin r,
+             * heading rate = (w_x sin r - w_z cos r) / cos p, roll rate = w_y + ...: an
+             * x-gyro bias moves pitch by cos r, a z-gyro bias the heading by cos r / cos p,
+             * taken as cos r cos p (bounded; the sign is what matters). Upside down they
+             * act backwards: with A's fixed -dt the bias estimates then ran away (tenths of
+             * a rad/s in tumbling random motion), and the fixed and float builds with them. */
+            imu_q30_t sr, cr, coupling[3];
+            imu_sincos(predicted[ROLL], &sr, &cr);
+            imu_sincos(predicted[PITCH], &sp_pred, &cp_pred);
+            coupling[ROLL] = IMU_ONE_Q30;
+            coupling[PITCH] = cr;
+            coupling[HEADING] = IMU_MUL(cr, cp_pred, 30);
+            for (k = 0; k < 3; ++k) {
+                predict(f, &f->axis[k], predicted[k], f->settings.q_angle, bias_noise, coupling[k]);
+            }
         }
     }
 
@@ -200,14 +218,13 @@ void imu_kf1d_update(imu_kf1d_t *f, const imu_sample_t *s)
      * there) and the estimated one (so is the roll read from the attitude, even
      * while an accelerating board measures a pitch far from it). */
     if (have_tilt) {
-        imu_q30_t unit[3], sp, cp, sp_est, cp_est, w_acc, w_roll;
+        imu_q30_t unit[3], sp, cp, w_acc, w_roll;
         imu_q16_t acc_norm; /* m/s^2, Q16 */
         (void)imu_vec3_normalize(s->acc, unit, &acc_norm);
         w_acc = imu_deviation_weight(IMU_SHL_SAT(IMU_SUB_SAT(acc_norm, STANDARD_GRAVITY, sat), 8, sat),
                                      f->settings.acc_tolerance, sat); /* deviation Q16 -> Q24 */
         imu_sincos(pitch_m, &sp, &cp);
-        imu_sincos(f->axis[PITCH].angle, &sp_est, &cp_est);
-        w_roll = IMU_MUL(IMU_MUL(IMU_MUL(cp, cp, 30), IMU_MUL(cp_est, cp_est, 30), 30), w_acc, 30);
+        w_roll = IMU_MUL(IMU_MUL(IMU_MUL(cp, cp, 30), IMU_MUL(cp_pred, cp_pred, 30), 30), w_acc, 30);
         correct(f, &f->axis[ROLL], roll_m, f->settings.r_angle, w_roll);
         correct(f, &f->axis[PITCH], pitch_m, f->settings.r_angle, w_acc);
     }
