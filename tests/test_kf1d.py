@@ -53,7 +53,7 @@ def test_acc_tolerance_is_range_checked(value):
 def test_fixed_and_float_agree_at_5khz(seed):
     """Two minutes of random motion at 5 kHz: 0.0036 and 0.0034 deg; before, 0.0126 deg
     (seed 0) and 0.0103 deg (seed 1), and 14 deg after an hour. The filter's gains in
-    random motion are sensitive enough that a q_bias 0.05 % off parts the float build
+    random motion were sensitive enough that a q_bias 0.05 % off parted the float build
     from itself by 0.07 deg in an hour at 1 kHz, so every constant rounding counted (the
     Euler round trip of each correction, the Q24 bias step, q_bias dt, gains truncated
     to Q30), and so did the full-weight tilt of an accelerating board and bias
