@@ -36,13 +36,12 @@ import argparse
 import json
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from imulink.analysis import attitude_errors, rmse
-from imulink.broad import BroadError, load_broad
+from imulink.broad import BroadError, BroadTrial, load_broad
 from imulink.counts import BROAD_PROFILE, si_to_counts
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
@@ -62,30 +61,13 @@ VQF_KEY = ("vqf", "reference")
 ERROR_KINDS = ("total", "heading", "inclination")
 
 
-@dataclass
-class Trial:
-    """One BROAD recording (the fields of the .mat file the evaluation needs)."""
-
-    name: str
-    gyr: np.ndarray  # (N,3) rad/s
-    acc: np.ndarray  # (N,3) m/s^2
-    mag: np.ndarray  # (N,3) uT
-    quat_ref: np.ndarray  # (N,4) w-first sensor-to-earth ENU, NaN where lost
-    movement: np.ndarray  # (N,) bool
-    rate_hz: float
-
-    def __len__(self) -> int:
-        return self.gyr.shape[0]
-
-
-def load_trial(path) -> Trial:
+def load_trial(path) -> BroadTrial:
     """Load one BROAD trial (:func:`imulink.broad.load_broad`); BroadError when it lacks
     the optical reference or the movement mask the metric needs."""
     trial = load_broad(path)
     if trial.quat_ref is None or trial.movement is None:
         raise BroadError(f"{path} has no opt_quat or movement: the metric needs both")
-    return Trial(name=trial.name, gyr=trial.gyr, acc=trial.acc, mag=trial.mag, quat_ref=trial.quat_ref,
-                 movement=trial.movement, rate_hz=trial.rate_hz)
+    return trial
 
 
 def trial_paths(data_dir) -> list[Path]:
@@ -99,7 +81,7 @@ def trial_paths(data_dir) -> list[Path]:
     return paths
 
 
-def load_trials(data_dir) -> list[Trial]:
+def load_trials(data_dir) -> list[BroadTrial]:
     """All trials of a BROAD directory, sorted by file name."""
     return [load_trial(p) for p in trial_paths(data_dir)]
 
@@ -138,7 +120,7 @@ def import_vqf():
     return VQF
 
 
-def run_vqf(trial: Trial):
+def run_vqf(trial: BroadTrial):
     """VQF's 9D quaternion (w-first, sensor-to-earth ENU) on one trial, default parameters."""
     VQF = import_vqf()
     out = VQF(1.0 / trial.rate_hz).updateBatch(np.ascontiguousarray(trial.gyr, dtype=np.float64),
@@ -200,7 +182,7 @@ def comparison_lines(results, filters, arithmetics) -> list[str]:
     return lines
 
 
-def run_filter(trial: Trial, filter_name: str, arithmetic: str, settings: dict | None = None):
+def run_filter(trial: BroadTrial, filter_name: str, arithmetic: str, settings: dict | None = None):
     """Run one filter on one trial with the BROAD register profile; returns a RunResult."""
     from imulink import core
     from imulink.counts import BROAD_PROFILE
