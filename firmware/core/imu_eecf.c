@@ -45,9 +45,6 @@ const int imu_eecf_setting_count = (int)(sizeof imu_eecf_setting_descs / sizeof 
 /** Below this horizontal share of the unit field (Q30) the heading is not observable. */
 #define MIN_HORIZONTAL_FIELD IMU_QCONST(0.05, 30)
 
-/** Gravity before the first rest measures it, m/s^2, Q16. */
-#define STANDARD_GRAVITY IMU_QCONST(9.80665, 16)
-
 /** | |acc| - g | beyond 32 m/s^2 (16 of the largest acc_tolerance) has weight 0 anyway:
  *  clamped there, in Q16, so that it fits Q24. */
 #define GRAVITY_DEVIATION_CLAMP IMU_QCONST(32.0, 16)
@@ -119,8 +116,8 @@ imu_status_t imu_eecf_set_settings(imu_eecf_t *f, const imu_eecf_settings_t *s)
     f->gyr_count = 0;
     f->acc_turn_limit = 0;
     f->mag_turn_limit = 0;
-    f->gravity = STANDARD_GRAVITY;
-    f->acc_ref_norm = STANDARD_GRAVITY;
+    f->gravity = IMU_STANDARD_GRAVITY; /* until the first rest measures it */
+    f->acc_ref_norm = IMU_STANDARD_GRAVITY;
     f->q[0] = IMU_ONE_Q30;
     for (i = 0; i < 3; ++i) {
         f->q[i + 1] = 0;

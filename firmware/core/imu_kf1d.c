@@ -25,9 +25,6 @@ const imu_setting_desc_t imu_kf1d_setting_descs[] = {
 #undef DESC
 const int imu_kf1d_setting_count = (int)(sizeof imu_kf1d_setting_descs / sizeof imu_kf1d_setting_descs[0]);
 
-/** Standard gravity, m/s^2, Q16: the norm a resting accelerometer reads. */
-#define STANDARD_GRAVITY IMU_QCONST(9.80665, 16)
-
 /** Initial bias variance: (0.5 deg/s)^2 in rad^2/s^2, Q42. */
 #define INITIAL_BIAS_VARIANCE IMU_QCONST(7.6e-5, 42)
 
@@ -221,7 +218,7 @@ void imu_kf1d_update(imu_kf1d_t *f, const imu_sample_t *s)
         imu_q30_t unit[3], sp, cp, w_acc, w_roll;
         imu_q16_t acc_norm; /* m/s^2, Q16 */
         (void)imu_vec3_normalize(s->acc, unit, &acc_norm);
-        w_acc = imu_deviation_weight(IMU_SHL_SAT(IMU_SUB_SAT(acc_norm, STANDARD_GRAVITY, sat), 8, sat),
+        w_acc = imu_deviation_weight(IMU_SHL_SAT(IMU_SUB_SAT(acc_norm, IMU_STANDARD_GRAVITY, sat), 8, sat),
                                      f->settings.acc_tolerance, sat); /* deviation Q16 -> Q24 */
         imu_sincos(pitch_m, &sp, &cp);
         w_roll = IMU_MUL(IMU_MUL(IMU_MUL(cp, cp, 30), IMU_MUL(cp_pred, cp_pred, 30), 30), w_acc, 30);

@@ -32,6 +32,9 @@ typedef struct {
     unsigned clipped;  /**< IMU_CLIPPED_* bits */
 } imu_sample_t;
 
+/** Standard gravity, m/s^2, Q16 as imu_sample_t.acc: what a resting accelerometer reads. */
+#define IMU_STANDARD_GRAVITY IMU_QCONST(9.80665, 16)
+
 /** Register limits: MPU6050 outputs span the int16 range; the HMC5883L's span
  *  -2048..2047 and it reports -4096 on overflow. */
 #define IMU_MPU6050_MIN (-32768)
