@@ -7,6 +7,8 @@
 #   clang, libclang-rt-N-dev                   the core's campaign under -fsanitize=undefined,integer
 #                                              (tests/test_campaign.py; the sanitizer runtime is only
 #                                              a recommendation of Debian's clang package)
+#   xvfb, libxcb-cursor0                       `imulink monitor` in a real window without a display (Xvfb);
+#                                              Qt 6.5+ needs libxcb-cursor0 for its xcb platform
 #
 # Installs only what is missing: as root directly, otherwise through sudo. Exits 1 with the
 # apt-get command to run when it cannot install them itself.
@@ -56,6 +58,8 @@ if ! have arm-none-eabi-gcc || [ "$(arm-none-eabi-gcc -print-file-name=libc_nano
 fi
 have qemu-system-arm || missing="$missing qemu-system-arm"
 have clang || missing="$missing clang"
+have Xvfb || missing="$missing xvfb"
+ldconfig -p 2>/dev/null | grep -q 'libxcb-cursor\.so\.0' || missing="$missing libxcb-cursor0"
 
 [ -z "$missing" ] || install_packages "$missing"
 

@@ -188,7 +188,7 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
         # the file holds every byte from the moment the port opens
         link = Link(url, baud, tap=writer.received, attempts=RECORD_COMMAND_ATTEMPTS)
         try:
-            hello, filter_id, filter_name, status = _snapshot(link, writer)
+            hello, filter_id, filter_name, status = snapshot(link, writer)
             writer.check()
             publish(temporary, path, replace=force)
         except BaseException:
@@ -203,19 +203,21 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
         return _StreamRecorder(link, writer, filter_id, resync, progress).run(hello, filter_name, duration_s, silence)
 
 
-def _snapshot(link: Link, writer: RecordingWriter) -> tuple[dict, int, str, dict]:
-    """Handshake, quiet the board, read its state and settings into the recording, and
-    restart its filter so the recording starts at sample index 0. Returns the HELLO
-    fields, the active filter's id and name, and the STATUS fields."""
+def snapshot(link: Link, writer: RecordingWriter | None) -> tuple[dict, int, str, dict]:
+    """Handshake, quiet the board, read its state and settings (into the recording, when
+    there is one), and restart its filter so that the stream starts at sample index 0.
+    Returns the HELLO fields, the active filter's id and name, and the STATUS fields."""
     hello = link.connect()
-    writer.event("connected", hello=hello)
+    if writer is not None:
+        writer.event("connected", hello=hello)
     link.command("STOP_STREAM")
     _leave_injection_mode(link)
     status = link.command("GET_STATUS").data.fields
     filter_id, settings = read_settings(link)
     filter_name = _FILTER_NAMES.get(filter_id, str(filter_id))
-    writer.event("snapshot", status=status, filter=filter_name,
-                 settings={s["name"]: s["value"] for s in settings.values()})
+    if writer is not None:
+        writer.event("snapshot", status=status, filter=filter_name,
+                     settings={s["name"]: s["value"] for s in settings.values()})
     link.command("SELECT_FILTER", filter_id=filter_id)
     return hello, filter_id, filter_name, status
 
