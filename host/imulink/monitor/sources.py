@@ -368,13 +368,12 @@ class ReplaySource:
         run = hil.host_run(self.recording)
         self.comparison = hil.compare(self.recording, run)
         s, e = self.recording.samples, self.recording.estimates
-        origin = s.host_time[0]
         self.sample_rows = sample_rows(self._timeline(s), s.gyr, s.acc, s.mag, self.recording.profile)
         angle = np.full(len(e), np.nan)
         verified = self.comparison.verified
         angle[verified] = angle_difference(e.quat[verified] / 2.0**core.QUAT_FRAC_BITS,
                                            run.float_quat[self.comparison.sample_row[verified]])
-        self.estimate_rows = estimate_rows(self._estimate_times(origin), e.euler, e.gyro_bias, e.cov_mantissa,
+        self.estimate_rows = estimate_rows(self._estimate_times(), e.euler, e.gyro_bias, e.cov_mantissa,
                                            e.cov_exponent, angle)
         self.duration = float(max(self.sample_rows[-1, 0], self.estimate_rows[-1, 0] if len(e) else 0.0))
         self.speed = speed
@@ -383,15 +382,16 @@ class ReplaySource:
         self._clock = time.monotonic()
 
     def _timeline(self, samples) -> np.ndarray:
-        """Playback time of each sample: the board's timestamps (unwrapped at 2^32 us), so a
-        recording taken as fast as the link goes plays at the pace it was sampled; where the
-        board clock jumps back (a reset) or stalls, the host receive times take over."""
-        step = np.diff(samples.timestamp_us) % (1 << 32) / 1e6
-        host_step = np.diff(samples.host_time)
-        step = np.where((step > 0) & (step < 10.0), step, np.maximum(host_step, 0.0))
-        return np.concatenate(([0.0], np.cumsum(step)))
+        """Playback time of each sample at the board's sample rate (STATUS), by sample index:
+        a recording taken as fast as the link goes plays at the pace the board sampled, and
+        a lost sample leaves its gap. Where a filter run restarts, one period passes."""
+        status = self.recording.status
+        rate_hz = status["sample_rate_mhz"] / 1000.0 if status and status["sample_rate_mhz"] else 100.0
+        steps = np.diff(samples.index)
+        same_run = (np.diff(samples.segment) == 0) & (steps > 0)
+        return np.concatenate(([0.0], np.cumsum(np.where(same_run, steps, 1)) / rate_hz))
 
-    def _estimate_times(self, origin: float) -> np.ndarray:
+    def _estimate_times(self) -> np.ndarray:
         """Each estimate at its sample's playback time (its receive time where its SAMPLE was lost)."""
         rows = self.comparison.sample_row
         times = np.interp(self.recording.estimates.host_time, self.recording.samples.host_time,

@@ -274,7 +274,7 @@ class MonitorWindow(QtWidgets.QMainWindow):
         started.start()
         for line in self.source.events():
             self._log(line)
-        if not self.paused:
+        if not (self.paused and self.source.live):  # a paused replay still follows its slider
             now = self.source.now()
             span = self.span()
             tables = dict(zip(("samples", "estimates"), self.source.window(span)))
@@ -364,7 +364,7 @@ class MonitorWindow(QtWidgets.QMainWindow):
         parts = [f"t = {t:.3f} s"]
         for name in columns:
             curve = self.curves[name][0]
-            x, y = curve.getData()
+            x, y = curve.xData, curve.yData  # the data itself, not what is drawn of it
             if curve.isVisible() and x is not None and len(x):
                 k = int(np.clip(np.searchsorted(x, t), 0, len(x) - 1))
                 parts.append(f"{name} = {y[k]:.5g}")
