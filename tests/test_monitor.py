@@ -23,6 +23,7 @@ from imulink.cli import main
 from imulink.emulator import EmulatedBoard
 from imulink.monitor import missing_dependencies
 from imulink.monitor.check import LiveCheck
+from imulink.monitor.decimate import peaks
 from imulink.monitor.ring import RingBuffer
 from imulink.recording import KIND_RECEIVED, load_recording, read_records
 
@@ -120,10 +121,25 @@ def wait_until(app, predicate, timeout: float = 10.0, what: str = "") -> None:
 
 
 def curve(window, name: str) -> tuple[np.ndarray, np.ndarray]:
-    """The data a curve was given (getData() would return what is drawn: clipped, downsampled)."""
-    item = window.curves[name][0]
-    empty = np.empty(0)
-    return (item.xData if item.xData is not None else empty), (item.yData if item.yData is not None else empty)
+    """A curve's data in the window's time span (what is drawn of it is decimated to the plot's width)."""
+    _, table, column = window.curves[name]
+    rows = window.data[table]
+    return rows[:, 0], rows[:, column]
+
+
+def test_peak_decimation_keeps_every_extreme():
+    rng = np.random.default_rng(2)
+    rows = np.column_stack([np.arange(1003.0), rng.normal(size=1003), rng.normal(size=1003)])
+    rows[500:520, 2] = np.nan  # a gap
+    out = peaks(rows, 100)
+    step = 11  # ceil(1003 / 100)
+    assert len(out) == 2 * (1003 // step) + 1003 % step
+    np.testing.assert_array_equal(out[0::2][:91, 0], rows[::step][:91, 0])
+    np.testing.assert_array_equal(out[0:182:2, 1], rows[:1001, 1].reshape(-1, step).min(axis=1))
+    np.testing.assert_array_equal(out[1:182:2, 1], rows[:1001, 1].reshape(-1, step).max(axis=1))
+    assert np.nanmax(out[:, 2]) == np.nanmax(rows[:, 2]) and np.isnan(out[:, 2]).sum() == 2  # a whole-NaN run
+    np.testing.assert_array_equal(out[-2:], rows[-2:])  # the newest rows, fewer than a run
+    assert peaks(rows[:200], 100) is not None and len(peaks(rows[:200], 100)) == 200
 
 
 def open_window(source):
@@ -141,6 +157,8 @@ def live_window(address: str):
 
 
 def test_window_connects_fills_its_plots_and_says_bit_exact(qt):
+    from imulink.monitor.window import DRAWN_BINS
+
     with EmulatedBoard(front="tcp", duration_s=60.0, rate_hz=1000.0, realtime=True) as board:
         window = live_window(board.address)
         try:
@@ -152,6 +170,9 @@ def test_window_connects_fills_its_plots_and_says_bit_exact(qt):
             for name in ("gyr_x", "acc_z", "mag_y", "roll", "heading", "bias_z", "fixed_float"):
                 x, y = curve(window, name)
                 assert len(x) > 100 and np.isfinite(y).all(), name
+                drawn = window.curves[name][0]
+                assert 100 < len(drawn.xData) <= 2 * DRAWN_BINS + len(x) // DRAWN_BINS + 1, name  # decimated
+                assert drawn.yData.min() == y.min() and drawn.yData.max() == y.max(), name  # every peak kept
             acc_z = curve(window, "acc_z")[1]
             assert 9.0 < np.median(acc_z) < 10.6  # the board lies flat in the simulated rests: +1 g, m/s^2
             assert np.isnan(curve(window, "sigma_att_x")[1]).all()  # the EECF has no covariance

@@ -17,6 +17,7 @@ import numpy as np
 
 from .. import core, protocol
 from ..files import create_beside
+from .decimate import peaks
 from .horizon import HorizonWidget
 from .qt import QtCore, QtGui, QtWidgets, pg
 from .sources import ESTIMATE_COLUMNS, FILTER_NAMES, MAX_SPAN_S, SAMPLE_COLUMNS, Health
@@ -25,6 +26,8 @@ from .sources import ESTIMATE_COLUMNS, FILTER_NAMES, MAX_SPAN_S, SAMPLE_COLUMNS,
 FRAME_HZ = 30
 SPANS_S = (2.0, 5.0, 10.0, 30.0, MAX_SPAN_S)
 HEALTH_EVERY = 8  # frames between health panel updates (about 4 a second)
+#: Bins per curve handed to pyqtgraph (two points each, decimate.peaks): a plot is some 450 pixels wide.
+DRAWN_BINS = 300
 _COLORS = ("#e41a1c", "#4daf4a", "#377eb8")
 #: (title, unit, "samples" | "estimates", [(column, curve name)]): one plot each.
 PLOTS = (
@@ -38,6 +41,18 @@ PLOTS = (
     ("ESKF σ gyro bias", "deg/s", "estimates", ("sigma_bias_x", "sigma_bias_y", "sigma_bias_z")),
 )
 _COLUMNS = {"samples": SAMPLE_COLUMNS, "estimates": ESTIMATE_COLUMNS}
+#: Angles that wrap at +-180 deg: the curve is broken there instead of drawn across the plot.
+_WRAPPING = ("roll", "heading")
+
+
+def break_wraps(y: np.ndarray) -> np.ndarray:
+    """`y` with NaN where it jumps by more than 180 (a wrap), so the curve has a gap there."""
+    jumps = np.flatnonzero(np.abs(np.diff(y)) > 180.0)
+    if not len(jumps):
+        return y
+    y = y.copy()
+    y[jumps + 1] = np.nan
+    return y
 
 
 class MonitorWindow(QtWidgets.QMainWindow):
@@ -66,24 +81,32 @@ class MonitorWindow(QtWidgets.QMainWindow):
         self.plots_widget = pg.GraphicsLayoutWidget()
         self.plots: list[pg.PlotItem] = []
         self.curves: dict[str, tuple[pg.PlotDataItem, str, int]] = {}  # name -> (curve, table, column)
+        self.data: dict[str, np.ndarray] = {"samples": np.empty((0, len(SAMPLE_COLUMNS))),
+                                             "estimates": np.empty((0, len(ESTIMATE_COLUMNS)))}  # shown, undecimated
+        self._drawn: tuple = ()
         self.cursors: list[pg.InfiniteLine] = []
         for k, (title, unit, table, columns) in enumerate(PLOTS):
             plot = self.plots_widget.addPlot(row=k // 2, col=k % 2, title=title)
             plot.setLabel("left", units=None, text=unit)
             plot.showGrid(x=True, y=True, alpha=0.3)
-            plot.setDownsampling(auto=True, mode="peak")
-            plot.setClipToView(True)
+            for side in ("left", "bottom"):  # a grid at the major ticks only: the grid is half the cost of a frame
+                plot.getAxis(side).setStyle(maxTickLevel=0)
             plot.addLegend(offset=(2, 2), labelTextSize="7pt", verSpacing=-8)
             if self.plots:
                 plot.setXLink(self.plots[0])
             for n, column in enumerate(columns):
-                curve = plot.plot(name=column, pen=pg.mkPen(_COLORS[n], width=1), connect="finite")
+                # PlotCurveItem rather than plot()'s PlotDataItem: no symbols to manage, a third of the cost
+                curve = pg.PlotCurveItem(name=column, pen=pg.mkPen(_COLORS[n], width=1), connect="finite",
+                                         skipFiniteCheck=True)
+                plot.addItem(curve)
                 self.curves[column] = (curve, table, _COLUMNS[table].index(column))
             cursor = pg.InfiniteLine(angle=90, movable=False, pen=pg.mkPen("#888", style=QtCore.Qt.PenStyle.DashLine))
             cursor.setVisible(False)  # until the mouse is over a plot
             plot.addItem(cursor, ignoreBounds=True)
             self.cursors.append(cursor)
             self.plots.append(plot)
+        for plot in self.plots[:-2]:  # time labels on the bottom row only: text is most of an axis's cost
+            plot.getAxis("bottom").setStyle(showValues=False)
         self.plots[-1].setLabel("bottom", "time", units="s")
         self.plots[-2].setLabel("bottom", "time", units="s")
         self._mouse = pg.SignalProxy(self.plots_widget.scene().sigMouseMoved, rateLimit=30, slot=self._on_mouse)
@@ -138,6 +161,7 @@ class MonitorWindow(QtWidgets.QMainWindow):
             action.setCheckable(True)
             action.setChecked(True)
             action.toggled.connect(curve.setVisible)
+            action.toggled.connect(self._redraw_all)
             self.curve_actions[name] = action
         curves_button.setMenu(menu)
         bar.addWidget(curves_button)
@@ -226,6 +250,9 @@ class MonitorWindow(QtWidgets.QMainWindow):
         if self.pause_action.isChecked() != paused:
             self.pause_action.setChecked(paused)
 
+    def _redraw_all(self) -> None:
+        self._drawn = ()  # the next frame gives every visible curve its data again
+
     def autoscale(self) -> None:
         for plot in self.plots:
             plot.enableAutoRange(axis="y")
@@ -278,12 +305,19 @@ class MonitorWindow(QtWidgets.QMainWindow):
             now = self.source.now()
             span = self.span()
             tables = dict(zip(("samples", "estimates"), self.source.window(span)))
-            for curve, table, column in self.curves.values():
-                rows = tables[table]
-                if curve.isVisible():
-                    curve.setData(rows[:, 0], rows[:, column])
-            self.plots[0].setXRange(now - span, now, padding=0)
-            self.horizon.set_attitude(*self.source.attitude())
+            # a live view moves with its data, a replay with its clock; when neither moved (a stopped
+            # stream, a paused replay) there is nothing to draw
+            fresh = (span, None if self.source.live else now, *(len(t) and t[-1, 0] for t in tables.values()))
+            if fresh != self._drawn:
+                self._drawn = fresh
+                self.data = tables
+                drawn = {name: peaks(rows, DRAWN_BINS) for name, rows in tables.items()}
+                for name, (curve, table, column) in self.curves.items():
+                    if curve.isVisible():
+                        y = drawn[table][:, column]
+                        curve.setData(drawn[table][:, 0], break_wraps(y) if name in _WRAPPING else y)
+                self.plots[0].setXRange(now - span, now, padding=0)
+                self.horizon.set_attitude(*self.source.attitude())
             if not self.source.live and not self.slider.isSliderDown():
                 self.slider.setValue(int(now * 10))
         if self.frames % HEALTH_EVERY == 0:
@@ -364,8 +398,9 @@ class MonitorWindow(QtWidgets.QMainWindow):
         parts = [f"t = {t:.3f} s"]
         for name in columns:
             curve = self.curves[name][0]
-            x, y = curve.xData, curve.yData  # the data itself, not what is drawn of it
-            if curve.isVisible() and x is not None and len(x):
+            rows, column = self.data[self.curves[name][1]], self.curves[name][2]
+            x, y = rows[:, 0], rows[:, column]  # the data itself, not what is drawn of it
+            if curve.isVisible() and len(x):
                 k = int(np.clip(np.searchsorted(x, t), 0, len(x) - 1))
                 parts.append(f"{name} = {y[k]:.5g}")
         return f"{title} ({unit}): " + ", ".join(parts)
