@@ -52,7 +52,7 @@ class HorizonWidget(QtWidgets.QWidget):
         center = rect.center()
         radius = min(rect.width(), rect.height()) / 2.0
         per_deg = radius / self.PITCH_RANGE_DEG
-        big = 4 * max(rect.width(), rect.height())
+        big = math.hypot(rect.width(), rect.height()) + abs(self.pitch) * per_deg  # covers the view at any angle
         painter.translate(center)
         painter.rotate(-self.roll)
         painter.translate(0, self.pitch * per_deg)
@@ -64,8 +64,8 @@ class HorizonWidget(QtWidgets.QWidget):
         font = painter.font()
         font.setPointSizeF(7.5)
         painter.setFont(font)
-        for step in range(-90, 91, 10):  # the pitch ladder
-            if step == 0:
+        for step in range(-90, 91, 10):  # the pitch ladder (the rungs in view)
+            if step == 0 or abs(step - self.pitch) > self.PITCH_RANGE_DEG * 1.5:
                 continue
             y = -step * per_deg
             half = radius * (0.28 if step % 20 == 0 else 0.16)

@@ -84,14 +84,19 @@ class MonitorWindow(QtWidgets.QMainWindow):
         self.data: dict[str, np.ndarray] = {"samples": np.empty((0, len(SAMPLE_COLUMNS))),
                                              "estimates": np.empty((0, len(ESTIMATE_COLUMNS)))}  # shown, undecimated
         self._drawn: tuple = ()
+        self.autoscaled = [True] * len(PLOTS)  # per plot: its y range follows the data
         self.cursors: list[pg.InfiniteLine] = []
         for k, (title, unit, table, columns) in enumerate(PLOTS):
-            plot = self.plots_widget.addPlot(row=k // 2, col=k % 2, title=title)
+            # the curves' names in the title, in their colours: a legend would be redrawn with every frame
+            names = " ".join(f"<span style='color:{_COLORS[n]}'>{c}</span>" for n, c in enumerate(columns))
+            plot = self.plots_widget.addPlot(row=k // 2, col=k % 2, title=f"{title} &nbsp; {names}")
+            plot.disableAutoRange()  # the y ranges follow the drawn data (_autoscale_y): far cheaper per frame
+            plot.vb.sigRangeChangedManually.connect(lambda _, k=k: self.autoscaled.__setitem__(k, False))
             plot.setLabel("left", units=None, text=unit)
             plot.showGrid(x=True, y=True, alpha=0.3)
             for side in ("left", "bottom"):  # a grid at the major ticks only: the grid is half the cost of a frame
                 plot.getAxis(side).setStyle(maxTickLevel=0)
-            plot.addLegend(offset=(2, 2), labelTextSize="7pt", verSpacing=-8)
+                plot.getAxis(side).enableAutoSIPrefix(False)  # else the label is re-rendered whenever the range moves
             if self.plots:
                 plot.setXLink(self.plots[0])
             for n, column in enumerate(columns):
@@ -254,8 +259,22 @@ class MonitorWindow(QtWidgets.QMainWindow):
         self._drawn = ()  # the next frame gives every visible curve its data again
 
     def autoscale(self) -> None:
-        for plot in self.plots:
-            plot.enableAutoRange(axis="y")
+        """Every plot's y range follows its data again (zooming or panning a plot stops that)."""
+        self.autoscaled = [True] * len(self.plots)
+        self._drawn = ()
+
+    def _autoscale_y(self, drawn: dict[str, np.ndarray]) -> None:
+        """Each autoscaled plot's y range: its visible curves' drawn extremes (the peaks of the data)."""
+        for k, (plot, (_, _, table, columns)) in enumerate(zip(self.plots, PLOTS)):
+            if not self.autoscaled[k]:
+                continue
+            values = [drawn[table][:, self.curves[c][2]] for c in columns if self.curves[c][0].isVisible()]
+            values = np.concatenate(values) if values else np.empty(0)
+            values = values[np.isfinite(values)]
+            if len(values):
+                low, high = float(values.min()), float(values.max())
+                margin = 0.05 * (high - low) or 0.5 * max(abs(high), 1e-6)
+                plot.setYRange(low - margin, high + margin, padding=0)
 
     def _on_record(self, checked: bool) -> None:
         if not checked:
@@ -317,6 +336,7 @@ class MonitorWindow(QtWidgets.QMainWindow):
                         y = drawn[table][:, column]
                         curve.setData(drawn[table][:, 0], break_wraps(y) if name in _WRAPPING else y)
                 self.plots[0].setXRange(now - span, now, padding=0)
+                self._autoscale_y(drawn)
                 self.horizon.set_attitude(*self.source.attitude())
             if not self.source.live and not self.slider.isSliderDown():
                 self.slider.setValue(int(now * 10))
