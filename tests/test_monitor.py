@@ -310,9 +310,12 @@ def test_layout_is_remembered_between_runs(qt, eskf_recording):
         window.close()
 
 
-def test_screenshot_from_the_command_line(qt, tmp_path, eskf_recording):
+def test_screenshot_from_the_command_line(qt, tmp_path, eskf_recording, capsys):
     png = tmp_path / "shot.png"
     assert main(["monitor", str(eskf_recording), "--speed", "5", "--screenshot", str(png), "--exit-after", "1"]) == 0
     data = png.read_bytes()
     assert data.startswith(b"\x89PNG\r\n\x1a\n") and len(data) > 20_000
     assert [p.name for p in tmp_path.iterdir() if "partial" in p.name] == []
+    assert main(["monitor", str(eskf_recording), "--screenshot", str(tmp_path / "no" / "x.png")]) == 2
+    assert capsys.readouterr().err.endswith("imulink: error: cannot write " + str(tmp_path / "no" / "x.png")
+                                            + ": its directory does not exist\n")

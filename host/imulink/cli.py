@@ -432,11 +432,15 @@ def _cmd_monitor(args) -> int:
         return EXIT_ERROR
     if args.port is None and not args.emulate:
         raise UsageError("give a PORT, a recording FILE, or --emulate")
+    from pathlib import Path
+
     from .files import check_output
     from .monitor import sources, window
 
-    if args.screenshot:
+    if args.screenshot:  # before the window opens: a PNG that cannot be written is known at once
         check_output(args.screenshot)
+        if not Path(args.screenshot).parent.is_dir():
+            raise UsageError(f"cannot write {args.screenshot}: its directory does not exist")
     emulation = dict(scenario=args.scenario, duration_s=args.duration, rate_hz=args.rate, seed=args.seed,
                      filter_name=args.filter)
     source = sources.open_source(args.port, emulate=args.emulate, baud=args.baud, profile=args.profile,

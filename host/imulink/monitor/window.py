@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import core, protocol
-from ..files import create_beside
+from ..files import FileError, create_beside
 from .decimate import peaks
 from .horizon import HorizonWidget
 from .qt import QtCore, QtGui, QtWidgets, pg
@@ -467,15 +467,16 @@ def run(source, title: str, screenshot=None, exit_after: float | None = None) ->
     ticker.start(200)
 
     def finish() -> None:
-        if screenshot is not None:
-            try:
+        try:
+            if screenshot is not None:
                 window.redraw()
                 window.screenshot(screenshot)
-            except OSError as exc:
-                print(f"imulink: error: {exc}", file=sys.stderr)
-                status["code"] = 2
-        window.close()
-        app.quit()
+        except (OSError, FileError) as exc:
+            print(f"imulink: error: {exc}", file=sys.stderr)
+            status["code"] = 2
+        finally:  # whatever happened, the window closes and the command ends
+            window.close()
+            app.quit()
 
     if exit_after is not None:
         QtCore.QTimer.singleShot(int(exit_after * 1000), finish)
