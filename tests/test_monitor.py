@@ -80,6 +80,36 @@ def test_live_check_agrees_with_compare_and_names_a_difference(eskf_recording):
     assert check.summary.first_difference.startswith("sample index 123: euler: board")
 
 
+def wait_for(predicate, timeout: float = 10.0, what: str = "") -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        assert time.monotonic() < deadline, f"timed out after {timeout:g} s waiting for {what}"
+        time.sleep(0.02)
+
+
+def test_filter_select_and_reset_keep_the_live_check_going():
+    from imulink.monitor.sources import LiveSource
+
+    with EmulatedBoard(front="tcp", duration_s=60.0, rate_hz=200.0, realtime=True, filter_name="kf1d") as board:
+        source = LiveSource(board.address)
+        try:
+            wait_for(lambda: source.health().check.identical > 100, what="verified KF1D estimates")
+            source.request("select_filter", "eskf")
+            wait_for(lambda: (source.health().status or {}).get("active_filter") == 3, what="the ESKF")
+            before = source.health().check.identical
+            wait_for(lambda: source.health().check.identical > before + 100, what="verified ESKF estimates")
+            assert not np.isnan(source.estimates.latest(1)[0, 7])  # the ESKF sends a covariance
+            source.request("reset")  # the board starts again with its start-up filter, the KF1D
+            wait_for(lambda: "the board started again (HELLO with sequence number 0)" in source.events(),
+                     what="the board's start-up HELLO")
+            wait_for(lambda: (source.health().status or {}).get("active_filter") == 2, what="the KF1D again")
+            before = source.health().check.identical
+            wait_for(lambda: source.health().check.identical > before + 100, what="verified estimates after it")
+            assert source.health().check.different == 0 and source.health().state == "connected"
+        finally:
+            source.close()
+
+
 def test_missing_qt_is_one_line_with_the_install_command(monkeypatch, capsys):
     import importlib.util
 

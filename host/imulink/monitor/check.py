@@ -16,6 +16,7 @@ monitor does not know, is not verifiable; its estimates are counted as such.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import islice
 
 import numpy as np
 
@@ -77,9 +78,8 @@ class _Run:
         quat, bias, euler = (fixed.raw[k].tolist() for k in ("quat", "gyro_bias", "euler"))
         for k, i in enumerate(index):
             self.results[i] = (quat[k], bias[k], euler[k], twin.quat[k])
-        if len(self.results) > _KEEP_RESULTS:
-            for i in sorted(self.results)[:len(self.results) - _KEEP_RESULTS]:
-                del self.results[i]
+        for i in list(islice(self.results, max(0, len(self.results) - _KEEP_RESULTS))):
+            del self.results[i]  # the oldest: a dict keeps the order the indices came in
 
 
 class LiveCheck:

@@ -127,8 +127,9 @@ class LiveSource:
     def health(self) -> Health:
         with self._lock:
             health = Health(**vars(self._health))
-        if self._link is not None and health.state == "connected":
-            health.counters = self._link.counters()
+        link = self._link  # the worker may drop it meanwhile
+        if link is not None and health.state == "connected":
+            health.counters = link.counters()
         health.check = CheckSummary(**vars(self.check.summary))
         return health
 
