@@ -320,6 +320,11 @@ def test_a_recording_replays_with_its_verdict_and_a_time_slider(qt, eskf_recordi
         window.redraw()
         x = curve(window, "roll")[0]
         assert x[-1] == pytest.approx(2.0)
+        rows = window.data["estimates"]
+        k = int(np.argmin(np.abs(rows[:, 0] - 1.0)))  # the crosshair 1 s before the position: t = 1 s
+        readout = window.readout_at(window.plots[1], 1.0)
+        assert readout.startswith("Euler angles (deg): t = 1.000 s, ")
+        assert f"roll = {rows[k, 1]:.5g}, pitch = {rows[k, 2]:.5g}, heading = {rows[k, 3]:.5g}" in readout
     finally:
         window.close()
 

@@ -55,6 +55,24 @@ def break_wraps(y: np.ndarray) -> np.ndarray:
     return y
 
 
+class Curve(pg.PlotCurveItem):
+    """A curve whose bounds are computed once per frame, when its data are set: Qt asks a
+    curve for its bounding rectangle several times per frame, and pyqtgraph would compute
+    them again from the data each time (NaN-aware, a third of a frame's cost here)."""
+
+    def show_data(self, x: np.ndarray, y: np.ndarray) -> None:
+        finite = np.isfinite(y)
+        gaps = not finite.all()
+        self._bounds = ((float(x[0]), float(x[-1])) if len(x) else (None, None),
+                        (float(y[finite].min()), float(y[finite].max())) if finite.any() else (None, None))
+        # "finite" splits the path at NaN (wraps, estimates without a covariance) but costs a pass over the points
+        self.setData(x, y, connect="finite" if gaps else "all", skipFiniteCheck=True)
+
+    def dataBounds(self, ax, frac=1.0, orthoRange=None):
+        bounds = getattr(self, "_bounds", None)
+        return bounds[ax] if bounds is not None else (None, None)
+
+
 class MonitorWindow(QtWidgets.QMainWindow):
     """The window on one source (a LiveSource or a ReplaySource)."""
 
@@ -80,10 +98,11 @@ class MonitorWindow(QtWidgets.QMainWindow):
         pg.setConfigOptions(antialias=False, background="w", foreground="k")
         self.plots_widget = pg.GraphicsLayoutWidget()
         self.plots: list[pg.PlotItem] = []
-        self.curves: dict[str, tuple[pg.PlotDataItem, str, int]] = {}  # name -> (curve, table, column)
+        self.curves: dict[str, tuple[Curve, str, int]] = {}  # name -> (curve, table, column)
         self.data: dict[str, np.ndarray] = {"samples": np.empty((0, len(SAMPLE_COLUMNS))),
                                              "estimates": np.empty((0, len(ESTIMATE_COLUMNS)))}  # shown, undecimated
         self._drawn: tuple = ()
+        self._drawn_at = 0.0  # the time (source.now()) at the right end of the plots
         self.autoscaled = [True] * len(PLOTS)  # per plot: its y range follows the data
         self.cursors: list[pg.InfiniteLine] = []
         for k, (title, unit, table, columns) in enumerate(PLOTS):
@@ -100,9 +119,8 @@ class MonitorWindow(QtWidgets.QMainWindow):
             if self.plots:
                 plot.setXLink(self.plots[0])
             for n, column in enumerate(columns):
-                # PlotCurveItem rather than plot()'s PlotDataItem: no symbols to manage, a third of the cost
-                curve = pg.PlotCurveItem(name=column, pen=pg.mkPen(_COLORS[n], width=1), connect="finite",
-                                         skipFiniteCheck=True)
+                # a PlotCurveItem rather than plot()'s PlotDataItem: no symbols to manage, a third of the cost
+                curve = Curve(name=column, pen=pg.mkPen(_COLORS[n], width=1))
                 plot.addItem(curve)
                 self.curves[column] = (curve, table, _COLUMNS[table].index(column))
             cursor = pg.InfiniteLine(angle=90, movable=False, pen=pg.mkPen("#888", style=QtCore.Qt.PenStyle.DashLine))
@@ -112,8 +130,8 @@ class MonitorWindow(QtWidgets.QMainWindow):
             self.plots.append(plot)
         for plot in self.plots[:-2]:  # time labels on the bottom row only: text is most of an axis's cost
             plot.getAxis("bottom").setStyle(showValues=False)
-        self.plots[-1].setLabel("bottom", "time", units="s")
-        self.plots[-2].setLabel("bottom", "time", units="s")
+        self.plots[-1].setLabel("bottom", "time before now (s)")
+        self.plots[-2].setLabel("bottom", "time before now (s)")
         self._mouse = pg.SignalProxy(self.plots_widget.scene().sigMouseMoved, rateLimit=30, slot=self._on_mouse)
 
         side = QtWidgets.QWidget()
@@ -271,9 +289,14 @@ class MonitorWindow(QtWidgets.QMainWindow):
             values = [drawn[table][:, self.curves[c][2]] for c in columns if self.curves[c][0].isVisible()]
             values = np.concatenate(values) if values else np.empty(0)
             values = values[np.isfinite(values)]
-            if len(values):
-                low, high = float(values.min()), float(values.max())
-                margin = 0.05 * (high - low) or 0.5 * max(abs(high), 1e-6)
+            if not len(values):
+                continue
+            low, high = float(values.min()), float(values.max())
+            shown_low, shown_high = plot.vb.viewRange()[1]
+            # a new range only when the data leave the shown one or fill less than half of it: a
+            # range that moves every frame would make the axis draw its ticks and labels again
+            if low < shown_low or high > shown_high or (high - low) < 0.5 * (shown_high - shown_low):
+                margin = 0.1 * (high - low) or 0.5 * max(abs(high), 1e-6)
                 plot.setYRange(low - margin, high + margin, padding=0)
 
     def _on_record(self, checked: bool) -> None:
@@ -331,11 +354,13 @@ class MonitorWindow(QtWidgets.QMainWindow):
                 self._drawn = fresh
                 self.data = tables
                 drawn = {name: peaks(rows, DRAWN_BINS) for name, rows in tables.items()}
+                self._drawn_at = now
                 for name, (curve, table, column) in self.curves.items():
                     if curve.isVisible():
                         y = drawn[table][:, column]
-                        curve.setData(drawn[table][:, 0], break_wraps(y) if name in _WRAPPING else y)
-                self.plots[0].setXRange(now - span, now, padding=0)
+                        curve.show_data(drawn[table][:, 0] - now, break_wraps(y) if name in _WRAPPING else y)
+                if self.plots[0].vb.viewRange()[0] != [-span, 0.0]:  # seconds before now: the time axes stand still
+                    self.plots[0].setXRange(-span, 0.0, padding=0)
                 self._autoscale_y(drawn)
                 self.horizon.set_attitude(*self.source.attitude())
             if not self.source.live and not self.slider.isSliderDown():
@@ -405,11 +430,11 @@ class MonitorWindow(QtWidgets.QMainWindow):
         position = event[0]
         for plot, cursor in zip(self.plots, self.cursors):
             if plot.sceneBoundingRect().contains(position):
-                t = plot.vb.mapSceneToView(position).x()
+                before = plot.vb.mapSceneToView(position).x()
                 for other in self.cursors:
-                    other.setPos(t)
+                    other.setPos(before)
                     other.setVisible(True)
-                self.readout.setText(self.readout_at(plot, t))
+                self.readout.setText(self.readout_at(plot, self._drawn_at + before))
                 return
 
     def readout_at(self, plot: pg.PlotItem, t: float) -> str:
