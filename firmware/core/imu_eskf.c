@@ -452,6 +452,7 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q30_
     imu_q30_t h[9];
     imu_real_t noise_g; /* specific-force noise in g, Q26 (up to 100 m/s^2 over 9 m/s^2: 11 g) */
     imu_q30_t gain_map[IMU_COV_MAX][IMU_COV_MAX]; /* Q30 */
+    imu_q30_t (*map)[IMU_COV_MAX] = NULL;
     int k, i;
     if (!imu_vec3_normalize(acc, unit, &norm)) {
         f->acc_weight = 0;
@@ -468,7 +469,10 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q30_
         return; /* far from 1 g (taps, free fall): no gravity information */
     }
     noise_g = IMU_MUL(st->acc_noise, f->inv_gravity, 28); /* Q24 * Q30 >> 28 -> Q26 (g) */
-    set_gain_map(gain_map, 1, 0, 1, NULL); /* at rest: the gyro bias is the rest measurement's */
+    if (f->at_rest) {
+        set_gain_map(gain_map, 1, 0, 1, NULL); /* the gyro bias is the rest measurement's */
+        map = gain_map;
+    }
     for (k = 0; k < 3; ++k) {
         /* Row k of [[v x], 0, I]. */
         const imu_q30_t cross[3][3] = {{0, -up[2], up[1]}, {up[2], 0, -up[0]}, {-up[1], up[0], 0}};
@@ -483,8 +487,7 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q30_
             h[ATT + i] = cross[k][i];
         }
         h[ACC_BIAS + k] = IMU_ONE_Q30;
-        scalar_update(f, h, z, IMU_WMUL(noise_g, noise_g), 52, f->acc_weight,
-                      f->at_rest ? gain_map : NULL, dx);
+        scalar_update(f, h, z, IMU_WMUL(noise_g, noise_g), 52, f->acc_weight, map, dx);
     }
 }
 
