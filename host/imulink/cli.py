@@ -42,7 +42,6 @@ def _command(func):
 
     def run(args) -> int:
         from . import core, protocol
-        from .allan import AllanError
         from .counts import SensorDataError
         from .emulator import EmulatorError
         from .files import FileError
@@ -50,13 +49,14 @@ def _command(func):
         from .hil import HilError
         from .link import LinkError
         from .recording import RecordingError
+        from .sensor_input import InputError
         from .sim import ScenarioError
 
         signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops a command as cleanly as Ctrl-C
         try:
             return func(args)
         except (LinkError, protocol.ProtocolError, RecordingError, HilError, EmulatorError, FlashError, FileError,
-                core.SettingsError, ScenarioError, SensorDataError, AllanError, UsageError, OSError) as exc:
+                core.SettingsError, ScenarioError, SensorDataError, InputError, UsageError, OSError) as exc:
             print(f"imulink: error: {exc}", file=sys.stderr)
             return EXIT_ERROR
         except KeyboardInterrupt:
