@@ -173,6 +173,54 @@ def _cmd_allan(args) -> int:
     return 0
 
 
+#: `imulink calibrate` sensor names -> the calibration's sensor key
+CALIBRATE_SENSORS = {"gyro": "gyr", "accel": "acc", "mag": "mag"}
+
+
+@_command
+def _cmd_calibrate(args) -> int:
+    import json
+
+    from . import calibration as cal, sensor_input
+    from .counts import DEFAULT_PROFILE
+    from .files import check_output
+
+    check_output(args.output, inputs=[args.input])  # before the work
+    status, phase = _late_progress()
+    try:
+        record = sensor_input.read(args.input, progress=phase(f"reading {args.input}"))
+    finally:
+        status.done()
+    profile = record.profile or args.profile or DEFAULT_PROFILE
+    if args.profile is not None and record.profile is not None and args.profile != record.profile:
+        raise UsageError(f"{args.input} holds counts of profile {record.profile.name}; --profile "
+                         f"{args.profile.name} contradicts it (--profile is for a CSV, which does not say)")
+    sensor = CALIBRATE_SENSORS[args.sensor]
+    if sensor == "gyr":
+        result = cal.gyro_bias(record, profile)
+    elif sensor == "acc":
+        result = cal.accel_six_position(record, profile, misalignment=args.misalignment)
+    else:
+        result = cal.mag_ellipsoid(record, profile)
+    missing = result.report["coverage"]["missing"] if sensor == "mag" else []
+    axes = [name for name in missing if len(name) == 2]
+    result.report = {"input": record.description, **result.report}
+    if args.json:
+        print(json.dumps({"sensor": sensor, "profile": profile.name, "offset_counts": result.offset.tolist(),
+                          "matrix": result.matrix.tolist(), "report": result.report}, indent=1))
+    else:
+        print(cal.format_report(result, profile))
+    if axes and not args.allow_gaps:
+        raise cal.CalibrationError(f"{cal.missing_advice(axes)}; {args.output} is left as it is "
+                                   "(--allow-gaps writes it anyway)")
+    merged, replaced = cal.merged(args.output, result, profile)
+    cal.save(merged, args.output, inputs=[args.input])
+    others = [cal.SENSOR_NAMES[s] for s in cal.SENSORS if s in merged.sensors and s != sensor]
+    print(f"calibration: {args.output} ({cal.SENSOR_NAMES[sensor]} {'replaced' if replaced else 'written'}"
+          + (f"; {', '.join(others)} kept" if others else "") + ")", file=sys.stderr if args.json else sys.stdout)
+    return 0
+
+
 def _parse_filters(text: str) -> list[str]:
     from . import core
 
@@ -246,6 +294,38 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--confidence", type=_in_range(float, 0.01, 0.999, "must be a probability from 0.01 to 0.999"),
                    default=0.683, help="confidence of the intervals (default: 0.683, one standard deviation)")
     p.set_defaults(func=_cmd_allan)
+
+    p = sub.add_parser(
+        "calibrate", help="calibrate a sensor from a recording (gyroscope bias, accelerometer, magnetometer)",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Compute a sensor's calibration from recorded data and write it to a calibration file\n"
+                    "(JSON; the other sensors' entries in an existing file are kept). The board applies it to\n"
+                    "the raw counts before the filter: corrected = M (counts - offset).\n\n"
+                    "SENSOR is one of:\n"
+                    "  gyro   the bias: the mean rate over the rests (the board lying still, 5 s or more)\n"
+                    "  accel  offset and scale per axis from six rests, each axis up and down, a few\n"
+                    "         seconds each (--misalignment: a symmetric matrix, from 9 or more positions)\n"
+                    "  mag    hard and soft iron: an ellipsoid fit to the board turned slowly in every\n"
+                    "         direction; the coverage of the directions and the spread of the field norm\n"
+                    "         before and after are reported, and a direction along an axis that the field\n"
+                    "         never took refuses the calibration (--allow-gaps writes it anyway)\n\n"
+                    "INPUT is a recording (imulink record PORT -o calib.imulog), a CSV of `imulink replay\n"
+                    "--csv` (or any with timestamp_us or time_s and the SI columns gyr_x_rad_s.., acc_x_m_s2..,\n"
+                    "mag_x_uT..; give its --profile), or a BROAD trial (.mat).\n"
+                    "docs/calibration.md gives the procedure for each sensor.")
+    p.add_argument("sensor", choices=tuple(CALIBRATE_SENSORS), metavar="SENSOR", help="gyro, accel or mag")
+    p.add_argument("input", metavar="INPUT", help="a recording, a replay CSV or a BROAD .mat")
+    p.add_argument("--output", "-o", default="calibration.json",
+                   help="calibration file to write or update (default: calibration.json)")
+    p.add_argument("--profile", type=_profile, default=None,
+                   help="sensor profile of a CSV's data (default: gy86-default; a recording and a BROAD trial "
+                        "say theirs)")
+    p.add_argument("--misalignment", action="store_true",
+                   help="accel: fit a symmetric matrix (misalignment, cross-axis) instead of a scale per axis")
+    p.add_argument("--allow-gaps", action="store_true",
+                   help="mag: write the calibration even when the field never lay along some axis")
+    p.add_argument("--json", action="store_true", help="print the calibration and its report as JSON")
+    p.set_defaults(func=_cmd_calibrate)
     _add_hil_commands(sub)
     return parser
 
