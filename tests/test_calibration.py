@@ -261,3 +261,149 @@ def test_cli_refuses_missing_directions_and_positions(tmp_path):
     assert_error(run_cli("calibrate", "gyro", tmp_path / "nothing.csv"), "nothing.csv")
     assert_error(run_cli("calibrate", "gyro", tmp_path / "flat.csv", "-o", tmp_path / "flat.csv"),
                  "is an input of this command")
+
+
+# ---------------------------------------------------------------------------- the board applies it
+
+
+#: A calibration of every sensor with odd values: sub-count offsets, scales, cross terms.
+BOARD_CALIBRATION = cal.Calibration(P, {
+    "gyr": cal.SensorCalibration("gyr", np.array([3.7, -2.25, 1.5]), np.eye(3)),
+    "acc": cal.SensorCalibration("acc", np.array([-41.3, 17.0, 60.9]),
+                                 np.array([[1.012, 0.003, -0.002], [0.003, 0.987, 0.001], [-0.002, 0.001, 1.004]])),
+    "mag": cal.SensorCalibration("mag", np.array([130.75, -76.3, 217.9]), np.linalg.inv(SOFT_IRON)),
+})
+
+
+def test_fixed_point_correction_is_the_documented_integer_arithmetic():
+    """imu_sample_from_raw_calibrated (fixed build) against the arithmetic imu_sensor.h
+    states, computed with Python integers: c = raw 2^8 - offset; corrected = the sum of
+    Q24 products rounded to Q8 and saturated; then the scale, its shift 8 bits longer."""
+    from imulink import _core_fixed, core
+
+    ffi, lib = _core_fixed.ffi, _core_fixed.lib
+    rng = np.random.default_rng(5)
+
+    def shift_round(v, s):
+        return (v + (1 << (s - 1))) >> s
+
+    def sat(v):
+        return max(-2**31, min(2**31 - 1, v))
+
+    scales = {"gyr": (core.to_fixed(P.gyro_scale, 40), 16), "acc": (core.to_fixed(P.acc_scale, 32), 16),
+              "mag": (core.to_fixed(P.mag_scale, 24), 8)}
+    sensor = core.sensor_struct(_core_fixed, "fixed", P)
+    saturations = 0
+    for trial in range(200):
+        matrix_scale = 100.0 if trial % 10 == 9 else 1.5  # every tenth: saturating corrections
+        c = cal.Calibration(P, {name: cal.SensorCalibration(name, rng.uniform(-3e4, 3e4, 3),
+                                                            rng.uniform(-matrix_scale, matrix_scale, (3, 3)))
+                                for name in cal.SENSORS})
+        struct = core.calibration_struct(_core_fixed, "fixed", c, P)
+        raw = ffi.new("imu_raw_sample_t *")
+        counts = {name: rng.integers(-32768, 32768, 3) for name in cal.SENSORS}
+        counts["mag"] = rng.integers(-2048, 2048, 3)
+        for name in cal.SENSORS:
+            setattr(raw, name, counts[name].tolist())
+        out, count = ffi.new("imu_sample_t *"), ffi.new("uint32_t *")
+        lib.imu_sample_from_raw_calibrated(sensor, struct, raw, out, count)
+        expected_sat = 0
+        for name in cal.SENSORS:
+            offset, matrix = cal.to_fixed(c.sensor(name))
+            d = [int(counts[name][j]) * 256 - offset[j] for j in range(3)]
+            for i in range(3):
+                corrected = shift_round(sum(matrix[3 * i + j] * d[j] for j in range(3)), 24)
+                expected_sat += corrected != sat(corrected)
+                scaled = shift_round(sat(corrected) * scales[name][0], scales[name][1] + 8)
+                expected_sat += scaled != sat(scaled)
+                assert getattr(out, name)[i] == sat(scaled), (trial, name, i)
+        assert count[0] == expected_sat
+        saturations += expected_sat
+    assert saturations > 0  # the saturating cases were exercised
+
+
+def test_core_runs_a_calibration_in_both_builds():
+    """The float twin follows the fixed build with a calibration too; a magnetometer
+    calibration from the data themselves brings the heading back; a calibration of
+    another profile or beyond the board's range is refused."""
+    from imulink import core
+    from imulink.analysis import attitude_errors, rmse
+
+    res = rotating_mag(seconds=120.0, seed=8)
+    board = cal.Calibration(P, {"mag": cal.mag_ellipsoid(record_of(res.gyr, res.acc, res.mag), P)})
+    runs = {arithmetic: core.run("eskf", res.gyr, res.acc, res.mag, RATE, arithmetic, calibration=board)
+            for arithmetic in core.ARITHMETICS}
+    raw = core.run("eskf", res.gyr, res.acc, res.mag, RATE, "fixed")
+    settle = int(10 * RATE)
+    with_cal = rmse(attitude_errors(runs["fixed"].quat[settle:], res.quat_true[settle:]))["heading"]
+    without = rmse(attitude_errors(raw.quat[settle:], res.quat_true[settle:]))["heading"]
+    assert without > 3.0 and with_cal < without / 3.0, (without, with_cal)
+    fixed_vs_float = rmse(attitude_errors(runs["fixed"].quat, runs["float"].quat))["total"]
+    assert fixed_vs_float < 0.05
+    from imulink.counts import BROAD_PROFILE
+    with pytest.raises(core.SettingsError, match="profile gy86-default"):
+        core.Filter("eskf", RATE, profile=BROAD_PROFILE, calibration=board)
+    from imulink import _core_fixed
+    struct = core.calibration_struct(_core_fixed, "fixed", None, P)
+    struct.acc.offset[1] = 65536 * 256 + 1
+    handle = _core_fixed.ffi.new("imu_filter_t *")
+    _core_fixed.lib.imu_filter_init(handle, 3)
+    assert _core_fixed.lib.imu_filter_set_calibration(handle, struct) == -1
+    struct.acc.offset[1] = 65536 * 256
+    assert _core_fixed.lib.imu_filter_set_calibration(handle, struct) == 0
+
+
+def test_emulated_board_applies_a_calibration_bit_exact(tmp_path):
+    """The native board takes a calibration over the protocol, reports it back, the
+    recording keeps it, and the host's run with it reproduces every estimate bit for bit
+    (which the identity calibration would not)."""
+    from imulink import hil, protocol
+    from imulink.emulator import EmulatedBoard
+    from imulink.link import Link
+    from imulink.recording import load_recording
+
+    path = tmp_path / "calibrated.imulog"
+    with EmulatedBoard(duration_s=20.0, rate_hz=100.0, filter_name="eskf") as board:
+        with Link(board.address) as link:
+            link.connect()
+            assert hil.read_calibration(link, P).sensors["mag"].matrix.tolist() == np.eye(3).tolist()
+            hil.set_calibration(link, BOARD_CALIBRATION)
+            back = hil.read_calibration(link, P)
+            for name in cal.SENSORS:
+                assert cal.to_fixed(back.sensor(name)) == cal.to_fixed(BOARD_CALIBRATION.sensor(name))
+            for args, reason in (({"sensor": 3, "axis": 0}, "BAD_ARGUMENT"), ({"sensor": 0, "axis": 3}, "BAD_ARGUMENT"),
+                                 ({"sensor": 1, "axis": 0, "offset": 65536 * 256 + 1}, "OUT_OF_RANGE")):
+                with pytest.raises(protocol.CommandError) as refused:
+                    link.command("SET_CALIBRATION", **{"offset": 0, "row": (1 << 24, 0, 0), **args})
+                assert refused.value.reason == reason
+            with pytest.raises(protocol.CommandError, match="BAD_ARGUMENT"):
+                link.command("GET_CALIBRATION", sensor=7, axis=0)
+        hil.record(board.address, path)
+    recording = load_recording(path)
+    stored = recording.calibration()
+    for name in cal.SENSORS:
+        assert cal.to_fixed(stored.sensor(name)) == cal.to_fixed(BOARD_CALIBRATION.sensor(name))
+    snapshot = next(e for e in recording.events if e["event"] == "snapshot")
+    assert snapshot["calibration"]["mag"]["offset_counts"] == [130.75, -19533 / 256, 55782 / 256]  # Q8: the nearest 1/256 count
+    comparison = hil.compare(recording)
+    assert comparison.bit_exact and len(recording.estimates) == 2000
+    # without the calibration the host computes something else: the test is not vacuous
+    name, raw_settings = recording.filter_settings(recording.active_filter)
+    s = recording.samples
+    plain = hil.fixed_outputs(name, raw_settings, P, s.gyr, s.acc, s.mag)
+    assert not np.array_equal(plain["quat"], recording.estimates.quat)
+
+
+def test_cli_apply(tmp_path, capsys):
+    from imulink.cli import main
+    from imulink.emulator import EmulatedBoard
+
+    cal.save(BOARD_CALIBRATION, tmp_path / "board.json")
+    with EmulatedBoard(duration_s=5.0) as board:
+        assert main(["calibrate", "apply", str(tmp_path / "board.json"), board.address]) == 0
+        out = capsys.readouterr().out
+        assert "applied and read back" in out and "offset [+130.75, -76.30, +217.90] counts" in out
+        assert main(["calibrate", "apply", "--identity", board.address]) == 0
+        assert "offset [+0.00, +0.00, +0.00] counts, M [+1.000000, +0.000000, +0.000000]" in capsys.readouterr().out
+        assert main(["calibrate", "apply", board.address]) == 2
+        assert "give a calibration FILE or --identity" in capsys.readouterr().err

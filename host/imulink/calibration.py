@@ -421,6 +421,30 @@ def from_fixed(sensor: str, offset: list[int], matrix: list[int]) -> SensorCalib
                              np.asarray(matrix, np.float64).reshape(3, 3) / 2.0**MATRIX_FRAC_BITS)
 
 
+def calibration_from_frames(frames) -> dict[str, SensorCalibration]:
+    """Per sensor, the calibration of the board's CALIBRATION frames (fields dicts), the
+    last frame of each sensor and axis counting; a sensor with all three axes reported
+    only. CalibrationError when a frame's Q formats are not this host's."""
+    from . import protocol
+
+    names = {code: name for name, code in zip(SENSORS, (protocol.SENSORS[k] for k in
+                                                         ("GYROSCOPE", "ACCELEROMETER", "MAGNETOMETER")))}
+    rows: dict[str, dict[int, dict]] = {}
+    for f in frames:
+        if (f["offset_frac_bits"], f["matrix_frac_bits"]) != (OFFSET_FRAC_BITS, MATRIX_FRAC_BITS):
+            raise CalibrationError(f"the board reports its calibration in Q{f['offset_frac_bits']} offsets and "
+                                   f"Q{f['matrix_frac_bits']} matrices; this host uses Q{OFFSET_FRAC_BITS} and "
+                                   f"Q{MATRIX_FRAC_BITS}")
+        if f["sensor"] in names and 0 <= f["axis"] < 3:
+            rows.setdefault(names[f["sensor"]], {})[f["axis"]] = f
+    out = {}
+    for name, axes in rows.items():
+        if len(axes) == 3:
+            out[name] = from_fixed(name, [axes[a]["offset"] for a in range(3)],
+                                   [v for a in range(3) for v in axes[a]["row"]])
+    return out
+
+
 def to_json(calibration: Calibration) -> dict:
     from .recording import profile_to_json
 
@@ -539,6 +563,13 @@ def format_report(calibration: SensorCalibration, profile: SensorProfile) -> str
                   f"  coverage: {coverage_report['covered']} of {coverage_report['of']} directions"
                   + (f"; missing: {', '.join(missing)}" if missing else " (all)")]
     return "\n".join(lines)
+
+
+def format_calibration(calibration: Calibration) -> str:
+    """Every sensor's offset and matrix, one line each."""
+    return "\n".join(f"{SENSOR_NAMES[name]:<13} offset {_vector(c.offset, '{:+.2f}')} counts, M "
+                     + " ".join(_vector(row, "{:+.6f}") for row in c.matrix)
+                     for name, c in ((name, calibration.sensor(name)) for name in SENSORS))
 
 
 def missing_advice(missing_axes: list[str]) -> str:

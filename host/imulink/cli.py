@@ -178,6 +178,28 @@ CALIBRATE_SENSORS = {"gyro": "gyr", "accel": "acc", "mag": "mag"}
 
 
 @_command
+def _cmd_calibrate_apply(args) -> int:
+    from . import calibration as cal, hil
+    from .counts import DEFAULT_PROFILE
+    from .link import Link
+
+    if (args.file is None) == (not args.identity):
+        raise UsageError("give a calibration FILE or --identity (not both)")
+    calibration = cal.Calibration(DEFAULT_PROFILE) if args.identity else cal.load(args.file)
+    with Link(args.port, args.baud) as link:
+        link.connect()
+        hil.set_calibration(link, calibration)
+        board = hil.read_calibration(link, calibration.profile)
+    expected = {name: cal.to_fixed(calibration.sensor(name)) for name in cal.SENSORS}
+    if {name: cal.to_fixed(board.sensor(name)) for name in cal.SENSORS} != expected:
+        raise hil.HilError(f"{args.port} reports another calibration than it was given")
+    print(cal.format_calibration(board))
+    print(f"{args.port}: calibration " + ("identity" if args.identity else f"of {args.file}")
+          + " applied and read back (kept until a RESET)")
+    return 0
+
+
+@_command
 def _cmd_calibrate(args) -> int:
     import json
 
@@ -295,37 +317,63 @@ def build_parser() -> argparse.ArgumentParser:
                    default=0.683, help="confidence of the intervals (default: 0.683, one standard deviation)")
     p.set_defaults(func=_cmd_allan)
 
-    p = sub.add_parser(
-        "calibrate", help="calibrate a sensor from a recording (gyroscope bias, accelerometer, magnetometer)",
+    from .link import DEFAULT_BAUD
+
+    calibrate = sub.add_parser(
+        "calibrate", help="calibrate a sensor from a recording; give a board a calibration file",
         formatter_class=argparse.RawDescriptionHelpFormatter,
-        description="Compute a sensor's calibration from recorded data and write it to a calibration file\n"
-                    "(JSON; the other sensors' entries in an existing file are kept). The board applies it to\n"
-                    "the raw counts before the filter: corrected = M (counts - offset).\n\n"
-                    "SENSOR is one of:\n"
-                    "  gyro   the bias: the mean rate over the rests (the board lying still, 5 s or more)\n"
-                    "  accel  offset and scale per axis from six rests, each axis up and down, a few\n"
-                    "         seconds each (--misalignment: a symmetric matrix, from 9 or more positions)\n"
-                    "  mag    hard and soft iron: an ellipsoid fit to the board turned slowly in every\n"
-                    "         direction; the coverage of the directions and the spread of the field norm\n"
-                    "         before and after are reported, and a direction along an axis that the field\n"
-                    "         never took refuses the calibration (--allow-gaps writes it anyway)\n\n"
-                    "INPUT is a recording (imulink record PORT -o calib.imulog), a CSV of `imulink replay\n"
-                    "--csv` (or any with timestamp_us or time_s and the SI columns gyr_x_rad_s.., acc_x_m_s2..,\n"
-                    "mag_x_uT..; give its --profile), or a BROAD trial (.mat).\n"
+        description="Compute a sensor's calibration from recorded data into a calibration file (JSON), or give\n"
+                    "a board the calibration of a file. The board applies it to the raw counts before the\n"
+                    "filter: corrected = M (counts - offset), offsets in Q8 counts, M in Q24.\n\n"
+                    "  imulink calibrate gyro INPUT    the bias: the mean rate over the rests (the board lying\n"
+                    "                                  still, 5 s or more)\n"
+                    "  imulink calibrate accel INPUT   offset and scale per axis from six rests, each axis up\n"
+                    "                                  and down, a few seconds each\n"
+                    "  imulink calibrate mag INPUT     hard and soft iron: an ellipsoid fit to the board turned\n"
+                    "                                  slowly in every direction\n"
+                    "  imulink calibrate apply FILE PORT   the board takes the calibration of FILE\n\n"
                     "docs/calibration.md gives the procedure for each sensor.")
-    p.add_argument("sensor", choices=tuple(CALIBRATE_SENSORS), metavar="SENSOR", help="gyro, accel or mag")
-    p.add_argument("input", metavar="INPUT", help="a recording, a replay CSV or a BROAD .mat")
-    p.add_argument("--output", "-o", default="calibration.json",
-                   help="calibration file to write or update (default: calibration.json)")
-    p.add_argument("--profile", type=_profile, default=None,
-                   help="sensor profile of a CSV's data (default: gy86-default; a recording and a BROAD trial "
-                        "say theirs)")
-    p.add_argument("--misalignment", action="store_true",
-                   help="accel: fit a symmetric matrix (misalignment, cross-axis) instead of a scale per axis")
-    p.add_argument("--allow-gaps", action="store_true",
-                   help="mag: write the calibration even when the field never lay along some axis")
-    p.add_argument("--json", action="store_true", help="print the calibration and its report as JSON")
-    p.set_defaults(func=_cmd_calibrate)
+    kinds = calibrate.add_subparsers(dest="sensor", metavar="SENSOR")
+    kinds.required = True
+    inputs_help = ("INPUT is a recording (imulink record PORT -o calib.imulog), a CSV of `imulink replay --csv` "
+                   "(or any with timestamp_us or time_s and the SI columns gyr_x_rad_s.., acc_x_m_s2.., "
+                   "mag_x_uT..; give its --profile), or a BROAD trial (.mat). The calibration goes into --output; "
+                   "the other sensors' entries of an existing file are kept.")
+    for kind, summary in (("gyro", "gyroscope bias: the mean rate over the rests (5 s still or more in all)"),
+                          ("accel", "accelerometer offset and scale per axis: six rests, each axis up and down "
+                                    "(a few seconds each); --misalignment: a symmetric matrix from 9 positions "
+                                    "or more, some tilted between the axes"),
+                          ("mag", "magnetometer hard and soft iron: an ellipsoid fit to the board turned slowly "
+                                  "in every direction; reports the coverage of 26 directions and the spread of "
+                                  "the field norm before and after, and refuses when the field never lay along "
+                                  "one of the board's axes (--allow-gaps writes it anyway)")):
+        p = kinds.add_parser(kind, help=summary, description=f"{summary[0].upper()}{summary[1:]}. {inputs_help}")
+        p.add_argument("input", metavar="INPUT", help="a recording, a replay CSV or a BROAD .mat")
+        p.add_argument("--output", "-o", default="calibration.json",
+                       help="calibration file to write or update (default: calibration.json)")
+        p.add_argument("--profile", type=_profile, default=None,
+                       help="sensor profile of a CSV's data (default: gy86-default; a recording and a BROAD trial "
+                            "say theirs)")
+        p.add_argument("--json", action="store_true", help="print the calibration and its report as JSON")
+        if kind == "accel":
+            p.add_argument("--misalignment", action="store_true",
+                           help="fit a symmetric matrix (misalignment, cross-axis) instead of a scale per axis")
+        if kind == "mag":
+            p.add_argument("--allow-gaps", action="store_true",
+                           help="write the calibration even when the field never lay along some axis")
+        p.set_defaults(func=_cmd_calibrate, misalignment=False, allow_gaps=False)
+    p = kinds.add_parser(
+        "apply", help="give a board the calibration of a file",
+        description="Send the calibration of FILE to the board (SET_CALIBRATION for every sensor and axis; a "
+                    "sensor the file lacks gets the identity), read it back to check it, and print it. The board "
+                    "keeps it until a RESET or a power cycle; `imulink record` stores it in the recording, so "
+                    "replay and compare reproduce the board bit for bit. --identity takes it away.")
+    p.add_argument("file", metavar="FILE", nargs="?", help="calibration file (imulink calibrate ... -o FILE)")
+    p.add_argument("port", metavar="PORT", help="serial device or pyserial URL of the board")
+    p.add_argument("--identity", action="store_true", help="give the board the identity calibration instead of FILE")
+    p.add_argument("--baud", type=_baud, default=DEFAULT_BAUD,
+                   help=f"line rate of a real serial port (default: {DEFAULT_BAUD}; ignored by sockets and ptys)")
+    p.set_defaults(func=_cmd_calibrate_apply)
     _add_hil_commands(sub)
     return parser
 

@@ -131,6 +131,34 @@ def sensor_struct(mod, arithmetic: str, profile: SensorProfile):
     return s
 
 
+def calibration_struct(mod, arithmetic: str, calibration, profile: SensorProfile):
+    """The C imu_calibration_t of an imulink.calibration.Calibration (None: identity), from
+    the integers the board takes (Q8 offsets, Q24 matrices), so that the fixed build and
+    the float twin get identical parameters. SettingsError when it was made for another
+    sensor profile than `profile` (its counts would mean something else) or lies beyond
+    what the board accepts."""
+    from .calibration import SENSORS, CalibrationError, OFFSET_FRAC_BITS, MATRIX_FRAC_BITS, to_fixed
+
+    s = mod.ffi.new("imu_calibration_t *", mod.lib.imu_calibration_identity)
+    if calibration is None:
+        return s
+    if calibration.profile != profile:
+        raise SettingsError(f"the calibration was made for sensor profile {calibration.profile.name}, the filter runs "
+                            f"on {profile.name}")
+    for name in SENSORS:
+        try:
+            offset, matrix = to_fixed(calibration.sensor(name))
+        except CalibrationError as exc:
+            raise SettingsError(str(exc)) from None
+        target = getattr(s, name)
+        if arithmetic == "fixed":
+            target.offset, target.matrix = offset, matrix
+        else:
+            target.offset = [v / 2.0**OFFSET_FRAC_BITS for v in offset]
+            target.matrix = [v / 2.0**MATRIX_FRAC_BITS for v in matrix]
+    return s
+
+
 @dataclass
 class RunResult:
     """Filter outputs for every sample.
@@ -154,7 +182,7 @@ class Filter:
     """A filter instance of the C core: feed count arrays batch after batch."""
 
     def __init__(self, filter_name: str, rate_hz: float, arithmetic: str = "fixed", settings: dict | None = None,
-                 profile: SensorProfile = DEFAULT_PROFILE):
+                 profile: SensorProfile = DEFAULT_PROFILE, calibration=None):
         self.mod = _module(arithmetic)
         self.arithmetic = arithmetic
         self.filter_name = filter_name
@@ -164,6 +192,9 @@ class Filter:
         if self.mod.lib.imu_filter_init(self._handle, filter_id) != 0:
             raise ValueError(f"the core does not know filter {filter_name!r}")
         self.mod.lib.imu_filter_set_sensor(self._handle, sensor_struct(self.mod, arithmetic, profile))
+        if self.mod.lib.imu_filter_set_calibration(self._handle, calibration_struct(self.mod, arithmetic, calibration,
+                                                                                    profile)) != 0:
+            raise SettingsError("the core refuses the calibration (an offset beyond 65536 counts)")
         if not self._apply(self.settings):
             defaults = default_settings(filter_name)
             bad = [k for k, v in self.settings.items() if not self._apply({**defaults, k: v})]
@@ -267,14 +298,16 @@ class Filter:
 
 
 def run_counts(filter_name: str, gyr_counts, acc_counts, mag_counts, rate_hz: float, arithmetic: str = "fixed",
-               settings: dict | None = None, profile: SensorProfile = DEFAULT_PROFILE) -> RunResult:
+               settings: dict | None = None, profile: SensorProfile = DEFAULT_PROFILE, calibration=None) -> RunResult:
     """Run a filter on raw register counts ((N,3) integers in the int16 range; anything
-    else raises counts.SensorDataError)."""
-    return Filter(filter_name, rate_hz, arithmetic, settings, profile).run_counts(gyr_counts, acc_counts, mag_counts)
+    else raises counts.SensorDataError). calibration: an imulink.calibration.Calibration
+    applied to the counts first, as the board applies it (None: none)."""
+    return Filter(filter_name, rate_hz, arithmetic, settings, profile, calibration).run_counts(
+        gyr_counts, acc_counts, mag_counts)
 
 
 def run(filter_name: str, gyr, acc, mag, rate_hz: float, arithmetic: str = "fixed", settings: dict | None = None,
-        profile: SensorProfile = DEFAULT_PROFILE) -> RunResult:
+        profile: SensorProfile = DEFAULT_PROFILE, calibration=None) -> RunResult:
     """Run a filter on SI arrays: gyr (N,3) rad/s, acc (N,3) m/s^2, mag (N,3) uT.
 
     The arrays are first converted to counts with :func:`imulink.counts.si_to_counts`
@@ -283,4 +316,4 @@ def run(filter_name: str, gyr, acc, mag, rate_hz: float, arithmetic: str = "fixe
     raise SensorDataError.
     """
     g, a, m = si_to_counts(gyr, acc, mag, profile)
-    return run_counts(filter_name, g, a, m, rate_hz, arithmetic, settings, profile)
+    return run_counts(filter_name, g, a, m, rate_hz, arithmetic, settings, profile, calibration)

@@ -120,6 +120,32 @@ def read_settings(link: Link) -> tuple[int, dict[int, dict]]:
     return first["filter_id"], settings
 
 
+#: The protocol's sensor codes in the order of imulink.calibration.SENSORS.
+_SENSOR_CODES = dict(zip(("gyr", "acc", "mag"), ("GYROSCOPE", "ACCELEROMETER", "MAGNETOMETER")))
+
+
+def read_calibration(link: Link, profile: SensorProfile):
+    """The board's calibration (GET_CALIBRATION of every sensor and axis), as an
+    imulink.calibration.Calibration of `profile` (the protocol cannot report the profile)."""
+    from .calibration import Calibration, calibration_from_frames
+
+    frames = [link.command("GET_CALIBRATION", sensor=protocol.SENSORS[code], axis=axis).data.fields
+              for code in _SENSOR_CODES.values() for axis in range(3)]
+    return Calibration(profile, calibration_from_frames(frames))
+
+
+def set_calibration(link: Link, calibration) -> None:
+    """Give the board `calibration` (every sensor and axis: SET_CALIBRATION; a sensor the
+    calibration lacks gets the identity). The board restarts its filter with each."""
+    from .calibration import SENSORS, to_fixed
+
+    for name in SENSORS:
+        offset, matrix = to_fixed(calibration.sensor(name))
+        for axis in range(3):
+            link.command("SET_CALIBRATION", sensor=protocol.SENSORS[_SENSOR_CODES[name]], axis=axis,
+                         offset=offset[axis], row=tuple(matrix[3 * axis:3 * axis + 3]))
+
+
 def _leave_injection_mode(link: Link) -> None:
     if link.command("GET_STATUS").data.fields["injection_mode"]:
         link.command("SET_INJECTION_MODE", enabled=0)
@@ -214,8 +240,11 @@ def _snapshot(link: Link, writer: RecordingWriter) -> tuple[dict, int, str, dict
     status = link.command("GET_STATUS").data.fields
     filter_id, settings = read_settings(link)
     filter_name = _FILTER_NAMES.get(filter_id, str(filter_id))
+    calibration = read_calibration(link, writer.profile)
     writer.event("snapshot", status=status, filter=filter_name,
-                 settings={s["name"]: s["value"] for s in settings.values()})
+                 settings={s["name"]: s["value"] for s in settings.values()},
+                 calibration={name: {"offset_counts": c.offset.tolist(), "matrix": c.matrix.tolist()}
+                              for name, c in calibration.sensors.items()})
     link.command("SELECT_FILTER", filter_id=filter_id)
     return hello, filter_id, filter_name, status
 
@@ -360,27 +389,29 @@ def host_run(recording: Recording) -> HostRun:
         rows = np.flatnonzero(samples.segment == segment)
         name, raw_settings = recording.filter_settings(_segment_filter(recording, segment))
         counts = samples.gyr[rows], samples.acc[rows], samples.mag[rows]
-        for key, values in fixed_outputs(name, raw_settings, recording.profile, *counts).items():
+        calibration = recording.calibration()
+        for key, values in fixed_outputs(name, raw_settings, recording.profile, *counts, calibration).items():
             fixed[key][rows] = values
-        reference = FirmwareFilter(name, raw_settings, recording.profile)
+        reference = FirmwareFilter(name, raw_settings, recording.profile, calibration)
         twin = core.Filter(name, reference.si_settings["sample_rate"], "float", reference.si_settings,
-                           recording.profile).run_counts(*counts)
+                           recording.profile, calibration).run_counts(*counts)
         float_quat[rows], float_euler[rows], float_bias[rows] = twin.quat, twin.euler, twin.gyro_bias
         complete = samples.index[rows] == np.arange(len(rows))
         verifiable[rows] = np.cumprod(complete).astype(bool)
     return HostRun(fixed, float_quat, float_euler, float_bias, verifiable)
 
 
-def fixed_outputs(filter_name: str, raw_settings: dict[str, int], profile: SensorProfile, gyr, acc, mag) -> dict:
+def fixed_outputs(filter_name: str, raw_settings: dict[str, int], profile: SensorProfile, gyr, acc, mag,
+                  calibration=None) -> dict:
     """The ESTIMATE fields (arrays, one row per sample) the firmware computes for a filter
-    run from its start over these counts.
+    run from its start over these counts (with the board's calibration: None is identity).
 
     One batch call to the core when that gives every field: not for the ESKF (its
     covariance is read after each sample), and not when the saturation counter moved
     (its value after each sample is needed); then one sample at a time, as the board.
     """
     n = len(gyr)
-    reference = FirmwareFilter(filter_name, raw_settings, profile)
+    reference = FirmwareFilter(filter_name, raw_settings, profile, calibration)
     if filter_name != "eskf":
         batch = reference.core.run_counts(gyr, acc, mag)
         if batch.saturations == 0:  # the counter never decreases: zero at the end means zero throughout
@@ -388,7 +419,7 @@ def fixed_outputs(filter_name: str, raw_settings: dict[str, int], profile: Senso
                     "gyro_bias": batch.raw["gyro_bias"], "euler": batch.raw["euler"],
                     "cov_mantissa": np.zeros((n, 9), np.int64), "cov_exponent": np.zeros((n, 9), np.int64),
                     "saturations": np.zeros(n, np.int64)}
-        reference = FirmwareFilter(filter_name, raw_settings, profile)  # start again, sample by sample
+        reference = FirmwareFilter(filter_name, raw_settings, profile, calibration)  # again, sample by sample
     out = {name: np.zeros((n,) + shape, np.int64) for name, shape in _ESTIMATE_SHAPES.items()}
     for k in range(n):
         for key, value in reference.step(k, gyr[k], acc[k], mag[k]).items():
