@@ -141,6 +141,10 @@ def _cmd_allan(args) -> int:
     from . import allan, core
     from .files import check_output, write_replacing
 
+    if args.write and not args.settings:
+        raise UsageError("--write needs --settings FILTER (the filter whose settings it writes)")
+    if args.write:
+        check_output(args.write, inputs=[args.input])
     if args.plot:  # before the work: a plot that cannot be written is known at once
         allan.plot_format(args.plot)
         allan.check_plotting()
@@ -170,6 +174,12 @@ def _cmd_allan(args) -> int:
     if args.plot:
         write_replacing(args.plot, lambda path: allan.plot(result, path), inputs=[args.input])
         print(f"plot: {args.plot}", file=sys.stderr if args.json else sys.stdout)
+    if args.write:
+        from . import settings_file
+
+        settings_file.save(settings_file.FilterSettings(args.settings, derived.values), args.write,
+                           inputs=[args.input])
+        print(f"settings file: {args.write}", file=sys.stderr if args.json else sys.stdout)
     return 0
 
 
@@ -313,6 +323,9 @@ def build_parser() -> argparse.ArgumentParser:
                                                   "pip install 'imulink[plot]')")
     p.add_argument("--settings", metavar="FILTER", choices=("eskf", "kf1d"),
                    help="also print the settings of FILTER (eskf or kf1d) that follow from the terms")
+    p.add_argument("--write", metavar="FILE",
+                   help="with --settings: write them to a settings file (JSON) that record, inject, emulate and "
+                        "core.run take with --settings FILE")
     p.add_argument("--confidence", type=_in_range(float, 0.01, 0.999, "must be a probability from 0.01 to 0.999"),
                    default=0.683, help="confidence of the intervals (default: 0.683, one standard deviation)")
     p.set_defaults(func=_cmd_allan)
@@ -443,17 +456,27 @@ def _cmd_emulate(args) -> int:
     from .emulator import EmulatedBoard
 
     faults = _faults(args)
+    settings = _settings_file(args)
+    filter_name = settings.filter_name if settings is not None else args.filter
     front = args.serial if args.serial is not None else ("tcp" if args.tcp is not None else "pty")
     board = EmulatedBoard(args.target, front=front, port=args.tcp or 0, scenario=args.scenario,
-                          duration_s=args.duration, rate_hz=args.rate, seed=args.seed, filter_name=args.filter,
+                          duration_s=args.duration, rate_hz=args.rate, seed=args.seed, filter_name=filter_name,
                           realtime=not args.fast, profile=args.profile, faults=faults, schema_hash=args.schema_hash,
                           image=args.image, baud=args.baud)
     with board:
+        if settings is not None:
+            from . import hil
+            from .link import Link
+
+            with Link(board.address, args.baud) as link:
+                link.connect()
+                hil.apply_settings(link, settings)
         print(board.address, flush=True)
         pace = "as fast as the link drains" if args.fast else "in real time"
         return _serve_until_interrupted(
             f"emulated board ({args.target}: {board.image}): {args.scenario} {args.duration:g} s at {args.rate:g} Hz "
-            f"{pace}, filter {args.filter}, profile {args.profile.name}"
+            f"{pace}, filter {filter_name}, profile {args.profile.name}"
+            + (f", settings of {args.settings}" if settings is not None else "")
             + (f", faults {faults.describe()}" if faults.active else ""), lambda: board.error)
 
 
@@ -479,7 +502,7 @@ def _cmd_record(args) -> int:
 
     result = hil.record(args.port, args.output, duration_s=args.duration, baud=args.baud, profile=args.profile,
                         resync=not args.no_resync, silence_timeout_s=args.silence_timeout, force=args.force,
-                        progress=hil.Progress())
+                        progress=hil.Progress(), settings=_settings_file(args))
     print(f"recorded {result.samples} samples and {result.estimates} estimates of {result.filter_name} in "
           f"{result.duration_s:.1f} s to {result.path} ({result.stop_reason}); "
           f"{hil.link_summary(result.counters)}"
@@ -532,7 +555,7 @@ def _cmd_inject(args) -> int:
 
     source = hil.load_injection_input(args.input)
     result = hil.inject(args.port, source, baud=args.baud, filter_name=args.filter, board_profile=args.board_profile,
-                        progress=hil.Progress())
+                        progress=hil.Progress(), settings=_settings_file(args))
     print(hil.format_inject(result))
     return 0 if result.bit_exact else EXIT_MISMATCH
 
@@ -641,10 +664,24 @@ def _cmd_ports(args) -> int:
     return 0
 
 
+def _settings_file(args):
+    """The --settings FILE of a command, loaded (None without it)."""
+    if args.settings is None:
+        return None
+    from . import settings_file
+
+    return settings_file.load(args.settings)
+
+
 def _add_hil_commands(sub) -> None:
     from . import core, hil, sim
     from .counts import DEFAULT_PROFILE
     from .link import DEFAULT_BAUD
+
+    def settings_argument(p, what: str):
+        p.add_argument("--settings", metavar="FILE",
+                       help=f"a settings file (JSON: a filter and its settings by name in SI, as `imulink allan "
+                            f"--settings FILTER --write FILE` writes it): {what}")
 
     def port_arguments(p):
         p.add_argument("port", metavar="PORT", help="serial device (/dev/ttyACM0, COM3) or pyserial URL "
@@ -724,6 +761,7 @@ def _add_hil_commands(sub) -> None:
     p.add_argument("--profile", type=_profile, default=DEFAULT_PROFILE,
                    help="sensor profile: gy86-default (+-8 g) or gy86-broad (+-16 g) (default: gy86-default)")
     fault_arguments(p)
+    settings_argument(p, "the board starts with them (its filter active, instead of --filter)")
     p.set_defaults(func=_cmd_emulate)
 
     p = sub.add_parser(
@@ -814,6 +852,7 @@ def _add_hil_commands(sub) -> None:
                    help="the board's sensor profile, stored for replay (default: gy86-default); the protocol "
                         "cannot report it")
     p.add_argument("--no-resync", action="store_true", help="never restart the filter after a lost sample")
+    settings_argument(p, "the board gets them (its filter made active) before recording")
     p.set_defaults(func=_cmd_record)
 
     p = sub.add_parser(
@@ -857,6 +896,8 @@ def _add_hil_commands(sub) -> None:
                                                                  "active filter, or the recording's)")
     p.add_argument("--board-profile", type=_profile, default=DEFAULT_PROFILE,
                    help="the sensor profile the board runs with (default: gy86-default); it must match the input's")
+    settings_argument(p, "the injection runs with them (its filter, over a recording's settings); the board's "
+                         "changed settings are restored afterwards")
     p.set_defaults(func=_cmd_inject)
 
 

@@ -105,8 +105,12 @@ def _settings_struct(mod, arithmetic: str, filter_name: str, values: dict[str, f
     return buf
 
 
-def resolve_settings(filter_name: str, rate_hz: float, settings: dict | None) -> dict[str, float]:
-    """Defaults overlaid with `settings` and the sample rate; unknown names raise SettingsError."""
+def resolve_settings(filter_name: str, rate_hz: float, settings) -> dict[str, float]:
+    """Defaults overlaid with `settings` (a dict by name, or an imulink.settings_file.FilterSettings
+    of this filter) and the sample rate; unknown names raise SettingsError."""
+    from .settings_file import for_filter
+
+    settings = for_filter(settings, filter_name)
     values = default_settings(filter_name)
     for name, value in (settings or {}).items():
         if name not in values:
@@ -306,9 +310,12 @@ def run_counts(filter_name: str, gyr_counts, acc_counts, mag_counts, rate_hz: fl
         gyr_counts, acc_counts, mag_counts)
 
 
-def run(filter_name: str, gyr, acc, mag, rate_hz: float, arithmetic: str = "fixed", settings: dict | None = None,
+def run(filter_name: str, gyr, acc, mag, rate_hz: float, arithmetic: str = "fixed", settings=None,
         profile: SensorProfile = DEFAULT_PROFILE, calibration=None) -> RunResult:
     """Run a filter on SI arrays: gyr (N,3) rad/s, acc (N,3) m/s^2, mag (N,3) uT.
+
+    settings: by name in SI (a dict, or a settings file: imulink.settings_file.load(path));
+    the others keep their defaults. calibration: see :func:`run_counts`.
 
     The arrays are first converted to counts with :func:`imulink.counts.si_to_counts`
     and `profile`, so fixed and float runs see identical inputs: values beyond a
