@@ -407,3 +407,22 @@ def test_cli_apply(tmp_path, capsys):
         assert "offset [+0.00, +0.00, +0.00] counts, M [+1.000000, +0.000000, +0.000000]" in capsys.readouterr().out
         assert main(["calibrate", "apply", board.address]) == 2
         assert "give a calibration FILE or --identity" in capsys.readouterr().err
+
+
+def test_calibrate_gyro_from_a_recording_of_the_emulated_board(tmp_path, capsys):
+    """The whole path: a still emulated board recorded with `imulink record`, its bias
+    computed by `imulink calibrate gyro` from the recording (the board's counts, its profile
+    from the header)."""
+    from imulink import hil
+    from imulink.cli import main
+    from imulink.emulator import EmulatedBoard
+
+    with EmulatedBoard(scenario="static", duration_s=30.0, rate_hz=100.0) as board:
+        hil.record(board.address, tmp_path / "still.imulog")
+        truth = board.simulation.gyro_bias_true.mean(axis=0)
+        noise = np.std(board.simulation.gyr - board.simulation.gyro_bias_true, axis=0)
+    assert main(["calibrate", "gyro", str(tmp_path / "still.imulog"), "-o", str(tmp_path / "c.json"), "--json"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    bias = np.array(printed["offset_counts"]) * P.gyro_scale
+    assert np.all(np.abs(bias - truth) < 4.0 * noise / np.sqrt(3000) + 1e-6), (bias, truth)
+    assert printed["report"]["input"].startswith("recording still.imulog (profile gy86-default)")
