@@ -353,17 +353,18 @@ def test_core_runs_a_calibration_in_both_builds():
     assert _core_fixed.lib.imu_filter_set_calibration(handle, struct) == 0
 
 
-def test_emulated_board_applies_a_calibration_bit_exact(tmp_path):
-    """The native board takes a calibration over the protocol, reports it back, the
-    recording keeps it, and the host's run with it reproduces every estimate bit for bit
-    (which the identity calibration would not)."""
+@pytest.mark.parametrize("target, seconds", [("native", 20.0), ("qemu", 5.0)])
+def test_emulated_board_applies_a_calibration_bit_exact(tmp_path, target, seconds):
+    """The native board and the ARM image in QEMU take a calibration over the protocol,
+    report it back, the recording keeps it, and the host's run with it reproduces every
+    estimate bit for bit (which the identity calibration would not)."""
     from imulink import hil, protocol
     from imulink.emulator import EmulatedBoard
     from imulink.link import Link
     from imulink.recording import load_recording
 
     path = tmp_path / "calibrated.imulog"
-    with EmulatedBoard(duration_s=20.0, rate_hz=100.0, filter_name="eskf") as board:
+    with EmulatedBoard(target, duration_s=seconds, rate_hz=100.0, filter_name="eskf") as board:
         with Link(board.address) as link:
             link.connect()
             assert hil.read_calibration(link, P).sensors["mag"].matrix.tolist() == np.eye(3).tolist()
@@ -386,7 +387,7 @@ def test_emulated_board_applies_a_calibration_bit_exact(tmp_path):
     snapshot = next(e for e in recording.events if e["event"] == "snapshot")
     assert snapshot["calibration"]["mag"]["offset_counts"] == [130.75, -19533 / 256, 55782 / 256]  # Q8: the nearest 1/256 count
     comparison = hil.compare(recording)
-    assert comparison.bit_exact and len(recording.estimates) == 2000
+    assert comparison.bit_exact and len(recording.estimates) == round(seconds * 100)
     # without the calibration the host computes something else: the test is not vacuous
     name, raw_settings = recording.filter_settings(recording.active_filter)
     s = recording.samples
