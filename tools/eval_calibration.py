@@ -25,7 +25,7 @@ import numpy as np
 
 from imulink import calibration, cli, core, sim
 from imulink.analysis import attitude_errors, rmse
-from imulink.sim.sensors import AccModel, GyroModel, MagModel, SensorSuite
+from imulink.sim.sensors import AccModel, MagModel, SensorSuite
 
 HARD_IRON_UT = (12.0, -7.0, 20.0)
 SOFT_IRON = np.array([[1.10, 0.05, -0.03], [0.05, 0.92, 0.04], [-0.03, 0.04, 1.02]])
