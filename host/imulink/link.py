@@ -53,7 +53,7 @@ QUEUE_SIZE = 200_000
 
 #: The data message a command asks for; the board sends it before the ACK.
 REPLY_MESSAGES = {"GET_VERSION": "HELLO", "GET_STATUS": "STATUS", "GET_SETTING": "SETTING",
-                  "INJECT_SAMPLE": "ESTIMATE"}
+                  "GET_CALIBRATION": "CALIBRATION", "INJECT_SAMPLE": "ESTIMATE"}
 #: Commands that must not be repeated blindly (repeating them changes the board's state twice).
 NOT_IDEMPOTENT = frozenset({"INJECT_SAMPLE", "RESET"})
 
