@@ -7,6 +7,9 @@
 #   clang, libclang-rt-N-dev                   the core's campaign under -fsanitize=undefined,integer
 #                                              (tests/test_campaign.py; the sanitizer runtime is only
 #                                              a recommendation of Debian's clang package)
+#   xvfb, libxcb-cursor0, libxcb-icccm4,       `imulink monitor` in a real window without a display (Xvfb):
+#   libxcb-keysyms1                            the X libraries Qt's xcb platform (PyQt6-Qt6) loads that a
+#                                              minimal Debian lacks (Qt 6.5+ needs libxcb-cursor0)
 #
 # Installs only what is missing: as root directly, otherwise through sudo. Exits 1 with the
 # apt-get command to run when it cannot install them itself.
@@ -56,6 +59,10 @@ if ! have arm-none-eabi-gcc || [ "$(arm-none-eabi-gcc -print-file-name=libc_nano
 fi
 have qemu-system-arm || missing="$missing qemu-system-arm"
 have clang || missing="$missing clang"
+have Xvfb || missing="$missing xvfb"
+for lib in cursor.so.0:libxcb-cursor0 icccm.so.4:libxcb-icccm4 keysyms.so.1:libxcb-keysyms1; do
+    ldconfig -p 2>/dev/null | grep -q "libxcb-${lib%%:*}" || missing="$missing ${lib#*:}"
+done
 
 [ -z "$missing" ] || install_packages "$missing"
 

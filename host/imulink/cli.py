@@ -573,6 +573,34 @@ def _cmd_demo(args) -> int:
     return 0 if report.comparison.bit_exact else EXIT_MISMATCH
 
 
+@_command
+def _cmd_monitor(args) -> int:
+    from . import monitor
+
+    missing = monitor.missing_dependencies()
+    if missing:
+        print(f"imulink: error: {missing}", file=sys.stderr)
+        return EXIT_ERROR
+    if args.port is None and not args.emulate:
+        raise UsageError("give a PORT, a recording FILE, or --emulate")
+    from pathlib import Path
+
+    from .files import check_output
+    from .monitor import sources, window
+
+    if args.screenshot:  # before the window opens: a PNG that cannot be written is known at once
+        check_output(args.screenshot)
+        if not Path(args.screenshot).parent.is_dir():
+            raise UsageError(f"cannot write {args.screenshot}: its directory does not exist")
+    emulation = dict(scenario=args.scenario, duration_s=args.duration, rate_hz=args.rate, seed=args.seed,
+                     filter_name=args.filter)
+    source = sources.open_source(args.port, emulate=args.emulate, baud=args.baud, profile=args.profile,
+                                 speed=args.speed, emulation=emulation)
+    title = "emulated board" if args.emulate else args.port
+    exit_after = args.exit_after if args.exit_after or not args.screenshot else 5.0
+    return window.run(source, title, screenshot=args.screenshot, exit_after=exit_after)
+
+
 SWD_PORTS = ("swd", "pyocd", "openocd")
 
 
@@ -878,6 +906,29 @@ def _add_hil_commands(sub) -> None:
                     "1 on any difference, when none can be verified, or when the file is damaged.")
     p.add_argument("file", metavar="FILE", help="recording to check")
     p.set_defaults(func=_cmd_compare)
+
+    p = sub.add_parser(
+        "monitor", help="a live window on a board, an emulated board or a recording",
+        description="Open a window on a board (PORT), an emulated board started here (--emulate, real time) or "
+                    "a recording (FILE, played at its own pace or --speed times it, with a time slider): "
+                    "scrolling plots of the raw sensors in physical units, the Euler angles, gyro bias and "
+                    "ESKF covariance the filter sends and the live fixed-vs-float difference; an artificial "
+                    "horizon with a heading tape; link health with the bit-exact verdict so far; filter, "
+                    "settings, stream, record and reset controls. A lost port is reopened when it comes back. "
+                    "Needs the monitor extra: pip install 'imulink[monitor]'. docs/monitor.md describes it.")
+    p.add_argument("port", metavar="PORT|FILE", nargs="?",
+                   help="serial device or pyserial URL of a board, or a recording to replay")
+    p.add_argument("--baud", type=_baud, default=DEFAULT_BAUD,
+                   help=f"line rate of a real serial port (default: {DEFAULT_BAUD})")
+    p.add_argument("--profile", type=_profile, default=DEFAULT_PROFILE,
+                   help="the board's sensor profile, for physical units and the live check (default: gy86-default)")
+    p.add_argument("--emulate", action="store_true", help="start an emulated board (the native firmware) and show it")
+    simulation_arguments(p, 600.0)
+    p.add_argument("--speed", type=_positive_float, default=1.0, help="replay speed of a recording (default: 1)")
+    p.add_argument("--screenshot", metavar="FILE", help="write the window to FILE (PNG) after --exit-after "
+                                                        "seconds (default 5), then exit")
+    p.add_argument("--exit-after", type=_positive_float, metavar="S", help="close the window after S seconds")
+    p.set_defaults(func=_cmd_monitor)
 
     p = sub.add_parser(
         "inject", help="stream samples into a board in injection mode and check every answer",

@@ -233,7 +233,7 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
         # the file holds every byte from the moment the port opens
         link = Link(url, baud, tap=writer.received, attempts=RECORD_COMMAND_ATTEMPTS)
         try:
-            hello, filter_id, filter_name, status = _snapshot(link, writer, settings)
+            hello, filter_id, filter_name, status = snapshot(link, writer, settings)
             writer.check()
             publish(temporary, path, replace=force)
         except BaseException:
@@ -248,13 +248,14 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
         return _StreamRecorder(link, writer, filter_id, resync, progress).run(hello, filter_name, duration_s, silence)
 
 
-def _snapshot(link: Link, writer: RecordingWriter, settings=None) -> tuple[dict, int, str, dict]:
+def snapshot(link: Link, writer: RecordingWriter | None, settings=None) -> tuple[dict, int, str, dict]:
     """Handshake, quiet the board (and give it `settings`), read its state, settings and
-    calibration into the recording, and restart its filter so the recording starts at
-    sample index 0. Returns the HELLO fields, the active filter's id and name, and the
-    STATUS fields."""
+    calibration (into the recording, when there is one), and restart its filter so that
+    the stream starts at sample index 0. Returns the HELLO fields, the active filter's id
+    and name, and the STATUS fields."""
     hello = link.connect()
-    writer.event("connected", hello=hello)
+    if writer is not None:
+        writer.event("connected", hello=hello)
     link.command("STOP_STREAM")
     _leave_injection_mode(link)
     if settings is not None:
@@ -262,11 +263,12 @@ def _snapshot(link: Link, writer: RecordingWriter, settings=None) -> tuple[dict,
     status = link.command("GET_STATUS").data.fields
     filter_id, settings = read_settings(link)
     filter_name = _FILTER_NAMES.get(filter_id, str(filter_id))
-    calibration = read_calibration(link, writer.profile)
-    writer.event("snapshot", status=status, filter=filter_name,
-                 settings={s["name"]: s["value"] for s in settings.values()},
-                 calibration={name: {"offset_counts": c.offset.tolist(), "matrix": c.matrix.tolist()}
-                              for name, c in calibration.sensors.items()})
+    if writer is not None:
+        calibration = read_calibration(link, writer.profile)
+        writer.event("snapshot", status=status, filter=filter_name,
+                     settings={s["name"]: s["value"] for s in settings.values()},
+                     calibration={name: {"offset_counts": c.offset.tolist(), "matrix": c.matrix.tolist()}
+                                  for name, c in calibration.sensors.items()})
     link.command("SELECT_FILTER", filter_id=filter_id)
     return hello, filter_id, filter_name, status
 

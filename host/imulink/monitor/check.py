@@ -1,0 +1,174 @@
+"""The live bit-exact check of the monitor: the board's estimates against the host build
+of the same C, as they arrive.
+
+It follows the stream as :func:`imulink.recording.load_recording` follows a file: the
+active filter and its raw settings come from the SETTING frames (the board's own
+answers to GET_SETTING) and from the SET_SETTING / SELECT_FILTER commands the monitor
+sent (registered with :meth:`LiveCheck.expect` before their ACK is processed); the ACK of
+a command that restarts the filter begins a new filter run at sample index 0. Each run's
+samples go through the fixed-point build (what the board must compute) and the float
+twin, batch by batch, and every ESTIMATE of a complete run is compared with the fixed
+build: quaternion, gyro bias and Euler angles, bit for bit. (`imulink compare` on a
+recording also checks the ESKF covariance and the saturation count, which need the
+filter stepped one sample at a time.) A run with a lost sample, or one whose settings the
+monitor does not know, is not verifiable; its estimates are counted as such.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from itertools import islice
+
+import numpy as np
+
+from .. import core, protocol
+from ..analysis import angle_difference
+from ..counts import SensorProfile
+from ..reference import FirmwareFilter
+
+_RESTARTING_IDS = {protocol.COMMAND_IDS[name] for name in protocol.RESTARTING_COMMANDS}
+_FILTER_NAMES = {filter_id: name for name, (filter_id, _) in core.FILTERS.items()}
+#: Host results kept for estimates that have not arrived yet (an ESTIMATE follows its SAMPLE at once).
+_KEEP_RESULTS = 4096
+
+
+@dataclass
+class CheckSummary:
+    """What the live check has seen so far."""
+
+    identical: int = 0
+    different: int = 0
+    unverifiable: int = 0
+    first_difference: str | None = None
+    fixed_float_max_deg: float = 0.0
+
+    @property
+    def verdict(self) -> str:
+        if self.different:
+            return "NO"
+        return "yes so far" if self.identical else "nothing verified yet"
+
+
+class _Run:
+    """One filter run from sample index 0 with known settings: both host builds, stepped in batches."""
+
+    def __init__(self, filter_name: str, raw_settings: dict[str, int], profile: SensorProfile):
+        reference = FirmwareFilter(filter_name, raw_settings, profile)
+        self.fixed = reference.core
+        self.float = core.Filter(filter_name, reference.si_settings["sample_rate"], "float", reference.si_settings,
+                                 profile)
+        self.next_index = 0
+        self.broken = False  # a sample was lost: nothing after it can be reproduced
+        self.pending: list[tuple[int, tuple, tuple, tuple]] = []
+        self.results: dict[int, tuple] = {}  # index -> (Q30 quat, Q24 bias, Q29 euler, float quat)
+
+    def add(self, fields: dict) -> None:
+        if self.broken or fields["index"] != self.next_index:
+            self.broken = True
+            return
+        self.pending.append((fields["index"], fields["gyr"], fields["acc"], fields["mag"]))
+        self.next_index += 1
+
+    def step(self) -> None:
+        if not self.pending:
+            return
+        index = [p[0] for p in self.pending]
+        counts = [np.array([p[k] for p in self.pending], np.int16) for k in (1, 2, 3)]
+        self.pending = []
+        fixed, twin = self.fixed.run_counts(*counts), self.float.run_counts(*counts)
+        quat, bias, euler = (fixed.raw[k].tolist() for k in ("quat", "gyro_bias", "euler"))
+        for k, i in enumerate(index):
+            self.results[i] = (quat[k], bias[k], euler[k], twin.quat[k])
+        for i in list(islice(self.results, max(0, len(self.results) - _KEEP_RESULTS))):
+            del self.results[i]  # the oldest: a dict keeps the order the indices came in
+
+
+class LiveCheck:
+    """Feed it every received message in order (:meth:`feed`); it returns, per ESTIMATE,
+    the fixed-vs-float angle (deg) or NaN when the estimate cannot be verified."""
+
+    def __init__(self, profile: SensorProfile):
+        self.profile = profile
+        self.summary = CheckSummary()
+        self.filter_id: int | None = None
+        self.settings: dict[int, dict[int, int]] = {}  # filter id -> setting index -> raw value
+        self._expected: dict[int, tuple[str, int, int]] = {}  # command_seq -> ("filter", id, 0) | ("setting", i, v)
+        self._run: _Run | None = None
+        self._estimates: list[dict] = []
+
+    def expect(self, ack: protocol.Message, change: tuple[str, int, int]) -> None:
+        """A command the monitor sent and the board ACKed changes the filter (``("filter", id, 0)``)
+        or a setting of the active filter (``("setting", index, raw value)``) where its ACK stands
+        in the stream."""
+        self._expected[ack.fields["command_seq"]] = change
+
+    def feed(self, messages) -> list[float]:
+        """Process messages in arrival order; the fixed-vs-float angle of each ESTIMATE (NaN: unverifiable)."""
+        for message in messages:
+            name, fields = message.name, message.fields
+            if name == "SAMPLE":
+                if self._run is not None:
+                    self._run.add(fields)
+            elif name == "ESTIMATE":
+                self._estimates.append(fields)
+            elif name == "SETTING":
+                self.filter_id = fields["filter_id"]
+                self.settings.setdefault(fields["filter_id"], {})[fields["index"]] = fields["value"]
+            elif name == "STATUS":
+                self.filter_id = fields["active_filter"]
+            elif name == "ACK" and fields["command"] in _RESTARTING_IDS:
+                self._restart(self._expected.pop(fields["command_seq"], None))
+            elif name == "HELLO" and message.seq == 0:  # the board started again: defaults, unknown to us
+                self.settings.clear()
+                self._run = None
+        return self._compare()
+
+    def _restart(self, change: tuple[str, int, int] | None) -> None:
+        if change is not None and change[0] == "filter":
+            self.filter_id = change[1]
+        elif change is not None and self.filter_id is not None:
+            self.settings.setdefault(self.filter_id, {})[change[1]] = change[2]
+        self._run = None
+        name = _FILTER_NAMES.get(self.filter_id)
+        if name is None:
+            return
+        fields = core.settings_fields(name)
+        known = self.settings.get(self.filter_id, {})
+        if all(i in known for i in range(len(fields))):
+            try:
+                self._run = _Run(name, {f.name: known[i] for i, f in enumerate(fields)}, self.profile)
+            except core.SettingsError:
+                self._run = None
+
+    def _compare(self) -> list[float]:
+        if self._run is not None:
+            self._run.step()
+        results = self._run.results if self._run is not None else {}
+        s = self.summary
+        angles = np.full(len(self._estimates), np.nan)
+        verified, board_quat, float_quat = [], [], []
+        for k, fields in enumerate(self._estimates):
+            host = results.get(fields["index"])
+            if host is None or fields["filter_id"] != self.filter_id:
+                s.unverifiable += 1
+                continue
+            expected = dict(zip(("quat", "gyro_bias", "euler"), host[:3]))
+            different = [name for name, value in expected.items() if list(fields[name]) != value]
+            if not different:
+                s.identical += 1
+            else:
+                s.different += 1
+                if s.first_difference is None:
+                    name = different[0]
+                    s.first_difference = (f"sample index {fields['index']}: {name}: board {list(fields[name])}, "
+                                          f"host {expected[name]}")
+            verified.append(k)
+            board_quat.append(fields["quat"])
+            float_quat.append(host[3])
+        if verified:
+            angles[verified] = angle_difference(np.array(board_quat) / 2.0**core.QUAT_FRAC_BITS, np.array(float_quat))
+            s.fixed_float_max_deg = max(s.fixed_float_max_deg, float(angles[verified].max()))
+        self._estimates = []
+        return angles.tolist()
+
+    def settings_of(self, filter_id: int) -> dict[int, int]:
+        return dict(self.settings.get(filter_id, {}))

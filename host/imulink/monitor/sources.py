@@ -1,0 +1,476 @@
+"""What the monitor window shows, without Qt: a live board (:class:`LiveSource`) or a
+recording (:class:`ReplaySource`), both read through the same small interface.
+
+A live source owns one worker thread that alone talks to the link: it connects, reads
+the board's settings and starts the stream, turns received frames into rows of physical
+units in ring buffers, runs the live bit-exact check, asks for STATUS once a second,
+carries out the commands the window queues (:meth:`LiveSource.request`), and when the
+port fails it closes it and tries again every RETRY_S until the board is back. The
+window only reads: nothing it does waits for the serial port.
+
+Rows (float64, time in seconds since the source started):
+
+- samples: t, gyroscope x y z (deg/s), accelerometer x y z (m/s^2), magnetometer x y z (uT)
+- estimates: t, roll pitch heading (deg), gyro bias x y z (deg/s), standard deviations of
+  the ESKF's attitude error x y z (deg) and gyro bias x y z (deg/s) from the covariance
+  diagonal the board sends (NaN for filters without one), and the angle between the
+  board's quaternion and the float twin's on the same samples (deg; NaN where the host
+  cannot reproduce the estimate).
+"""
+from __future__ import annotations
+
+import math
+import queue
+import threading
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .. import core, hil, protocol
+from ..analysis import angle_difference
+from ..counts import DEFAULT_PROFILE, SensorProfile
+from ..files import FileError, check_writable_target, create_beside, publish
+from ..link import DEFAULT_BAUD, Disconnected, Link, LinkError
+from ..recording import RecordingError, RecordingWriter, load_recording
+from .check import CheckSummary, LiveCheck
+from .ring import RingBuffer
+
+SAMPLE_COLUMNS = ("t", "gyr_x", "gyr_y", "gyr_z", "acc_x", "acc_y", "acc_z", "mag_x", "mag_y", "mag_z")
+ESTIMATE_COLUMNS = ("t", "roll", "pitch", "heading", "bias_x", "bias_y", "bias_z", "sigma_att_x", "sigma_att_y",
+                    "sigma_att_z", "sigma_bias_x", "sigma_bias_y", "sigma_bias_z", "fixed_float")
+#: Rows kept per ring buffer: the longest time span (MAX_SPAN_S) at up to 2 kHz.
+MAX_SPAN_S = 60.0
+RING_ROWS = 1 << 17
+#: Seconds between attempts to reopen a port that failed, and between STATUS requests.
+RETRY_S = 0.5
+STATUS_INTERVAL_S = 1.0
+#: The worker takes what arrived every BATCH_S: the per-batch work (both host builds of the
+#: filter, numpy) is then paid some 50 times a second instead of once per sample, which at
+#: 1 kHz would take most of a core. The window draws at 30 frames/s: nobody sees the delay.
+BATCH_S = 0.02
+FILTER_NAMES = {filter_id: name for name, (filter_id, _) in core.FILTERS.items()}
+_DEG = 180.0 / math.pi
+
+
+def sample_rows(times, gyr, acc, mag, profile: SensorProfile) -> np.ndarray:
+    """Rows of SAMPLE_COLUMNS from counts ((N,3) each) in the board's sensor profile."""
+    return np.column_stack([times, np.asarray(gyr) * profile.gyro_scale * _DEG, np.asarray(acc) * profile.acc_scale,
+                            np.asarray(mag) * profile.mag_scale])
+
+
+def estimate_rows(times, euler, gyro_bias, cov_mantissa, cov_exponent, fixed_float) -> np.ndarray:
+    """Rows of ESTIMATE_COLUMNS from the raw ESTIMATE fields ((N,k) integer arrays)."""
+    euler = np.asarray(euler) * (_DEG / 2.0**core.EULER_FRAC_BITS)
+    bias = np.asarray(gyro_bias) * (_DEG / 2.0**core.RATE_FRAC_BITS)
+    mantissa = np.asarray(cov_mantissa, np.float64)[:, :6]
+    variance = mantissa * np.exp2(np.asarray(cov_exponent, np.float64)[:, :6] - 30)
+    sigma = np.where(mantissa > 0, np.sqrt(np.maximum(variance, 0.0)) * _DEG, np.nan)  # rad -> deg, rad/s -> deg/s
+    return np.column_stack([times, euler, bias, sigma, fixed_float])
+
+
+@dataclass
+class Health:
+    """The link health panel's contents."""
+
+    state: str  # "connecting", "connected", "disconnected", "replay"
+    detail: str = ""
+    counters: dict = field(default_factory=dict)
+    hello: dict | None = None
+    status: dict | None = None
+    check: CheckSummary = field(default_factory=CheckSummary)
+    reconnects: int = 0
+    recording: str | None = None
+
+
+class LiveSource:
+    """A board on `url` (any pyserial URL), connected and streaming until :meth:`close`.
+
+    `profile` is the board's sensor profile (the protocol cannot report it). `emulated`:
+    an :class:`imulink.emulator.EmulatedBoard` the source owns and stops on close.
+    """
+
+    live = True
+
+    def __init__(self, url: str, baud: int = DEFAULT_BAUD, profile: SensorProfile = DEFAULT_PROFILE, emulated=None):
+        self.url, self.baud, self.profile, self.emulated = url, baud, profile, emulated
+        self.samples = RingBuffer(RING_ROWS, len(SAMPLE_COLUMNS))
+        self.estimates = RingBuffer(RING_ROWS, len(ESTIMATE_COLUMNS))
+        self.check = LiveCheck(profile)
+        self._health = Health("connecting", f"opening {url}")
+        self._lock = threading.Lock()
+        self._requests: queue.Queue = queue.Queue()
+        self._events: deque[str] = deque(maxlen=200)
+        self._settings: list[dict] = []
+        self._link: Link | None = None
+        self._writer: RecordingWriter | None = None
+        self._started = time.time()
+        self._attitude = (0.0, 0.0, 0.0)
+        self._greeted = self._status_due = 0.0
+        self._stopping = threading.Event()
+        self._worker = threading.Thread(target=self._run, name=f"imulink-monitor {url}", daemon=True)
+        self._worker.start()
+
+    # ------------------------------------------------------------------ what the window reads
+
+    def now(self) -> float:
+        """The right end of the time axis."""
+        return time.time() - self._started
+
+    def window(self, span_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Sample and estimate rows of the last `span_s` seconds."""
+        low = self.now() - span_s
+        return self.samples.since(0, low), self.estimates.since(0, low)
+
+    def health(self) -> Health:
+        with self._lock:
+            health = Health(**vars(self._health))
+        link = self._link  # the worker may drop it meanwhile
+        if link is not None and health.state == "connected":
+            health.counters = link.counters()
+        health.check = CheckSummary(**vars(self.check.summary))
+        return health
+
+    def attitude(self) -> tuple[float, float, float]:
+        """The newest roll, pitch, heading (deg)."""
+        return self._attitude
+
+    def settings(self) -> list[dict]:
+        """The active filter's settings as the board describes them (SETTING fields)."""
+        with self._lock:
+            return list(self._settings)
+
+    def events(self) -> list[str]:
+        """Messages for the user since the last call (board LOG lines, command results)."""
+        out = []
+        while self._events:
+            out.append(self._events.popleft())
+        return out
+
+    def request(self, action: str, *args) -> None:
+        """Queue a command for the worker: ("select_filter", name), ("set_setting", index, raw),
+        ("start_stream",), ("stop_stream",), ("reset",), ("start_recording", path), ("stop_recording",)."""
+        self._requests.put((action, args))
+
+    def close(self) -> None:
+        self._stopping.set()
+        self._worker.join(timeout=5.0)
+        if self.emulated is not None:
+            self.emulated.stop()
+
+    # ------------------------------------------------------------------ the worker
+
+    def _set_state(self, state: str, detail: str = "", **changes) -> None:
+        with self._lock:
+            self._health.state, self._health.detail = state, detail
+            for key, value in changes.items():
+                setattr(self._health, key, value)
+
+    def _run(self) -> None:
+        failures = 0
+        while not self._stopping.is_set():
+            if self._link is None:
+                try:
+                    self._open()
+                    failures = 0
+                except (LinkError, protocol.ProtocolError) as exc:
+                    failures += 1
+                    self._set_state("disconnected", f"{exc}; retrying" if failures == 1 else
+                                    f"{exc}; retrying ({failures} attempts)")
+                    self._close_link()
+                    self._stopping.wait(RETRY_S)
+                continue
+            try:
+                self._serve_requests()
+                self._ingest(self._link.receive(timeout=0.05))
+                self._poll_status()
+                self._stopping.wait(BATCH_S)
+            except (LinkError, protocol.ProtocolError) as exc:
+                self._lost(str(exc))
+        self._stop_recording("the monitor was closed")
+        self._close_link()
+
+    def _open(self) -> None:
+        self._link = Link(self.url, self.baud)
+        self._set_state("connecting", f"{self.url}: handshake")
+        self._restart_stream()
+        with self._lock:
+            reconnects = self._health.reconnects
+        self._set_state("connected", f"{self.url}", hello=self._link.hello)
+        self._events.append(f"connected to {self._link.hello['board']} on {self.url}"
+                            + (f" (reconnected, {reconnects} time(s) so far)" if reconnects else ""))
+
+    def _restart_stream(self, writer: RecordingWriter | None = None) -> None:
+        """Handshake, the board's state and settings, its filter restarted at sample 0 and
+        the stream started: hil.snapshot, as `imulink record` begins (into `writer` when
+        recording). The answers also reach the live check through the stream."""
+        _, filter_id, _, status = hil.snapshot(self._link, writer)
+        self._link.command("START_STREAM")
+        if writer is not None:
+            writer.event("stream_started", filter=FILTER_NAMES.get(filter_id, str(filter_id)))
+        self._status_due = time.monotonic() + STATUS_INTERVAL_S
+        with self._lock:
+            self._health.status = status
+        self._refresh_settings()
+        self._greeted = time.time()  # a start-up HELLO read before this was part of the handshake
+
+    def _refresh_settings(self) -> None:
+        _, settings = hil.read_settings(self._link)
+        with self._lock:
+            self._settings = [settings[i] for i in sorted(settings)]
+
+    def _lost(self, reason: str) -> None:
+        self._stop_recording(f"the link failed: {reason}")
+        self._close_link()
+        with self._lock:
+            self._health.reconnects += 1
+        self._set_state("disconnected", f"{reason}; waiting for the board to come back")
+        self._events.append(f"disconnected: {reason}")
+
+    def _close_link(self) -> None:
+        if self._link is not None:
+            self._link.close()
+            self._link = None
+
+    def _poll_status(self) -> None:
+        if time.monotonic() >= self._status_due:
+            self._status_due = time.monotonic() + STATUS_INTERVAL_S
+            self._link.command("GET_STATUS")  # the STATUS itself is taken from the stream
+
+    def _ingest(self, received) -> None:
+        if not received:
+            return
+        messages = [r.message for r in received]
+        angles = self.check.feed(messages)
+        t0 = self._started
+        samples, estimates = [], []
+        for item in received:
+            name, fields = item.message.name, item.message.fields
+            if name == "SAMPLE":
+                samples.append((item.time - t0, fields["gyr"], fields["acc"], fields["mag"]))
+            elif name == "ESTIMATE":
+                estimates.append((item.time - t0, fields["euler"], fields["gyro_bias"], fields["cov_mantissa"],
+                                  fields["cov_exponent"]))
+            elif name == "STATUS":
+                with self._lock:
+                    self._health.status = fields
+            elif name == "LOG":
+                level = {v: k for k, v in protocol.LOG_LEVELS.items()}.get(fields["level"], str(fields["level"]))
+                self._events.append(f"board: {level} {fields['text']}")
+            elif name == "HELLO" and item.message.seq == 0 and item.time > self._greeted:
+                self._events.append("the board started again (HELLO with sequence number 0)")
+                self.request("resume")
+        if samples:
+            self.samples.append(sample_rows(*(np.array([s[k] for s in samples]) for k in range(4)), self.profile))
+        if estimates:
+            rows = estimate_rows(*(np.array([e[k] for e in estimates]) for k in range(5)), np.array(angles))
+            self.estimates.append(rows)
+            self._attitude = tuple(rows[-1, 1:4])
+
+    # ------------------------------------------------------------------ commands from the window
+
+    def _serve_requests(self) -> None:
+        while True:
+            try:
+                action, args = self._requests.get_nowait()
+            except queue.Empty:
+                return
+            try:
+                getattr(self, f"_do_{action}")(*args)
+            except protocol.CommandError as exc:
+                self._events.append(f"{action.replace('_', ' ')}: {exc}")
+            except (RecordingError, FileError, core.SettingsError) as exc:
+                self._events.append(f"{action.replace('_', ' ')}: {exc}")
+
+    def _do_select_filter(self, name: str) -> None:
+        filter_id = core.FILTERS[name][0]
+        reply = self._link.command("SELECT_FILTER", filter_id=filter_id)
+        self.check.expect(reply.ack, ("filter", filter_id, 0))
+        self._refresh_settings()
+        # The new filter's settings were read after its run began: restart it once more so
+        # that the live check knows them from sample 0.
+        self.check.expect(self._link.command("SELECT_FILTER", filter_id=filter_id).ack, ("filter", filter_id, 0))
+        self._events.append(f"filter {name} selected")
+
+    def _do_set_setting(self, index: int, value: int) -> None:
+        reply = self._link.command("SET_SETTING", index=index, value=value)
+        self.check.expect(reply.ack, ("setting", index, value))
+        self._refresh_settings()
+        setting = next((s for s in self.settings() if s["index"] == index), None)
+        if setting is not None:
+            self._events.append(f"{setting['name']} = {setting['value'] / 2.0**setting['frac_bits']:.6g} "
+                                f"{setting['unit']} (raw {setting['value']}); the filter restarted")
+
+    def _do_start_stream(self) -> None:
+        self._link.command("START_STREAM")
+        self._events.append("stream started")
+
+    def _do_stop_stream(self) -> None:
+        self._link.command("STOP_STREAM")
+        self._events.append("stream stopped")
+
+    def _do_reset(self) -> None:
+        self._link.command("RESET")  # the board's start-up HELLO then resumes the stream
+        self._events.append("board reset")
+
+    def _do_resume(self) -> None:
+        self._restart_stream(self._writer)
+
+    def _do_start_recording(self, path) -> None:
+        if self._writer is not None:
+            raise RecordingError(f"already recording to {self._writer.path}")
+        path = Path(path)
+        check_writable_target(path, replace=False)
+        fd, temporary = create_beside(path)
+        writer = RecordingWriter(path, self.url, self.profile, fd=fd)
+        try:
+            self._link.tap = writer.received  # every byte from here on, as `imulink record` keeps them
+            self._restart_stream(writer)
+            writer.check()
+            publish(temporary, path, replace=False)
+        except BaseException:
+            self._link.tap = None
+            writer.close()
+            temporary.unlink(missing_ok=True)
+            raise
+        self._writer = writer
+        with self._lock:
+            self._health.recording = str(path)
+        self._events.append(f"recording to {path}")
+
+    def _do_stop_recording(self) -> None:
+        self._stop_recording("stopped in the monitor")
+
+    def _stop_recording(self, reason: str) -> None:
+        writer, self._writer = self._writer, None
+        if writer is None:
+            return
+        if self._link is not None:
+            self._link.tap = None
+            writer.event("stopped", reason=reason, counters=self._link.counters())
+        else:
+            writer.event("stopped", reason=reason)
+        writer.close()
+        with self._lock:
+            self._health.recording = None
+        self._events.append(f"recording {writer.path} ended ({reason})"
+                            + (f": {writer.failure}" if writer.failure else ""))
+
+
+class ReplaySource:
+    """A recording played back at `speed` times its own pace, from a position the
+    window's time slider sets. The bit-exact check is `imulink compare`'s, done once on
+    loading; the health panel shows its verdict up to the playback position."""
+
+    live = False
+
+    def __init__(self, path, speed: float = 1.0):
+        self.path = Path(path)
+        self.recording = load_recording(self.path)
+        if not len(self.recording.samples):
+            raise RecordingError(f"{self.path} holds no samples")
+        run = hil.host_run(self.recording)
+        self.comparison = hil.compare(self.recording, run)
+        s, e = self.recording.samples, self.recording.estimates
+        self.sample_rows = sample_rows(self._timeline(s), s.gyr, s.acc, s.mag, self.recording.profile)
+        angle = np.full(len(e), np.nan)
+        verified = self.comparison.verified
+        angle[verified] = angle_difference(e.quat[verified] / 2.0**core.QUAT_FRAC_BITS,
+                                           run.float_quat[self.comparison.sample_row[verified]])
+        self.estimate_rows = estimate_rows(self._estimate_times(), e.euler, e.gyro_bias, e.cov_mantissa,
+                                           e.cov_exponent, angle)
+        self.duration = float(max(self.sample_rows[-1, 0], self.estimate_rows[-1, 0] if len(e) else 0.0))
+        self.speed = speed
+        self.playing = True
+        self._position = 0.0
+        self._clock = time.monotonic()
+
+    def _timeline(self, samples) -> np.ndarray:
+        """Playback time of each sample at the board's sample rate (STATUS), by sample index:
+        a recording taken as fast as the link goes plays at the pace the board sampled, and
+        a lost sample leaves its gap. Where a filter run restarts, one period passes."""
+        status = self.recording.status
+        rate_hz = status["sample_rate_mhz"] / 1000.0 if status and status["sample_rate_mhz"] else 100.0
+        steps = np.diff(samples.index)
+        same_run = (np.diff(samples.segment) == 0) & (steps > 0)
+        return np.concatenate(([0.0], np.cumsum(np.where(same_run, steps, 1)) / rate_hz))
+
+    def _estimate_times(self) -> np.ndarray:
+        """Each estimate at its sample's playback time (its receive time where its SAMPLE was lost)."""
+        rows = self.comparison.sample_row
+        times = np.interp(self.recording.estimates.host_time, self.recording.samples.host_time,
+                          self.sample_rows[:, 0])
+        have = rows >= 0
+        times[have] = self.sample_rows[rows[have], 0]
+        return times
+
+    def now(self) -> float:
+        if self.playing:
+            now = time.monotonic()
+            self._position = min(self.duration, self._position + (now - self._clock) * self.speed)
+            self._clock = now
+        return self._position
+
+    def seek(self, position: float) -> None:
+        self._position = min(max(0.0, position), self.duration)
+        self._clock = time.monotonic()
+
+    def set_playing(self, playing: bool) -> None:
+        self.now()
+        self.playing = playing
+        self._clock = time.monotonic()
+
+    def window(self, span_s: float) -> tuple[np.ndarray, np.ndarray]:
+        now = self.now()
+        out = []
+        for rows in (self.sample_rows, self.estimate_rows):
+            low, high = np.searchsorted(rows[:, 0], [now - span_s, now], side="right")
+            out.append(rows[low:high])
+        return out[0], out[1]
+
+    def attitude(self) -> tuple[float, float, float]:
+        rows = self.window(1.0)[1]
+        return tuple(rows[-1, 1:4]) if len(rows) else (0.0, 0.0, 0.0)
+
+    def health(self) -> Health:
+        c, rec = self.comparison, self.recording
+        shown = self.estimate_rows[:, 0] <= self._position
+        summary = CheckSummary(identical=int((c.identical & shown).sum()),
+                               different=int((c.verified & ~c.identical & shown).sum()),
+                               unverifiable=int((~c.verified & shown).sum()),
+                               first_difference=str(c.first_difference) if c.first_difference else None,
+                               fixed_float_max_deg=float(np.nanmax(self.estimate_rows[shown, 13], initial=0.0)))
+        return Health("replay", f"{self.path.name}: {self._position:.1f} of {self.duration:.1f} s at "
+                                f"{self.speed:g}x", counters=rec.counters, hello=rec.hello, status=rec.status,
+                      check=summary)
+
+    def settings(self) -> list[dict]:
+        filter_id = self.recording.active_filter
+        table = self.recording.settings.get(filter_id, {}) if filter_id is not None else {}
+        return [table[i] for i in sorted(table)]
+
+    def events(self) -> list[str]:
+        return []
+
+    def request(self, action: str, *args) -> None:
+        raise RecordingError(f"a recording cannot {action.replace('_', ' ')}")
+
+    def close(self) -> None:
+        pass
+
+
+def open_source(target: str | None, *, emulate: bool = False, baud: int = DEFAULT_BAUD,
+                profile: SensorProfile = DEFAULT_PROFILE, speed: float = 1.0, emulation: dict | None = None):
+    """The source `imulink monitor` shows: a recording when `target` is a regular file, an
+    emulated board started here when `emulate` (`emulation`: EmulatedBoard's options),
+    else the board on the port `target`."""
+    if emulate:
+        from ..emulator import EmulatedBoard
+
+        board = EmulatedBoard(front="tcp", realtime=True, profile=profile, **(emulation or {})).start()
+        return LiveSource(board.address, profile=profile, emulated=board)
+    if target is not None and Path(target).is_file():
+        return ReplaySource(target, speed)
+    return LiveSource(target, baud, profile)
