@@ -80,7 +80,7 @@ def test_live_check_agrees_with_compare_and_names_a_difference(eskf_recording):
     assert check.summary.first_difference.startswith("sample index 123: euler: board")
 
 
-def wait_for(predicate, timeout: float = 10.0, what: str = "") -> None:
+def wait_for(predicate, timeout: float = 20.0, what: str = "") -> None:
     deadline = time.monotonic() + timeout
     while not predicate():
         assert time.monotonic() < deadline, f"timed out after {timeout:g} s waiting for {what}"
@@ -140,7 +140,7 @@ def own_settings(tmp_path, monkeypatch):
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
 
 
-def wait_until(app, predicate, timeout: float = 10.0, what: str = "") -> None:
+def wait_until(app, predicate, timeout: float = 20.0, what: str = "") -> None:
     deadline = time.monotonic() + timeout
     while not predicate():
         if time.monotonic() > deadline:
