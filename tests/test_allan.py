@@ -22,8 +22,9 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from imulink import allan, cli, core
+from imulink import allan, cli, core, sensor_input
 from imulink.allan import AllanError, FLOOR_OVER_BIAS_INSTABILITY, allan_curve, axis_terms
+from imulink.sensor_input import InputError
 from imulink.sim.sensors import GyroModel
 
 BROAD = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "broad"
@@ -256,17 +257,17 @@ def test_settings_from_terms():
 
 def test_board_timestamps_unwrap():
     stamps = (np.arange(10) * 1_000_000_000 + 2**32 - 3_000_000_000) % 2**32  # wraps after the 3rd
-    np.testing.assert_allclose(allan.unwrap_us(stamps), np.arange(10) * 1000.0)
-    assert allan.unwrap_us([10, 5])[1] == pytest.approx(-5e-6)  # a step back stays one
+    np.testing.assert_allclose(sensor_input.unwrap_us(stamps), np.arange(10) * 1000.0)
+    assert sensor_input.unwrap_us([10, 5])[1] == pytest.approx(-5e-6)  # a step back stays one
 
 
 def test_rate_gaps_and_order():
     t = np.arange(1000) / 250.0
-    assert allan.rate_from_timestamps(t, "x") == pytest.approx(250.0)
-    with pytest.raises(AllanError, match="gap"):
-        allan.rate_from_timestamps(np.delete(t, [500, 501]), "x")
-    with pytest.raises(AllanError, match="do not increase at sample 11"):
-        allan.rate_from_timestamps(np.concatenate([t[:10], t[11:12], t[10:11], t[12:]]), "x")
+    assert sensor_input.rate_from_timestamps(t, "x") == pytest.approx(250.0)
+    with pytest.raises(InputError, match="gap"):
+        sensor_input.rate_from_timestamps(np.delete(t, [500, 501]), "x")
+    with pytest.raises(InputError, match="do not increase at sample 11"):
+        sensor_input.rate_from_timestamps(np.concatenate([t[:10], t[11:12], t[10:11], t[12:]]), "x")
 
 
 @pytest.mark.skipif(not BROAD.is_dir(), reason="BROAD data not present beside the repository")

@@ -78,6 +78,7 @@ static void restart_filter(app_t *app, int id)
     const filter_info_t *info = filter_info(id);
     imu_filter_init(&app->filter, id);
     imu_filter_set_sensor(&app->filter, &app->config.sensor);
+    (void)imu_filter_set_calibration(&app->filter, &app->calibration); /* checked when it was set */
     (void)imu_filter_set_settings(&app->filter, settings_of(&app->settings, info));
     app->index = 0;
 }
@@ -440,6 +441,70 @@ static outcome_t cmd_set_setting(app_t *app, const imu_proto_command_t *c)
     return ok();
 }
 
+/** The calibration of sensor `sensor` (IMU_PROTO_SENSOR_*), 0 for an unknown one. */
+static imu_sensor_cal_t *sensor_calibration(imu_calibration_t *cal, uint8_t sensor)
+{
+    switch (sensor) {
+    case IMU_PROTO_SENSOR_GYROSCOPE:
+        return &cal->gyr;
+    case IMU_PROTO_SENSOR_ACCELEROMETER:
+        return &cal->acc;
+    case IMU_PROTO_SENSOR_MAGNETOMETER:
+        return &cal->mag;
+    default:
+        return 0;
+    }
+}
+
+static outcome_t cmd_set_calibration(app_t *app, const imu_proto_command_t *c)
+{
+    imu_proto_cmd_set_calibration_t a;
+    imu_calibration_t candidate = app->calibration;
+    imu_sensor_cal_t *target;
+    int j;
+    (void)imu_proto_cmd_set_calibration_unpack(&a, c->args, c->args_len);
+    target = sensor_calibration(&candidate, a.sensor);
+    if (target == 0 || a.axis > 2) {
+        return refuse(IMU_PROTO_REASON_BAD_ARGUMENT);
+    }
+    target->offset[a.axis] = a.offset;
+    for (j = 0; j < 3; ++j) {
+        target->matrix[3 * a.axis + j] = a.row[j];
+    }
+    if (imu_calibration_check(&candidate) != IMU_OK) {
+        return refuse(IMU_PROTO_REASON_OUT_OF_RANGE);
+    }
+    app->calibration = candidate;
+    restart_filter(app, app->filter.id);
+    if (app->streaming) {
+        start_stream(app);
+    }
+    return ok();
+}
+
+static outcome_t cmd_get_calibration(app_t *app, const imu_proto_command_t *c)
+{
+    imu_proto_cmd_get_calibration_t a;
+    imu_proto_calibration_t m;
+    const imu_sensor_cal_t *source;
+    int j;
+    (void)imu_proto_cmd_get_calibration_unpack(&a, c->args, c->args_len);
+    source = sensor_calibration(&app->calibration, a.sensor);
+    if (source == 0 || a.axis > 2) {
+        return refuse(IMU_PROTO_REASON_BAD_ARGUMENT);
+    }
+    m.sensor = a.sensor;
+    m.axis = a.axis;
+    m.offset = source->offset[a.axis];
+    for (j = 0; j < 3; ++j) {
+        m.row[j] = source->matrix[3 * a.axis + j];
+    }
+    m.offset_frac_bits = IMU_CAL_OFFSET_Q;
+    m.matrix_frac_bits = IMU_CAL_MATRIX_Q;
+    send_wire(app, imu_proto_calibration_encode(&m, app->tx_seq, app->wire, sizeof app->wire));
+    return ok();
+}
+
 static outcome_t cmd_inject_sample(app_t *app, const imu_proto_command_t *c)
 {
     imu_proto_sample_t s;
@@ -521,6 +586,10 @@ static outcome_t run_command(app_t *app, const imu_proto_command_t *c)
         return o;
     case IMU_PROTO_CMD_SET_INJECTION_MODE:
         return cmd_set_injection_mode(app, c);
+    case IMU_PROTO_CMD_SET_CALIBRATION:
+        return cmd_set_calibration(app, c);
+    case IMU_PROTO_CMD_GET_CALIBRATION:
+        return cmd_get_calibration(app, c);
     default:
         return refuse(IMU_PROTO_REASON_UNKNOWN_COMMAND);
     }
@@ -549,6 +618,7 @@ void app_init(app_t *app, const app_config_t *config)
 {
     size_t i;
     app->config = *config;
+    app->calibration = imu_calibration_identity;
     for (i = 0; i < FILTER_COUNT; ++i) {
         void *settings = settings_of(&app->settings, &filters[i]);
         copy_bytes(settings, filters[i].defaults, filters[i].size);

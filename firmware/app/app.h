@@ -70,6 +70,7 @@ typedef struct {
 typedef struct {
     app_config_t config;
     app_settings_t settings;
+    imu_calibration_t calibration; /**< applied to the counts before every filter (SET_CALIBRATION) */
     imu_filter_t filter;          /**< the active filter */
     uint32_t index;               /**< samples the active filter has run since it (re)started */
     int streaming;                /**< 1 while live samples are streamed */

@@ -131,24 +131,26 @@ static int32_t normalize_wide(imu_wide_t v, int *exp)
  * int64 product below 2^62: ch is normalised to 30-bit mantissas, the two
  * scalars w/sh and w z/sh to mantissa and exponent.
  */
-static void apply_update(imu_cov_t *c, const imu_wide_t ch[], imu_wide_t sh, imu_q30_t w, imu_q30_t z, int big,
-                         imu_q30_t dx[], uint32_t *sat)
+static void apply_update(imu_cov_t *c, const imu_wide_t ch[], const imu_wide_t oh[], imu_wide_t sh, imu_q30_t w,
+                         imu_q30_t z, int big, imu_q30_t dx[], uint32_t *sat)
 {
-    int32_t cm[IMU_COV_MAX];
+    int32_t cm[IMU_COV_MAX], om[IMU_COV_MAX];
     imu_wide_t wm[IMU_COV_CELLS];
     imu_wide_t cmax = 0;
     int ce, ke, ve, i, j;
     int32_t k_mant, v_mant;
     for (i = 0; i < c->n; ++i) {
-        const imu_wide_t a = ch[i] < 0 ? -ch[i] : ch[i];
+        const imu_wide_t a = wide_abs(ch[i]), b = wide_abs(oh[i]);
         cmax = a > cmax ? a : cmax;
+        cmax = b > cmax ? b : cmax;
     }
     if (cmax == 0) {
         return;
     }
-    normalize_wide(cmax, &ce); /* ch_i = cm_i 2^ce, |cm_i| < 2^30 */
+    normalize_wide(cmax, &ce); /* ch_i = cm_i 2^ce, |cm_i| < 2^30; the same for oh */
     for (i = 0; i < c->n; ++i) {
         cm[i] = (int32_t)wide_ldexp(ch[i], -ce, sat);
+        om[i] = (int32_t)wide_ldexp(oh[i], -ce, sat);
     }
     /* w / sh: Q30 / Q30 as (w 2^32) / sh = k 2^(-32); normalised. */
     k_mant = normalize_wide(((imu_wide_t)w * ((int64_t)1 << 32)) / sh, &ke);
@@ -158,11 +160,11 @@ static void apply_update(imu_cov_t *c, const imu_wide_t ch[], imu_wide_t sh, imu
     ve -= 31;
     load_wide(c, wm);
     for (i = 0; i < c->n; ++i) {
-        /* dx_i = v cm_i 2^(ve + ce + e_i - E) in Q30: (Q? products) v_mant * cm_i < 2^60. */
-        dx[i] = imu_sat32(wide_ldexp((imu_wide_t)v_mant * cm[i], ve + ce + c->e[i] - big, sat), sat);
+        /* dx_i = v (cm_i - om_i) 2^(ve + ce + e_i - E) in Q30: v_mant * (cm_i - om_i) < 2^61. */
+        dx[i] = imu_sat32(wide_ldexp((imu_wide_t)v_mant * (cm[i] - om[i]), ve + ce + c->e[i] - big, sat), sat);
         for (j = i; j < c->n; ++j) {
-            /* (cm_i cm_j >> 30) * k_mant < 2^60; value 2^(2 ce + ke + 30) in Q30 units. */
-            const imu_wide_t cc = imu_rshift_round64((imu_wide_t)cm[i] * cm[j], 30);
+            /* ((cm_i cm_j - om_i om_j) >> 30) * k_mant < 2^61; value 2^(2 ce + ke + 30) in Q30 units. */
+            const imu_wide_t cc = imu_rshift_round64((imu_wide_t)cm[i] * cm[j] - (imu_wide_t)om[i] * om[j], 30);
             wm[cell(i, j)] -= wide_ldexp(cc * k_mant, 2 * ce + ke, sat);
         }
     }
@@ -195,7 +197,7 @@ static void cap_unit_variance(imu_cov_t *c, int i)
     }
 }
 
-/** v * w for a wide Q30 value v (any size below 2^62) and a Q30 weight w in [0, 1]. */
+/** v * w for a wide Q30 value v (any size below 2^62) and a Q30 factor w, |w| <= 1. */
 static imu_wide_t wide_mul_q30(imu_wide_t v, imu_q30_t w)
 {
     const imu_wide_t hi = v / ((int64_t)1 << 30); /* truncated toward zero */
@@ -250,19 +252,17 @@ static int scale_row(const imu_cov_t *c, const imu_q30_t h[], imu_q30_t hs[], ui
     return 0;
 }
 
-static void apply_update(imu_cov_t *c, const imu_wide_t ch[], imu_wide_t sh, imu_q30_t w, imu_q30_t z, int big,
-                         imu_q30_t dx[], uint32_t *sat)
+static void apply_update(imu_cov_t *c, const imu_wide_t ch[], const imu_wide_t oh[], imu_wide_t sh, imu_q30_t w,
+                         imu_q30_t z, int big, imu_q30_t dx[], uint32_t *sat)
 {
     imu_wide_t wm[IMU_COV_CELLS];
     int i, j;
     (void)big;
-    for (i = 0; i < IMU_COV_CELLS; ++i) {
-        wm[i] = c->p[i];
-    }
+    load_wide(c, wm);
     for (i = 0; i < c->n; ++i) {
-        dx[i] = w * z / sh * ch[i];
+        dx[i] = w * z / sh * (ch[i] - oh[i]);
         for (j = i; j < c->n; ++j) {
-            wm[cell(i, j)] -= w / sh * ch[i] * ch[j];
+            wm[cell(i, j)] -= w / sh * (ch[i] * ch[j] - oh[i] * oh[j]);
         }
     }
     renormalize(c, wm, sat);
@@ -407,14 +407,38 @@ void imu_cov_predict(imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], const imu_wide_
     renormalize(c, w, sat);
 }
 
+/**
+ * The part of P h that a gain map leaves out, in scaled coordinates: with u_i = ch_i 2^(e_i + E),
+ * o = u - G u gives oh_i = ch_i - sum_j G_ij 2^(e_j - e_i) ch_j (zero without a map).
+ */
+static void left_out(const imu_cov_t *c, const imu_wide_t ch[], const imu_q30_t (*gain_map)[IMU_COV_MAX],
+                     imu_wide_t oh[], uint32_t *sat)
+{
+    int i, j;
+    for (i = 0; i < c->n; ++i) {
+        oh[i] = 0;
+        if (gain_map != 0) {
+            oh[i] = ch[i];
+            for (j = 0; j < c->n; ++j) {
+                if (gain_map[i][j] != 0) {
+                    oh[i] -= wide_ldexp(wide_mul_q30(ch[j], gain_map[i][j]), c->e[j] - c->e[i], sat);
+                }
+            }
+        }
+    }
+}
+
 int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu_q30_t z, imu_q30_t w,
-                   imu_q30_t dx[], uint32_t *sat)
+                   const imu_q30_t (*gain_map)[IMU_COV_MAX], imu_q30_t dx[], uint32_t *sat)
 {
     /* Scaled coordinates: h~_j = h_j 2^e_j = hs_j 2^E. Then c~ = P~ h~ = 2^E (P~ hs),
      * s = h~ P~ h~ + r = 2^2E (hs P~ hs + r 2^-2E), and P~' = P~ - w c~ c~^T / s
-     * = P~ - w ch ch^T / sh with ch = P~ hs, sh = w hs ch + r 2^-2E: E cancels. */
+     * = P~ - w ch ch^T / sh with ch = P~ hs, sh = w hs ch + r 2^-2E: E cancels.
+     * With a gain map G (K' = G K), Joseph's form for that gain, (I - K'h) P (I - K'h)^T
+     * + K' r K'^T, is P - (u u^T - o o^T) / s with u = P h^T and o = u - G u. */
     imu_q30_t hs[IMU_COV_MAX];
     imu_wide_t ch[IMU_COV_MAX]; /* P~ hs, Q30; |ch| < 9 * 2^30 */
+    imu_wide_t oh[IMU_COV_MAX]; /* the part of ch the gain map leaves out, Q30 */
     imu_wide_t q = 0;           /* hs P~ hs, Q30 */
     imu_wide_t sh;              /* Q30 */
     const int n = c->n;
@@ -444,7 +468,8 @@ int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu
         ++*sat;
         return 0;
     }
-    apply_update(c, ch, sh, w, z, big, dx, sat);
+    left_out(c, ch, gain_map, oh, sat);
+    apply_update(c, ch, oh, sh, w, z, big, dx, sat);
     return 1;
 }
 

@@ -56,15 +56,20 @@ void imu_cov_predict(imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], const imu_wide_
  * [0, 1] down-weights a doubtful measurement continuously (w = 0: no update),
  * without forming r / w.
  *
- * @param h   n measurement coefficients, Q30, |h_j| < 2, in the states' units
- * @param r   measurement variance, wide value in Q`r_q` (fixed build), > 0
- * @param z   innovation (measured minus predicted), Q30
- * @param w   weight, Q30, [0, 1]
- * @param dx  output: n state corrections K z, Q30 in the states' units
+ * A gain map G restricts what the measurement may correct (a Schmidt, or "consider",
+ * update): the correction is G K z, and P gets Joseph's form for the gain G K, so it
+ * keeps the uncertainty of what was not corrected. NULL: the optimal update (G = I).
+ *
+ * @param h        n measurement coefficients, Q30, |h_j| < 2, in the states' units
+ * @param r        measurement variance, wide value in Q`r_q` (fixed build), > 0
+ * @param z        innovation (measured minus predicted), Q30
+ * @param w        weight, Q30, [0, 1]
+ * @param gain_map NULL, or n x n, Q30, |G_ij| <= 1, row stride IMU_COV_MAX, in the states' units
+ * @param dx       output: n state corrections G K z, Q30 in the states' units
  * @return 1 when updated, 0 when skipped (w = 0)
  */
 int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu_q30_t z, imu_q30_t w,
-                   imu_q30_t dx[], uint32_t *sat);
+                   const imu_q30_t (*gain_map)[IMU_COV_MAX], imu_q30_t dx[], uint32_t *sat);
 
 /** @brief Zero row and column i and set P_ii = var (a wide value in Q`var_q`): the state is reset. */
 void imu_cov_reset_state(imu_cov_t *c, int i, imu_wide_t var, int var_q, uint32_t *sat);

@@ -398,26 +398,37 @@ static void predict_covariance(imu_eskf_t *f, const imu_q30_t dq[4])
     }
 }
 
-/** x <- (u . x) u for a 3-vector x (Q30, any value) and a unit vector u (Q30). */
-static void project_onto(imu_q30_t x[3], const imu_q30_t u[3], uint32_t *sat)
+/**
+ * Gain map (imu_cov_update) of a measurement that may correct the attitude, the gyro
+ * bias and the accelerometer bias as the flags say; with `vertical`, the attitude and
+ * the gyro bias only along that unit vector (Q30). Entries Q30.
+ */
+static void set_gain_map(imu_q30_t map[IMU_COV_MAX][IMU_COV_MAX], int attitude, int gyro_bias, int acc_bias,
+                         const imu_q30_t *vertical)
 {
-    /* Q30 * Q30 -> Q60: three products below 2^61 each. */
-    const imu_q30_t along =
-        IMU_WIDE_SAT(IMU_WSHR(IMU_WMUL(x[0], u[0]) + IMU_WMUL(x[1], u[1]) + IMU_WMUL(x[2], u[2]), 30), sat);
-    int k;
-    for (k = 0; k < 3; ++k) {
-        x[k] = IMU_MUL(along, u[k], 30); /* |u_k| <= 1 */
+    int i, j;
+    for (i = 0; i < IMU_COV_MAX; ++i) {
+        for (j = 0; j < IMU_COV_MAX; ++j) {
+            map[i][j] = 0;
+        }
+    }
+    for (i = 0; i < 3; ++i) {
+        for (j = 0; j < 3; ++j) {
+            const imu_q30_t along = vertical != 0 ? IMU_MUL(vertical[i], vertical[j], 30) : (i == j ? IMU_ONE_Q30 : 0);
+            map[ATT + i][ATT + j] = attitude ? along : 0;
+            map[GYRO_BIAS + i][GYRO_BIAS + j] = gyro_bias ? along : 0;
+            map[ACC_BIAS + i][ACC_BIAS + j] = acc_bias && i == j ? IMU_ONE_Q30 : 0;
+        }
     }
 }
 
 /**
  * Sequential scalar update; the innovation is corrected for the corrections so
- * far. With `vertical_only` (the heading update) the attitude and gyro-bias
- * corrections keep only their component along `up`, so that cross-covariances
- * cannot let the magnetometer tilt roll and pitch.
+ * far. A gain map (NULL: none) restricts the corrections; P then keeps the
+ * uncertainty of what was not corrected (imu_cov_update).
  */
 static void scalar_update(imu_eskf_t *f, const imu_q30_t h[9], imu_q30_t z, imu_wide_t r, int r_q, imu_q30_t w,
-                          const imu_q30_t *vertical_only, imu_q30_t dx_total[9])
+                          imu_q30_t (*gain_map)[IMU_COV_MAX], imu_q30_t dx_total[9])
 {
     imu_q30_t dx[9];
     const int n = imu_eskf_state_count(f);
@@ -425,14 +436,7 @@ static void scalar_update(imu_eskf_t *f, const imu_q30_t h[9], imu_q30_t z, imu_
     for (i = 0; i < n; ++i) {
         z = IMU_SUB_SAT(z, IMU_MUL_SAT(h[i], dx_total[i], 30, &f->saturations), &f->saturations);
     }
-    if (imu_cov_update(&f->cov, h, r, r_q, z, w, dx, &f->saturations)) {
-        if (vertical_only != 0) {
-            project_onto(&dx[ATT], vertical_only, &f->saturations);
-            project_onto(&dx[GYRO_BIAS], vertical_only, &f->saturations);
-            for (i = ACC_BIAS; i < n; ++i) {
-                dx[i] = 0;
-            }
-        }
+    if (imu_cov_update(&f->cov, h, r, r_q, z, w, (const imu_q30_t(*)[IMU_COV_MAX])gain_map, dx, &f->saturations)) {
         for (i = 0; i < n; ++i) {
             dx_total[i] = IMU_ADD_SAT(dx_total[i], dx[i], &f->saturations);
         }
@@ -447,6 +451,8 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q30_
     imu_real_t norm;
     imu_q30_t h[9];
     imu_real_t noise_g; /* specific-force noise in g, Q26 (up to 100 m/s^2 over 9 m/s^2: 11 g) */
+    imu_q30_t gain_map[IMU_COV_MAX][IMU_COV_MAX]; /* Q30 */
+    imu_q30_t (*map)[IMU_COV_MAX] = NULL;
     int k, i;
     if (!imu_vec3_normalize(acc, unit, &norm)) {
         f->acc_weight = 0;
@@ -463,6 +469,10 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q30_
         return; /* far from 1 g (taps, free fall): no gravity information */
     }
     noise_g = IMU_MUL(st->acc_noise, f->inv_gravity, 28); /* Q24 * Q30 >> 28 -> Q26 (g) */
+    if (f->at_rest) {
+        set_gain_map(gain_map, 1, 0, 1, NULL); /* the gyro bias is the rest measurement's */
+        map = gain_map;
+    }
     for (k = 0; k < 3; ++k) {
         /* Row k of [[v x], 0, I]. */
         const imu_q30_t cross[3][3] = {{0, -up[2], up[1]}, {up[2], 0, -up[0]}, {-up[1], up[0], 0}};
@@ -477,7 +487,7 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q30_
             h[ATT + i] = cross[k][i];
         }
         h[ACC_BIAS + k] = IMU_ONE_Q30;
-        scalar_update(f, h, z, IMU_WMUL(noise_g, noise_g), 52, f->acc_weight, 0, dx);
+        scalar_update(f, h, z, IMU_WMUL(noise_g, noise_g), 52, f->acc_weight, map, dx);
     }
 }
 
@@ -558,10 +568,11 @@ static void align_heading(imu_eskf_t *f, const imu_q16_t mag[3])
 static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_q30_t up[3], imu_q30_t dx[9])
 {
     const imu_eskf_settings_t *st = &f->settings;
-    imu_q30_t earth[3], horizontal;
+    imu_q30_t earth[3], horizontal, north[3];
     imu_q16_t norm;
     imu_angle_t dip;
     imu_q30_t h[9], z, sigma, w_norm;
+    imu_q30_t gain_map[IMU_COV_MAX][IMU_COV_MAX]; /* Q30 */
     int i;
     f->mag_weight = 0;
     if (f->ref.norm <= 0) {
@@ -593,25 +604,30 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_q30_
     if (f->mag_weight == 0) {
         return;
     }
-    /* sigma = mag_noise / (horizontal field in uT), Q16 / Q16 -> Q24. A horizontal field
-     * below 1/64 of the noise carries no heading information (and sigma stays below 64). */
-    {
-        const imu_q16_t horizontal_ut = IMU_MUL(horizontal, norm, 30);
-        if (horizontal_ut <= IMU_MUL(st->mag_noise, IMU_QCONST(1.0 / 64.0, 30), 30)) {
-            return;
-        }
-        sigma = IMU_DIV_SAT(st->mag_noise, horizontal_ut, 24, &f->saturations);
+    /* sigma = mag_noise / |m|, Q16 / Q16 -> Q24: the noise of the unit field's east share.
+     * A horizontal field below 1/64 of the noise carries no heading information (and
+     * sigma stays below 64). */
+    if (IMU_MUL(horizontal, norm, 30) <= IMU_MUL(st->mag_noise, IMU_QCONST(1.0 / 64.0, 30), 30)) {
+        return;
     }
-    /* z = sin(heading error) = east share of the horizontal field; H = [v^T, 0, 0].
-     * (The sine, rather than the angle, also softens large innovations.) */
-    z = IMU_DIV_SAT(earth[0], horizontal, 30, &f->saturations);
+    sigma = IMU_DIV_SAT(st->mag_noise, norm, 24, &f->saturations);
+    /* z = east share of the unit field in the estimate's earth frame, m_E = horizontal
+     * * sin(heading error). An attitude error dtheta (sensor frame) moves it by
+     * (-m_U north + m_N up) . dtheta: the heading error and, through the field's vertical
+     * part, the tilt error, which H must include (left out, a constant tilt error would
+     * pass for heading information: tan(dip) times it). The gain map lets the update
+     * correct only the vertical components of the attitude and the gyro bias, so that
+     * the magnetometer cannot tilt the estimate, and P keeps the tilt's uncertainty. */
+    imu_quat_matrix_row(f->q, 1, north);
     for (i = 0; i < 9; ++i) {
         h[i] = 0;
     }
     for (i = 0; i < 3; ++i) {
-        h[ATT + i] = up[i];
+        h[ATT + i] = IMU_SUB(IMU_MUL(earth[1], up[i], 30), IMU_MUL(earth[2], north[i], 30)); /* |h| <= |m| = 1 */
     }
-    scalar_update(f, h, z, IMU_WMUL(sigma, sigma), 48, f->mag_weight, up, dx);
+    set_gain_map(gain_map, 1, !f->at_rest, 0, up);
+    z = earth[0];
+    scalar_update(f, h, z, IMU_WMUL(sigma, sigma), 48, f->mag_weight, gain_map, dx);
 }
 
 /** Component k of the low-passed specific force, m/s^2, Q16. */
@@ -679,12 +695,20 @@ static void turn_acc_earth(imu_eskf_t *f, const imu_q30_t dtheta[3])
  * gyro-bias states, variance arw^2 / T: the noise of one filter period's mean rate (the
  * low-passed rate has less, arw^2 / (2 tau), but consecutive steps share it: counted once
  * per step it would make the bias look known far better than it is).
+ *
+ * The same gyroscope noise also drives the propagated attitude, which gravity and the
+ * field observe: were both measurements let correct the bias, its noise would count
+ * twice and the bias would look known better than it is (gyro-bias NEES 1.4-1.5 per
+ * degree of freedom at rest). So at rest the bias is this measurement's alone, and this
+ * measurement corrects the bias alone (gain maps: P stays that of the corrections made).
  */
 static void rest_update(imu_eskf_t *f, imu_q30_t dx[9])
 {
     const imu_rate_t *rate = imu_rest_rate(&f->rest);
     imu_q30_t h[9];
+    imu_q30_t gain_map[IMU_COV_MAX][IMU_COV_MAX]; /* Q30 */
     int k, i;
+    set_gain_map(gain_map, 0, 1, 0, NULL);
     for (k = 0; k < 3; ++k) {
         /* Q24 -> Q30 (below 2 rad/s: at rest) minus the bias, Q30. */
         const imu_q30_t z =
@@ -693,7 +717,7 @@ static void rest_update(imu_eskf_t *f, imu_q30_t dx[9])
             h[i] = 0;
         }
         h[GYRO_BIAS + k] = IMU_ONE_Q30;
-        scalar_update(f, h, z, f->rest_var, 48, IMU_ONE_Q30, 0, dx);
+        scalar_update(f, h, z, f->rest_var, 48, IMU_ONE_Q30, gain_map, dx);
     }
 }
 

@@ -33,14 +33,16 @@
  *   estimated up direction in the sensor frame. The accelerometer bias is
  *   observable through rotations (it is not in the seed's H); it can be switched
  *   off (`estimate_acc_bias` = 0: 6 states).
- * - heading: the east share of the horizontal magnetic field in the estimated
- *   earth frame, z = h_east / |h_horizontal| (the sine of the heading error), with
- *   H = [v^T, 0, 0]: only rotation about the vertical. The seed's 2[m x] would let
- *   the magnetometer tilt roll and pitch; here it never does: the attitude and
- *   gyro-bias corrections of this update are also projected on the vertical, so
- *   that cross-covariances cannot carry the heading innovation into the tilt
- *   (the covariance is updated as for the unprojected gain, a slight
- *   underestimate of the tilt uncertainty during long gravity outages).
+ * - heading: the east share of the unit magnetic field in the estimated earth
+ *   frame, z = m_E, with H = [m_N v^T - m_U n^T, 0, 0] (n the estimated north): the
+ *   heading error and the tilt about north that the field's vertical part turns
+ *   into east. The seed's 2[m x] would let the magnetometer tilt roll and pitch;
+ *   here it never does: a gain map (imu_cov_update) lets this update correct only
+ *   the vertical components of the attitude and the gyro bias, and P, in Joseph's
+ *   form for that gain, keeps the tilt's uncertainty.
+ * - rest (imu_rest.h): the low-passed rate measures the gyro bias; at rest gravity
+ *   and the field correct everything but the gyro bias and the rest measurement the
+ *   gyro bias alone (the same gyroscope noise drives the attitude they observe).
  * Gravity is measured from the specific force low-passed in the estimated earth
  * frame (time constant acc_lowpass): rotations do not change gravity there, while
  * the accelerations of a back-and-forth translation average out.

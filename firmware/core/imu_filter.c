@@ -7,6 +7,7 @@
 imu_status_t imu_filter_init(imu_filter_t *f, int id)
 {
     f->sensor = imu_sensor_default_settings;
+    f->calibration = imu_calibration_identity;
     switch (id) {
     case IMU_FILTER_EECF:
         imu_eecf_init(&f->u.eecf);
@@ -42,6 +43,15 @@ void imu_filter_set_sensor(imu_filter_t *f, const imu_sensor_settings_t *sensor)
     f->sensor = *sensor;
 }
 
+imu_status_t imu_filter_set_calibration(imu_filter_t *f, const imu_calibration_t *cal)
+{
+    if (imu_calibration_check(cal) != IMU_OK) {
+        return IMU_ERR_RANGE;
+    }
+    f->calibration = *cal;
+    return IMU_OK;
+}
+
 static uint32_t *saturation_counter(imu_filter_t *f)
 {
     switch (f->id) {
@@ -58,7 +68,7 @@ static uint32_t *saturation_counter(imu_filter_t *f)
 void imu_filter_update_raw(imu_filter_t *f, const imu_raw_sample_t *raw)
 {
     imu_sample_t sample;
-    imu_sample_from_raw(&f->sensor, raw, &sample, saturation_counter(f));
+    imu_sample_from_raw_calibrated(&f->sensor, &f->calibration, raw, &sample, saturation_counter(f));
     switch (f->id) {
     case IMU_FILTER_EECF:
         imu_eecf_update(&f->u.eecf, &sample);

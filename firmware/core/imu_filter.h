@@ -25,6 +25,7 @@ typedef enum {
 typedef struct {
     imu_filter_id_t id;
     imu_sensor_settings_t sensor;
+    imu_calibration_t calibration;
     union {
         imu_eecf_t eecf;
         imu_kf1d_t kf1d;
@@ -41,7 +42,12 @@ imu_status_t imu_filter_set_settings(imu_filter_t *f, const void *settings);
 /** @brief Set the sensor sensitivities. */
 void imu_filter_set_sensor(imu_filter_t *f, const imu_sensor_settings_t *sensor);
 
-/** @brief Convert one raw sample and update the filter. */
+/** @brief Set the calibration applied to the counts before the filter (imu_sensor.h);
+ *         IMU_ERR_RANGE (and nothing changed) unless imu_calibration_check() accepts it.
+ *         imu_filter_init() sets imu_calibration_identity. */
+imu_status_t imu_filter_set_calibration(imu_filter_t *f, const imu_calibration_t *cal);
+
+/** @brief Calibrate and convert one raw sample and update the filter. */
 void imu_filter_update_raw(imu_filter_t *f, const imu_raw_sample_t *raw);
 
 /** @brief Current estimate. */

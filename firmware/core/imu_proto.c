@@ -500,6 +500,44 @@ size_t imu_proto_setting_encode(const imu_proto_setting_t *m, uint16_t seq, uint
     return imu_proto_frame_encode(IMU_PROTO_MSG_SETTING, seq, payload, len, wire, wire_cap);
 }
 
+size_t imu_proto_calibration_pack(const imu_proto_calibration_t *m, uint8_t *payload)
+{
+    size_t i;
+    payload[0] = (uint8_t)m->sensor;
+    payload[1] = (uint8_t)m->axis;
+    put_u32(payload + 2, (uint32_t)m->offset);
+    for (i = 0; i < 3; ++i) {
+        put_u32(payload + 6 + 4 * i, (uint32_t)m->row[i]);
+    }
+    payload[18] = (uint8_t)m->offset_frac_bits;
+    payload[19] = (uint8_t)m->matrix_frac_bits;
+    return IMU_PROTO_CALIBRATION_SIZE;
+}
+
+imu_proto_result_t imu_proto_calibration_unpack(imu_proto_calibration_t *m, const uint8_t *payload, size_t len)
+{
+    size_t i;
+    if (len != IMU_PROTO_CALIBRATION_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    m->sensor = payload[0];
+    m->axis = payload[1];
+    m->offset = to_i32(get_u32(payload + 2));
+    for (i = 0; i < 3; ++i) {
+        m->row[i] = to_i32(get_u32(payload + 6 + 4 * i));
+    }
+    m->offset_frac_bits = to_i8(payload[18]);
+    m->matrix_frac_bits = to_i8(payload[19]);
+    return IMU_PROTO_OK;
+}
+
+size_t imu_proto_calibration_encode(const imu_proto_calibration_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
+{
+    uint8_t payload[IMU_PROTO_CALIBRATION_SIZE];
+    size_t len = imu_proto_calibration_pack(m, payload);
+    return imu_proto_frame_encode(IMU_PROTO_MSG_CALIBRATION, seq, payload, len, wire, wire_cap);
+}
+
 size_t imu_proto_sample_pack(const imu_proto_sample_t *m, uint8_t *payload)
 {
     size_t i;
@@ -715,6 +753,50 @@ imu_proto_result_t imu_proto_cmd_set_injection_mode_unpack(imu_proto_cmd_set_inj
     return IMU_PROTO_OK;
 }
 
+size_t imu_proto_cmd_set_calibration_pack(const imu_proto_cmd_set_calibration_t *a, uint8_t *args)
+{
+    size_t i;
+    args[0] = (uint8_t)a->sensor;
+    args[1] = (uint8_t)a->axis;
+    put_u32(args + 2, (uint32_t)a->offset);
+    for (i = 0; i < 3; ++i) {
+        put_u32(args + 6 + 4 * i, (uint32_t)a->row[i]);
+    }
+    return IMU_PROTO_CMD_SET_CALIBRATION_SIZE;
+}
+
+imu_proto_result_t imu_proto_cmd_set_calibration_unpack(imu_proto_cmd_set_calibration_t *a, const uint8_t *args, size_t len)
+{
+    size_t i;
+    if (len != IMU_PROTO_CMD_SET_CALIBRATION_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    a->sensor = args[0];
+    a->axis = args[1];
+    a->offset = to_i32(get_u32(args + 2));
+    for (i = 0; i < 3; ++i) {
+        a->row[i] = to_i32(get_u32(args + 6 + 4 * i));
+    }
+    return IMU_PROTO_OK;
+}
+
+size_t imu_proto_cmd_get_calibration_pack(const imu_proto_cmd_get_calibration_t *a, uint8_t *args)
+{
+    args[0] = (uint8_t)a->sensor;
+    args[1] = (uint8_t)a->axis;
+    return IMU_PROTO_CMD_GET_CALIBRATION_SIZE;
+}
+
+imu_proto_result_t imu_proto_cmd_get_calibration_unpack(imu_proto_cmd_get_calibration_t *a, const uint8_t *args, size_t len)
+{
+    if (len != IMU_PROTO_CMD_GET_CALIBRATION_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    a->sensor = args[0];
+    a->axis = args[1];
+    return IMU_PROTO_OK;
+}
+
 int imu_proto_command_args_size(uint8_t command)
 {
     switch (command) {
@@ -740,6 +822,10 @@ int imu_proto_command_args_size(uint8_t command)
         return 0;
     case IMU_PROTO_CMD_SET_INJECTION_MODE:
         return IMU_PROTO_CMD_SET_INJECTION_MODE_SIZE;
+    case IMU_PROTO_CMD_SET_CALIBRATION:
+        return IMU_PROTO_CMD_SET_CALIBRATION_SIZE;
+    case IMU_PROTO_CMD_GET_CALIBRATION:
+        return IMU_PROTO_CMD_GET_CALIBRATION_SIZE;
     default:
         return -1;
     }

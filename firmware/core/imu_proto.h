@@ -130,7 +130,7 @@ int imu_proto_decoder_push(imu_proto_decoder_t *d, uint8_t byte, imu_proto_frame
 /** Protocol version ([protocol] version), sent in HELLO. */
 #define IMU_PROTO_VERSION 1u
 /** Schema hash of shared/protocol.toml (CRC-32 of its canonical form), sent in HELLO. */
-#define IMU_PROTO_SCHEMA_HASH 0x5F2C8D5Eu
+#define IMU_PROTO_SCHEMA_HASH 0x983638F5u
 /** Largest payload of any message, bytes. */
 #define IMU_PROTO_MAX_PAYLOAD 201u
 
@@ -142,6 +142,7 @@ typedef enum {
     IMU_PROTO_MSG_ACK = 4, /**< The command was carried out */
     IMU_PROTO_MSG_NACK = 5, /**< The command was refused and had no effect */
     IMU_PROTO_MSG_SETTING = 6, /**< One setting of the active filter (answer to GET_SETTING) */
+    IMU_PROTO_MSG_CALIBRATION = 7, /**< One axis of a sensor's calibration, applied to the counts before the filter: corrected[axis] = sum_j row[j] * (raw[j] - offset[j]) (answer to GET_CALIBRATION) */
     IMU_PROTO_MSG_SAMPLE = 16, /**< One raw sensor sample, in register counts, as the filter consumed it */
     IMU_PROTO_MSG_ESTIMATE = 17, /**< The filter output after sample `index`, exactly as the fixed-point core computed it */
     IMU_PROTO_MSG_COMMAND = 32, /**< A request to the board */
@@ -160,6 +161,8 @@ typedef enum {
     IMU_PROTO_CMD_GET_VERSION = 9, /**< Ask for HELLO */
     IMU_PROTO_CMD_GET_STATUS = 10, /**< Ask for STATUS */
     IMU_PROTO_CMD_SET_INJECTION_MODE = 11, /**< 1: the filter runs on INJECT_SAMPLE data and the sensors are ignored; 0: back to the sensors */
+    IMU_PROTO_CMD_SET_CALIBRATION = 12, /**< Set one axis of a sensor's calibration (the offset of that axis and its row of the correction matrix, Q formats as CALIBRATION reports them); the active filter restarts with it */
+    IMU_PROTO_CMD_GET_CALIBRATION = 13, /**< Read one axis of a sensor's calibration */
 } imu_proto_command_id_t;
 
 /** Filter ids (the same values as imu_filter_id_t in firmware/core/imu_filter.h). */
@@ -182,6 +185,13 @@ typedef enum {
     IMU_PROTO_REASON_UNKNOWN_SETTING = 8, /**< a setting index past the active filter's last setting */
     IMU_PROTO_REASON_NOT_SUPPORTED = 9, /**< a known command this board does not implement (e.g. ENTER_BOOTLOADER in QEMU) */
 } imu_proto_reason_t;
+
+/** The sensors of a calibration (the order of imu_calibration_t in firmware/core/imu_sensor.h). */
+typedef enum {
+    IMU_PROTO_SENSOR_GYROSCOPE = 0, /**< MPU6050 gyroscope */
+    IMU_PROTO_SENSOR_ACCELEROMETER = 1, /**< MPU6050 accelerometer */
+    IMU_PROTO_SENSOR_MAGNETOMETER = 2, /**< HMC5883L magnetometer */
+} imu_proto_sensor_t;
 
 /** LOG severity, numerically equal to Python's logging levels. */
 typedef enum {
@@ -320,6 +330,29 @@ imu_proto_result_t imu_proto_setting_unpack(imu_proto_setting_t *m, const uint8_
 /** @brief Wire bytes of a SETTING frame (delimiter included); 0 when they do not fit or pack fails. */
 size_t imu_proto_setting_encode(const imu_proto_setting_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 
+/** CALIBRATION payload bytes. */
+#define IMU_PROTO_CALIBRATION_SIZE 20u
+
+/** CALIBRATION (id 0x07, to_host): One axis of a sensor's calibration, applied to the counts before
+ *  the filter: corrected[axis] = sum_j row[j] * (raw[j] - offset[j]) (answer to GET_CALIBRATION).
+ *  Real values are offset * 2^-offset_frac_bits counts and row[j] * 2^-matrix_frac_bits.
+ */
+typedef struct {
+    uint8_t sensor; /**< the sensor */
+    uint8_t axis; /**< the axis, 0..2 (x, y, z) */
+    int32_t offset; /**< this axis's offset, counts, raw in Q(offset_frac_bits) */
+    int32_t row[3]; /**< this axis's row of the correction matrix, raw in Q(matrix_frac_bits) */
+    int8_t offset_frac_bits; /**< fraction bits of offset (8) */
+    int8_t matrix_frac_bits; /**< fraction bits of row (24) */
+} imu_proto_calibration_t;
+
+/** @brief Payload bytes of CALIBRATION into `payload` (IMU_PROTO_CALIBRATION_SIZE bytes); returns IMU_PROTO_CALIBRATION_SIZE. */
+size_t imu_proto_calibration_pack(const imu_proto_calibration_t *m, uint8_t *payload);
+/** @brief Fields of a CALIBRATION payload; IMU_PROTO_ERR_LENGTH when `len` is not a CALIBRATION payload length. */
+imu_proto_result_t imu_proto_calibration_unpack(imu_proto_calibration_t *m, const uint8_t *payload, size_t len);
+/** @brief Wire bytes of a CALIBRATION frame (delimiter included); 0 when they do not fit or pack fails. */
+size_t imu_proto_calibration_encode(const imu_proto_calibration_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
+
 /** SAMPLE payload bytes. */
 #define IMU_PROTO_SAMPLE_SIZE 28u
 
@@ -441,6 +474,34 @@ typedef struct {
 size_t imu_proto_cmd_set_injection_mode_pack(const imu_proto_cmd_set_injection_mode_t *a, uint8_t *args);
 /** @brief Arguments of SET_INJECTION_MODE; IMU_PROTO_ERR_LENGTH when `len` is not IMU_PROTO_CMD_SET_INJECTION_MODE_SIZE. */
 imu_proto_result_t imu_proto_cmd_set_injection_mode_unpack(imu_proto_cmd_set_injection_mode_t *a, const uint8_t *args, size_t len);
+
+/** SET_CALIBRATION argument bytes. */
+#define IMU_PROTO_CMD_SET_CALIBRATION_SIZE 18u
+/** Arguments of SET_CALIBRATION. */
+typedef struct {
+    uint8_t sensor; /**< the sensor */
+    uint8_t axis; /**< the axis, 0..2 */
+    int32_t offset; /**< offset, counts, Q8 */
+    int32_t row[3]; /**< row of the correction matrix, Q24 */
+} imu_proto_cmd_set_calibration_t;
+
+/** @brief Argument bytes of SET_CALIBRATION into `args` (IMU_PROTO_CMD_SET_CALIBRATION_SIZE bytes); returns that size. */
+size_t imu_proto_cmd_set_calibration_pack(const imu_proto_cmd_set_calibration_t *a, uint8_t *args);
+/** @brief Arguments of SET_CALIBRATION; IMU_PROTO_ERR_LENGTH when `len` is not IMU_PROTO_CMD_SET_CALIBRATION_SIZE. */
+imu_proto_result_t imu_proto_cmd_set_calibration_unpack(imu_proto_cmd_set_calibration_t *a, const uint8_t *args, size_t len);
+
+/** GET_CALIBRATION argument bytes. */
+#define IMU_PROTO_CMD_GET_CALIBRATION_SIZE 2u
+/** Arguments of GET_CALIBRATION. */
+typedef struct {
+    uint8_t sensor; /**< the sensor */
+    uint8_t axis; /**< the axis, 0..2 */
+} imu_proto_cmd_get_calibration_t;
+
+/** @brief Argument bytes of GET_CALIBRATION into `args` (IMU_PROTO_CMD_GET_CALIBRATION_SIZE bytes); returns that size. */
+size_t imu_proto_cmd_get_calibration_pack(const imu_proto_cmd_get_calibration_t *a, uint8_t *args);
+/** @brief Arguments of GET_CALIBRATION; IMU_PROTO_ERR_LENGTH when `len` is not IMU_PROTO_CMD_GET_CALIBRATION_SIZE. */
+imu_proto_result_t imu_proto_cmd_get_calibration_unpack(imu_proto_cmd_get_calibration_t *a, const uint8_t *args, size_t len);
 
 /** @brief Argument bytes of a command; -1 for an id that is not a command (NACK UNKNOWN_COMMAND). */
 int imu_proto_command_args_size(uint8_t command);

@@ -10,11 +10,56 @@ const imu_sensor_settings_t imu_sensor_default_settings = {
     IMU_QCONST(9.174311926605504e-2, 24),  /* 100 / 1090 */
 };
 
-void imu_sample_from_raw(const imu_sensor_settings_t *settings, const imu_raw_sample_t *raw,
-                         imu_sample_t *out, uint32_t *sat)
+#define IMU_CAL_ONE IMU_QCONST(1.0, 24)
+#define IMU_CAL_IDENTITY_SENSOR {{0, 0, 0}, {IMU_CAL_ONE, 0, 0, 0, IMU_CAL_ONE, 0, 0, 0, IMU_CAL_ONE}}
+
+const imu_calibration_t imu_calibration_identity = {
+    IMU_CAL_IDENTITY_SENSOR,
+    IMU_CAL_IDENTITY_SENSOR,
+    IMU_CAL_IDENTITY_SENSOR,
+};
+
+static int offsets_in_range(const imu_sensor_cal_t *c)
 {
     int i;
+    for (i = 0; i < 3; ++i) {
+        if (!(c->offset[i] <= IMU_CAL_MAX_OFFSET && c->offset[i] >= -IMU_CAL_MAX_OFFSET)) {
+            return 0; /* written so that a NaN (float build) is refused too */
+        }
+    }
+    return 1;
+}
+
+imu_status_t imu_calibration_check(const imu_calibration_t *cal)
+{
+    return offsets_in_range(&cal->gyr) && offsets_in_range(&cal->acc) && offsets_in_range(&cal->mag) ? IMU_OK
+                                                                                                      : IMU_ERR_RANGE;
+}
+
+/** Corrected counts of one sensor, Q8: matrix (raw - offset); bounds in imu_sensor.h. */
+static void correct(const imu_sensor_cal_t *c, const int16_t raw[3], imu_real_t out[3], uint32_t *sat)
+{
+    imu_real_t d[3];
+    int i;
+    for (i = 0; i < 3; ++i) {
+        d[i] = IMU_SUB_SAT(IMU_FROM_INT_SAT(raw[i], IMU_CAL_OFFSET_Q, sat), c->offset[i], sat);
+    }
+    for (i = 0; i < 3; ++i) {
+        const imu_wide_t sum = IMU_WMUL(c->matrix[3 * i], d[0]) + IMU_WMUL(c->matrix[3 * i + 1], d[1]) +
+                               IMU_WMUL(c->matrix[3 * i + 2], d[2]); /* Q32, below 3 * 2^56 */
+        out[i] = IMU_WIDE_SAT(IMU_WSHR(sum, IMU_CAL_MATRIX_Q), sat);
+    }
+}
+
+void imu_sample_from_raw_calibrated(const imu_sensor_settings_t *settings, const imu_calibration_t *cal,
+                                    const imu_raw_sample_t *raw, imu_sample_t *out, uint32_t *sat)
+{
+    imu_real_t gyr[3], acc[3], mag[3]; /* corrected counts, Q8 */
+    int i;
     out->clipped = 0;
+    correct(&cal->gyr, raw->gyr, gyr, sat);
+    correct(&cal->acc, raw->acc, acc, sat);
+    correct(&cal->mag, raw->mag, mag, sat);
     for (i = 0; i < 3; ++i) {
         if (raw->gyr[i] <= IMU_MPU6050_MIN || raw->gyr[i] >= IMU_MPU6050_MAX) {
             out->clipped |= IMU_CLIPPED_GYR;
@@ -25,8 +70,15 @@ void imu_sample_from_raw(const imu_sensor_settings_t *settings, const imu_raw_sa
         if (raw->mag[i] <= IMU_HMC5883L_MIN || raw->mag[i] >= IMU_HMC5883L_MAX) {
             out->clipped |= IMU_CLIPPED_MAG;
         }
-        out->gyr[i] = IMU_MUL_SAT(IMU_FROM_INT_SAT(raw->gyr[i], 0, sat), settings->gyro_scale, 16, sat);
-        out->acc[i] = IMU_MUL_SAT(IMU_FROM_INT_SAT(raw->acc[i], 0, sat), settings->acc_scale, 16, sat);
-        out->mag[i] = IMU_MUL_SAT(IMU_FROM_INT_SAT(raw->mag[i], 0, sat), settings->mag_scale, 8, sat);
+        /* the scalings of imu_sample_from_raw(), 8 bits longer for the Q8 counts */
+        out->gyr[i] = IMU_MUL_SAT(gyr[i], settings->gyro_scale, 16 + IMU_CAL_OFFSET_Q, sat);
+        out->acc[i] = IMU_MUL_SAT(acc[i], settings->acc_scale, 16 + IMU_CAL_OFFSET_Q, sat);
+        out->mag[i] = IMU_MUL_SAT(mag[i], settings->mag_scale, 8 + IMU_CAL_OFFSET_Q, sat);
     }
+}
+
+void imu_sample_from_raw(const imu_sensor_settings_t *settings, const imu_raw_sample_t *raw,
+                         imu_sample_t *out, uint32_t *sat)
+{
+    imu_sample_from_raw_calibrated(settings, &imu_calibration_identity, raw, out, sat);
 }

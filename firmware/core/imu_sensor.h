@@ -10,7 +10,7 @@
 #ifndef IMU_SENSOR_H
 #define IMU_SENSOR_H
 
-#include "imu_arith.h"
+#include "imu_common.h"
 
 /** One sample as read from the sensor registers. */
 typedef struct {
@@ -59,9 +59,55 @@ extern const imu_sensor_settings_t imu_sensor_default_settings;
  * >> 16) and accelerometer (Q32 scale, >> 16) results stay below 2^30 for any scale
  * in int32. The magnetometer (Q24 scale, >> 8) fits for scales below 2^23, i.e.
  * 0.5 uT/LSB (the HMC5883L's coarsest gain is 0.435 uT/LSB); beyond, the result
- * saturates and counts in *sat.
+ * saturates and counts in *sat. The same as imu_sample_from_raw_calibrated() with
+ * imu_calibration_identity.
  */
 void imu_sample_from_raw(const imu_sensor_settings_t *settings, const imu_raw_sample_t *raw,
                          imu_sample_t *out, uint32_t *sat);
+
+/** Fraction bits of a calibration's offsets (counts) and of its matrix elements. */
+#define IMU_CAL_OFFSET_Q 8
+#define IMU_CAL_MATRIX_Q 24
+/** Largest offset magnitude accepted, counts, Q8 (65536 counts: twice a register's range).
+ *  It bounds the corrected sums (see imu_sample_from_raw_calibrated). */
+#define IMU_CAL_MAX_OFFSET IMU_QCONST(65536.0, 8)
+
+/**
+ * One sensor's correction of its counts, applied before the scaling:
+ * corrected[i] = sum_j matrix[3 i + j] (raw[j] - offset[j]), in counts.
+ * Gyroscope: offset = the bias at rest, matrix = identity; accelerometer: offset and
+ * scale per axis (or a symmetric matrix); magnetometer: hard iron (offset) and soft iron
+ * (matrix). The host computes them (host/imulink/calibration.py).
+ */
+typedef struct {
+    imu_real_t offset[3]; /**< counts, Q8 (|offset| <= IMU_CAL_MAX_OFFSET) */
+    imu_real_t matrix[9]; /**< row-major, dimensionless, Q24 (range +-128, resolution 6e-8) */
+} imu_sensor_cal_t;
+
+/** The calibration of the three sensors. */
+typedef struct {
+    imu_sensor_cal_t gyr;
+    imu_sensor_cal_t acc;
+    imu_sensor_cal_t mag;
+} imu_calibration_t;
+
+/** Offsets 0, identity matrices: the counts pass unchanged. */
+extern const imu_calibration_t imu_calibration_identity;
+
+/** @brief IMU_OK, or IMU_ERR_RANGE when an offset lies beyond IMU_CAL_MAX_OFFSET. */
+imu_status_t imu_calibration_check(const imu_calibration_t *cal);
+
+/**
+ * @brief imu_sample_from_raw() with the counts corrected by `cal` first (checked with
+ *        imu_calibration_check()); the clipping flags are the raw counts'.
+ *
+ * Fixed build: c_j = raw_j 2^8 - offset_j (Q8 counts, |c_j| < 2^23 + 2^24 < 2^25); the
+ * sum of three products with Q24 matrix elements (|m| <= 2^31) stays below 3 * 2^56;
+ * rounded to Q8 and saturated, the corrected count is scaled as imu_sample_from_raw()
+ * scales a count (its shift 8 bits longer). With the identity calibration every step
+ * is exact and the result equals imu_sample_from_raw()'s, saturations included.
+ */
+void imu_sample_from_raw_calibrated(const imu_sensor_settings_t *settings, const imu_calibration_t *cal,
+                                    const imu_raw_sample_t *raw, imu_sample_t *out, uint32_t *sat);
 
 #endif /* IMU_SENSOR_H */

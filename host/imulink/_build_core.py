@@ -30,6 +30,9 @@ _DECLARATIONS = """
     typedef enum { IMU_FILTER_EECF = 1, IMU_FILTER_KF1D = 2, IMU_FILTER_ESKF = 3 } imu_filter_id_t;
     typedef struct { int16_t gyr[3]; int16_t acc[3]; int16_t mag[3]; } imu_raw_sample_t;
     typedef struct { imu_real_t gyro_scale; imu_real_t acc_scale; imu_real_t mag_scale; } imu_sensor_settings_t;
+    typedef struct { imu_real_t offset[3]; imu_real_t matrix[9]; } imu_sensor_cal_t;
+    typedef struct { imu_sensor_cal_t gyr; imu_sensor_cal_t acc; imu_sensor_cal_t mag; } imu_calibration_t;
+    typedef struct { imu_rate_t gyr[3]; imu_q16_t acc[3]; imu_q16_t mag[3]; unsigned clipped; } imu_sample_t;
     typedef struct { imu_q30_t quat[4]; imu_angle_t euler[3]; imu_rate_t gyro_bias[3]; } imu_output_t;
     typedef struct { const char *name; size_t offset; int frac_bits; const char *unit; } imu_setting_desc_t;
     typedef struct { ...; } imu_eecf_settings_t;
@@ -39,6 +42,7 @@ _DECLARATIONS = """
     typedef struct { imu_filter_id_t id; ...; } imu_filter_t;
 
     extern const imu_sensor_settings_t imu_sensor_default_settings;
+    extern const imu_calibration_t imu_calibration_identity;
     extern const imu_eecf_settings_t imu_eecf_default_settings;
     extern const imu_setting_desc_t imu_eecf_setting_descs[];
     extern const int imu_eecf_setting_count;
@@ -52,6 +56,9 @@ _DECLARATIONS = """
     imu_status_t imu_filter_init(imu_filter_t *f, int id);
     imu_status_t imu_filter_set_settings(imu_filter_t *f, const void *settings);
     void imu_filter_set_sensor(imu_filter_t *f, const imu_sensor_settings_t *sensor);
+    imu_status_t imu_filter_set_calibration(imu_filter_t *f, const imu_calibration_t *cal);
+    void imu_sample_from_raw_calibrated(const imu_sensor_settings_t *settings, const imu_calibration_t *cal,
+                                        const imu_raw_sample_t *raw, imu_sample_t *out, uint32_t *sat);
     void imu_filter_update_raw(imu_filter_t *f, const imu_raw_sample_t *raw);
     void imu_filter_get(const imu_filter_t *f, imu_output_t *out);
     uint32_t imu_filter_saturations(const imu_filter_t *f);

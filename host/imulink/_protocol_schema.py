@@ -7,7 +7,7 @@ the last field only, text / bytes (length: the maximum, variable on the wire).
 """
 
 PROTOCOL_VERSION = 1
-SCHEMA_HASH = 0x5F2C8D5E
+SCHEMA_HASH = 0x983638F5
 HEADER_SIZE = 3
 CRC_SIZE = 4
 MAX_PAYLOAD = 201
@@ -59,6 +59,14 @@ MESSAGES = {
         ('frac_bits', 'i8', None),
         ('name', 'char', 24),
         ('unit', 'char', 12),
+    )},
+    'CALIBRATION': {'id': 0x07, 'direction': 'to_host', 'fields': (
+        ('sensor', 'u8', None),
+        ('axis', 'u8', None),
+        ('offset', 'i32', None),
+        ('row', 'i32', 3),
+        ('offset_frac_bits', 'i8', None),
+        ('matrix_frac_bits', 'i8', None),
     )},
     'SAMPLE': {'id': 0x10, 'direction': 'to_host', 'fields': (
         ('timestamp_us', 'u32', None),
@@ -114,12 +122,23 @@ COMMANDS = {
     'SET_INJECTION_MODE': {'id': 11, 'args': (
         ('enabled', 'u8', None),
     )},
+    'SET_CALIBRATION': {'id': 12, 'args': (
+        ('sensor', 'u8', None),
+        ('axis', 'u8', None),
+        ('offset', 'i32', None),
+        ('row', 'i32', 3),
+    )},
+    'GET_CALIBRATION': {'id': 13, 'args': (
+        ('sensor', 'u8', None),
+        ('axis', 'u8', None),
+    )},
 }
 
 #: code table name -> code name -> value
 ENUMS = {
     'filter': {'EECF': 1, 'KF1D': 2, 'ESKF': 3},
     'reason': {'OK': 0, 'UNKNOWN_COMMAND': 1, 'BAD_LENGTH': 2, 'BAD_ARGUMENT': 3, 'OUT_OF_RANGE': 4, 'BUSY': 5, 'NOT_IN_INJECTION_MODE': 6, 'UNKNOWN_FILTER': 7, 'UNKNOWN_SETTING': 8, 'NOT_SUPPORTED': 9},
+    'sensor': {'GYROSCOPE': 0, 'ACCELEROMETER': 1, 'MAGNETOMETER': 2},
     'log_level': {'DEBUG': 10, 'INFO': 20, 'WARNING': 30, 'ERROR': 40},
 }
 
@@ -128,10 +147,11 @@ CFFI_DECLARATIONS = """
 #define IMU_PROTO_VERSION ...
 #define IMU_PROTO_SCHEMA_HASH ...
 #define IMU_PROTO_MAX_PAYLOAD ...
-typedef enum { IMU_PROTO_MSG_HELLO = 1, IMU_PROTO_MSG_STATUS = 2, IMU_PROTO_MSG_LOG = 3, IMU_PROTO_MSG_ACK = 4, IMU_PROTO_MSG_NACK = 5, IMU_PROTO_MSG_SETTING = 6, IMU_PROTO_MSG_SAMPLE = 16, IMU_PROTO_MSG_ESTIMATE = 17, IMU_PROTO_MSG_COMMAND = 32 } imu_proto_msg_id_t;
-typedef enum { IMU_PROTO_CMD_START_STREAM = 1, IMU_PROTO_CMD_STOP_STREAM = 2, IMU_PROTO_CMD_SELECT_FILTER = 3, IMU_PROTO_CMD_GET_SETTING = 4, IMU_PROTO_CMD_SET_SETTING = 5, IMU_PROTO_CMD_INJECT_SAMPLE = 6, IMU_PROTO_CMD_RESET = 7, IMU_PROTO_CMD_ENTER_BOOTLOADER = 8, IMU_PROTO_CMD_GET_VERSION = 9, IMU_PROTO_CMD_GET_STATUS = 10, IMU_PROTO_CMD_SET_INJECTION_MODE = 11 } imu_proto_command_id_t;
+typedef enum { IMU_PROTO_MSG_HELLO = 1, IMU_PROTO_MSG_STATUS = 2, IMU_PROTO_MSG_LOG = 3, IMU_PROTO_MSG_ACK = 4, IMU_PROTO_MSG_NACK = 5, IMU_PROTO_MSG_SETTING = 6, IMU_PROTO_MSG_CALIBRATION = 7, IMU_PROTO_MSG_SAMPLE = 16, IMU_PROTO_MSG_ESTIMATE = 17, IMU_PROTO_MSG_COMMAND = 32 } imu_proto_msg_id_t;
+typedef enum { IMU_PROTO_CMD_START_STREAM = 1, IMU_PROTO_CMD_STOP_STREAM = 2, IMU_PROTO_CMD_SELECT_FILTER = 3, IMU_PROTO_CMD_GET_SETTING = 4, IMU_PROTO_CMD_SET_SETTING = 5, IMU_PROTO_CMD_INJECT_SAMPLE = 6, IMU_PROTO_CMD_RESET = 7, IMU_PROTO_CMD_ENTER_BOOTLOADER = 8, IMU_PROTO_CMD_GET_VERSION = 9, IMU_PROTO_CMD_GET_STATUS = 10, IMU_PROTO_CMD_SET_INJECTION_MODE = 11, IMU_PROTO_CMD_SET_CALIBRATION = 12, IMU_PROTO_CMD_GET_CALIBRATION = 13 } imu_proto_command_id_t;
 typedef enum { IMU_PROTO_FILTER_EECF = 1, IMU_PROTO_FILTER_KF1D = 2, IMU_PROTO_FILTER_ESKF = 3 } imu_proto_filter_t;
 typedef enum { IMU_PROTO_REASON_OK = 0, IMU_PROTO_REASON_UNKNOWN_COMMAND = 1, IMU_PROTO_REASON_BAD_LENGTH = 2, IMU_PROTO_REASON_BAD_ARGUMENT = 3, IMU_PROTO_REASON_OUT_OF_RANGE = 4, IMU_PROTO_REASON_BUSY = 5, IMU_PROTO_REASON_NOT_IN_INJECTION_MODE = 6, IMU_PROTO_REASON_UNKNOWN_FILTER = 7, IMU_PROTO_REASON_UNKNOWN_SETTING = 8, IMU_PROTO_REASON_NOT_SUPPORTED = 9 } imu_proto_reason_t;
+typedef enum { IMU_PROTO_SENSOR_GYROSCOPE = 0, IMU_PROTO_SENSOR_ACCELEROMETER = 1, IMU_PROTO_SENSOR_MAGNETOMETER = 2 } imu_proto_sensor_t;
 typedef enum { IMU_PROTO_LOG_LEVEL_DEBUG = 10, IMU_PROTO_LOG_LEVEL_INFO = 20, IMU_PROTO_LOG_LEVEL_WARNING = 30, IMU_PROTO_LOG_LEVEL_ERROR = 40 } imu_proto_log_level_t;
 #define IMU_PROTO_HELLO_SIZE ...
 typedef struct { uint8_t firmware_major; uint8_t firmware_minor; uint8_t firmware_patch; uint8_t protocol_version; uint32_t schema_hash; char board[16]; uint8_t filters; } imu_proto_hello_t;
@@ -163,6 +183,11 @@ typedef struct { uint8_t filter_id; uint8_t index; uint8_t setting_count; int32_
 size_t imu_proto_setting_pack(const imu_proto_setting_t *m, uint8_t *payload);
 imu_proto_result_t imu_proto_setting_unpack(imu_proto_setting_t *m, const uint8_t *payload, size_t len);
 size_t imu_proto_setting_encode(const imu_proto_setting_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
+#define IMU_PROTO_CALIBRATION_SIZE ...
+typedef struct { uint8_t sensor; uint8_t axis; int32_t offset; int32_t row[3]; int8_t offset_frac_bits; int8_t matrix_frac_bits; } imu_proto_calibration_t;
+size_t imu_proto_calibration_pack(const imu_proto_calibration_t *m, uint8_t *payload);
+imu_proto_result_t imu_proto_calibration_unpack(imu_proto_calibration_t *m, const uint8_t *payload, size_t len);
+size_t imu_proto_calibration_encode(const imu_proto_calibration_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 #define IMU_PROTO_SAMPLE_SIZE ...
 typedef struct { uint32_t timestamp_us; uint32_t index; int16_t gyr[3]; int16_t acc[3]; int16_t mag[3]; int16_t temperature; } imu_proto_sample_t;
 size_t imu_proto_sample_pack(const imu_proto_sample_t *m, uint8_t *payload);
@@ -197,5 +222,13 @@ imu_proto_result_t imu_proto_cmd_inject_sample_unpack(imu_proto_sample_t *a, con
 typedef struct { uint8_t enabled; } imu_proto_cmd_set_injection_mode_t;
 size_t imu_proto_cmd_set_injection_mode_pack(const imu_proto_cmd_set_injection_mode_t *a, uint8_t *args);
 imu_proto_result_t imu_proto_cmd_set_injection_mode_unpack(imu_proto_cmd_set_injection_mode_t *a, const uint8_t *args, size_t len);
+#define IMU_PROTO_CMD_SET_CALIBRATION_SIZE ...
+typedef struct { uint8_t sensor; uint8_t axis; int32_t offset; int32_t row[3]; } imu_proto_cmd_set_calibration_t;
+size_t imu_proto_cmd_set_calibration_pack(const imu_proto_cmd_set_calibration_t *a, uint8_t *args);
+imu_proto_result_t imu_proto_cmd_set_calibration_unpack(imu_proto_cmd_set_calibration_t *a, const uint8_t *args, size_t len);
+#define IMU_PROTO_CMD_GET_CALIBRATION_SIZE ...
+typedef struct { uint8_t sensor; uint8_t axis; } imu_proto_cmd_get_calibration_t;
+size_t imu_proto_cmd_get_calibration_pack(const imu_proto_cmd_get_calibration_t *a, uint8_t *args);
+imu_proto_result_t imu_proto_cmd_get_calibration_unpack(imu_proto_cmd_get_calibration_t *a, const uint8_t *args, size_t len);
 int imu_proto_command_args_size(uint8_t command);
 """

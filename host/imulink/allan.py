@@ -32,7 +32,9 @@ from typing import Callable, Mapping, Sequence
 import numpy as np
 from scipy.stats import chi2
 
+from . import sensor_input
 from .counts import STANDARD_GRAVITY
+from .sensor_input import CSV_COLUMNS, InputError, SensorRecord
 
 #: Default confidence of the intervals: one standard deviation of a normal distribution.
 CONFIDENCE = 0.683
@@ -58,8 +60,6 @@ RANDOM_WALK_OVER_FLOOR = 2.0
 #: walk (three standard deviations): a white-noise record of a few minutes has dozens of
 #: points, and 68 % intervals that do not overlap somewhere among them are no evidence.
 DETECTION_CONFIDENCE = 0.997
-#: A spacing of the timestamps beyond this many sample periods is a gap (lost samples).
-GAP_PERIODS = 1.5
 #: A recording's timestamps give its rate when they agree with the board's declared rate
 #: within this fraction.
 RATE_TOLERANCE = 0.05
@@ -80,7 +80,7 @@ _DEG = 180.0 / math.pi
 _MICRO_G = 1e6 / STANDARD_GRAVITY
 
 
-class AllanError(Exception):
+class AllanError(InputError):
     """An input that cannot be analysed (too short, gaps, backwards timestamps, ...)."""
 
 
@@ -413,62 +413,28 @@ class StaticRecord:
         return self.samples / self.rate_hz
 
 
-#: Largest CSV read (a replay CSV of two hours at 1 kHz is some 3 GB).
-MAX_CSV_BYTES = 8 << 30
-CSV_COLUMNS = {"gyr": ("gyr_x_rad_s", "gyr_y_rad_s", "gyr_z_rad_s"), "acc": ("acc_x_m_s2", "acc_y_m_s2", "acc_z_m_s2")}
-
-
-def rate_from_timestamps(time_s: np.ndarray, what: str) -> float:
-    """The sample rate of an unbroken record with these timestamps (s), Hz.
-
-    AllanError when a timestamp does not increase or a spacing exceeds GAP_PERIODS times
-    the median spacing (lost samples: an Allan analysis needs an unbroken record). The
-    rate is then the mean spacing's inverse: a clock counting whole microseconds rounds
-    each spacing, not their sum.
-    """
-    if len(time_s) < 2:
-        raise AllanError(f"{what} has {len(time_s)} sample(s): an Allan analysis needs at least {MIN_SAMPLES}")
-    spacing = np.diff(time_s)
-    backwards = np.flatnonzero(~(spacing > 0))
-    if len(backwards):
-        k = int(backwards[0])
-        raise AllanError(f"{what}: the timestamps do not increase at sample {k + 1} ({time_s[k]:.6f} s, then "
-                         f"{time_s[k + 1]:.6f} s); give samples in the order they were taken")
-    period = float(np.median(spacing))
-    gaps = np.flatnonzero(spacing > GAP_PERIODS * period)
-    if len(gaps):
-        k = int(gaps[0])
-        raise AllanError(f"{what}: {len(gaps)} gap(s) in samples every {period * 1e3:.4g} ms, the first "
-                         f"{spacing[k]:.4g} s long after sample {k} ({time_s[k] - time_s[0]:.1f} s in); an Allan "
-                         "analysis needs an unbroken record")
-    return (len(time_s) - 1) / float(time_s[-1] - time_s[0])
-
-
-def unwrap_us(timestamp_us: np.ndarray) -> np.ndarray:
-    """Board timestamps (u32 microseconds, wrapping after 71.6 min) as seconds from the
-    first: each step is taken modulo 2^32 as a signed number, so that a wrap counts as
-    the short step it is and a step back stays negative."""
-    steps = np.diff(np.asarray(timestamp_us, dtype=np.int64))
-    steps = (steps + 2**31) % 2**32 - 2**31
-    return np.concatenate([[0.0], np.cumsum(steps) * 1e-6])
-
-
 def load_static(path, progress: Progress | None = None) -> StaticRecord:
-    """A static record from `path`: a BROAD trial (.mat: its longest rest), a CSV (.csv:
-    `imulink replay --csv` or any with timestamp_us or time_s and the SI columns), or a
-    recording of `imulink record` (anything else). progress: see load_recording."""
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix == ".mat":
-        return _from_broad(path)
-    if suffix == ".csv":
-        return _from_csv(path)
-    return _from_recording(path, progress)
+    """A static record from `path` (see sensor_input.read): a BROAD trial's longest rest,
+    a CSV, or a recording of `imulink record`. progress: see load_recording."""
+    record = sensor_input.read(path, progress)
+    if record.movement is not None or str(path).lower().endswith(".mat"):
+        return _broad_rest(Path(path), record)
+    if len(record) < MIN_SAMPLES:
+        raise AllanError(f"{path} holds {len(record)} samples: an Allan analysis needs at least {MIN_SAMPLES}")
+    if record.index is not None:
+        return _from_recording(Path(path), record)
+    try:
+        rate = sensor_input.rate_from_timestamps(record.time_s, str(path))
+    except InputError as exc:
+        raise AllanError(str(exc)) from None
+    if record.gyr is None and record.acc is None:
+        raise AllanError(f"{path} has neither gyroscope nor accelerometer columns ({', '.join(CSV_COLUMNS['gyr'])}, "
+                         f"{', '.join(CSV_COLUMNS['acc'])})")
+    return StaticRecord(record.description, rate, record.gyr, record.acc)
 
 
-def _from_recording(path: Path, progress: Progress | None) -> StaticRecord:
-    """The samples of a recording, in SI as the host's replay feeds them to its filters
-    (counts times the recorded profile's scale).
+def _from_recording(path: Path, record: SensorRecord) -> StaticRecord:
+    """A recording's samples, unbroken.
 
     Unbroken means every sample index from the first to the last: the board counts every
     sensor read, so a sample lost on the board (a full link) or on the way is a missing
@@ -478,92 +444,44 @@ def _from_recording(path: Path, progress: Progress | None) -> StaticRecord:
     otherwise the declared one: an emulated board running faster than real time stamps
     its samples with the host's pace.
     """
-    from .recording import load_recording
-
-    recording = load_recording(path, progress)
-    s, profile = recording.samples, recording.profile
-    if len(s) < MIN_SAMPLES:
-        raise AllanError(f"{path} holds {len(s)} samples: an Allan analysis needs at least {MIN_SAMPLES}")
-    breaks = np.flatnonzero(np.diff(s.index) != 1)
+    breaks = np.flatnonzero(np.diff(record.index) != 1)
     if len(breaks):
         k = int(breaks[0])
-        raise AllanError(f"{path}: the samples are not one unbroken run: the sample index goes from {s.index[k]} to "
-                         f"{s.index[k + 1]} after sample {k} ({len(breaks)} break(s): samples lost or the filter "
-                         "restarted); an Allan analysis needs an unbroken record")
-    time_s = unwrap_us(s.timestamp_us)
-    measured = (len(s) - 1) / time_s[-1] if time_s[-1] > 0 else math.inf
-    declared = recording.status["sample_rate_mhz"] / 1000.0 if recording.status else None
-    description = f"recording {path.name} (profile {profile.name})"
+        raise AllanError(f"{path}: the samples are not one unbroken run: the sample index goes from "
+                         f"{record.index[k]} to {record.index[k + 1]} after sample {k} ({len(breaks)} break(s): "
+                         "samples lost or the filter restarted); an Allan analysis needs an unbroken record")
+    time_s = record.time_s
+    measured = (len(record) - 1) / time_s[-1] if time_s[-1] > 0 else math.inf
+    declared = record.declared_rate_hz
+    description = record.description
     if declared is None:
-        rate = rate_from_timestamps(time_s, str(path))
+        try:
+            rate = sensor_input.rate_from_timestamps(time_s, str(path))
+        except InputError as exc:
+            raise AllanError(str(exc)) from None
     elif abs(measured / declared - 1.0) <= RATE_TOLERANCE:
         rate = measured
     else:
         rate = declared
         description += (f", at the board's declared {declared:g} Hz (its timestamps run at {measured:.4g} Hz: "
                         "an emulated board faster than real time)")
-    return StaticRecord(description, rate, s.gyr * profile.gyro_scale, s.acc * profile.acc_scale)
+    return StaticRecord(description, rate, record.gyr, record.acc)
 
 
-def _from_csv(path: Path) -> StaticRecord:
-    from .files import FileError, check_regular_file
-
-    try:
-        check_regular_file(path, MAX_CSV_BYTES)
-        with open(path, encoding="utf-8", errors="replace") as f:
-            header = [name.strip() for name in f.readline().strip().split(",")]
-    except FileError as exc:
-        raise AllanError(str(exc)) from None
-    except OSError as exc:
-        raise AllanError(f"cannot read {path}: {exc.strerror or exc}") from None
-    time_column = next((c for c in ("timestamp_us", "time_s") if c in header), None)
-    sensors = [k for k, names in CSV_COLUMNS.items() if all(c in header for c in names)]
-    if time_column is None or not sensors:
-        raise AllanError(f"{path} is not a CSV with a timestamp_us or time_s column and the columns "
-                         f"{', '.join(CSV_COLUMNS['gyr'])} and/or {', '.join(CSV_COLUMNS['acc'])} "
-                         "(as `imulink replay --csv` writes)")
-    names = [time_column] + [c for k in sensors for c in CSV_COLUMNS[k]]
-    try:
-        table = np.loadtxt(path, delimiter=",", skiprows=1, usecols=[header.index(c) for c in names], ndmin=2,
-                           encoding="utf-8")
-    except (ValueError, OSError) as exc:
-        raise AllanError(f"{path}: {str(exc).splitlines()[0]}") from None
-    if not np.all(np.isfinite(table)):
-        row, col = np.argwhere(~np.isfinite(table))[0]
-        raise AllanError(f"{path}: {names[col]} is empty, NaN or infinite in data row {row + 1}")
-    if len(table) < MIN_SAMPLES:
-        raise AllanError(f"{path} holds {len(table)} samples: an Allan analysis needs at least {MIN_SAMPLES}")
-    times = unwrap_us(table[:, 0]) if time_column == "timestamp_us" else table[:, 0] - table[0, 0]
-    rate = rate_from_timestamps(times, str(path))
-    columns = {k: table[:, 1 + 3 * i:4 + 3 * i] for i, k in enumerate(sensors)}
-    return StaticRecord(f"CSV {path.name}", rate, columns.get("gyr"), columns.get("acc"))
-
-
-def _from_broad(path: Path) -> StaticRecord:
-    from .broad import BroadError, load_broad
-
-    try:
-        trial = load_broad(path)
-    except BroadError as exc:
-        raise AllanError(str(exc)) from None
-    for name, values in (("imu_gyr", trial.gyr), ("imu_acc", trial.acc)):
-        if not np.all(np.isfinite(values)):
-            raise AllanError(f"{path}: {name} holds NaN or infinite values")
-    start, stop, what = 0, len(trial), "the whole trial (it has no movement mask)"
-    if trial.movement is not None:
-        still = np.concatenate([[False], ~trial.movement, [False]])
-        edges = np.flatnonzero(np.diff(still.astype(np.int8)))
-        if len(edges) == 0:
+def _broad_rest(path: Path, record: SensorRecord) -> StaticRecord:
+    """A BROAD trial's longest rest (where movement is false), or the whole trial without a mask."""
+    rate = record.declared_rate_hz
+    start, stop, what = 0, len(record), "the whole trial (it has no movement mask)"
+    if record.movement is not None:
+        rests = sensor_input.still_segments(~record.movement)
+        if not rests:
             raise AllanError(f"{path}: the trial never rests (movement is true throughout)")
-        starts, stops = edges[::2], edges[1::2]
-        longest = int(np.argmax(stops - starts))
-        start, stop = int(starts[longest]), int(stops[longest])
-        what = f"its longest rest, {start / trial.rate_hz:.1f}-{stop / trial.rate_hz:.1f} s"
+        start, stop = max(rests, key=lambda r: r[1] - r[0])
+        what = f"its longest rest, {start / rate:.1f}-{stop / rate:.1f} s"
     if stop - start < MIN_SAMPLES:
         raise AllanError(f"{path}: {what} holds {stop - start} samples: an Allan analysis needs at least "
                          f"{MIN_SAMPLES}")
-    return StaticRecord(f"BROAD trial {trial.name}, {what}", trial.rate_hz, trial.gyr[start:stop],
-                        trial.acc[start:stop])
+    return StaticRecord(f"{record.description}, {what}", rate, record.gyr[start:stop], record.acc[start:stop])
 
 
 # ---------------------------------------------------------------------------- the analysis

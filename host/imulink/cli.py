@@ -42,7 +42,6 @@ def _command(func):
 
     def run(args) -> int:
         from . import core, protocol
-        from .allan import AllanError
         from .counts import SensorDataError
         from .emulator import EmulatorError
         from .files import FileError
@@ -50,13 +49,14 @@ def _command(func):
         from .hil import HilError
         from .link import LinkError
         from .recording import RecordingError
+        from .sensor_input import InputError
         from .sim import ScenarioError
 
         signal.signal(signal.SIGTERM, _interrupt)  # `kill` stops a command as cleanly as Ctrl-C
         try:
             return func(args)
         except (LinkError, protocol.ProtocolError, RecordingError, HilError, EmulatorError, FlashError, FileError,
-                core.SettingsError, ScenarioError, SensorDataError, AllanError, UsageError, OSError) as exc:
+                core.SettingsError, ScenarioError, SensorDataError, InputError, UsageError, OSError) as exc:
             print(f"imulink: error: {exc}", file=sys.stderr)
             return EXIT_ERROR
         except KeyboardInterrupt:
@@ -141,6 +141,10 @@ def _cmd_allan(args) -> int:
     from . import allan, core
     from .files import check_output, write_replacing
 
+    if args.write and not args.settings:
+        raise UsageError("--write needs --settings FILTER (the filter whose settings it writes)")
+    if args.write:
+        check_output(args.write, inputs=[args.input])
     if args.plot:  # before the work: a plot that cannot be written is known at once
         allan.plot_format(args.plot)
         allan.check_plotting()
@@ -170,6 +174,82 @@ def _cmd_allan(args) -> int:
     if args.plot:
         write_replacing(args.plot, lambda path: allan.plot(result, path), inputs=[args.input])
         print(f"plot: {args.plot}", file=sys.stderr if args.json else sys.stdout)
+    if args.write:
+        from . import settings_file
+
+        settings_file.save(settings_file.FilterSettings(args.settings, derived.values), args.write,
+                           inputs=[args.input])
+        print(f"settings file: {args.write}", file=sys.stderr if args.json else sys.stdout)
+    return 0
+
+
+#: `imulink calibrate` sensor names -> the calibration's sensor key
+CALIBRATE_SENSORS = {"gyro": "gyr", "accel": "acc", "mag": "mag"}
+
+
+@_command
+def _cmd_calibrate_apply(args) -> int:
+    from . import calibration as cal, hil
+    from .counts import DEFAULT_PROFILE
+    from .link import Link
+
+    if (args.file is None) == (not args.identity):
+        raise UsageError("give a calibration FILE or --identity (not both)")
+    calibration = cal.Calibration(DEFAULT_PROFILE) if args.identity else cal.load(args.file)
+    with Link(args.port, args.baud) as link:
+        link.connect()
+        hil.set_calibration(link, calibration)
+        board = hil.read_calibration(link, calibration.profile)
+    expected = {name: cal.to_fixed(calibration.sensor(name)) for name in cal.SENSORS}
+    if {name: cal.to_fixed(board.sensor(name)) for name in cal.SENSORS} != expected:
+        raise hil.HilError(f"{args.port} reports another calibration than it was given")
+    print(cal.format_calibration(board))
+    print(f"{args.port}: calibration " + ("identity" if args.identity else f"of {args.file}")
+          + " applied and read back (kept until a RESET)")
+    return 0
+
+
+@_command
+def _cmd_calibrate(args) -> int:
+    import json
+
+    from . import calibration as cal, sensor_input
+    from .counts import DEFAULT_PROFILE
+    from .files import check_output
+
+    check_output(args.output, inputs=[args.input])  # before the work
+    status, phase = _late_progress()
+    try:
+        record = sensor_input.read(args.input, progress=phase(f"reading {args.input}"))
+    finally:
+        status.done()
+    profile = record.profile or args.profile or DEFAULT_PROFILE
+    if args.profile is not None and record.profile is not None and args.profile != record.profile:
+        raise UsageError(f"{args.input} holds counts of profile {record.profile.name}; --profile "
+                         f"{args.profile.name} contradicts it (--profile is for a CSV, which does not say)")
+    sensor = CALIBRATE_SENSORS[args.sensor]
+    if sensor == "gyr":
+        result = cal.gyro_bias(record, profile)
+    elif sensor == "acc":
+        result = cal.accel_six_position(record, profile, misalignment=args.misalignment)
+    else:
+        result = cal.mag_ellipsoid(record, profile)
+    missing = result.report["coverage"]["missing"] if sensor == "mag" else []
+    axes = [name for name in missing if len(name) == 2]
+    result.report = {"input": record.description, **result.report}
+    if args.json:
+        print(json.dumps({"sensor": sensor, "profile": profile.name, "offset_counts": result.offset.tolist(),
+                          "matrix": result.matrix.tolist(), "report": result.report}, indent=1))
+    else:
+        print(cal.format_report(result, profile))
+    if axes and not args.allow_gaps:
+        raise cal.CalibrationError(f"{cal.missing_advice(axes)}; {args.output} is left as it is "
+                                   "(--allow-gaps writes it anyway)")
+    merged, replaced = cal.merged(args.output, result, profile)
+    cal.save(merged, args.output, inputs=[args.input])
+    others = [cal.SENSOR_NAMES[s] for s in cal.SENSORS if s in merged.sensors and s != sensor]
+    print(f"calibration: {args.output} ({cal.SENSOR_NAMES[sensor]} {'replaced' if replaced else 'written'}"
+          + (f"; {', '.join(others)} kept" if others else "") + ")", file=sys.stderr if args.json else sys.stdout)
     return 0
 
 
@@ -243,9 +323,70 @@ def build_parser() -> argparse.ArgumentParser:
                                                   "pip install 'imulink[plot]')")
     p.add_argument("--settings", metavar="FILTER", choices=("eskf", "kf1d"),
                    help="also print the settings of FILTER (eskf or kf1d) that follow from the terms")
+    p.add_argument("--write", metavar="FILE",
+                   help="with --settings: write them to a settings file (JSON) that record, inject, emulate and "
+                        "core.run take with --settings FILE")
     p.add_argument("--confidence", type=_in_range(float, 0.01, 0.999, "must be a probability from 0.01 to 0.999"),
                    default=0.683, help="confidence of the intervals (default: 0.683, one standard deviation)")
     p.set_defaults(func=_cmd_allan)
+
+    from .link import DEFAULT_BAUD
+
+    calibrate = sub.add_parser(
+        "calibrate", help="calibrate a sensor from a recording; give a board a calibration file",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Compute a sensor's calibration from recorded data into a calibration file (JSON), or give\n"
+                    "a board the calibration of a file. The board applies it to the raw counts before the\n"
+                    "filter: corrected = M (counts - offset), offsets in Q8 counts, M in Q24.\n\n"
+                    "  imulink calibrate gyro INPUT    the bias: the mean rate over the rests (the board lying\n"
+                    "                                  still, 5 s or more)\n"
+                    "  imulink calibrate accel INPUT   offset and scale per axis from six rests, each axis up\n"
+                    "                                  and down, a few seconds each\n"
+                    "  imulink calibrate mag INPUT     hard and soft iron: an ellipsoid fit to the board turned\n"
+                    "                                  slowly in every direction\n"
+                    "  imulink calibrate apply FILE PORT   the board takes the calibration of FILE\n\n"
+                    "docs/calibration.md gives the procedure for each sensor.")
+    kinds = calibrate.add_subparsers(dest="sensor", metavar="SENSOR")
+    kinds.required = True
+    inputs_help = ("INPUT is a recording (imulink record PORT -o calib.imulog), a CSV of `imulink replay --csv` "
+                   "(or any with timestamp_us or time_s and the SI columns gyr_x_rad_s.., acc_x_m_s2.., "
+                   "mag_x_uT..; give its --profile), or a BROAD trial (.mat). The calibration goes into --output; "
+                   "the other sensors' entries of an existing file are kept.")
+    for kind, summary in (("gyro", "gyroscope bias: the mean rate over the rests (5 s still or more in all)"),
+                          ("accel", "accelerometer offset and scale per axis: six rests, each axis up and down "
+                                    "(a few seconds each); --misalignment: a symmetric matrix from 9 positions "
+                                    "or more, some tilted between the axes"),
+                          ("mag", "magnetometer hard and soft iron: an ellipsoid fit to the board turned slowly "
+                                  "in every direction; reports the coverage of 26 directions and the spread of "
+                                  "the field norm before and after, and refuses when the field never lay along "
+                                  "one of the board's axes (--allow-gaps writes it anyway)")):
+        p = kinds.add_parser(kind, help=summary, description=f"{summary[0].upper()}{summary[1:]}. {inputs_help}")
+        p.add_argument("input", metavar="INPUT", help="a recording, a replay CSV or a BROAD .mat")
+        p.add_argument("--output", "-o", default="calibration.json",
+                       help="calibration file to write or update (default: calibration.json)")
+        p.add_argument("--profile", type=_profile, default=None,
+                       help="sensor profile of a CSV's data (default: gy86-default; a recording and a BROAD trial "
+                            "say theirs)")
+        p.add_argument("--json", action="store_true", help="print the calibration and its report as JSON")
+        if kind == "accel":
+            p.add_argument("--misalignment", action="store_true",
+                           help="fit a symmetric matrix (misalignment, cross-axis) instead of a scale per axis")
+        if kind == "mag":
+            p.add_argument("--allow-gaps", action="store_true",
+                           help="write the calibration even when the field never lay along some axis")
+        p.set_defaults(func=_cmd_calibrate, misalignment=False, allow_gaps=False)
+    p = kinds.add_parser(
+        "apply", help="give a board the calibration of a file",
+        description="Send the calibration of FILE to the board (SET_CALIBRATION for every sensor and axis; a "
+                    "sensor the file lacks gets the identity), read it back to check it, and print it. The board "
+                    "keeps it until a RESET or a power cycle; `imulink record` stores it in the recording, so "
+                    "replay and compare reproduce the board bit for bit. --identity takes it away.")
+    p.add_argument("file", metavar="FILE", nargs="?", help="calibration file (imulink calibrate ... -o FILE)")
+    p.add_argument("port", metavar="PORT", help="serial device or pyserial URL of the board")
+    p.add_argument("--identity", action="store_true", help="give the board the identity calibration instead of FILE")
+    p.add_argument("--baud", type=_baud, default=DEFAULT_BAUD,
+                   help=f"line rate of a real serial port (default: {DEFAULT_BAUD}; ignored by sockets and ptys)")
+    p.set_defaults(func=_cmd_calibrate_apply)
     _add_hil_commands(sub)
     return parser
 
@@ -315,17 +456,27 @@ def _cmd_emulate(args) -> int:
     from .emulator import EmulatedBoard
 
     faults = _faults(args)
+    settings = _settings_file(args)
+    filter_name = settings.filter_name if settings is not None else args.filter
     front = args.serial if args.serial is not None else ("tcp" if args.tcp is not None else "pty")
     board = EmulatedBoard(args.target, front=front, port=args.tcp or 0, scenario=args.scenario,
-                          duration_s=args.duration, rate_hz=args.rate, seed=args.seed, filter_name=args.filter,
+                          duration_s=args.duration, rate_hz=args.rate, seed=args.seed, filter_name=filter_name,
                           realtime=not args.fast, profile=args.profile, faults=faults, schema_hash=args.schema_hash,
                           image=args.image, baud=args.baud)
     with board:
+        if settings is not None:
+            from . import hil
+            from .link import Link
+
+            with Link(board.address, args.baud) as link:
+                link.connect()
+                hil.apply_settings(link, settings)
         print(board.address, flush=True)
         pace = "as fast as the link drains" if args.fast else "in real time"
         return _serve_until_interrupted(
             f"emulated board ({args.target}: {board.image}): {args.scenario} {args.duration:g} s at {args.rate:g} Hz "
-            f"{pace}, filter {args.filter}, profile {args.profile.name}"
+            f"{pace}, filter {filter_name}, profile {args.profile.name}"
+            + (f", settings of {args.settings}" if settings is not None else "")
             + (f", faults {faults.describe()}" if faults.active else ""), lambda: board.error)
 
 
@@ -351,7 +502,7 @@ def _cmd_record(args) -> int:
 
     result = hil.record(args.port, args.output, duration_s=args.duration, baud=args.baud, profile=args.profile,
                         resync=not args.no_resync, silence_timeout_s=args.silence_timeout, force=args.force,
-                        progress=hil.Progress())
+                        progress=hil.Progress(), settings=_settings_file(args))
     print(f"recorded {result.samples} samples and {result.estimates} estimates of {result.filter_name} in "
           f"{result.duration_s:.1f} s to {result.path} ({result.stop_reason}); "
           f"{hil.link_summary(result.counters)}"
@@ -404,7 +555,7 @@ def _cmd_inject(args) -> int:
 
     source = hil.load_injection_input(args.input)
     result = hil.inject(args.port, source, baud=args.baud, filter_name=args.filter, board_profile=args.board_profile,
-                        progress=hil.Progress())
+                        progress=hil.Progress(), settings=_settings_file(args))
     print(hil.format_inject(result))
     return 0 if result.bit_exact else EXIT_MISMATCH
 
@@ -541,10 +692,24 @@ def _cmd_ports(args) -> int:
     return 0
 
 
+def _settings_file(args):
+    """The --settings FILE of a command, loaded (None without it)."""
+    if args.settings is None:
+        return None
+    from . import settings_file
+
+    return settings_file.load(args.settings)
+
+
 def _add_hil_commands(sub) -> None:
     from . import core, hil, sim
     from .counts import DEFAULT_PROFILE
     from .link import DEFAULT_BAUD
+
+    def settings_argument(p, what: str):
+        p.add_argument("--settings", metavar="FILE",
+                       help=f"a settings file (JSON: a filter and its settings by name in SI, as `imulink allan "
+                            f"--settings FILTER --write FILE` writes it): {what}")
 
     def port_arguments(p):
         p.add_argument("port", metavar="PORT", help="serial device (/dev/ttyACM0, COM3) or pyserial URL "
@@ -624,6 +789,7 @@ def _add_hil_commands(sub) -> None:
     p.add_argument("--profile", type=_profile, default=DEFAULT_PROFILE,
                    help="sensor profile: gy86-default (+-8 g) or gy86-broad (+-16 g) (default: gy86-default)")
     fault_arguments(p)
+    settings_argument(p, "the board starts with them (its filter active, instead of --filter)")
     p.set_defaults(func=_cmd_emulate)
 
     p = sub.add_parser(
@@ -714,6 +880,7 @@ def _add_hil_commands(sub) -> None:
                    help="the board's sensor profile, stored for replay (default: gy86-default); the protocol "
                         "cannot report it")
     p.add_argument("--no-resync", action="store_true", help="never restart the filter after a lost sample")
+    settings_argument(p, "the board gets them (its filter made active) before recording")
     p.set_defaults(func=_cmd_record)
 
     p = sub.add_parser(
@@ -780,6 +947,8 @@ def _add_hil_commands(sub) -> None:
                                                                  "active filter, or the recording's)")
     p.add_argument("--board-profile", type=_profile, default=DEFAULT_PROFILE,
                    help="the sensor profile the board runs with (default: gy86-default); it must match the input's")
+    settings_argument(p, "the injection runs with them (its filter, over a recording's settings); the board's "
+                         "changed settings are restored afterwards")
     p.set_defaults(func=_cmd_inject)
 
 

@@ -105,8 +105,12 @@ def _settings_struct(mod, arithmetic: str, filter_name: str, values: dict[str, f
     return buf
 
 
-def resolve_settings(filter_name: str, rate_hz: float, settings: dict | None) -> dict[str, float]:
-    """Defaults overlaid with `settings` and the sample rate; unknown names raise SettingsError."""
+def resolve_settings(filter_name: str, rate_hz: float, settings) -> dict[str, float]:
+    """Defaults overlaid with `settings` (a dict by name, or an imulink.settings_file.FilterSettings
+    of this filter) and the sample rate; unknown names raise SettingsError."""
+    from .settings_file import for_filter
+
+    settings = for_filter(settings, filter_name)
     values = default_settings(filter_name)
     for name, value in (settings or {}).items():
         if name not in values:
@@ -128,6 +132,34 @@ def sensor_struct(mod, arithmetic: str, profile: SensorProfile):
         s.mag_scale = to_fixed(profile.mag_scale, 24, "mag_scale")
     else:
         s.gyro_scale, s.acc_scale, s.mag_scale = profile.gyro_scale, profile.acc_scale, profile.mag_scale
+    return s
+
+
+def calibration_struct(mod, arithmetic: str, calibration, profile: SensorProfile):
+    """The C imu_calibration_t of an imulink.calibration.Calibration (None: identity), from
+    the integers the board takes (Q8 offsets, Q24 matrices), so that the fixed build and
+    the float twin get identical parameters. SettingsError when it was made for another
+    sensor profile than `profile` (its counts would mean something else) or lies beyond
+    what the board accepts."""
+    from .calibration import SENSORS, CalibrationError, OFFSET_FRAC_BITS, MATRIX_FRAC_BITS, to_fixed
+
+    s = mod.ffi.new("imu_calibration_t *", mod.lib.imu_calibration_identity)
+    if calibration is None:
+        return s
+    if calibration.profile != profile:
+        raise SettingsError(f"the calibration was made for sensor profile {calibration.profile.name}, the filter runs "
+                            f"on {profile.name}")
+    for name in SENSORS:
+        try:
+            offset, matrix = to_fixed(calibration.sensor(name))
+        except CalibrationError as exc:
+            raise SettingsError(str(exc)) from None
+        target = getattr(s, name)
+        if arithmetic == "fixed":
+            target.offset, target.matrix = offset, matrix
+        else:
+            target.offset = [v / 2.0**OFFSET_FRAC_BITS for v in offset]
+            target.matrix = [v / 2.0**MATRIX_FRAC_BITS for v in matrix]
     return s
 
 
@@ -154,7 +186,7 @@ class Filter:
     """A filter instance of the C core: feed count arrays batch after batch."""
 
     def __init__(self, filter_name: str, rate_hz: float, arithmetic: str = "fixed", settings: dict | None = None,
-                 profile: SensorProfile = DEFAULT_PROFILE):
+                 profile: SensorProfile = DEFAULT_PROFILE, calibration=None):
         self.mod = _module(arithmetic)
         self.arithmetic = arithmetic
         self.filter_name = filter_name
@@ -164,6 +196,9 @@ class Filter:
         if self.mod.lib.imu_filter_init(self._handle, filter_id) != 0:
             raise ValueError(f"the core does not know filter {filter_name!r}")
         self.mod.lib.imu_filter_set_sensor(self._handle, sensor_struct(self.mod, arithmetic, profile))
+        if self.mod.lib.imu_filter_set_calibration(self._handle, calibration_struct(self.mod, arithmetic, calibration,
+                                                                                    profile)) != 0:
+            raise SettingsError("the core refuses the calibration (an offset beyond 65536 counts)")
         if not self._apply(self.settings):
             defaults = default_settings(filter_name)
             bad = [k for k, v in self.settings.items() if not self._apply({**defaults, k: v})]
@@ -267,15 +302,20 @@ class Filter:
 
 
 def run_counts(filter_name: str, gyr_counts, acc_counts, mag_counts, rate_hz: float, arithmetic: str = "fixed",
-               settings: dict | None = None, profile: SensorProfile = DEFAULT_PROFILE) -> RunResult:
+               settings: dict | None = None, profile: SensorProfile = DEFAULT_PROFILE, calibration=None) -> RunResult:
     """Run a filter on raw register counts ((N,3) integers in the int16 range; anything
-    else raises counts.SensorDataError)."""
-    return Filter(filter_name, rate_hz, arithmetic, settings, profile).run_counts(gyr_counts, acc_counts, mag_counts)
+    else raises counts.SensorDataError). calibration: an imulink.calibration.Calibration
+    applied to the counts first, as the board applies it (None: none)."""
+    return Filter(filter_name, rate_hz, arithmetic, settings, profile, calibration).run_counts(
+        gyr_counts, acc_counts, mag_counts)
 
 
-def run(filter_name: str, gyr, acc, mag, rate_hz: float, arithmetic: str = "fixed", settings: dict | None = None,
-        profile: SensorProfile = DEFAULT_PROFILE) -> RunResult:
+def run(filter_name: str, gyr, acc, mag, rate_hz: float, arithmetic: str = "fixed", settings=None,
+        profile: SensorProfile = DEFAULT_PROFILE, calibration=None) -> RunResult:
     """Run a filter on SI arrays: gyr (N,3) rad/s, acc (N,3) m/s^2, mag (N,3) uT.
+
+    settings: by name in SI (a dict, or a settings file: imulink.settings_file.load(path));
+    the others keep their defaults. calibration: see :func:`run_counts`.
 
     The arrays are first converted to counts with :func:`imulink.counts.si_to_counts`
     and `profile`, so fixed and float runs see identical inputs: values beyond a
@@ -283,4 +323,4 @@ def run(filter_name: str, gyr, acc, mag, rate_hz: float, arithmetic: str = "fixe
     raise SensorDataError.
     """
     g, a, m = si_to_counts(gyr, acc, mag, profile)
-    return run_counts(filter_name, g, a, m, rate_hz, arithmetic, settings, profile)
+    return run_counts(filter_name, g, a, m, rate_hz, arithmetic, settings, profile, calibration)

@@ -120,6 +120,48 @@ def read_settings(link: Link) -> tuple[int, dict[int, dict]]:
     return first["filter_id"], settings
 
 
+def apply_settings(link: Link, settings) -> None:
+    """Make the settings file's filter (an imulink.settings_file.FilterSettings) active and
+    give it the file's settings (SET_SETTING, raw); the others keep the board's values.
+    HilError naming the setting the board refuses."""
+    fields = core.settings_fields(settings.filter_name)
+    link.command("SELECT_FILTER", filter_id=core.FILTERS[settings.filter_name][0])
+    raw = settings.raw()
+    for index, f in enumerate(fields):
+        if f.name in raw:
+            try:
+                link.command("SET_SETTING", index=index, value=raw[f.name])
+            except protocol.CommandError as exc:
+                raise HilError(f"the board refuses {f.name} = {settings.values[f.name]:g} {f.unit} "
+                               f"({exc.reason})") from None
+
+
+#: The protocol's sensor codes in the order of imulink.calibration.SENSORS.
+_SENSOR_CODES = dict(zip(("gyr", "acc", "mag"), ("GYROSCOPE", "ACCELEROMETER", "MAGNETOMETER")))
+
+
+def read_calibration(link: Link, profile: SensorProfile):
+    """The board's calibration (GET_CALIBRATION of every sensor and axis), as an
+    imulink.calibration.Calibration of `profile` (the protocol cannot report the profile)."""
+    from .calibration import Calibration, calibration_from_frames
+
+    frames = [link.command("GET_CALIBRATION", sensor=protocol.SENSORS[code], axis=axis).data.fields
+              for code in _SENSOR_CODES.values() for axis in range(3)]
+    return Calibration(profile, calibration_from_frames(frames))
+
+
+def set_calibration(link: Link, calibration) -> None:
+    """Give the board `calibration` (every sensor and axis: SET_CALIBRATION; a sensor the
+    calibration lacks gets the identity). The board restarts its filter with each."""
+    from .calibration import SENSORS, to_fixed
+
+    for name in SENSORS:
+        offset, matrix = to_fixed(calibration.sensor(name))
+        for axis in range(3):
+            link.command("SET_CALIBRATION", sensor=protocol.SENSORS[_SENSOR_CODES[name]], axis=axis,
+                         offset=offset[axis], row=tuple(matrix[3 * axis:3 * axis + 3]))
+
+
 def _leave_injection_mode(link: Link) -> None:
     if link.command("GET_STATUS").data.fields["injection_mode"]:
         link.command("SET_INJECTION_MODE", enabled=0)
@@ -165,7 +207,7 @@ def default_silence_timeout(status: dict) -> float:
 
 def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAULT_BAUD,
            profile: SensorProfile = DEFAULT_PROFILE, resync: bool = True, silence_timeout_s: float | None = None,
-           force: bool = False, progress: Progress | None = None) -> RecordResult:
+           force: bool = False, progress: Progress | None = None, settings=None) -> RecordResult:
     """Record a board's stream to `path` until `duration_s` s have passed, the board stops
     streaming (STATUS.streaming = 0), or Ctrl-C (then `interrupted`).
 
@@ -179,6 +221,9 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
     disconnect raises Disconnected; a stream silent for `silence_timeout_s` (default
     :func:`default_silence_timeout`) raises ReceiveTimeout; a write error (a full disk)
     raises RecordingError at once.
+
+    settings: an imulink.settings_file.FilterSettings given to the board (its filter
+    made active) before the snapshot, so the recording runs with them.
     """
     path = Path(path)
     check_writable_target(path, replace=force)
@@ -188,7 +233,7 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
         # the file holds every byte from the moment the port opens
         link = Link(url, baud, tap=writer.received, attempts=RECORD_COMMAND_ATTEMPTS)
         try:
-            hello, filter_id, filter_name, status = snapshot(link, writer)
+            hello, filter_id, filter_name, status = snapshot(link, writer, settings)
             writer.check()
             publish(temporary, path, replace=force)
         except BaseException:
@@ -203,21 +248,27 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
         return _StreamRecorder(link, writer, filter_id, resync, progress).run(hello, filter_name, duration_s, silence)
 
 
-def snapshot(link: Link, writer: RecordingWriter | None) -> tuple[dict, int, str, dict]:
-    """Handshake, quiet the board, read its state and settings (into the recording, when
-    there is one), and restart its filter so that the stream starts at sample index 0.
-    Returns the HELLO fields, the active filter's id and name, and the STATUS fields."""
+def snapshot(link: Link, writer: RecordingWriter | None, settings=None) -> tuple[dict, int, str, dict]:
+    """Handshake, quiet the board (and give it `settings`), read its state, settings and
+    calibration (into the recording, when there is one), and restart its filter so that
+    the stream starts at sample index 0. Returns the HELLO fields, the active filter's id
+    and name, and the STATUS fields."""
     hello = link.connect()
     if writer is not None:
         writer.event("connected", hello=hello)
     link.command("STOP_STREAM")
     _leave_injection_mode(link)
+    if settings is not None:
+        apply_settings(link, settings)
     status = link.command("GET_STATUS").data.fields
     filter_id, settings = read_settings(link)
     filter_name = _FILTER_NAMES.get(filter_id, str(filter_id))
     if writer is not None:
+        calibration = read_calibration(link, writer.profile)
         writer.event("snapshot", status=status, filter=filter_name,
-                     settings={s["name"]: s["value"] for s in settings.values()})
+                     settings={s["name"]: s["value"] for s in settings.values()},
+                     calibration={name: {"offset_counts": c.offset.tolist(), "matrix": c.matrix.tolist()}
+                                  for name, c in calibration.sensors.items()})
     link.command("SELECT_FILTER", filter_id=filter_id)
     return hello, filter_id, filter_name, status
 
@@ -362,27 +413,29 @@ def host_run(recording: Recording) -> HostRun:
         rows = np.flatnonzero(samples.segment == segment)
         name, raw_settings = recording.filter_settings(_segment_filter(recording, segment))
         counts = samples.gyr[rows], samples.acc[rows], samples.mag[rows]
-        for key, values in fixed_outputs(name, raw_settings, recording.profile, *counts).items():
+        calibration = recording.calibration()
+        for key, values in fixed_outputs(name, raw_settings, recording.profile, *counts, calibration).items():
             fixed[key][rows] = values
-        reference = FirmwareFilter(name, raw_settings, recording.profile)
+        reference = FirmwareFilter(name, raw_settings, recording.profile, calibration)
         twin = core.Filter(name, reference.si_settings["sample_rate"], "float", reference.si_settings,
-                           recording.profile).run_counts(*counts)
+                           recording.profile, calibration).run_counts(*counts)
         float_quat[rows], float_euler[rows], float_bias[rows] = twin.quat, twin.euler, twin.gyro_bias
         complete = samples.index[rows] == np.arange(len(rows))
         verifiable[rows] = np.cumprod(complete).astype(bool)
     return HostRun(fixed, float_quat, float_euler, float_bias, verifiable)
 
 
-def fixed_outputs(filter_name: str, raw_settings: dict[str, int], profile: SensorProfile, gyr, acc, mag) -> dict:
+def fixed_outputs(filter_name: str, raw_settings: dict[str, int], profile: SensorProfile, gyr, acc, mag,
+                  calibration=None) -> dict:
     """The ESTIMATE fields (arrays, one row per sample) the firmware computes for a filter
-    run from its start over these counts.
+    run from its start over these counts (with the board's calibration: None is identity).
 
     One batch call to the core when that gives every field: not for the ESKF (its
     covariance is read after each sample), and not when the saturation counter moved
     (its value after each sample is needed); then one sample at a time, as the board.
     """
     n = len(gyr)
-    reference = FirmwareFilter(filter_name, raw_settings, profile)
+    reference = FirmwareFilter(filter_name, raw_settings, profile, calibration)
     if filter_name != "eskf":
         batch = reference.core.run_counts(gyr, acc, mag)
         if batch.saturations == 0:  # the counter never decreases: zero at the end means zero throughout
@@ -390,7 +443,7 @@ def fixed_outputs(filter_name: str, raw_settings: dict[str, int], profile: Senso
                     "gyro_bias": batch.raw["gyro_bias"], "euler": batch.raw["euler"],
                     "cov_mantissa": np.zeros((n, 9), np.int64), "cov_exponent": np.zeros((n, 9), np.int64),
                     "saturations": np.zeros(n, np.int64)}
-        reference = FirmwareFilter(filter_name, raw_settings, profile)  # start again, sample by sample
+        reference = FirmwareFilter(filter_name, raw_settings, profile, calibration)  # again, sample by sample
     out = {name: np.zeros((n,) + shape, np.int64) for name, shape in _ESTIMATE_SHAPES.items()}
     for k in range(n):
         for key, value in reference.step(k, gyr[k], acc[k], mag[k]).items():
@@ -735,11 +788,12 @@ def format_inject(result: InjectResult) -> str:
     return "\n".join(lines)
 
 
-def _configure_for_injection(link: Link, source: InjectionInput, filter_name: str | None) -> tuple[str, dict, dict]:
+def _configure_for_injection(link: Link, source: InjectionInput, filter_name: str | None,
+                             given=None) -> tuple[str, dict, dict]:
     """Select the filter and set the settings the injection runs with; returns the
     filter name, the raw settings in force, and the original values changed (to restore)."""
     _leave_injection_mode(link)
-    wanted_filter = filter_name or source.filter_name
+    wanted_filter = filter_name or (given.filter_name if given is not None else None) or source.filter_name
     if wanted_filter is not None and wanted_filter != _FILTER_NAMES.get(read_settings(link)[0]):
         link.command("SELECT_FILTER", filter_id=core.FILTERS[wanted_filter][0])
     filter_id, settings = read_settings(link)
@@ -747,6 +801,8 @@ def _configure_for_injection(link: Link, source: InjectionInput, filter_name: st
     fields = core.settings_fields(name)
     current = {fields[i].name: settings[i]["value"] for i in range(len(fields))}
     wanted = dict(source.raw_settings) if source.raw_settings and name == source.filter_name else {}
+    if given is not None:  # a settings file's values, over a recording's
+        wanted.update(given.raw())
     wanted["sample_rate"] = core.to_fixed(source.rate_hz, 16, "sample_rate")
     changed = {}
     for index, f in enumerate(fields):
@@ -762,9 +818,13 @@ def _configure_for_injection(link: Link, source: InjectionInput, filter_name: st
 
 
 def inject(url: str, source: InjectionInput, *, baud: int = DEFAULT_BAUD, filter_name: str | None = None,
-           board_profile: SensorProfile = DEFAULT_PROFILE, progress: Progress | None = None) -> InjectResult:
+           board_profile: SensorProfile = DEFAULT_PROFILE, progress: Progress | None = None,
+           settings=None) -> InjectResult:
     """Inject every sample of `source` into the board and compare each ESTIMATE with the
-    host fixed-point build on the fly.
+    host fixed-point build (with the board's calibration) on the fly.
+
+    settings: an imulink.settings_file.FilterSettings: its filter and settings are used
+    (over a recording's); changed settings are restored afterwards.
 
     An ESTIMATE lost on the way is counted (answers_lost). A sample whose ACK never
     comes may or may not have run on the board, so the filter is restarted on both
@@ -775,14 +835,17 @@ def inject(url: str, source: InjectionInput, *, baud: int = DEFAULT_BAUD, filter
                        f"as {board_profile.name!r}; protocol v{protocol.PROTOCOL_VERSION} can neither read nor set a "
                        f"board's sensor scales. Start the board with profile {source.profile.name!r} (imulink emulate "
                        f"--profile {source.profile.name}) and pass --board-profile {source.profile.name}")
+    if settings is not None and filter_name not in (None, settings.filter_name):
+        raise HilError(f"the settings file is for {settings.filter_name}, not {filter_name}")
     with Link(url, baud) as link:
         link.connect()
         link.command("STOP_STREAM")
         original_filter = link.command("GET_STATUS").data.fields["active_filter"]
-        name, raw_settings, changed = _configure_for_injection(link, source, filter_name)
+        name, raw_settings, changed = _configure_for_injection(link, source, filter_name, settings)
+        calibration = read_calibration(link, board_profile)
         link.command("SET_INJECTION_MODE", enabled=1)
         try:
-            result = _inject_samples(link, source, name, raw_settings, board_profile, progress)
+            result = _inject_samples(link, source, name, raw_settings, board_profile, calibration, progress)
         finally:  # leave the board as it was found
             link.command("SET_INJECTION_MODE", enabled=0)
             for index, value in changed.items():
@@ -803,8 +866,8 @@ def _first_different_field(board: dict, host: dict) -> str | None:
 
 
 def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings: dict, profile: SensorProfile,
-                    progress: Progress | None) -> InjectResult:
-    reference = FirmwareFilter(name, raw_settings, profile)
+                    calibration, progress: Progress | None) -> InjectResult:
+    reference = FirmwareFilter(name, raw_settings, profile, calibration)
     n = len(source.gyr)
     answered = identical = lost = restarts = 0
     first = None
@@ -817,7 +880,7 @@ def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings:
                                  index=k, gyr=gyr[k], acc=acc[k], mag=mag[k], temperature=0)
         except CommandTimeout:  # did the sample run on the board? Unknown: restart the filter on both sides
             link.command("SET_INJECTION_MODE", enabled=1)
-            reference = FirmwareFilter(name, raw_settings, profile)
+            reference = FirmwareFilter(name, raw_settings, profile, calibration)
             restarts += 1
             continue
         expected = reference.step(k, gyr[k], acc[k], mag[k])

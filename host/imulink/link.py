@@ -53,7 +53,7 @@ QUEUE_SIZE = 200_000
 
 #: The data message a command asks for; the board sends it before the ACK.
 REPLY_MESSAGES = {"GET_VERSION": "HELLO", "GET_STATUS": "STATUS", "GET_SETTING": "SETTING",
-                  "INJECT_SAMPLE": "ESTIMATE"}
+                  "GET_CALIBRATION": "CALIBRATION", "INJECT_SAMPLE": "ESTIMATE"}
 #: Commands that must not be repeated blindly (repeating them changes the board's state twice).
 NOT_IDEMPOTENT = frozenset({"INJECT_SAMPLE", "RESET"})
 
@@ -191,10 +191,17 @@ class Link:
             raise PortError(f"cannot open {url}: {exc}") from None
         if hasattr(port, "exclusive"):
             port.exclusive = True  # a second program on the same device gets "busy", not half the bytes
+        if url.startswith("socket://"):
+            # pyserial's socket port empties its input at the end of open(), after the
+            # connection is made: a board that greets each new client at once (HELLO)
+            # would lose the greeting whenever it came that fast.
+            port.reset_input_buffer = lambda: None
         try:
             port.open()
         except (serial.SerialException, OSError, ValueError) as exc:
             raise PortError(_describe_port_error(url, exc)) from None
+        finally:
+            port.__dict__.pop("reset_input_buffer", None)
         return port
 
     def _port_fileno(self) -> int | None:

@@ -43,9 +43,10 @@ COMMAND_IDS: dict[str, int] = {name: spec["id"] for name, spec in _schema.COMMAN
 FILTER_IDS: dict[str, int] = dict(_schema.ENUMS["filter"])
 REASONS: dict[str, int] = dict(_schema.ENUMS["reason"])
 LOG_LEVELS: dict[str, int] = dict(_schema.ENUMS["log_level"])
+SENSORS: dict[str, int] = dict(_schema.ENUMS["sensor"])
 #: Commands after which a board's active filter starts again from sample index 0 (their
 #: documentation in shared/protocol.toml says so; firmware/app/app.c does it).
-RESTARTING_COMMANDS = frozenset({"SELECT_FILTER", "SET_SETTING", "SET_INJECTION_MODE", "RESET"})
+RESTARTING_COMMANDS = frozenset({"SELECT_FILTER", "SET_SETTING", "SET_INJECTION_MODE", "RESET", "SET_CALIBRATION"})
 
 #: zlib.crc32 of any bytes followed by their own CRC-32 (little-endian): checking a whole
 #: frame against this constant is the same as comparing its CRC field with the CRC of the rest.

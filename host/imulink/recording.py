@@ -36,7 +36,7 @@ import struct
 import threading
 import time
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -103,6 +103,7 @@ class RecordingWriter:
 
     def __init__(self, path, port: str, profile: SensorProfile, fd: int | None = None):
         self.path = Path(path)
+        self.profile = profile
         self._lock = threading.Lock()
         if fd is None:
             try:
@@ -321,6 +322,27 @@ class Recording:
     damaged: list[tuple[int, int]]
     truncated_bytes: int
     segments: int
+    calibration_frames: list[dict] = field(default_factory=list)
+
+    def calibration(self):
+        """The board's calibration (imulink.calibration.Calibration, in this recording's
+        profile) as its CALIBRATION frames report it (the recorder reads it before
+        streaming); None when the recording holds none (the board's identity calibration
+        then, as after start-up). RecordingError when only part of it was recorded."""
+        from .calibration import Calibration, CalibrationError, SENSORS, calibration_from_frames
+
+        if not self.calibration_frames:
+            return None
+        try:
+            sensors = calibration_from_frames(self.calibration_frames)
+        except CalibrationError as exc:
+            raise RecordingError(f"{self.path}: {exc}") from None
+        if set(sensors) != set(SENSORS):
+            why = (f"the file is damaged, and its {len(self.damaged)} skipped span(s) may have held them"
+                   if self.damaged else "some CALIBRATION frames are missing")
+            raise RecordingError(f"{self.path}: the board's calibration was recorded for "
+                                 f"{', '.join(sorted(sensors)) or 'no sensor'} only; {why}")
+        return Calibration(self.profile, sensors)
 
     def filter_settings(self, filter_id: int) -> tuple[str, dict[str, int]]:
         """(filter name, raw settings by name) of a filter, as the board reported them."""
@@ -385,7 +407,7 @@ def load_recording(path, progress: Callable[[int, int], None] | None = None) -> 
               for record in records if record.kind == KIND_EVENT]
     snapshot_at = next((offset for offset, event in events if event.get("event") == "snapshot"), -1)
     decoder, segmenter = protocol.FrameDecoder(), _Segmenter()
-    logs, settings = [], {}
+    logs, settings, calibration_frames = [], {}, []
     hello = status = None
     samples, estimates = [], []
     for record in records[1:]:
@@ -411,12 +433,15 @@ def load_recording(path, progress: Callable[[int, int], None] | None = None) -> 
                 settings.setdefault(fields["filter_id"], {})[fields["index"]] = fields
             elif name == "LOG":
                 logs.append((record.time, fields["level"], fields["text"]))
+            elif name == "CALIBRATION":
+                calibration_frames.append(fields)
     if progress is not None:
         progress(total, total)
     sample_table, estimate_table = _sample_table(samples), _estimate_table(estimates)
     segments = len(set(sample_table.segment.tolist()) | set(estimate_table.segment.tolist()))
     return Recording(path, header, profile, [event for _, event in events], hello, status, settings, sample_table,
-                     estimate_table, logs, decoder.counters(), found.damaged, found.truncated_bytes, segments)
+                     estimate_table, logs, decoder.counters(), found.damaged, found.truncated_bytes, segments,
+                     calibration_frames)
 
 
 def _json_object(path: Path, record: LogRecord, what: str) -> dict:

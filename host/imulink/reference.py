@@ -15,19 +15,22 @@ from .counts import DEFAULT_PROFILE, SensorProfile
 
 class FirmwareFilter:
     """One filter of the fixed-point core, configured by raw settings (the integers of
-    SET_SETTING) and stepped one sample at a time, as the firmware runs it.
+    SET_SETTING) and the board's calibration (SET_CALIBRATION), and stepped one sample at
+    a time, as the firmware runs it.
 
     Raises core.SettingsError when the core refuses the settings.
     """
 
-    def __init__(self, filter_name: str, raw_settings: dict[str, int], profile: SensorProfile = DEFAULT_PROFILE):
+    def __init__(self, filter_name: str, raw_settings: dict[str, int], profile: SensorProfile = DEFAULT_PROFILE,
+                 calibration=None):
         self.filter_name = filter_name
         self.filter_id = core.FILTERS[filter_name][0]
         self.fields = core.settings_fields(filter_name)
         self.raw_settings = dict(raw_settings)
         values = {f.name: raw_settings[f.name] / 2.0**f.frac_bits for f in self.fields}
         self.si_settings = values
-        self.core = core.Filter(filter_name, values["sample_rate"], "fixed", values, profile)
+        self.calibration = calibration  # the board's (an imulink.calibration.Calibration), None: identity
+        self.core = core.Filter(filter_name, values["sample_rate"], "fixed", values, profile, calibration)
         self.saturations = 0
         self._has_covariance = filter_name == "eskf"
 

@@ -26,7 +26,9 @@
  * overridden), except the variants that set sample_rate themselves. The sensor
  * scales (imu_sensor_settings_t, no range check: any int32) are varied at their
  * extremes (INT32_MAX, INT32_MIN, 0) with the default settings, and all at INT32_MAX or
- * INT32_MIN with the all-minimum and all-maximum settings.
+ * INT32_MIN with the all-minimum and all-maximum settings. So is the calibration
+ * (imu_calibration_t): every offset at +-IMU_CAL_MAX_OFFSET and every matrix element at
+ * INT32_MAX or INT32_MIN, with the default settings.
  *
  * Before each case the driver prints "CASE <index> <name>" on stdout (flushed). A
  * narrowing that does not fit int32 prints "NARROWING <file>:<line>: ..." with the
@@ -243,11 +245,14 @@ enum {
     SENSOR_ALL_MAX,
     SENSOR_ALL_MIN,
     SENSOR_ALL_ZERO,
+    SENSOR_CAL_MAX,
+    SENSOR_CAL_MIN,
     N_SENSORS
 };
 static const char *const SENSOR_NAMES[N_SENSORS] = {
     "sensor=default",   "gyro_scale=max", "gyro_scale=min", "acc_scale=max",  "acc_scale=min",
-    "mag_scale=max",    "mag_scale=min",  "sensor_all=max", "sensor_all=min", "sensor_all=zero"};
+    "mag_scale=max",    "mag_scale=min",  "sensor_all=max", "sensor_all=min", "sensor_all=zero",
+    "calibration=max",  "calibration=min"};
 
 static imu_sensor_settings_t sensor_variant(int v)
 {
@@ -265,6 +270,31 @@ static imu_sensor_settings_t sensor_variant(int v)
     default: break;
     }
     return s;
+}
+
+/** The calibration of a sensor variant: the identity, or every offset at the largest magnitude
+ *  imu_calibration_check() accepts and every matrix element at an int32 extreme (the bound of
+ *  the corrected sums in imu_sensor.h, then saturation). */
+static imu_calibration_t calibration_variant(int v)
+{
+    imu_calibration_t cal = imu_calibration_identity;
+    imu_sensor_cal_t *sensors[3];
+    int i, k;
+    if (v != SENSOR_CAL_MAX && v != SENSOR_CAL_MIN) {
+        return cal;
+    }
+    sensors[0] = &cal.gyr;
+    sensors[1] = &cal.acc;
+    sensors[2] = &cal.mag;
+    for (i = 0; i < 3; ++i) {
+        for (k = 0; k < 3; ++k) {
+            sensors[i]->offset[k] = v == SENSOR_CAL_MAX ? IMU_CAL_MAX_OFFSET : -IMU_CAL_MAX_OFFSET;
+        }
+        for (k = 0; k < 9; ++k) {
+            sensors[i]->matrix[k] = v == SENSOR_CAL_MAX ? INT32_MAX : INT32_MIN;
+        }
+    }
+    return cal;
 }
 
 /* ------------------------------------------------------------------ input streams (int16 counts) */
@@ -675,6 +705,13 @@ static int run_case(int index)
         return 1;
     }
     imu_filter_set_sensor(&f, &sensor);
+    {
+        const imu_calibration_t cal = calibration_variant(c->sensor);
+        if (imu_filter_set_calibration(&f, &cal) != IMU_OK) {
+            printf("OUTPUT set_calibration rejected the calibration | case %s\n", current_case);
+            return 1;
+        }
+    }
     for (n = 0; n < length; ++n) {
         imu_raw_sample_t raw;
         imu_output_t out;

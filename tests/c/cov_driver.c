@@ -1,0 +1,82 @@
+/* Drives imu_cov.c for tests/test_cov.py: reads from stdin
+ *   n, then n initial variances, then updates until EOF, each
+ *   h[n] r z w has_map [G[n][n]]
+ * (real values) and prints after each update "dx" and the n x n covariance as reals.
+ * Built twice, with -DIMU_FIXED and -DIMU_FLOAT. */
+#include <math.h>
+#include <stdio.h>
+
+#include "imu_cov.h"
+
+#ifdef IMU_FIXED
+/* Q formats of the inputs: variances and r in Q60 (below 8), h, z, w and G in Q30. */
+#define TO_WIDE(x) ((imu_wide_t)llround((x) * 1152921504606846976.0))
+#define TO_Q30(x) ((imu_q30_t)lround((x) * 1073741824.0))
+#define FROM_Q30(x) ((double)(x) / 1073741824.0)
+#define MANT_Q 30 /* P_ij = mant 2^(exp - 30) */
+#else
+#define TO_WIDE(x) (x)
+#define TO_Q30(x) (x)
+#define FROM_Q30(x) (x)
+#define MANT_Q 0
+#endif
+
+int main(void)
+{
+    imu_cov_t cov;
+    imu_wide_t var[IMU_COV_MAX];
+    uint32_t sat = 0;
+    int n, i, j;
+    double v;
+    if (scanf("%d", &n) != 1 || n < 1 || n > IMU_COV_MAX) {
+        return 2;
+    }
+    for (i = 0; i < n; ++i) {
+        if (scanf("%lf", &v) != 1) {
+            return 2;
+        }
+        var[i] = TO_WIDE(v);
+    }
+    imu_cov_init(&cov, n, var, 60, &sat);
+    for (;;) {
+        imu_q30_t h[IMU_COV_MAX], g[IMU_COV_MAX][IMU_COV_MAX], dx[IMU_COV_MAX];
+        double r, z, w;
+        int has_map;
+        for (i = 0; i < n; ++i) {
+            if (scanf("%lf", &v) != 1) {
+                printf("saturations %u\n", (unsigned)sat);
+                return 0;
+            }
+            h[i] = TO_Q30(v);
+        }
+        if (scanf("%lf %lf %lf %d", &r, &z, &w, &has_map) != 4) {
+            return 2;
+        }
+        for (i = 0; i < n * n && has_map; ++i) {
+            if (scanf("%lf", &v) != 1) {
+                return 2;
+            }
+            g[i / n][i % n] = TO_Q30(v);
+        }
+        if (!imu_cov_update(&cov, h, TO_WIDE(r), 60, TO_Q30(z), TO_Q30(w),
+                            has_map ? (const imu_q30_t(*)[IMU_COV_MAX])g : NULL, dx, &sat)) {
+            for (i = 0; i < n; ++i) {
+                dx[i] = 0;
+            }
+        }
+        printf("dx");
+        for (i = 0; i < n; ++i) {
+            printf(" %.17g", FROM_Q30(dx[i]));
+        }
+        printf("\nP");
+        for (i = 0; i < n; ++i) {
+            for (j = 0; j < n; ++j) {
+                imu_real_t mant;
+                int32_t e;
+                imu_cov_get(&cov, i, j, &mant, &e);
+                printf(" %.17g", (double)mant * ldexp(1.0, (int)e - MANT_Q));
+            }
+        }
+        printf("\n");
+    }
+}

@@ -1,0 +1,117 @@
+"""The block-floating covariance (firmware/core/imu_cov.c) against numpy: the scalar
+update, optimal and with a gain map (Schmidt / "consider" update in Joseph's form), in
+both builds (tests/c/cov_driver.c)."""
+from __future__ import annotations
+
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+GCC = shutil.which("gcc")
+pytestmark = pytest.mark.skipif(GCC is None, reason="gcc not found")
+
+ROOT = Path(__file__).resolve().parents[1]
+CORE = ROOT / "firmware" / "core"
+DRIVER = ROOT / "tests" / "c" / "cov_driver.c"
+
+
+@pytest.fixture(scope="module")
+def drivers(tmp_path_factory):
+    out = {}
+    for build in ("FIXED", "FLOAT"):
+        exe = tmp_path_factory.mktemp("cov") / f"cov_{build.lower()}"
+        proc = subprocess.run([GCC, "-std=c99", "-Wall", "-Wextra", "-Werror", f"-DIMU_{build}", f"-I{CORE}",
+                               "-fsanitize=undefined,address", "-fno-sanitize-recover=all", "-o", str(exe),
+                               str(DRIVER), str(CORE / "imu_cov.c"), "-lm"], capture_output=True, text=True)
+        assert proc.returncode == 0, proc.stderr
+        out[build.lower()] = exe
+    return out
+
+
+def run_driver(exe, variances, updates):
+    """updates: (h, r, z, w, G or None); returns [(dx, P)] after each."""
+    n = len(variances)
+    words = [str(n), *(repr(float(v)) for v in variances)]
+    for h, r, z, w, g in updates:
+        words += [repr(float(v)) for v in (*h, r, z, w)] + ["0" if g is None else "1"]
+        if g is not None:
+            words += [repr(float(v)) for v in np.ravel(g)]
+    proc = subprocess.run([str(exe)], input=" ".join(words), capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.split("\n")
+    results = []
+    for dx_line, p_line in zip(lines[0::2], lines[1::2]):
+        if not dx_line.startswith("dx"):
+            break
+        dx = np.array(dx_line.split()[1:], dtype=float)
+        p = np.array(p_line.split()[1:], dtype=float).reshape(n, n)
+        results.append((dx, p))
+    assert lines[-2].startswith("saturations 0"), "no saturation in a well-scaled case"
+    return results
+
+
+def reference(p0, updates):
+    """numpy: K = P h / (h P h + r / w); the correction G K z and P in Joseph's form for G K."""
+    p = np.diag(p0).astype(float)
+    out = []
+    for h, r, z, w, g in updates:
+        h = np.asarray(h, dtype=float)
+        s = h @ p @ h + r / w
+        k = p @ h / s
+        gk = k if g is None else np.asarray(g) @ k
+        a = np.eye(len(p0)) - np.outer(gk, h)
+        p = a @ p @ a.T + np.outer(gk, gk) * (r / w)
+        out.append((gk * z, p))
+    return out
+
+
+def _case(seed):
+    """Six states with variances over eight decades (attitude-like and bias-like), two
+    optimal updates that correlate them, then one whose gain map keeps only the part of
+    the first and second blocks along a unit vector (as the ESKF's heading update)."""
+    rng = np.random.default_rng(seed)
+    p0 = [1e-2, 2e-2, 5e-3, 1e-6, 3e-7, 2e-6]
+    up = rng.standard_normal(3)
+    up /= np.linalg.norm(up)
+    g = np.zeros((6, 6))
+    g[:3, :3] = np.outer(up, up)
+    g[3:, 3:] = np.outer(up, up)
+    updates = [
+        (rng.uniform(-1, 1, 6) * [1, 1, 1, 0, 0, 0] + [0, 0, 0, 1, 0, 0], 1e-4, 0.01, 1.0, None),
+        (rng.uniform(-1, 1, 6), 4e-4, -0.02, 0.75, None),
+        (np.r_[rng.uniform(-1, 1, 3) * 0.6, 0, 0, 0], 1e-4, 0.015, 1.0, g),
+        (rng.uniform(-1, 1, 6) * 0.5, 1e-4, 0.005, 0.5, g),
+    ]
+    return p0, updates
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_gain_mapped_update_is_josephs_form(drivers, seed):
+    p0, updates = _case(seed)
+    expected = reference(p0, updates)
+    for build, rtol in (("float", 1e-12), ("fixed", 2e-6)):
+        got = run_driver(drivers[build], p0, updates)
+        assert len(got) == len(updates)
+        for (dx, p), (dx_ref, p_ref) in zip(got, expected):
+            scale = np.sqrt(np.outer(np.diag(p_ref), np.diag(p_ref)))
+            np.testing.assert_allclose(p / scale, p_ref / scale, rtol=0, atol=rtol * 10, err_msg=build)
+            np.testing.assert_allclose(dx, dx_ref, rtol=rtol * 10, atol=1e-9 if build == "fixed" else 1e-15,
+                                       err_msg=build)
+
+
+def test_gain_map_keeps_the_uncertainty_of_what_it_does_not_correct(drivers):
+    """A map that corrects only state 0 leaves every other variance and covariance as it
+    was (Schmidt), while the optimal update would have shrunk them."""
+    p0 = [1e-2, 1e-2, 1e-4]
+    g = np.diag([1.0, 0.0, 0.0])
+    h = [1.0, 1.0, 0.5]
+    (dx_opt, p_opt), = run_driver(drivers["fixed"], p0, [(h, 1e-3, 0.01, 1.0, None)])
+    (dx_map, p_map), = run_driver(drivers["fixed"], p0, [(h, 1e-3, 0.01, 1.0, g)])
+    assert p_opt[1, 1] < 0.6 * p0[1] and p_opt[2, 2] < p0[2]
+    np.testing.assert_allclose(np.diag(p_map)[1:], p0[1:], rtol=1e-7)
+    assert abs(p_map[1, 2]) < 1e-12
+    assert dx_map[1] == 0 and dx_map[2] == 0 and dx_map[0] == pytest.approx(dx_opt[0], rel=1e-6)
+    assert p_map[0, 0] < p0[0]
