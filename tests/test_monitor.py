@@ -110,6 +110,30 @@ def test_filter_select_and_reset_keep_the_live_check_going():
             source.close()
 
 
+def test_the_live_check_follows_the_boards_calibration():
+    """A board corrects its counts with a calibration before the filter: the monitor reads it
+    (GET_CALIBRATION) and the host runs with it, so a calibrated board is bit-exact too."""
+    from imulink.calibration import Calibration, SensorCalibration
+    from imulink.counts import DEFAULT_PROFILE
+    from imulink.link import Link
+    from imulink.monitor.sources import LiveSource
+
+    calibration = Calibration(DEFAULT_PROFILE, {
+        "gyr": SensorCalibration("gyr", np.array([12.5, -7.25, 3.0]), np.eye(3)),
+        "mag": SensorCalibration("mag", np.array([40.0, -25.0, 10.0]), np.diag([1.05, 0.97, 1.01]))})
+    with EmulatedBoard(front="tcp", duration_s=60.0, rate_hz=200.0, realtime=True, filter_name="eskf") as board:
+        with Link(board.address) as link:
+            link.connect()
+            hil.set_calibration(link, calibration)
+        source = LiveSource(board.address)
+        try:
+            wait_for(lambda: source.health().check.identical > 300, what="verified estimates")
+            assert source.health().check.different == 0
+            assert source.check.calibration().sensor("mag").offset.tolist() == [40.0, -25.0, 10.0]
+        finally:
+            source.close()
+
+
 def test_missing_qt_is_one_line_with_the_install_command(monkeypatch, capsys):
     import importlib.util
 

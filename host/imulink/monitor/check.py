@@ -4,8 +4,10 @@ of the same C, as they arrive.
 It follows the stream as :func:`imulink.recording.load_recording` follows a file: the
 active filter and its raw settings come from the SETTING frames (the board's own
 answers to GET_SETTING) and from the SET_SETTING / SELECT_FILTER commands the monitor
-sent (registered with :meth:`LiveCheck.expect` before their ACK is processed); the ACK of
-a command that restarts the filter begins a new filter run at sample index 0. Each run's
+sent (registered with :meth:`LiveCheck.expect` before their ACK is processed), the
+board's sensor calibration from its CALIBRATION frames (GET_CALIBRATION; none seen: the
+identity, as after start-up); the ACK of a command that restarts the filter begins a new
+filter run at sample index 0. Each run's
 samples go through the fixed-point build (what the board must compute) and the float
 twin, batch by batch, and every ESTIMATE of a complete run is compared with the fixed
 build: quaternion, gyro bias and Euler angles, bit for bit. (`imulink compare` on a
@@ -22,6 +24,7 @@ import numpy as np
 
 from .. import core, protocol
 from ..analysis import angle_difference
+from ..calibration import SENSORS, Calibration, CalibrationError, calibration_from_frames
 from ..counts import SensorProfile
 from ..reference import FirmwareFilter
 
@@ -51,11 +54,12 @@ class CheckSummary:
 class _Run:
     """One filter run from sample index 0 with known settings: both host builds, stepped in batches."""
 
-    def __init__(self, filter_name: str, raw_settings: dict[str, int], profile: SensorProfile):
-        reference = FirmwareFilter(filter_name, raw_settings, profile)
+    def __init__(self, filter_name: str, raw_settings: dict[str, int], profile: SensorProfile,
+                 calibration: Calibration | None):
+        reference = FirmwareFilter(filter_name, raw_settings, profile, calibration)
         self.fixed = reference.core
         self.float = core.Filter(filter_name, reference.si_settings["sample_rate"], "float", reference.si_settings,
-                                 profile)
+                                 profile, calibration)
         self.next_index = 0
         self.broken = False  # a sample was lost: nothing after it can be reproduced
         self.pending: list[tuple[int, tuple, tuple, tuple]] = []
@@ -91,6 +95,7 @@ class LiveCheck:
         self.summary = CheckSummary()
         self.filter_id: int | None = None
         self.settings: dict[int, dict[int, int]] = {}  # filter id -> setting index -> raw value
+        self.calibration_frames: dict[tuple[int, int], dict] = {}  # (sensor code, axis) -> CALIBRATION fields
         self._expected: dict[int, tuple[str, int, int]] = {}  # command_seq -> ("filter", id, 0) | ("setting", i, v)
         self._run: _Run | None = None
         self._estimates: list[dict] = []
@@ -115,10 +120,13 @@ class LiveCheck:
                 self.settings.setdefault(fields["filter_id"], {})[fields["index"]] = fields["value"]
             elif name == "STATUS":
                 self.filter_id = fields["active_filter"]
+            elif name == "CALIBRATION":
+                self.calibration_frames[fields["sensor"], fields["axis"]] = fields
             elif name == "ACK" and fields["command"] in _RESTARTING_IDS:
                 self._restart(self._expected.pop(fields["command_seq"], None))
-            elif name == "HELLO" and message.seq == 0:  # the board started again: defaults, unknown to us
-                self.settings.clear()
+            elif name == "HELLO" and message.seq == 0:  # the board started again: default settings, unknown to
+                self.settings.clear()                       # us, and the identity calibration
+                self.calibration_frames.clear()
                 self._run = None
         return self._compare()
 
@@ -135,9 +143,20 @@ class LiveCheck:
         known = self.settings.get(self.filter_id, {})
         if all(i in known for i in range(len(fields))):
             try:
-                self._run = _Run(name, {f.name: known[i] for i, f in enumerate(fields)}, self.profile)
-            except core.SettingsError:
+                self._run = _Run(name, {f.name: known[i] for i, f in enumerate(fields)}, self.profile,
+                                 self.calibration())
+            except (core.SettingsError, CalibrationError):
                 self._run = None
+
+    def calibration(self) -> Calibration | None:
+        """The board's calibration as its CALIBRATION frames report it; None (the identity) when it
+        sent none. CalibrationError when only part of it arrived: the run cannot be reproduced."""
+        if not self.calibration_frames:
+            return None
+        sensors = calibration_from_frames(list(self.calibration_frames.values()))
+        if set(sensors) != set(SENSORS):
+            raise CalibrationError("only part of the board's calibration was received")
+        return Calibration(self.profile, sensors)
 
     def _compare(self) -> list[float]:
         if self._run is not None:

@@ -203,10 +203,14 @@ class LiveSource:
                             + (f" (reconnected, {reconnects} time(s) so far)" if reconnects else ""))
 
     def _restart_stream(self, writer: RecordingWriter | None = None) -> None:
-        """Handshake, the board's state and settings, its filter restarted at sample 0 and
-        the stream started: hil.snapshot, as `imulink record` begins (into `writer` when
-        recording). The answers also reach the live check through the stream."""
+        """Handshake, the board's state, settings and calibration, its filter restarted at
+        sample 0 and the stream started: hil.snapshot, as `imulink record` begins (into
+        `writer` when recording). The answers also reach the live check through the stream."""
         _, filter_id, _, status = hil.snapshot(self._link, writer)
+        if writer is None:  # with a writer the snapshot read it already, for the file
+            hil.read_calibration(self._link, self.profile)
+        # the live check learnt the calibration from the CALIBRATION answers: a run from sample 0 with it
+        self.check.expect(self._link.command("SELECT_FILTER", filter_id=filter_id).ack, ("filter", filter_id, 0))
         self._link.command("START_STREAM")
         if writer is not None:
             writer.event("stream_started", filter=FILTER_NAMES.get(filter_id, str(filter_id)))
