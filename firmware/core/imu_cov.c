@@ -478,6 +478,11 @@ void imu_cov_cap_unit_variance(imu_cov_t *c, int i)
     cap_unit_variance(c, i);
 }
 
+imu_real_t imu_cov_element_q30(const imu_cov_t *c, int i, int j, uint32_t *sat)
+{
+    return IMU_WIDE_SAT(wide_ldexp(c->p[cell(i, j)], c->e[i] + c->e[j], sat), sat);
+}
+
 void imu_cov_get(const imu_cov_t *c, int i, int j, imu_real_t *mant, int32_t *exp)
 {
     *mant = c->p[cell(i, j)];
