@@ -91,51 +91,50 @@ static uint32_t isqrt64(uint64_t v)
     return (uint32_t)(root >> k);
 }
 
-static int64_t abs64(int64_t v)
+/** |v| as uint32 (2^31 for INT32_MIN). */
+static uint32_t abs32(int32_t v)
 {
-    return v < 0 ? -v : v;
-}
-
-/** Number of left shifts that bring max(|a|,|b|,|c|) (int32 range) to at least 2^29. */
-static int headroom_shift(int64_t a, int64_t b, int64_t c)
-{
-    int64_t m = abs64(a);
-    int shift;
-    if (abs64(b) > m) {
-        m = abs64(b);
-    }
-    if (abs64(c) > m) {
-        m = abs64(c);
-    }
-    shift = 30 - bit_length64((uint64_t)m);
-    return m == 0 || shift < 0 ? 0 : shift;
+    return v < 0 ? (uint32_t)0 - (uint32_t)v : (uint32_t)v;
 }
 
 int imu_vec3_normalize(const imu_real_t v[3], imu_q30_t unit[3], imu_real_t *norm)
 {
-    /* Scaled so the largest component is in [2^29, 2^31]: the sum of squares is
-     * below 3 * 2^62 < 2^64 and the root below 2^32. */
-    const int shift = headroom_shift(v[0], v[1], v[2]);
-    const int64_t scale = (int64_t)1 << shift;
-    int64_t s[3];
+    /* Magnitudes scaled so that the largest is in [2^29, 2^31]: the sum of squares is
+     * below 3 * 2^62 < 2^64 and the root below 2^32. In uint32, each square and each
+     * product below is one 32 x 32 -> 64-bit multiply. */
+    uint32_t m[3];
+    uint32_t largest;
     uint64_t sum = 0;
+    uint64_t inv;
     uint32_t n;
+    int shift;
     int i;
     for (i = 0; i < 3; ++i) {
-        s[i] = (int64_t)v[i] * scale;
-        sum += (uint64_t)(s[i] * s[i]);
+        m[i] = abs32(v[i]);
     }
-    n = isqrt64(sum);
-    if (n == 0) {
+    largest = m[0] > m[1] ? m[0] : m[1];
+    largest = largest > m[2] ? largest : m[2];
+    if (largest == 0) {
         return 0;
     }
-    {
-        /* 1/n in Q61 (n >= 2^29: at most 2^32); |s| <= n keeps s * inv below
-         * 2^63 and the Q30 result within [-2^30, 2^30]. */
-        const int64_t inv = imu_udiv_or_big((uint64_t)1 << 61, n); /* exact: 2^32 for n = 2^29 */
-        for (i = 0; i < 3; ++i) {
-            unit[i] = (imu_q30_t)imu_rshift_round64(s[i] * inv, 31);
-        }
+    shift = imu_clz32(largest) - 2; /* 30 - bit length */
+    if (shift < 0) {
+        shift = 0;
+    }
+    for (i = 0; i < 3; ++i) {
+        m[i] <<= shift;
+        sum += (uint64_t)m[i] * m[i];
+    }
+    n = isqrt64(sum); /* at least 2^29 */
+    /* 1/n in Q61 (n >= 2^29: at most 2^32, exactly 2^32 for n = 2^29); m <= n keeps
+     * m * inv at most 2^63 and the Q30 result within 2^30. */
+    inv = (uint64_t)imu_udiv_or_big((uint64_t)1 << 61, n);
+    for (i = 0; i < 3; ++i) {
+        /* The signed product (+-m inv) rounded by (x + 2^30) >> 31, ties toward +inf:
+         * for -m that is -((m inv + 2^30 - 1) >> 31). */
+        const uint64_t p = (uint64_t)m[i] * inv;
+        unit[i] = v[i] < 0 ? -(imu_q30_t)((p + ((uint64_t)1 << 30) - 1) >> 31)
+                           : (imu_q30_t)((p + ((uint64_t)1 << 30)) >> 31);
     }
     if (norm != 0) {
         const uint64_t unscaled = ((uint64_t)n + (((uint64_t)1 << shift) >> 1)) >> shift;
