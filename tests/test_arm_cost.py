@@ -163,6 +163,18 @@ def test_block_counter_equals_per_instruction_counter(build, data):
     assert emu.it_skipped_total > 0
 
 
+def test_profile_accounts_for_every_instruction(build, data):
+    """--profile splits each measured call's instructions among functions: they add up to the
+    call's count, and the work lands where it is done (the EECF's get converts to Euler angles)."""
+    emu = bench_arm.Emulator(build, profile=True)
+    cost, _ = bench_arm.run_filter(emu, bench_arm.CONFIGS["eecf"], data, 7)
+    profile = bench_arm.call_profile(emu)
+    assert sum(count for _, count in profile["imu_filter_update_raw"]) == pytest.approx(cost.update.mean)
+    assert sum(count for _, count in profile["imu_filter_get"]) == pytest.approx(cost.get.mean)
+    get = dict(profile["imu_filter_get"])
+    assert get["imu_atan2"] > 0.3 * cost.get.mean and "imu_eecf_update" not in get
+
+
 # --------------------------------------------------------------------------- (a) bit-exact, (c) ceiling
 
 
