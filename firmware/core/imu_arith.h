@@ -114,47 +114,45 @@ static inline int imu_clz32(uint32_t v)
 }
 
 /**
+ * One 16-bit digit of imu_udiv64_32: floor((top 2^16 + next) / v) for top 2^16 + next < v
+ * 2^16, next < 2^16 and v = vn1 2^16 + vn0 normalised (vn1 >= 2^15). Estimated from
+ * top / vn1, at most two too large, and corrected against vn0 before use.
+ */
+static inline uint32_t imu_udiv_digit(uint32_t top, uint32_t next, uint32_t vn1, uint32_t vn0)
+{
+    const uint32_t b = (uint32_t)1 << 16;
+    uint32_t q = top / vn1;
+    uint32_t rhat = top - q * vn1;
+    /* q * vn0 only once q < 2^16; b rhat + next below 2^32 while rhat < 2^16. */
+    while (q >= b || q * vn0 > b * rhat + next) {
+        --q;
+        rhat += vn1;
+        if (rhat >= b) {
+            break;
+        }
+    }
+    return q;
+}
+
+/**
  * floor(u / v) for v > 0 and u / 2^32 < v (the quotient fits 32 bits), exact, without a
  * 64-bit division: the Cortex-M4 divides 32 by 32 bits in one instruction, 64 bits only
  * in a library routine (__aeabi_uldivmod, 60 to 100 instructions). Long division in
  * base 2^16 after normalising v to [2^31, 2^32) (Knuth's algorithm D, as Hacker's
- * Delight's divlu): each 16-bit digit is estimated from the top 32 bits of the
- * remainder over the top 16 bits of v, at most two too large, and corrected against
- * the next 16 bits of v before it is used. About 35 instructions.
+ * Delight's divlu), two digits of imu_udiv_digit. About 35 instructions.
  */
 static inline uint32_t imu_udiv64_32(uint64_t u, uint32_t v)
 {
-    const uint32_t b = (uint32_t)1 << 16;
     const int s = imu_clz32(v);
     const uint64_t un = u << s; /* u < v 2^32: below 2^64 after the shift */
     const uint32_t un32 = (uint32_t)(un >> 32);
     const uint32_t un1 = (uint32_t)un >> 16;
     const uint32_t un0 = (uint32_t)un & 0xFFFFu;
-    uint32_t vn1, vn0, un21, q1, q0, rhat;
+    uint32_t q1, rem;
     v <<= s;
-    vn1 = v >> 16;
-    vn0 = v & 0xFFFFu;
-    q1 = un32 / vn1;
-    rhat = un32 - q1 * vn1;
-    /* q1 * vn0 only once q1 < 2^16; b rhat + un1 below 2^32 while rhat < 2^16. */
-    while (q1 >= b || q1 * vn0 > b * rhat + un1) {
-        --q1;
-        rhat += vn1;
-        if (rhat >= b) {
-            break;
-        }
-    }
-    un21 = un32 * b + un1 - q1 * v; /* the remainder after the first digit, below v: exact modulo 2^32 */
-    q0 = un21 / vn1;
-    rhat = un21 - q0 * vn1;
-    while (q0 >= b || q0 * vn0 > b * rhat + un0) {
-        --q0;
-        rhat += vn1;
-        if (rhat >= b) {
-            break;
-        }
-    }
-    return q1 * b + q0;
+    q1 = imu_udiv_digit(un32, un1, v >> 16, v & 0xFFFFu);
+    rem = un32 * ((uint32_t)1 << 16) + un1 - q1 * v; /* below v: exact modulo 2^32 */
+    return q1 * ((uint32_t)1 << 16) + imu_udiv_digit(rem, un0, v >> 16, v & 0xFFFFu);
 }
 
 /** |v| of an int64 above INT64_MIN, as uint64. */

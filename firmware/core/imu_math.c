@@ -361,14 +361,15 @@ static void quat_mul_step_normalized(imu_q30_t q[4], imu_q30_t w, const int32_t 
         (((int64_t)v[2] * v[2]) >> 4) - one58;
     if (a < near && a > -near && b < near && b > -near) {
         /* eps = a + b + a b, Q58, |eps| < 2^49 (|a b| < 2^36 from the Q29 factors). */
-        const int64_t eps = a + b + (a >> 29) * (b >> 29);
-        const int64_t eps29 = eps >> 29; /* Q29, |eps29| < 2^20 */
-        /* k = eps/2 - 3 eps^2/8 in Q40 (|k| < 2^30): Q58 >> 19, and Q58 >> 21 for 3/8. */
-        const int64_t k = (eps >> 19) - ((3 * eps29 * eps29) >> 21);
+        const int64_t eps = a + b + (int64_t)(int32_t)(a >> 29) * (int32_t)(b >> 29);
+        const int32_t eps29 = (int32_t)(eps >> 29); /* Q29, |eps29| < 2^20 */
+        /* k = eps/2 - 3 eps^2/8 in Q40 (|k| < 2^30): Q58 >> 19, and Q58 >> 21 for 3/8. The
+         * factors of each product here fit int32: one 32 x 32 -> 64-bit multiply each. */
+        const int32_t k = (int32_t)((eps >> 19) - (((int64_t)(3 * eps29) * eps29) >> 21));
         for (i = 0; i < 4; ++i) {
             /* r (Q61, |r| < 2^62) >> 31 is Q30 below 2^31; times k (Q40) is Q70 below 2^61;
              * >> 9 -> Q61. The truncations cost 2^-9 LSB of the result. */
-            const int64_t c = ((r[i] >> 31) * k) >> 9;
+            const int64_t c = ((int64_t)(int32_t)(r[i] >> 31) * k) >> 9;
             q[i] = IMU_NARROW(rshift_round_even64(r[i] - c, 31)); /* |r - c| < 2^62: below 2^31 */
         }
         return;
