@@ -124,6 +124,30 @@ def fixed_sincos(angles):
     return out
 
 
+# --------------------------------------------------------------------------- square root
+
+
+def test_hypot_fixed_is_the_floor_of_the_exact_root():
+    """imu_hypot is floor(sqrt(a^2 + b^2)) exactly (its integer square root, isqrt64, is
+    normalised and Newton-stepped: its last checks must make it exact), over the whole
+    int32 range, near perfect squares and at small values."""
+    import math
+    import random
+    rng = random.Random(11)
+    pairs = [(rng.randint(INT32_MIN, INT32_MAX) >> rng.randrange(32), rng.randint(INT32_MIN, INT32_MAX)
+              >> rng.randrange(32)) for _ in range(40000)]
+    for _ in range(5000):  # Pythagorean triples scaled and moved by one: the root's floor changes there
+        m, n = rng.randint(2, 30000), rng.randint(1, 30000)
+        a, b = abs(m * m - n * n), 2 * m * n
+        if max(a, b) <= INT32_MAX:
+            pairs += [(a, b), (a - 1, b), (a, b - 1), (a + 1, b)]
+    pairs += [(a, b) for a in (INT32_MIN, INT32_MAX, -1, 0, 1) for b in (INT32_MIN, INT32_MAX, -1, 0, 1, 2, 3)]
+    pairs += [(a, b) for a in range(-20, 21) for b in range(0, 21)]
+    f = _core_fixed.lib.imu_hypot
+    wrong = [(a, b) for a, b in pairs if f(a, b) != min(math.isqrt(a * a + b * b), INT32_MAX)]
+    assert not wrong, f"{len(wrong)} wrong, first {wrong[0]}"
+
+
 # --------------------------------------------------------------------------- atan2
 
 
@@ -206,8 +230,18 @@ def _worst_sincos() -> str:
     return f"angle {SINCOS_IN[i]} (Q29, {SINCOS_IN[i] / Q29:.6f} rad): error {SINCOS_ERR[i]:.3g}"
 
 
+def test_math_tables_are_generated():
+    """imu_math_tables.h is what tools/gen_math_tables.py writes (its formulas are the reference)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+    tool = Path(__file__).resolve().parents[1] / "tools" / "gen_math_tables.py"
+    proc = subprocess.run([sys.executable, str(tool), "--check"], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+
+
 def test_sincos_fixed_accuracy():
-    """CORDIC with a Q40 angle accumulator: within about 2 LSB of Q30."""
+    """Table and Taylor series with a Q62 sum: within 1 LSB of Q30."""
     assert SINCOS_ERR.max() < 2e-9, _worst_sincos()
     assert np.median(SINCOS_ERR) < 1e-9
 

@@ -164,6 +164,16 @@ def test_every_message_is_the_same_bytes_in_c_and_python(name, data):
     assert c_wire == py_wire
     assert protocol.decode(c_wire) == protocol.Message(name, seq, fields)
 
+    # A buffer of exactly the frame's size suffices; one byte less gets 0 and nothing
+    # written past the buffer (the fixed-size messages are packed into it in place).
+    struct = to_struct(f"imu_proto_{lower}_t", spec["fields"], fields)
+    for cap in (n, n - 1):
+        guarded = ffi.new("uint8_t[]", lib.IMU_PROTO_MAX_WIRE)
+        ffi.memmove(guarded, b"\xa5" * lib.IMU_PROTO_MAX_WIRE, lib.IMU_PROTO_MAX_WIRE)
+        got = getattr(lib, f"imu_proto_{lower}_encode")(struct, seq, guarded, cap)
+        assert got == (n if cap == n else 0)
+        assert raw(guarded, lib.IMU_PROTO_MAX_WIRE)[cap:] == b"\xa5" * (lib.IMU_PROTO_MAX_WIRE - cap)
+
 
 @pytest.mark.parametrize("name", MESSAGE_NAMES)
 def test_unpack_rejects_every_wrong_length(name):
@@ -258,6 +268,21 @@ def test_cobs_decode_rejects_what_the_cobs_package_rejects(data):
     else:
         assert status == lib.IMU_PROTO_OK and raw(out, length[0]) == expected
     assert lib.imu_proto_cobs_decode(data, 0, out, 400, length) == lib.IMU_PROTO_ERR_COBS
+
+
+@settings(max_examples=300, **HYPOTHESIS)
+@given(payload=st.one_of(st.binary(max_size=300), COBS_INPUTS.filter(lambda d: len(d) <= 300)),
+       seq=st.integers(0, 0xFFFF))
+def test_frame_encode_matches_python_in_place_and_streaming(payload, seq):
+    """Frames up to 253 bytes are COBS-encoded in place, longer ones by the streaming
+    writer (a full block of 254 data bytes needs an extra code byte): the same bytes."""
+    body = bytes([lib.IMU_PROTO_MSG_LOG]) + seq.to_bytes(2, "little") + payload
+    expected = cobs.encode(body + zlib.crc32(body).to_bytes(4, "little")) + b"\0"
+    wire = ffi.new("uint8_t[]", len(expected) + 8)
+    n = lib.imu_proto_frame_encode(lib.IMU_PROTO_MSG_LOG, seq, payload, len(payload), wire, len(expected))
+    assert raw(wire, n) == expected
+    assert lib.imu_proto_frame_encode(lib.IMU_PROTO_MSG_LOG, seq, payload, len(payload), wire,
+                                      len(expected) - 1) == 0
 
 
 def test_frame_encode_refuses_a_short_buffer():

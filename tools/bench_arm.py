@@ -22,12 +22,15 @@ KF1D, ESKF with 6 and with 9 states, default settings, simulated random motion a
 - the deepest stack each measured function used (painted stack), next to the static
   estimate from -fstack-usage / -fcallgraph-info;
 - flash (code + rodata) and RAM (data + bss) of each filter's objects, of the shared
-  math and of the codec, and the state sizes (sizeof on the target).
+  math and of the codec, and the state sizes (sizeof on the target);
+- with --profile, where the instructions go: per measured call (update_raw, get, the
+  two encoders), the instructions executed inside each function (its own, callees
+  apart), per call.
 
 Instructions are not cycles: on a Cortex-M4 most take one cycle, loads and stores
 two, divisions 2-12; the DWT cycle counter on a board is the cycle truth.
 
-    .venv/bin/python tools/bench_arm.py [--samples 4000] [--filters eecf,kf1d,eskf,eskf9] [--json]
+    .venv/bin/python tools/bench_arm.py [--samples 4000] [--filters eecf,kf1d,eskf,eskf9] [--profile] [--json]
 
 Needs arm-none-eabi-gcc (with newlib) on the PATH and the Python package unicorn.
 The full run takes a few minutes (every instruction is emulated).
@@ -35,6 +38,8 @@ The full run takes a few minutes (every instruction is emulated).
 from __future__ import annotations
 
 import argparse
+import bisect
+import collections
 import datetime
 import json
 import re
@@ -189,6 +194,24 @@ def read_symbols(elf: Path) -> dict[str, Symbol]:
         elif len(parts) == 3:
             symbols[parts[2]] = Symbol(int(parts[0], 16), 0, parts[1])
     return symbols
+
+
+def function_ranges(elf: Path) -> tuple[list[int], list[str]]:
+    """Start addresses (sorted) and names of the ELF's functions, static ones included; a
+    static function whose name another function shares is named with its source file."""
+    out = _run([_tool("arm-none-eabi-readelf"), "-sW", elf], "arm-none-eabi-readelf")
+    functions = []  # (address, name, file of a local symbol)
+    source = ""
+    for line in out.splitlines():
+        parts = line.split()
+        if len(parts) == 8 and parts[3] == "FILE":
+            source = parts[7]
+        elif len(parts) == 8 and parts[3] == "FUNC":
+            functions.append((int(parts[1], 16) & ~1, parts[7], source if parts[4] == "LOCAL" else ""))
+    counts = collections.Counter(name for _, name, _ in functions)
+    functions.sort()
+    return ([address for address, _, _ in functions],
+            [f"{name} ({source})" if counts[name] > 1 and source else name for _, name, source in functions])
 
 
 # ============================================================================ no floating point
@@ -389,7 +412,7 @@ class Emulator:
     `count_each_instruction` a per-instruction hook counts as well, to check the former.
     """
 
-    def __init__(self, build: ArmBuild, count_each_instruction: bool = False):
+    def __init__(self, build: ArmBuild, count_each_instruction: bool = False, profile: bool = False):
         if unicorn is None:
             raise BenchError("the Python package unicorn is missing: .venv/bin/pip install unicorn")
         self.build = build
@@ -417,6 +440,11 @@ class Emulator:
         if count_each_instruction:
             self.uc.hook_add(unicorn.UC_HOOK_CODE, self._on_instruction)
         self._functions: dict[str, int] = {}
+        #: With `profile`: instructions per (called function, function executing), and calls per called function.
+        self.profile: collections.Counter | None = collections.Counter() if profile else None
+        self.profile_calls: collections.Counter = collections.Counter()
+        self._calling = ""
+        self._function_starts, self._function_names = function_ranges(build.elf) if profile else ([], [])
 
     def _on_block(self, uc, address, size, _user):
         key = (address, size)
@@ -424,6 +452,9 @@ class Emulator:
         if n is None:
             n = self._block_instructions[key] = thumb_instruction_count(bytes(uc.mem_read(address, size)))
         self.instructions += n
+        if self.profile is not None:
+            inside = self._function_names[bisect.bisect_right(self._function_starts, address) - 1]
+            self.profile[self._calling, inside] += n
 
     def _on_instruction(self, uc, address, size, _user):
         """Reference count, one call per instruction. unicorn does not call this hook for an
@@ -492,6 +523,8 @@ class Emulator:
         self.instructions = 0
         self.instructions_each = 0
         self.it_skipped = 0
+        self._calling = function
+        self.profile_calls[function] += 1
         try:
             self.uc.emu_start(entry | 1, self.halt)
         except unicorn.UcError as exc:
@@ -844,10 +877,27 @@ class Results:
     target_sizes: dict[str, int]
     date: str
     seconds: float = 0.0
+    #: With --profile: per measured row (label), per call measured, [function, instructions per call].
+    profiles: dict[str, dict[str, list[tuple[str, float]]]] = field(default_factory=dict)
+
+
+#: The calls whose profile is reported (the others, set-up and read-back, are the harness's).
+PROFILED_CALLS = ("imu_filter_update_raw", "imu_filter_get", "imu_proto_sample_encode", "imu_proto_estimate_encode")
+
+
+def call_profile(emu: Emulator) -> dict[str, list[tuple[str, float]]]:
+    """Instructions per call spent in each function, per profiled call, largest first."""
+    result = {}
+    for call in PROFILED_CALLS:
+        calls = emu.profile_calls.get(call, 0)
+        if calls:
+            rows = [(inside, count / calls) for (calling, inside), count in emu.profile.items() if calling == call]
+            result[call] = sorted(rows, key=lambda row: -row[1])
+    return result
 
 
 def run_benchmark(samples: int, filter_keys: list[str], build_dir: Path, codec: bool = True,
-                  decode_samples: int | None = None, progress=lambda _msg: None) -> Results:
+                  decode_samples: int | None = None, progress=lambda _msg: None, profile: bool = False) -> Results:
     """Build, check and measure everything; raises BenchError when a check fails."""
     start = time.perf_counter()
     build = build_arm(build_dir)
@@ -855,23 +905,30 @@ def run_benchmark(samples: int, filter_keys: list[str], build_dir: Path, codec: 
     progress(f"built {build.elf} ({build.compiler}); no floating point")
     data = simulated_data(samples)
     filters = {}
+    profiles = {}
     for key in filter_keys:
         config = CONFIGS[key]
         t0 = time.perf_counter()
-        cost = measure_filter(Emulator(build), config, data, samples)
+        emu = Emulator(build, profile=profile)
+        cost = measure_filter(emu, config, data, samples)
         add_static_stack(build, cost, config)
         filters[key] = cost
+        if profile:
+            profiles[config.label] = call_profile(emu)
         progress(f"{config.label}: {samples} samples bit-exact, {time.perf_counter() - t0:.0f} s")
     codec_cost = None
     if codec:
         t0 = time.perf_counter()
-        codec_cost = measure_codec(Emulator(build), data, samples, decode_samples)
+        emu = Emulator(build, profile=profile)
+        codec_cost = measure_codec(emu, data, samples, decode_samples)
         add_codec_static_stack(build, codec_cost)
+        if profile:
+            profiles["codec"] = call_profile(emu)
         progress(f"codec: {codec_cost.frames} frames encoded and decoded, {time.perf_counter() - t0:.0f} s")
     results = Results(build.compiler, CFLAGS, ["-nostartfiles", "-Wl,--gc-sections", f"-T {LINKER_SCRIPT.name}"],
                       samples, f'sim.make_scenario("random", {samples / RATE_HZ:g}, {RATE_HZ:g}, seed={SCENARIO_SEED})',
                       filters, codec_cost, object_sizes(build), library_sizes(build),
-                      target_sizes(Emulator(build)), datetime.date.today().isoformat())
+                      target_sizes(Emulator(build)), datetime.date.today().isoformat(), profiles=profiles)
     results.seconds = time.perf_counter() - start
     return results
 
@@ -939,6 +996,20 @@ def markdown_table(r: Results) -> str:
     return "\n".join(lines)
 
 
+def profile_table(r: Results, top: int = 8) -> str:
+    """Per measured call, the functions that executed most of its instructions."""
+    lines = ["| measured call | function: instructions per call (share) |", "|---|---|"]
+    for label, calls in r.profiles.items():
+        for call, rows in calls.items():
+            total = sum(count for _, count in rows)
+            shown = "; ".join(f"{name} {_n(count)} ({100 * count / total:.0f} %)" for name, count in rows[:top])
+            rest = sum(count for _, count in rows[top:])
+            if rest:
+                shown += f"; others {_n(rest)}"
+            lines.append(f"| {label} {call} ({_n(total)}) | {shown} |")
+    return "\n".join(lines)
+
+
 def report(r: Results) -> str:
     notes = [
         f"Cortex-M4 build: {r.compiler}",
@@ -955,6 +1026,9 @@ def report(r: Results) -> str:
         "(arm-none-eabi-size, before --gc-sections); RAM B: their data + bss; state B: sizeof on the target.",
         f"runtime: {r.seconds:.0f} s",
     ]
+    if r.profiles:
+        notes += ["", "Where the instructions go (each function's own instructions, callees apart, per call; "
+                  "static functions the compiler inlined count in their caller):", "", profile_table(r)]
     return "\n".join(notes)
 
 
@@ -973,6 +1047,9 @@ def main() -> int:
     parser.add_argument("--no-codec", action="store_true", help="skip the frame encoder and decoder")
     parser.add_argument("--build-dir", type=Path, default=None,
                         help="keep the objects, .su/.ci files, map and ELF here (default: a temporary directory)")
+    parser.add_argument("--profile", action="store_true",
+                        help="also report, per measured call, the instructions spent in each function "
+                             "(the run takes about twice as long)")
     parser.add_argument("--json", action="store_true", help="print machine-readable results instead of the table")
     args = parser.parse_args()
     keys = [k.strip() for k in args.filters.split(",") if k.strip()]
@@ -988,11 +1065,11 @@ def main() -> int:
     try:
         if args.build_dir is not None:
             results = run_benchmark(args.samples, keys, args.build_dir, not args.no_codec, args.decode_samples,
-                                    progress)
+                                    progress, args.profile)
         else:
             with tempfile.TemporaryDirectory(prefix="bench_arm.") as tmp:
                 results = run_benchmark(args.samples, keys, Path(tmp), not args.no_codec, args.decode_samples,
-                                        progress)
+                                        progress, args.profile)
     except BenchError as exc:
         print(f"FAIL: {exc}", file=sys.stderr)
         return 1

@@ -54,6 +54,8 @@ MD_END = "<!-- END GENERATED -->"
 
 HEADER_SIZE = 3  # msg_id u8 + seq u16
 CRC_SIZE = 4  # CRC-32
+#: Longest frame (header + payload + CRC) the C encoder COBS-encodes in place (imu_proto.c).
+FRAME_IN_PLACE_MAX = 253
 DIRECTIONS = ("to_host", "to_board")
 
 #: Integer field types: (bytes, C type, signed).
@@ -546,10 +548,59 @@ def _c_pack_unpack(type_name: str, prefix: str, fields: tuple[Field, ...], size_
     return pack + unpack
 
 
+#: Reflected polynomial of the frames' CRC-32 (the zlib / IEEE 802.3 CRC).
+CRC32_POLY = 0xEDB88320
+
+
+def crc32_table() -> list[int]:
+    """CRC of each byte value, one table step per byte (checked against zlib by the tests)."""
+    table = []
+    for byte in range(256):
+        crc = byte
+        for _ in range(8):
+            crc = (crc >> 1) ^ (CRC32_POLY if crc & 1 else 0)
+        table.append(crc)
+    return table
+
+
+def _c_crc32() -> list[str]:
+    """The CRC-32 with a 256-entry table in flash (1 KiB): one lookup per byte, about four
+    Cortex-M4 instructions, where a table of 16 nibbles took two lookups and eleven."""
+    table = crc32_table()
+    rows = [", ".join(f"0x{v:08X}u" for v in table[i:i + 6]) for i in range(0, 256, 6)]
+    return [
+        f"/* CRC-32 of each byte value for the reflected polynomial 0x{CRC32_POLY:08X}. */",
+        "static const uint32_t crc32_table[256] = {",
+        *(f"    {row}," for row in rows),
+        "};",
+        "",
+        "uint32_t imu_proto_crc32(uint32_t crc, const uint8_t *data, size_t len)",
+        "{",
+        "    size_t words;",
+        "    size_t i;",
+        "    crc = ~crc;",
+        "    /* Four bytes at a time: the reflected CRC takes them as one little-endian word,",
+        "     * then four table steps. */",
+        "    for (words = len / 4u; words != 0; --words, data += 4) {",
+        "        crc ^= get_u32(data);",
+        "        crc = (crc >> 8) ^ crc32_table[crc & 0xFFu];",
+        "        crc = (crc >> 8) ^ crc32_table[crc & 0xFFu];",
+        "        crc = (crc >> 8) ^ crc32_table[crc & 0xFFu];",
+        "        crc = (crc >> 8) ^ crc32_table[crc & 0xFFu];",
+        "    }",
+        "    for (i = 0; i < len % 4u; ++i) {",
+        "        crc = (crc >> 8) ^ crc32_table[(crc ^ data[i]) & 0xFFu];",
+        "    }",
+        "    return ~crc;",
+        "}",
+        "",
+    ]
+
+
 def render_c_source(schema: Schema) -> str:
     """The generated section of imu_proto.c (after the hand-written little-endian helpers)."""
     used = {f.base for m in schema.messages for f in m.fields} | {f.base for c in schema.commands for f in c.args}
-    lines = []
+    lines = _c_crc32()
     conversions = {
         "i8": ("int8_t", "uint8_t", "0x80u", "(uint8_t)~u"),
         "i16": ("int16_t", "uint16_t", "0x8000u", "(uint16_t)~u"),
@@ -569,16 +620,24 @@ def render_c_source(schema: Schema) -> str:
         n, N = _c_name(m.name), m.name
         t = f"imu_proto_{n}_t"
         lines += _c_pack_unpack(t, f"imu_proto_{n}", m.fields, f"IMU_PROTO_{N}_SIZE", m.fixed_size, "m", "payload")
-        lines += [
-            f"size_t imu_proto_{n}_encode(const {t} *m, uint16_t seq, uint8_t *wire, size_t wire_cap)",
-            "{",
-            f"    uint8_t payload[IMU_PROTO_{N}_SIZE];",
-            f"    size_t len = imu_proto_{n}_pack(m, payload);",
-        ]
-        if m.variable:
-            lines += ["    if (len == 0) {", "        return 0;", "    }"]
-        lines += [f"    return imu_proto_frame_encode(IMU_PROTO_MSG_{N}, seq, payload, len, wire, wire_cap);", "}",
-                  ""]
+        lines.append(f"size_t imu_proto_{n}_encode(const {t} *m, uint16_t seq, uint8_t *wire, size_t wire_cap)")
+        if m.variable or m.fixed_size + HEADER_SIZE + CRC_SIZE > FRAME_IN_PLACE_MAX:
+            lines += ["{", f"    uint8_t payload[IMU_PROTO_{N}_SIZE];", f"    size_t len = imu_proto_{n}_pack(m, payload);"]
+            if m.variable:
+                lines += ["    if (len == 0) {", "        return 0;", "    }"]
+            lines += [f"    return imu_proto_frame_encode(IMU_PROTO_MSG_{N}, seq, payload, len, wire, wire_cap);"]
+        else:
+            # Packed straight into the wire buffer and encoded in place (frame_seal in the
+            # hand-written part): the frame's code byte and delimiter are its only extra bytes.
+            lines += [
+                "{",
+                f"    if (wire_cap < IMU_PROTO_{N}_SIZE + IMU_PROTO_MIN_FRAME + 2u) {{",
+                "        return 0;",
+                "    }",
+                f"    (void)imu_proto_{n}_pack(m, wire + FRAME_PAYLOAD_OFFSET);",
+                f"    return frame_seal(IMU_PROTO_MSG_{N}, seq, IMU_PROTO_{N}_SIZE, wire);",
+            ]
+        lines += ["}", ""]
     for c in schema.commands:
         if not c.args:
             continue

@@ -95,6 +95,80 @@ static inline int64_t imu_rshift_round64(int64_t v, int s)
     return (v + ((int64_t)1 << (s - 1))) >> s;
 }
 
+/** Leading zero bits of v != 0 (GCC and Clang: the Cortex-M4's CLZ instruction). */
+static inline int imu_clz32(uint32_t v)
+{
+#if defined(__GNUC__)
+    return __builtin_clz(v);
+#else
+    int n = 0;
+    int step;
+    for (step = 16; step > 0; step >>= 1) {
+        if (v < ((uint32_t)1 << (32 - step))) {
+            n += step;
+            v <<= step;
+        }
+    }
+    return n;
+#endif
+}
+
+/**
+ * One 16-bit digit of imu_udiv64_32: floor((top 2^16 + next) / v) for top 2^16 + next < v
+ * 2^16, next < 2^16 and v = vn1 2^16 + vn0 normalised (vn1 >= 2^15). Estimated from
+ * top / vn1, at most two too large, and corrected against vn0 before use.
+ */
+static inline uint32_t imu_udiv_digit(uint32_t top, uint32_t next, uint32_t vn1, uint32_t vn0)
+{
+    const uint32_t b = (uint32_t)1 << 16;
+    uint32_t q = top / vn1;
+    uint32_t rhat = top - q * vn1;
+    /* q * vn0 only once q < 2^16; b rhat + next below 2^32 while rhat < 2^16. */
+    while (q >= b || q * vn0 > b * rhat + next) {
+        --q;
+        rhat += vn1;
+        if (rhat >= b) {
+            break;
+        }
+    }
+    return q;
+}
+
+/**
+ * floor(u / v) for v > 0 and u / 2^32 < v (the quotient fits 32 bits), exact, without a
+ * 64-bit division: the Cortex-M4 divides 32 by 32 bits in one instruction, 64 bits only
+ * in a library routine (__aeabi_uldivmod, 60 to 100 instructions). Long division in
+ * base 2^16 after normalising v to [2^31, 2^32) (Knuth's algorithm D, as Hacker's
+ * Delight's divlu), two digits of imu_udiv_digit. About 35 instructions.
+ */
+static inline uint32_t imu_udiv64_32(uint64_t u, uint32_t v)
+{
+    const int s = imu_clz32(v);
+    const uint64_t un = u << s; /* u < v 2^32: below 2^64 after the shift */
+    const uint32_t un32 = (uint32_t)(un >> 32);
+    const uint32_t un1 = (uint32_t)un >> 16;
+    const uint32_t un0 = (uint32_t)un & 0xFFFFu;
+    uint32_t q1, rem;
+    v <<= s;
+    q1 = imu_udiv_digit(un32, un1, v >> 16, v & 0xFFFFu);
+    /* the remainder is below v: the 48-bit terms never wrap (no modular arithmetic,
+     * which clang's -fsanitize=integer reports) */
+    rem = (uint32_t)(((uint64_t)un32 << 16) + un1 - (uint64_t)q1 * v);
+    return q1 * ((uint32_t)1 << 16) + imu_udiv_digit(rem, un0, v >> 16, v & 0xFFFFu);
+}
+
+/** |v| of an int64 above INT64_MIN, as uint64. */
+static inline uint64_t imu_abs64(int64_t v)
+{
+    return v < 0 ? (uint64_t)(-v) : (uint64_t)v;
+}
+
+/** floor(u / v) for v > 0, any u < 2^64, saturated to 2^32 (any quotient beyond int32). */
+static inline int64_t imu_udiv_or_big(uint64_t u, uint32_t v)
+{
+    return (u >> 32) >= v ? (int64_t)1 << 32 : (int64_t)imu_udiv64_32(u, v);
+}
+
 /** a*b >> s, rounded. Caller guarantees the result fits in int32. */
 static inline int32_t imu_mul(int32_t a, int32_t b, int s)
 {
@@ -111,7 +185,10 @@ static inline int32_t imu_mul_sat(int32_t a, int32_t b, int s, uint32_t *sat)
  *  |a| * 2^s must stay below 2^63: s <= 31 for any int32 a. */
 static inline int32_t imu_div_sat(int32_t a, int32_t b, int s, uint32_t *sat)
 {
-    return imu_sat32(((int64_t)a * ((int64_t)1 << s)) / b, sat);
+    /* Truncation toward zero: the quotient of the magnitudes, signed (imu_udiv_or_big). */
+    const int64_t num = (int64_t)a * ((int64_t)1 << s);
+    const int64_t q = imu_udiv_or_big(imu_abs64(num), (uint32_t)imu_abs64(b));
+    return imu_sat32((num < 0) != (b < 0) ? -q : q, sat);
 }
 
 /** a * b / (c * 2^s), rounded to nearest (ties away from zero) and saturated, the
@@ -123,7 +200,10 @@ static inline int32_t imu_muldiv_sat(int32_t a, int32_t b, int32_t c, int s, uin
     const int64_t num = (int64_t)a * b;                /* |num| <= 2^62 */
     const int64_t den = (int64_t)c * ((int64_t)1 << s); /* 0 < den < 2^62 */
     const int64_t half = den / 2;
-    return imu_sat32((num >= 0 ? num + half : num - half) / den, sat);
+    /* (|num| + half) / (c 2^s) = ((|num| + half) >> s) / c in whole numbers (floor of a
+     * floor), one 64-by-32-bit division; negative num rounds the magnitude the same way. */
+    const int64_t q = imu_udiv_or_big((imu_abs64(num) + (uint64_t)half) >> s, (uint32_t)c);
+    return imu_sat32(num < 0 ? -q : q, sat);
 }
 
 /** (v + *residual) >> s, rounded and saturated, with the rounding error left in

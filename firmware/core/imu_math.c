@@ -2,11 +2,15 @@
  * @file imu_math.c
  * @brief Vector, quaternion and angle helpers (see imu_math.h).
  *
- * The fixed build uses integer square roots and CORDIC (31 iterations in int64,
- * about 1e-9 rad resolution) for atan2 and sin/cos; the float build calls the C
- * library. Both builds share the formulas above that level.
+ * The fixed build uses integer square roots and, for atan2 and sin/cos, tables with
+ * short Taylor series (imu_math_tables.h, about 1e-9 rad); the float build calls the
+ * C library. Both builds share the formulas above that level.
  */
 #include "imu_math.h"
+
+#ifdef IMU_FIXED
+#include "imu_math_tables.h"
+#endif
 
 #ifdef IMU_FLOAT
 #include <math.h>
@@ -14,9 +18,14 @@
 
 #ifdef IMU_FIXED
 
-/** Number of significant bits of v (0 for v = 0), by binary search. */
+/** Number of significant bits of v (0 for v = 0). GCC and Clang count the leading
+ *  zeros in one instruction where the target has one (CLZ on the Cortex-M4: the bit
+ *  search below costs some 30 instructions); other compilers take the search. */
 static int bit_length64(uint64_t v)
 {
+#if defined(__GNUC__)
+    return v == 0 ? 0 : 64 - __builtin_clzll(v);
+#else
     int n = 0;
     int step;
     for (step = 32; step > 0; step >>= 1) {
@@ -26,74 +35,106 @@ static int bit_length64(uint64_t v)
         }
     }
     return n + (int)v;
+#endif
 }
 
-/** floor(sqrt(v)), digit by digit (no division: cheap on an MCU). */
+/**
+ * floor(sqrt(v)) without a 64-bit division (the Cortex-M4 divides 32 by 32 bits in one
+ * instruction, 64 bits only in a library routine of some hundred instructions).
+ *
+ * v is scaled by 4^k so that n = v 4^k lies in [2^62, 2^64): floor(sqrt(v)) =
+ * floor(sqrt(n)) >> k. Its top 32 bits `top` (in [2^30, 2^32)) have the root r =
+ * floor(sqrt(top)) in [2^15, 2^16): two Newton steps r <- (r + top / r) / 2 from a
+ * linear first guess (within 6 %: then 2e-3, then 2e-6, i.e. below 1 of r) and a
+ * final check make it exact. sqrt(n) lies in [r 2^16, (r + 1) 2^16): one Newton step
+ * from R = r 2^16 with the remainder d = n - R^2 in [0, (2r + 1) 2^32) adds
+ * c = d / (2R) = (d / 2^17) / r, below 2^16 + 1 and a 32-bit division; the step lands
+ * above the root by at most c^2 / (2R) <= 1, below by the division's truncations (at
+ * most 1). The last checks bring R to floor(sqrt(n)) exactly: the result equals the
+ * digit-by-digit root for every v (tests/test_math.py compares with Python's isqrt).
+ */
 static uint32_t isqrt64(uint64_t v)
 {
-    uint64_t root = 0;
-    uint64_t bit;
+    int k;
+    uint64_t n;
+    uint32_t top, r, c;
+    uint64_t root, d;
     if (v == 0) {
         return 0;
     }
-    bit = (uint64_t)1 << ((bit_length64(v) - 1) & ~1); /* highest power of 4 <= v */
-    while (bit != 0) {
-        if (v >= root + bit) {
-            v -= root + bit;
-            root = (root >> 1) + bit;
-        } else {
-            root >>= 1;
-        }
-        bit >>= 2;
+    k = (64 - bit_length64(v)) >> 1;
+    n = v << (2 * k);
+    top = (uint32_t)(n >> 32);
+    /* sqrt(x) on [2^30, 2^32] within 4.2 %: (0.35417 + 2/3 x / 2^32) 2^16. */
+    r = 23211 + ((top / 3) >> 15);
+    r = (r + top / r) >> 1;
+    r = (r + top / r) >> 1;
+    while ((uint64_t)r * r > top) {
+        --r;
     }
-    return (uint32_t)root;
+    while ((uint64_t)(r + 1) * (r + 1) <= top) {
+        ++r;
+    }
+    root = (uint64_t)r << 16;
+    d = n - root * root;                 /* in [0, (2r + 1) 2^32) */
+    c = (uint32_t)(d >> 17) / r;         /* d / 2^17 < (2r + 1) 2^15 < 2^32 */
+    root += c;
+    if (root > UINT32_MAX) {
+        root = UINT32_MAX;               /* floor(sqrt(n)) < 2^32 */
+    }
+    while (root * root > n) {
+        --root;
+    }
+    while (root < UINT32_MAX && (root + 1) * (root + 1) <= n) {
+        ++root;
+    }
+    return (uint32_t)(root >> k);
 }
 
-static int64_t abs64(int64_t v)
+/** |v| as uint32 (2^31 for INT32_MIN). */
+static uint32_t abs32(int32_t v)
 {
-    return v < 0 ? -v : v;
-}
-
-/** Number of left shifts that bring max(|a|,|b|,|c|) (int32 range) to at least 2^29. */
-static int headroom_shift(int64_t a, int64_t b, int64_t c)
-{
-    int64_t m = abs64(a);
-    int shift;
-    if (abs64(b) > m) {
-        m = abs64(b);
-    }
-    if (abs64(c) > m) {
-        m = abs64(c);
-    }
-    shift = 30 - bit_length64((uint64_t)m);
-    return m == 0 || shift < 0 ? 0 : shift;
+    return v < 0 ? (uint32_t)(-(int64_t)v) : (uint32_t)v;
 }
 
 int imu_vec3_normalize(const imu_real_t v[3], imu_q30_t unit[3], imu_real_t *norm)
 {
-    /* Scaled so the largest component is in [2^29, 2^31]: the sum of squares is
-     * below 3 * 2^62 < 2^64 and the root below 2^32. */
-    const int shift = headroom_shift(v[0], v[1], v[2]);
-    const int64_t scale = (int64_t)1 << shift;
-    int64_t s[3];
+    /* Magnitudes scaled so that the largest is in [2^29, 2^31]: the sum of squares is
+     * below 3 * 2^62 < 2^64 and the root below 2^32. In uint32, each square and each
+     * product below is one 32 x 32 -> 64-bit multiply. */
+    uint32_t m[3];
+    uint32_t largest;
     uint64_t sum = 0;
+    uint64_t inv;
     uint32_t n;
+    int shift;
     int i;
     for (i = 0; i < 3; ++i) {
-        s[i] = (int64_t)v[i] * scale;
-        sum += (uint64_t)(s[i] * s[i]);
+        m[i] = abs32(v[i]);
     }
-    n = isqrt64(sum);
-    if (n == 0) {
+    largest = m[0] > m[1] ? m[0] : m[1];
+    largest = largest > m[2] ? largest : m[2];
+    if (largest == 0) {
         return 0;
     }
-    {
-        /* 1/n in Q61 (n >= 2^29: at most 2^32); |s| <= n keeps s * inv below
-         * 2^63 and the Q30 result within [-2^30, 2^30]. */
-        const int64_t inv = (int64_t)(((uint64_t)1 << 61) / n);
-        for (i = 0; i < 3; ++i) {
-            unit[i] = (imu_q30_t)imu_rshift_round64(s[i] * inv, 31);
-        }
+    shift = imu_clz32(largest) - 2; /* 30 - bit length */
+    if (shift < 0) {
+        shift = 0;
+    }
+    for (i = 0; i < 3; ++i) {
+        m[i] <<= shift;
+        sum += (uint64_t)m[i] * m[i];
+    }
+    n = isqrt64(sum); /* at least 2^29 */
+    /* 1/n in Q61 (n >= 2^29: at most 2^32, exactly 2^32 for n = 2^29); m <= n keeps
+     * m * inv at most 2^63 and the Q30 result within 2^30. */
+    inv = (uint64_t)imu_udiv_or_big((uint64_t)1 << 61, n);
+    for (i = 0; i < 3; ++i) {
+        /* The signed product (+-m inv) rounded by (x + 2^30) >> 31, ties toward +inf:
+         * for -m that is -((m inv + 2^30 - 1) >> 31). */
+        const uint64_t p = (uint64_t)m[i] * inv;
+        unit[i] = v[i] < 0 ? -(imu_q30_t)((p + ((uint64_t)1 << 30) - 1) >> 31)
+                           : (imu_q30_t)((p + ((uint64_t)1 << 30)) >> 31);
     }
     if (norm != 0) {
         const uint64_t unscaled = ((uint64_t)n + (((uint64_t)1 << shift) >> 1)) >> shift;
@@ -139,75 +180,61 @@ void imu_quat_normalize(imu_q30_t q[4])
     }
 }
 
-/** atan(2^-i) in rad, Q40: round(atan(2^-i) * 2^40), i = 0..30. The angle
- *  accumulates in Q40 so that table rounding stays far below the result's LSB. */
-static const int64_t cordic_atan_q40[31] = {
-    INT64_C(863554413089), INT64_C(509785937287), INT64_C(269356888665), INT64_C(136729762476),
-    INT64_C(68630207382),  INT64_C(34348560106),  INT64_C(17178471287),  INT64_C(8589759836),
-    INT64_C(4294945451),   INT64_C(2147480917),   INT64_C(1073741483),   INT64_C(536870869),
-    INT64_C(268435451),    INT64_C(134217727),    INT64_C(67108864),     INT64_C(33554432),
-    INT64_C(16777216),     INT64_C(8388608),      INT64_C(4194304),      INT64_C(2097152),
-    INT64_C(1048576),      INT64_C(524288),       INT64_C(262144),       INT64_C(131072),
-    INT64_C(65536),        INT64_C(32768),        INT64_C(16384),        INT64_C(8192),
-    INT64_C(4096),         INT64_C(2048),         INT64_C(1024)};
-
-/** pi/2 in Q40. */
-#define HALF_PI_Q40 INT64_C(1727108826179)
-
-/** 1/K, K = prod sqrt(1 + 2^-2i) for i = 0..30 (CORDIC gain), Q40. */
-#define CORDIC_INV_GAIN_Q40 INT64_C(667681663043)
+/** pi and pi/2 in rad, Q32 (do not fit int32). */
+#define PI_Q32 INT64_C(13493037705)
+#define HALF_PI_Q32 INT64_C(6746518852)
 
 /** 2*pi in Q29 (does not fit int32). */
 #define TWO_PI_ANGLE64 INT64_C(3373259426)
 
+/**
+ * atan2 by octant: t = min(|x|, |y|) / max(|x|, |y|) in [0, 1] as floor(t 2^32)
+ * (2^32 - 1 for t = 1; one 64-by-32-bit division, imu_udiv64_32), atan(t) by the Taylor polynomial of degree 4 around
+ * the nearest table point i/64 (imu_math_tables.h: truncation below 3e-11 rad,
+ * coefficients rounded to 2^-32) in Q32, then the octant's pi/2 - a, pi - a and sign,
+ * and one rounding of the magnitude to Q29 (so atan2(-y, x) = -atan2(y, x) below pi,
+ * and +-pi/2 are exact). Error below 2e-9 rad (the Q29 rounding alone 9.3e-10; 1.6e-9
+ * the largest of 2e7 random pairs); about 90 Cortex-M4 instructions where the 31-step
+ * CORDIC in int64 took 1 300.
+ */
 imu_angle_t imu_atan2(imu_real_t y, imu_real_t x)
 {
-    int64_t vx = x;
-    int64_t vy = y;
-    int64_t z = 0; /* rad, Q40 */
-    int i;
-    if (vx == 0 && vy == 0) {
+    const uint32_t ax = x < 0 ? (uint32_t)(-(int64_t)x) : (uint32_t)x;
+    const uint32_t ay = y < 0 ? (uint32_t)(-(int64_t)y) : (uint32_t)y;
+    const int steep = ay > ax;
+    uint32_t num = steep ? ax : ay;
+    uint32_t den = steep ? ay : ax;
+    int64_t a; /* rad, Q32, in [0, pi] */
+    imu_angle_t r;
+    if (den == 0) {
         return 0;
     }
-    /* Rotate into the right half plane by -+pi/2 (the angle starts at +-pi/2);
-     * the y axis lands on the x axis, so +-pi/2 come out exact. */
-    if (vx <= 0) {
-        const int64_t t = vx;
-        if (vy >= 0) {
-            vx = vy;
-            vy = -t;
-            z = HALF_PI_Q40;
-        } else {
-            vx = -vy;
-            vy = t;
-            z = -HALF_PI_Q40;
-        }
-    }
-    /* Scale the larger magnitude to 2^40..2^41 for resolution; CORDIC growth
-     * (1.65) keeps it below 2^43. */
     {
-        const int64_t m = abs64(vx) > abs64(vy) ? abs64(vx) : abs64(vy);
-        const int shift = 41 - bit_length64((uint64_t)m);
-        if (shift > 0) {
-            vx *= (int64_t)1 << shift;
-            vy *= (int64_t)1 << shift;
-        }
+        const int shift = 32 - bit_length64(den);
+        num <<= shift;
+        den <<= shift;
     }
-    for (i = 0; i < 31; ++i) {
-        const int64_t dx = vy >> i;
-        const int64_t dy = vx >> i;
-        if (vy > 0) {
-            vx += dx;
-            vy -= dy;
-            z += cordic_atan_q40[i];
-        } else if (vy < 0) {
-            vx -= dx;
-            vy += dy;
-            z -= cordic_atan_q40[i];
-        }
+    {
+        const uint32_t t = num == den ? UINT32_MAX : imu_udiv64_32((uint64_t)num << 32, den);
+        const uint32_t i = ((t >> 25) + 1u) >> 1;                            /* nearest i/64, 0..64 */
+        const int32_t h = (int32_t)((int64_t)t - ((int64_t)i << 26));       /* Q32, |h| <= 2^25 */
+        const imu_atan_segment_t *c = &imu_atan_taylor[i];
+        /* Horner in Q31 with 32-bit terms (|p h| < 2^56); the degree-1 coefficient is
+         * taken as 1 + (a1 - 1), so that its term fits too: a1 h = h + (a1 - 1) h. */
+        int32_t p = c->a4;
+        p = c->a3 + (int32_t)(((int64_t)p * h) >> 32);
+        p = c->a2 + (int32_t)(((int64_t)p * h) >> 32);
+        p = (int32_t)((int64_t)c->a1 - ((int64_t)1 << 31)) + (int32_t)(((int64_t)p * h) >> 32); /* in [-2^30, 0] */
+        a = (int64_t)c->a0 + h + (((int64_t)p * h) >> 31);
     }
-    /* One rounding to Q29; exactly pi stays pi (the wrap keeps (-pi, pi]). */
-    return imu_wrap_angle((imu_angle_t)imu_rshift_round64(z, 11));
+    if (steep) {
+        a = HALF_PI_Q32 - a;
+    }
+    if (x < 0) {
+        a = PI_Q32 - a;
+    }
+    r = (imu_angle_t)imu_rshift_round64(a, 3); /* at most pi */
+    return y < 0 && r != IMU_PI_ANGLE ? -r : r; /* -pi (a tiny y < 0 beside -x) is pi */
 }
 
 /** Wrap an int64 Q29 angle within +-3 turns to (-pi, pi]. */
@@ -237,39 +264,45 @@ imu_angle_t imu_angle_diff(imu_angle_t a, imu_angle_t b)
     return wrap64((int64_t)a - b);
 }
 
+/**
+ * sin and cos from the table at x_i = i/64 <= b (imu_math_tables.h, Q31) and the
+ * Taylor series of the rest h in [0, 1/64): sin(x_i + h) = S (1 + u) + C sin h,
+ * cos(x_i + h) = C (1 + u) - S sin h with u = cos h - 1 = -h^2/2 + h^4/24 and
+ * sin h = h - h^3/6 (truncation below 1e-11), both in Q36; summed in Q62 and rounded
+ * once to Q30. Error below 8e-10 (table 2.3e-10, rounding 4.7e-10); the angle is first
+ * reduced to b = |a| in [0, pi/2] with the signs and pi - b of the quadrant (the Q29 pi
+ * is 0.06 LSB from pi). About 80 Cortex-M4 instructions (the CORDIC took 1 150).
+ */
 void imu_sincos(imu_angle_t angle, imu_q30_t *s, imu_q30_t *c)
 {
-    int64_t a = imu_wrap_angle(angle); /* Q29 */
-    int negate = 0;
-    int64_t vx = CORDIC_INV_GAIN_Q40;
-    int64_t vy = 0;
-    int64_t z;
-    int i;
-    if (a > IMU_HALF_PI_ANGLE) {
-        a -= IMU_PI_ANGLE;
-        negate = 1;
-    } else if (a < -IMU_HALF_PI_ANGLE) {
-        a += IMU_PI_ANGLE;
-        negate = 1;
+    const imu_angle_t a = imu_wrap_angle(angle); /* Q29, (-pi, pi] */
+    int32_t b = a < 0 ? -a : a;
+    int negate_cos = 0;
+    int32_t i;
+    int32_t h, h2, sin_h, u; /* Q36 */
+    int64_t sin_b, cos_b;    /* Q62 */
+    if (b > IMU_HALF_PI_ANGLE) {
+        b = IMU_PI_ANGLE - b;
+        negate_cos = 1;
     }
-    z = a * ((int64_t)1 << 11); /* Q40, |z| <= pi/2 */
-    for (i = 0; i < 31; ++i) {
-        const int64_t dx = vy >> i;
-        const int64_t dy = vx >> i;
-        if (z >= 0) {
-            vx -= dx;
-            vy += dy;
-            z -= cordic_atan_q40[i];
-        } else {
-            vx += dx;
-            vy -= dy;
-            z += cordic_atan_q40[i];
-        }
+    i = b >> (IMU_QANGLE - IMU_TABLE_SHIFT);          /* at most 100 */
+    h = (b - (i << (IMU_QANGLE - IMU_TABLE_SHIFT))) * 128; /* Q29 -> Q36, below 2^30 */
+    h2 = (int32_t)(((int64_t)h * h) >> 36);            /* below 2^24 */
+    sin_h = h - (int32_t)(((int64_t)h2 * h) >> 36) / 6;
+    u = -(h2 / 2) + (int32_t)(((int64_t)h2 * h2) >> 36) / 24;
+    {
+        const int64_t sx = imu_sin_q31[i];
+        const int64_t cx = imu_cos_q31[i];
+        /* Q31 * Q36 = Q67 (below 2^61) >> 5 -> Q62; S 2^31 at most 2^62. */
+        sin_b = sx * ((int64_t)1 << 31) + ((sx * u + cx * sin_h) >> 5);
+        cos_b = cx * ((int64_t)1 << 31) + ((cx * u - sx * sin_h) >> 5);
     }
-    vx = imu_rshift_round64(vx, 10);
-    vy = imu_rshift_round64(vy, 10);
-    *c = (imu_q30_t)(negate ? -vx : vx);
-    *s = (imu_q30_t)(negate ? -vy : vy);
+    {
+        const imu_q30_t sv = (imu_q30_t)imu_rshift_round64(sin_b, 32);
+        const imu_q30_t cv = (imu_q30_t)imu_rshift_round64(cos_b, 32);
+        *s = a < 0 ? -sv : sv;
+        *c = negate_cos ? -cv : cv;
+    }
 }
 
 /** (v >> s) rounded to nearest, ties to even, for s in [1, 62] and |v| < 2^62. Unbiased
@@ -328,14 +361,15 @@ static void quat_mul_step_normalized(imu_q30_t q[4], imu_q30_t w, const int32_t 
         (((int64_t)v[2] * v[2]) >> 4) - one58;
     if (a < near && a > -near && b < near && b > -near) {
         /* eps = a + b + a b, Q58, |eps| < 2^49 (|a b| < 2^36 from the Q29 factors). */
-        const int64_t eps = a + b + (a >> 29) * (b >> 29);
-        const int64_t eps29 = eps >> 29; /* Q29, |eps29| < 2^20 */
-        /* k = eps/2 - 3 eps^2/8 in Q40 (|k| < 2^30): Q58 >> 19, and Q58 >> 21 for 3/8. */
-        const int64_t k = (eps >> 19) - ((3 * eps29 * eps29) >> 21);
+        const int64_t eps = a + b + (int64_t)(int32_t)(a >> 29) * (int32_t)(b >> 29);
+        const int32_t eps29 = (int32_t)(eps >> 29); /* Q29, |eps29| < 2^20 */
+        /* k = eps/2 - 3 eps^2/8 in Q40 (|k| < 2^30): Q58 >> 19, and Q58 >> 21 for 3/8. The
+         * factors of each product here fit int32: one 32 x 32 -> 64-bit multiply each. */
+        const int32_t k = (int32_t)((eps >> 19) - (((int64_t)(3 * eps29) * eps29) >> 21));
         for (i = 0; i < 4; ++i) {
             /* r (Q61, |r| < 2^62) >> 31 is Q30 below 2^31; times k (Q40) is Q70 below 2^61;
              * >> 9 -> Q61. The truncations cost 2^-9 LSB of the result. */
-            const int64_t c = ((r[i] >> 31) * k) >> 9;
+            const int64_t c = ((int64_t)(int32_t)(r[i] >> 31) * k) >> 9;
             q[i] = IMU_NARROW(rshift_round_even64(r[i] - c, 31)); /* |r - c| < 2^62: below 2^31 */
         }
         return;

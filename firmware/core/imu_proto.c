@@ -1,25 +1,42 @@
 /**
  * @file imu_proto.c
- * @brief Frame protocol codec: CRC-32, COBS, frame builder, incremental decoder
- *        (written by hand) and the message pack/unpack functions (generated from
+ * @brief Frame protocol codec: COBS, frame builder, incremental decoder (written by
+ *        hand), the CRC-32 and the message pack/unpack functions (generated from
  *        shared/protocol.toml by tools/gen_protocol.py, at the end of this file).
  */
 #include "imu_proto.h"
 
 /* --------------------------------------------------------------------------- little endian */
 
+/* On a little-endian target that reads and writes unaligned words (the Cortex-M4 does),
+ * GCC moves a word at once through __builtin_memcpy; it does not merge the byte-wise
+ * form below by itself (GCC 12: four loads and three shifts for one word). */
+#if defined(__GNUC__) && defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_LITTLE_ENDIAN__
+#define IMU_PROTO_NATIVE_LE 1
+#else
+#define IMU_PROTO_NATIVE_LE 0
+#endif
+
 static void put_u16(uint8_t *p, uint16_t v)
 {
+#if IMU_PROTO_NATIVE_LE
+    __builtin_memcpy(p, &v, sizeof v);
+#else
     p[0] = (uint8_t)(v & 0xFFu);
     p[1] = (uint8_t)(v >> 8);
+#endif
 }
 
 static void put_u32(uint8_t *p, uint32_t v)
 {
+#if IMU_PROTO_NATIVE_LE
+    __builtin_memcpy(p, &v, sizeof v);
+#else
     p[0] = (uint8_t)(v & 0xFFu);
     p[1] = (uint8_t)((v >> 8) & 0xFFu);
     p[2] = (uint8_t)((v >> 16) & 0xFFu);
     p[3] = (uint8_t)(v >> 24);
+#endif
 }
 
 static uint16_t get_u16(const uint8_t *p)
@@ -29,28 +46,16 @@ static uint16_t get_u16(const uint8_t *p)
 
 static uint32_t get_u32(const uint8_t *p)
 {
+#if IMU_PROTO_NATIVE_LE
+    uint32_t v;
+    __builtin_memcpy(&v, p, sizeof v);
+    return v;
+#else
     return (uint32_t)p[0] | ((uint32_t)p[1] << 8) | ((uint32_t)p[2] << 16) | ((uint32_t)p[3] << 24);
+#endif
 }
 
-/* --------------------------------------------------------------------------- CRC-32 */
-
-/* CRC of the 16 nibble values for the reflected polynomial 0xEDB88320. */
-static const uint32_t crc32_nibble[16] = {
-    0x00000000u, 0x1DB71064u, 0x3B6E20C8u, 0x26D930ACu, 0x76DC4190u, 0x6B6B51F4u, 0x4DB26158u, 0x5005713Cu,
-    0xEDB88320u, 0xF00F9344u, 0xD6D6A3E8u, 0xCB61B38Cu, 0x9B64C2B0u, 0x86D3D2D4u, 0xA00AE278u, 0xBDBDF21Cu,
-};
-
-uint32_t imu_proto_crc32(uint32_t crc, const uint8_t *data, size_t len)
-{
-    size_t i;
-    crc = ~crc;
-    for (i = 0; i < len; ++i) {
-        crc ^= data[i];
-        crc = (crc >> 4) ^ crc32_nibble[crc & 0x0Fu];
-        crc = (crc >> 4) ^ crc32_nibble[crc & 0x0Fu];
-    }
-    return ~crc;
-}
+/* The CRC-32 (imu_proto_crc32) is generated with its table, in the generated section. */
 
 /* --------------------------------------------------------------------------- COBS encoding */
 
@@ -129,6 +134,73 @@ size_t imu_proto_cobs_encode(const uint8_t *in, size_t len, uint8_t *out, size_t
     return cobs_finish(&w);
 }
 
+/*
+ * The frame's bytes (header, payload, CRC) are laid out at wire + 1 and COBS-encoded in
+ * place: each zero becomes the code byte of the block it ends (its distance to the next
+ * zero or the end), wire[0] the first block's. That holds while no block reaches 254
+ * data bytes (code 0xFF, a full block followed by an inserted code byte), i.e. for
+ * frames up to 253 bytes (FRAME_IN_PLACE_MAX), every message of the protocol
+ * (IMU_PROTO_MAX_FRAME); longer ones take the streaming writer. The bytes are the same
+ * either way. The messages' encoders pack their payload straight to wire + 1 +
+ * IMU_PROTO_HEADER_SIZE (FRAME_PAYLOAD_OFFSET); frame_seal adds the header and the CRC
+ * and encodes: some 8 Cortex-M4 instructions per byte where the streaming writer after
+ * a byte-wise CRC took 30. wire holds at least payload_len + IMU_PROTO_MIN_FRAME + 2
+ * bytes (the code byte and the delimiter); the frame is at most FRAME_IN_PLACE_MAX.
+ */
+#define FRAME_IN_PLACE_MAX 253u
+
+/** Index (0-3, lowest address first in get_u32's order) of the lowest byte of m with
+ *  bit 7 set; m has only bits 7 of bytes set, at least one. */
+static size_t lowest_marked_byte(uint32_t m)
+{
+#if defined(__GNUC__)
+    return (size_t)__builtin_ctz(m) >> 3; /* RBIT and CLZ on the Cortex-M4 */
+#else
+    size_t k = 0;
+    while ((m & 0x80u) == 0) {
+        m >>= 8;
+        ++k;
+    }
+    return k;
+#endif
+}
+#define FRAME_PAYLOAD_OFFSET (1u + IMU_PROTO_HEADER_SIZE)
+
+static size_t frame_seal(uint8_t msg_id, uint16_t seq, size_t payload_len, uint8_t *wire)
+{
+    const size_t len = IMU_PROTO_HEADER_SIZE + payload_len + IMU_PROTO_CRC_SIZE;
+    const uint8_t *p = wire + 1;
+    const uint8_t *const end = wire + 1 + len;
+    uint8_t *code = wire;
+    size_t words;
+    wire[1] = msg_id;
+    put_u16(wire + 2, seq);
+    put_u32(wire + FRAME_PAYLOAD_OFFSET + payload_len,
+            imu_proto_crc32(0, wire + 1, IMU_PROTO_HEADER_SIZE + payload_len));
+    /* Four bytes at a time: bit 7 of each byte of `zeros` is set exactly where v has a
+     * zero byte ((b & 0x7F) + 0x7F carries into bit 7 unless b & 0x7F is zero, and no
+     * byte carries into the next); the zeros are then taken lowest address first. */
+    for (words = len / 4u; words != 0; --words, p += 4) {
+        const uint32_t v = get_u32(p);
+        uint32_t zeros = ~(((v & 0x7F7F7F7Fu) + 0x7F7F7F7Fu) | v | 0x7F7F7F7Fu);
+        while (zeros != 0) {
+            const uint8_t *z = p + lowest_marked_byte(zeros);
+            *code = (uint8_t)(z - code); /* below 254 */
+            code = wire + (z - wire);
+            zeros &= zeros - 1u;
+        }
+    }
+    for (; p != end; ++p) {
+        if (*p == 0) {
+            *code = (uint8_t)(p - code);
+            code = wire + (p - wire);
+        }
+    }
+    *code = (uint8_t)(end - code);
+    wire[len + 1] = 0;
+    return len + 2;
+}
+
 size_t imu_proto_frame_encode(uint8_t msg_id, uint16_t seq, const uint8_t *payload, size_t payload_len,
                               uint8_t *wire, size_t wire_cap)
 {
@@ -138,6 +210,13 @@ size_t imu_proto_frame_encode(uint8_t msg_id, uint16_t seq, const uint8_t *paylo
     size_t n;
     if (wire_cap == 0) {
         return 0;
+    }
+    if (payload_len <= FRAME_IN_PLACE_MAX - IMU_PROTO_MIN_FRAME && payload_len + IMU_PROTO_MIN_FRAME + 2u <= wire_cap) {
+        size_t i;
+        for (i = 0; i < payload_len; ++i) {
+            wire[FRAME_PAYLOAD_OFFSET + i] = payload[i];
+        }
+        return frame_seal(msg_id, seq, payload_len, wire);
     }
     header[0] = msg_id;
     put_u16(header + 1, seq);
@@ -265,6 +344,73 @@ int imu_proto_decoder_push(imu_proto_decoder_t *d, uint8_t byte, imu_proto_frame
 /* --------------------------------------------------------------------------- messages */
 
 /* BEGIN GENERATED by tools/gen_protocol.py from shared/protocol.toml: do not edit by hand */
+/* CRC-32 of each byte value for the reflected polynomial 0xEDB88320. */
+static const uint32_t crc32_table[256] = {
+    0x00000000u, 0x77073096u, 0xEE0E612Cu, 0x990951BAu, 0x076DC419u, 0x706AF48Fu,
+    0xE963A535u, 0x9E6495A3u, 0x0EDB8832u, 0x79DCB8A4u, 0xE0D5E91Eu, 0x97D2D988u,
+    0x09B64C2Bu, 0x7EB17CBDu, 0xE7B82D07u, 0x90BF1D91u, 0x1DB71064u, 0x6AB020F2u,
+    0xF3B97148u, 0x84BE41DEu, 0x1ADAD47Du, 0x6DDDE4EBu, 0xF4D4B551u, 0x83D385C7u,
+    0x136C9856u, 0x646BA8C0u, 0xFD62F97Au, 0x8A65C9ECu, 0x14015C4Fu, 0x63066CD9u,
+    0xFA0F3D63u, 0x8D080DF5u, 0x3B6E20C8u, 0x4C69105Eu, 0xD56041E4u, 0xA2677172u,
+    0x3C03E4D1u, 0x4B04D447u, 0xD20D85FDu, 0xA50AB56Bu, 0x35B5A8FAu, 0x42B2986Cu,
+    0xDBBBC9D6u, 0xACBCF940u, 0x32D86CE3u, 0x45DF5C75u, 0xDCD60DCFu, 0xABD13D59u,
+    0x26D930ACu, 0x51DE003Au, 0xC8D75180u, 0xBFD06116u, 0x21B4F4B5u, 0x56B3C423u,
+    0xCFBA9599u, 0xB8BDA50Fu, 0x2802B89Eu, 0x5F058808u, 0xC60CD9B2u, 0xB10BE924u,
+    0x2F6F7C87u, 0x58684C11u, 0xC1611DABu, 0xB6662D3Du, 0x76DC4190u, 0x01DB7106u,
+    0x98D220BCu, 0xEFD5102Au, 0x71B18589u, 0x06B6B51Fu, 0x9FBFE4A5u, 0xE8B8D433u,
+    0x7807C9A2u, 0x0F00F934u, 0x9609A88Eu, 0xE10E9818u, 0x7F6A0DBBu, 0x086D3D2Du,
+    0x91646C97u, 0xE6635C01u, 0x6B6B51F4u, 0x1C6C6162u, 0x856530D8u, 0xF262004Eu,
+    0x6C0695EDu, 0x1B01A57Bu, 0x8208F4C1u, 0xF50FC457u, 0x65B0D9C6u, 0x12B7E950u,
+    0x8BBEB8EAu, 0xFCB9887Cu, 0x62DD1DDFu, 0x15DA2D49u, 0x8CD37CF3u, 0xFBD44C65u,
+    0x4DB26158u, 0x3AB551CEu, 0xA3BC0074u, 0xD4BB30E2u, 0x4ADFA541u, 0x3DD895D7u,
+    0xA4D1C46Du, 0xD3D6F4FBu, 0x4369E96Au, 0x346ED9FCu, 0xAD678846u, 0xDA60B8D0u,
+    0x44042D73u, 0x33031DE5u, 0xAA0A4C5Fu, 0xDD0D7CC9u, 0x5005713Cu, 0x270241AAu,
+    0xBE0B1010u, 0xC90C2086u, 0x5768B525u, 0x206F85B3u, 0xB966D409u, 0xCE61E49Fu,
+    0x5EDEF90Eu, 0x29D9C998u, 0xB0D09822u, 0xC7D7A8B4u, 0x59B33D17u, 0x2EB40D81u,
+    0xB7BD5C3Bu, 0xC0BA6CADu, 0xEDB88320u, 0x9ABFB3B6u, 0x03B6E20Cu, 0x74B1D29Au,
+    0xEAD54739u, 0x9DD277AFu, 0x04DB2615u, 0x73DC1683u, 0xE3630B12u, 0x94643B84u,
+    0x0D6D6A3Eu, 0x7A6A5AA8u, 0xE40ECF0Bu, 0x9309FF9Du, 0x0A00AE27u, 0x7D079EB1u,
+    0xF00F9344u, 0x8708A3D2u, 0x1E01F268u, 0x6906C2FEu, 0xF762575Du, 0x806567CBu,
+    0x196C3671u, 0x6E6B06E7u, 0xFED41B76u, 0x89D32BE0u, 0x10DA7A5Au, 0x67DD4ACCu,
+    0xF9B9DF6Fu, 0x8EBEEFF9u, 0x17B7BE43u, 0x60B08ED5u, 0xD6D6A3E8u, 0xA1D1937Eu,
+    0x38D8C2C4u, 0x4FDFF252u, 0xD1BB67F1u, 0xA6BC5767u, 0x3FB506DDu, 0x48B2364Bu,
+    0xD80D2BDAu, 0xAF0A1B4Cu, 0x36034AF6u, 0x41047A60u, 0xDF60EFC3u, 0xA867DF55u,
+    0x316E8EEFu, 0x4669BE79u, 0xCB61B38Cu, 0xBC66831Au, 0x256FD2A0u, 0x5268E236u,
+    0xCC0C7795u, 0xBB0B4703u, 0x220216B9u, 0x5505262Fu, 0xC5BA3BBEu, 0xB2BD0B28u,
+    0x2BB45A92u, 0x5CB36A04u, 0xC2D7FFA7u, 0xB5D0CF31u, 0x2CD99E8Bu, 0x5BDEAE1Du,
+    0x9B64C2B0u, 0xEC63F226u, 0x756AA39Cu, 0x026D930Au, 0x9C0906A9u, 0xEB0E363Fu,
+    0x72076785u, 0x05005713u, 0x95BF4A82u, 0xE2B87A14u, 0x7BB12BAEu, 0x0CB61B38u,
+    0x92D28E9Bu, 0xE5D5BE0Du, 0x7CDCEFB7u, 0x0BDBDF21u, 0x86D3D2D4u, 0xF1D4E242u,
+    0x68DDB3F8u, 0x1FDA836Eu, 0x81BE16CDu, 0xF6B9265Bu, 0x6FB077E1u, 0x18B74777u,
+    0x88085AE6u, 0xFF0F6A70u, 0x66063BCAu, 0x11010B5Cu, 0x8F659EFFu, 0xF862AE69u,
+    0x616BFFD3u, 0x166CCF45u, 0xA00AE278u, 0xD70DD2EEu, 0x4E048354u, 0x3903B3C2u,
+    0xA7672661u, 0xD06016F7u, 0x4969474Du, 0x3E6E77DBu, 0xAED16A4Au, 0xD9D65ADCu,
+    0x40DF0B66u, 0x37D83BF0u, 0xA9BCAE53u, 0xDEBB9EC5u, 0x47B2CF7Fu, 0x30B5FFE9u,
+    0xBDBDF21Cu, 0xCABAC28Au, 0x53B39330u, 0x24B4A3A6u, 0xBAD03605u, 0xCDD70693u,
+    0x54DE5729u, 0x23D967BFu, 0xB3667A2Eu, 0xC4614AB8u, 0x5D681B02u, 0x2A6F2B94u,
+    0xB40BBE37u, 0xC30C8EA1u, 0x5A05DF1Bu, 0x2D02EF8Du,
+};
+
+uint32_t imu_proto_crc32(uint32_t crc, const uint8_t *data, size_t len)
+{
+    size_t words;
+    size_t i;
+    crc = ~crc;
+    /* Four bytes at a time: the reflected CRC takes them as one little-endian word,
+     * then four table steps. */
+    for (words = len / 4u; words != 0; --words, data += 4) {
+        crc ^= get_u32(data);
+        crc = (crc >> 8) ^ crc32_table[crc & 0xFFu];
+        crc = (crc >> 8) ^ crc32_table[crc & 0xFFu];
+        crc = (crc >> 8) ^ crc32_table[crc & 0xFFu];
+        crc = (crc >> 8) ^ crc32_table[crc & 0xFFu];
+    }
+    for (i = 0; i < len % 4u; ++i) {
+        crc = (crc >> 8) ^ crc32_table[(crc ^ data[i]) & 0xFFu];
+    }
+    return ~crc;
+}
+
 /* Two's-complement uint8_t to int8_t, without an implementation-defined conversion. */
 static int8_t to_i8(uint8_t u)
 {
@@ -318,9 +464,11 @@ imu_proto_result_t imu_proto_hello_unpack(imu_proto_hello_t *m, const uint8_t *p
 
 size_t imu_proto_hello_encode(const imu_proto_hello_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
 {
-    uint8_t payload[IMU_PROTO_HELLO_SIZE];
-    size_t len = imu_proto_hello_pack(m, payload);
-    return imu_proto_frame_encode(IMU_PROTO_MSG_HELLO, seq, payload, len, wire, wire_cap);
+    if (wire_cap < IMU_PROTO_HELLO_SIZE + IMU_PROTO_MIN_FRAME + 2u) {
+        return 0;
+    }
+    (void)imu_proto_hello_pack(m, wire + FRAME_PAYLOAD_OFFSET);
+    return frame_seal(IMU_PROTO_MSG_HELLO, seq, IMU_PROTO_HELLO_SIZE, wire);
 }
 
 size_t imu_proto_status_pack(const imu_proto_status_t *m, uint8_t *payload)
@@ -362,9 +510,11 @@ imu_proto_result_t imu_proto_status_unpack(imu_proto_status_t *m, const uint8_t 
 
 size_t imu_proto_status_encode(const imu_proto_status_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
 {
-    uint8_t payload[IMU_PROTO_STATUS_SIZE];
-    size_t len = imu_proto_status_pack(m, payload);
-    return imu_proto_frame_encode(IMU_PROTO_MSG_STATUS, seq, payload, len, wire, wire_cap);
+    if (wire_cap < IMU_PROTO_STATUS_SIZE + IMU_PROTO_MIN_FRAME + 2u) {
+        return 0;
+    }
+    (void)imu_proto_status_pack(m, wire + FRAME_PAYLOAD_OFFSET);
+    return frame_seal(IMU_PROTO_MSG_STATUS, seq, IMU_PROTO_STATUS_SIZE, wire);
 }
 
 size_t imu_proto_log_pack(const imu_proto_log_t *m, uint8_t *payload)
@@ -425,9 +575,11 @@ imu_proto_result_t imu_proto_ack_unpack(imu_proto_ack_t *m, const uint8_t *paylo
 
 size_t imu_proto_ack_encode(const imu_proto_ack_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
 {
-    uint8_t payload[IMU_PROTO_ACK_SIZE];
-    size_t len = imu_proto_ack_pack(m, payload);
-    return imu_proto_frame_encode(IMU_PROTO_MSG_ACK, seq, payload, len, wire, wire_cap);
+    if (wire_cap < IMU_PROTO_ACK_SIZE + IMU_PROTO_MIN_FRAME + 2u) {
+        return 0;
+    }
+    (void)imu_proto_ack_pack(m, wire + FRAME_PAYLOAD_OFFSET);
+    return frame_seal(IMU_PROTO_MSG_ACK, seq, IMU_PROTO_ACK_SIZE, wire);
 }
 
 size_t imu_proto_nack_pack(const imu_proto_nack_t *m, uint8_t *payload)
@@ -451,9 +603,11 @@ imu_proto_result_t imu_proto_nack_unpack(imu_proto_nack_t *m, const uint8_t *pay
 
 size_t imu_proto_nack_encode(const imu_proto_nack_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
 {
-    uint8_t payload[IMU_PROTO_NACK_SIZE];
-    size_t len = imu_proto_nack_pack(m, payload);
-    return imu_proto_frame_encode(IMU_PROTO_MSG_NACK, seq, payload, len, wire, wire_cap);
+    if (wire_cap < IMU_PROTO_NACK_SIZE + IMU_PROTO_MIN_FRAME + 2u) {
+        return 0;
+    }
+    (void)imu_proto_nack_pack(m, wire + FRAME_PAYLOAD_OFFSET);
+    return frame_seal(IMU_PROTO_MSG_NACK, seq, IMU_PROTO_NACK_SIZE, wire);
 }
 
 size_t imu_proto_setting_pack(const imu_proto_setting_t *m, uint8_t *payload)
@@ -495,9 +649,11 @@ imu_proto_result_t imu_proto_setting_unpack(imu_proto_setting_t *m, const uint8_
 
 size_t imu_proto_setting_encode(const imu_proto_setting_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
 {
-    uint8_t payload[IMU_PROTO_SETTING_SIZE];
-    size_t len = imu_proto_setting_pack(m, payload);
-    return imu_proto_frame_encode(IMU_PROTO_MSG_SETTING, seq, payload, len, wire, wire_cap);
+    if (wire_cap < IMU_PROTO_SETTING_SIZE + IMU_PROTO_MIN_FRAME + 2u) {
+        return 0;
+    }
+    (void)imu_proto_setting_pack(m, wire + FRAME_PAYLOAD_OFFSET);
+    return frame_seal(IMU_PROTO_MSG_SETTING, seq, IMU_PROTO_SETTING_SIZE, wire);
 }
 
 size_t imu_proto_calibration_pack(const imu_proto_calibration_t *m, uint8_t *payload)
@@ -533,9 +689,11 @@ imu_proto_result_t imu_proto_calibration_unpack(imu_proto_calibration_t *m, cons
 
 size_t imu_proto_calibration_encode(const imu_proto_calibration_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
 {
-    uint8_t payload[IMU_PROTO_CALIBRATION_SIZE];
-    size_t len = imu_proto_calibration_pack(m, payload);
-    return imu_proto_frame_encode(IMU_PROTO_MSG_CALIBRATION, seq, payload, len, wire, wire_cap);
+    if (wire_cap < IMU_PROTO_CALIBRATION_SIZE + IMU_PROTO_MIN_FRAME + 2u) {
+        return 0;
+    }
+    (void)imu_proto_calibration_pack(m, wire + FRAME_PAYLOAD_OFFSET);
+    return frame_seal(IMU_PROTO_MSG_CALIBRATION, seq, IMU_PROTO_CALIBRATION_SIZE, wire);
 }
 
 size_t imu_proto_sample_pack(const imu_proto_sample_t *m, uint8_t *payload)
@@ -579,9 +737,11 @@ imu_proto_result_t imu_proto_sample_unpack(imu_proto_sample_t *m, const uint8_t 
 
 size_t imu_proto_sample_encode(const imu_proto_sample_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
 {
-    uint8_t payload[IMU_PROTO_SAMPLE_SIZE];
-    size_t len = imu_proto_sample_pack(m, payload);
-    return imu_proto_frame_encode(IMU_PROTO_MSG_SAMPLE, seq, payload, len, wire, wire_cap);
+    if (wire_cap < IMU_PROTO_SAMPLE_SIZE + IMU_PROTO_MIN_FRAME + 2u) {
+        return 0;
+    }
+    (void)imu_proto_sample_pack(m, wire + FRAME_PAYLOAD_OFFSET);
+    return frame_seal(IMU_PROTO_MSG_SAMPLE, seq, IMU_PROTO_SAMPLE_SIZE, wire);
 }
 
 size_t imu_proto_estimate_pack(const imu_proto_estimate_t *m, uint8_t *payload)
@@ -637,9 +797,11 @@ imu_proto_result_t imu_proto_estimate_unpack(imu_proto_estimate_t *m, const uint
 
 size_t imu_proto_estimate_encode(const imu_proto_estimate_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
 {
-    uint8_t payload[IMU_PROTO_ESTIMATE_SIZE];
-    size_t len = imu_proto_estimate_pack(m, payload);
-    return imu_proto_frame_encode(IMU_PROTO_MSG_ESTIMATE, seq, payload, len, wire, wire_cap);
+    if (wire_cap < IMU_PROTO_ESTIMATE_SIZE + IMU_PROTO_MIN_FRAME + 2u) {
+        return 0;
+    }
+    (void)imu_proto_estimate_pack(m, wire + FRAME_PAYLOAD_OFFSET);
+    return frame_seal(IMU_PROTO_MSG_ESTIMATE, seq, IMU_PROTO_ESTIMATE_SIZE, wire);
 }
 
 size_t imu_proto_command_pack(const imu_proto_command_t *m, uint8_t *payload)

@@ -72,6 +72,7 @@ _DECLARATIONS = """
     const imu_eskf_t *imu_filter_eskf(const imu_filter_t *f);
 
     imu_angle_t imu_atan2(imu_real_t y, imu_real_t x);
+    imu_real_t imu_hypot(imu_real_t a, imu_real_t b);
     void imu_sincos(imu_angle_t angle, imu_q30_t *s, imu_q30_t *c);
     void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3]);
     void imu_quat_to_euler(const imu_q30_t q[4], imu_angle_t euler[3]);
