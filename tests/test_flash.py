@@ -90,6 +90,16 @@ class QemuBoot:
             self.process.wait()
 
 
+#: RM0090 table 5: sectors 0-3 of 16 KiB, 4 of 64 KiB, 5-11 of 128 KiB (ends, offsets from FLASH_BASE).
+SECTOR_ENDS = [0x4000, 0x8000, 0xC000, 0x10000, 0x20000] + [0x20000 * k for k in range(2, 9)]
+
+
+def sectors_under(image):
+    """The sectors an image from FLASH_BASE to image.end touches, from RM0090's layout."""
+    size = image.end - FLASH_BASE
+    return [k for k, end in enumerate(SECTOR_ENDS) if k == 0 or SECTOR_ENDS[k - 1] < size]
+
+
 def test_flash_boots_the_image_and_its_hello_is_the_images(image, tmp_path):
     boot = QemuBoot(tmp_path)
     chip = Stm32Bootloader()
@@ -99,7 +109,7 @@ def test_flash_boots_the_image_and_its_hello_is_the_images(image, tmp_path):
     finally:
         boot.stop()
     assert flashed_bytes(chip, image) == image.bytes_at(image.start, image.end - image.start)
-    assert result.sectors == [0, 1, 2] and erased(chip) == [0, 1, 2]  # 37 KiB: 16 + 16 + 16 KiB sectors
+    assert result.sectors == sectors_under(image) and erased(chip) == sectors_under(image)
     assert chip.go_address == FLASH_BASE and result.verified and result.started
     ident = image.identification
     assert (result.hello["board"], result.hello["schema_hash"]) == (ident.board, protocol.SCHEMA_HASH)
@@ -124,16 +134,18 @@ def test_only_the_sectors_the_image_needs_are_erased(image):
     chip = Stm32Bootloader(flash=bytes(range(256)) * 4096)  # 1 MiB of old contents
     with BootloaderPort(chip) as port:
         flash.flash_uart(image, port.address, start=False, log=quiet)
-    assert erased(chip) == [0, 1, 2]
-    assert bytes(chip.flash[0xC000:0xC100]) == bytes(range(256))  # sector 3 kept its contents
-    assert bytes(chip.flash[image.end - FLASH_BASE:0xC000]) == b"\xff" * (0xC000 - image.end + FLASH_BASE)
+    used = sectors_under(image)
+    assert erased(chip) == used
+    kept = SECTOR_ENDS[used[-1]]  # the first sector the image does not reach kept its contents
+    assert bytes(chip.flash[kept:kept + 0x100]) == bytes(range(256))
+    assert bytes(chip.flash[image.end - FLASH_BASE:kept]) == b"\xff" * (kept - image.end + FLASH_BASE)
 
 
 def test_dry_run_writes_nothing(image):
     chip = Stm32Bootloader()
     with BootloaderPort(chip) as port:
         result = flash.flash_uart(image, port.address, dry_run=True, log=quiet)
-    assert result.dry_run and result.sectors == [0, 1, 2]
+    assert result.dry_run and result.sectors == sectors_under(image)
     assert chip.flash == bytearray(b"\xff" * len(chip.flash)) and chip.go_address is None
     assert not any(entry.command in ("Write Memory", "Extended Erase") for entry in chip.log)
 
