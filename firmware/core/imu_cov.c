@@ -31,25 +31,6 @@ static void load_wide(const imu_cov_t *c, imu_wide_t w[IMU_COV_CELLS])
 
 #define WIDE_LIMIT ((int64_t)1 << 62)
 
-/** Number of significant bits of v (0 for 0): count-leading-zeros where the compiler
- *  has it (one or two CLZ instructions on the Cortex-M4), else by halving. */
-static int bit_length(uint64_t v)
-{
-#if defined(__GNUC__)
-    return v == 0 ? 0 : 64 - __builtin_clzll(v);
-#else
-    int n = 0;
-    int step;
-    for (step = 32; step > 0; step >>= 1) {
-        if (v >> step != 0) {
-            v >>= step;
-            n += step;
-        }
-    }
-    return n + (int)v;
-#endif
-}
-
 /** v * 2^n: rounded for n < 0, saturated to +-2^62 for n > 0. */
 static inline imu_wide_t wide_ldexp(imu_wide_t v, int n, uint32_t *sat)
 {
@@ -74,7 +55,7 @@ static imu_wide_t wide_abs(imu_wide_t v)
 /** Right shift that brings a magnitude below 2^bits (0 when it already is). */
 static int headroom(imu_wide_t magnitude, int bits)
 {
-    const int excess = bit_length((uint64_t)magnitude) - bits;
+    const int excess = imu_bit_length64((uint64_t)magnitude) - bits;
     return excess > 0 ? excess : 0;
 }
 
@@ -94,7 +75,7 @@ static void renormalize(imu_cov_t *c, imu_wide_t w[IMU_COV_CELLS], uint32_t *sat
         }
         /* s = ceil((bits - 30) / 2): d * 2^(-2s) in [2^28, 2^30). */
         {
-            const int excess = bit_length((uint64_t)*d) - 30;
+            const int excess = imu_bit_length64((uint64_t)*d) - 30;
             shift[i] = excess >= 0 ? (excess + 1) / 2 : -((-excess) / 2);
         }
     }
@@ -115,7 +96,7 @@ static int scale_row(const imu_cov_t *c, const imu_q30_t h[], imu_q30_t hs[], ui
     int j;
     for (j = 0; j < c->n; ++j) {
         if (h[j] != 0) {
-            const int mag = c->e[j] + bit_length((uint64_t)(h[j] < 0 ? -(int64_t)h[j] : h[j])) - 30;
+            const int mag = c->e[j] + imu_bit_length64((uint64_t)(h[j] < 0 ? -(int64_t)h[j] : h[j])) - 30;
             big = mag > big ? mag : big;
         }
     }
@@ -131,7 +112,7 @@ static int scale_row(const imu_cov_t *c, const imu_q30_t h[], imu_q30_t hs[], ui
 /** v = mant * 2^exp with |mant| in [2^29, 2^30) (mant = 0 for v = 0). */
 static int32_t normalize_wide(imu_wide_t v, int *exp)
 {
-    const int bits = bit_length((uint64_t)(v < 0 ? -v : v));
+    const int bits = imu_bit_length64((uint64_t)(v < 0 ? -v : v));
     *exp = bits - 30;
     return (int32_t)(bits > 30 ? imu_rshift_round64(v, bits - 30) : v * ((int64_t)1 << (30 - bits)));
 }
@@ -188,7 +169,7 @@ static void apply_update(imu_cov_t *c, const imu_wide_t ch[], const imu_wide_t o
  *  the renormalisation keeps all of its bits whatever its size. */
 static int32_t exponent_for(imu_wide_t var, int q)
 {
-    return var > 0 ? (bit_length((uint64_t)var) - q) / 2 : 0;
+    return var > 0 ? (imu_bit_length64((uint64_t)var) - q) / 2 : 0;
 }
 
 /** 1 when r 2^shift exceeds the wide range: the measurement's noise dwarfs its

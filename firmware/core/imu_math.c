@@ -18,26 +18,6 @@
 
 #ifdef IMU_FIXED
 
-/** Number of significant bits of v (0 for v = 0). GCC and Clang count the leading
- *  zeros in one instruction where the target has one (CLZ on the Cortex-M4: the bit
- *  search below costs some 30 instructions); other compilers take the search. */
-static int bit_length64(uint64_t v)
-{
-#if defined(__GNUC__)
-    return v == 0 ? 0 : 64 - __builtin_clzll(v);
-#else
-    int n = 0;
-    int step;
-    for (step = 32; step > 0; step >>= 1) {
-        if ((v >> step) != 0) {
-            v >>= step;
-            n += step;
-        }
-    }
-    return n + (int)v;
-#endif
-}
-
 /**
  * floor(sqrt(v)) without a 64-bit division (the Cortex-M4 divides 32 by 32 bits in one
  * instruction, 64 bits only in a library routine of some hundred instructions).
@@ -62,7 +42,7 @@ static uint32_t isqrt64(uint64_t v)
     if (v == 0) {
         return 0;
     }
-    k = (64 - bit_length64(v)) >> 1;
+    k = (64 - imu_bit_length64(v)) >> 1;
     n = v << (2 * k);
     top = (uint32_t)(n >> 32);
     /* sqrt(x) on [2^30, 2^32] within 4.2 %: (0.35417 + 2/3 x / 2^32) 2^16. */
@@ -210,7 +190,7 @@ imu_angle_t imu_atan2(imu_real_t y, imu_real_t x)
         return 0;
     }
     {
-        const int shift = 32 - bit_length64(den);
+        const int shift = 32 - imu_bit_length64(den);
         num <<= shift;
         den <<= shift;
     }
