@@ -151,14 +151,16 @@ static inline uint32_t imu_udiv64_32(uint64_t u, uint32_t v)
     uint32_t q1, rem;
     v <<= s;
     q1 = imu_udiv_digit(un32, un1, v >> 16, v & 0xFFFFu);
-    rem = (uint32_t)(((uint64_t)un32 << 16) + un1 - (uint64_t)q1 * v); /* the remainder, below v */
+    /* the remainder is below v: the 48-bit terms never wrap (no modular arithmetic,
+     * which clang's -fsanitize=integer reports) */
+    rem = (uint32_t)(((uint64_t)un32 << 16) + un1 - (uint64_t)q1 * v);
     return q1 * ((uint32_t)1 << 16) + imu_udiv_digit(rem, un0, v >> 16, v & 0xFFFFu);
 }
 
-/** |v| of any int64 as uint64 (2^63 for INT64_MIN), without a wrapping operation. */
+/** |v| of an int64 above INT64_MIN, as uint64. */
 static inline uint64_t imu_abs64(int64_t v)
 {
-    return v < 0 ? (uint64_t)(-(v + 1)) + 1u : (uint64_t)v;
+    return v < 0 ? (uint64_t)(-v) : (uint64_t)v;
 }
 
 /** floor(u / v) for v > 0, any u < 2^64, saturated to 2^32 (any quotient beyond int32). */

@@ -31,18 +31,27 @@ static void load_wide(const imu_cov_t *c, imu_wide_t w[IMU_COV_CELLS])
 
 #define WIDE_LIMIT ((int64_t)1 << 62)
 
+/** Number of significant bits of v (0 for 0): count-leading-zeros where the compiler
+ *  has it (one or two CLZ instructions on the Cortex-M4), else by halving. */
 static int bit_length(uint64_t v)
 {
+#if defined(__GNUC__)
+    return v == 0 ? 0 : 64 - __builtin_clzll(v);
+#else
     int n = 0;
-    while (v != 0) {
-        v >>= 1;
-        ++n;
+    int step;
+    for (step = 32; step > 0; step >>= 1) {
+        if (v >> step != 0) {
+            v >>= step;
+            n += step;
+        }
     }
-    return n;
+    return n + (int)v;
+#endif
 }
 
 /** v * 2^n: rounded for n < 0, saturated to +-2^62 for n > 0. */
-static imu_wide_t wide_ldexp(imu_wide_t v, int n, uint32_t *sat)
+static inline imu_wide_t wide_ldexp(imu_wide_t v, int n, uint32_t *sat)
 {
     if (n < 0) {
         return n < -62 ? 0 : imu_rshift_round64(v, -n);
@@ -92,7 +101,8 @@ static void renormalize(imu_cov_t *c, imu_wide_t w[IMU_COV_CELLS], uint32_t *sat
     for (i = 0; i < c->n; ++i) {
         for (j = i; j < c->n; ++j) {
             const int k = cell(i, j);
-            c->p[k] = imu_sat32(wide_ldexp(w[k], -(shift[i] + shift[j]), sat), sat);
+            const int down = shift[i] + shift[j]; /* mostly 0: the exponents rarely move */
+            c->p[k] = imu_sat32(down == 0 ? w[k] : wide_ldexp(w[k], -down, sat), sat);
         }
         c->e[i] += shift[i];
     }
@@ -341,16 +351,22 @@ void imu_cov_reset_state(imu_cov_t *c, int i, imu_wide_t var, int var_q, uint32_
     renormalize(c, w, sat);
 }
 
-/** Largest e_k - e_i over the k where row i of phi is non-zero (how far a term can grow). */
-static int row_growth(const imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], int i)
+/** The columns where row i of phi is non-zero (ascending; their count returned), and
+ *  the largest e_k - e_i over them (how far a term can grow). */
+static int row_support(const imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], int i, unsigned char cols[IMU_COV_MAX],
+                       int *growth)
 {
-    int k, growth = 0;
+    int k, count = 0;
+    *growth = 0;
     for (k = 0; k < c->n; ++k) {
-        if (phi[i][k] != 0 && c->e[k] - c->e[i] > growth) {
-            growth = c->e[k] - c->e[i];
+        if (phi[i][k] != 0) {
+            cols[count++] = (unsigned char)k;
+            if (c->e[k] - c->e[i] > *growth) {
+                *growth = c->e[k] - c->e[i];
+            }
         }
     }
-    return growth;
+    return count;
 }
 
 void imu_cov_predict(imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], const imu_wide_t qvar[], int qvar_q,
@@ -362,23 +378,27 @@ void imu_cov_predict(imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], const imu_wide_
      * lowered by the row's largest exponent difference (every term is then shifted
      * right only), and each row of m = phi~ P~ is brought below 2^31 by row_shift,
      * with the row's total scale kept in row_scale: no int64 product or sum
-     * overflows, and only a truly out-of-range result saturates. */
+     * overflows, and only a truly out-of-range result saturates. Only the non-zero
+     * entries of phi take part (a filter's transition is mostly identity). */
     imu_wide_t m[IMU_COV_MAX][IMU_COV_MAX]; /* m_ij (Q30) = m[i][j] * 2^row_scale[i] */
     int row_scale[IMU_COV_MAX];
+    unsigned char cols[IMU_COV_MAX][IMU_COV_MAX];
+    int count[IMU_COV_MAX], growth[IMU_COV_MAX];
     imu_wide_t w[IMU_COV_CELLS];
     const int n = c->n;
-    int i, j, k;
+    int i, j, k, t;
     for (i = 0; i < n; ++i) {
-        const int growth = row_growth(c, phi, i);
+        count[i] = row_support(c, phi, i, cols[i], &growth[i]);
+    }
+    for (i = 0; i < n; ++i) {
         imu_wide_t biggest = 0;
         int row_shift;
         for (j = 0; j < n; ++j) {
             imu_wide_t sum = 0;
-            for (k = 0; k < n; ++k) {
-                if (phi[i][k] != 0) {
-                    /* Q30 * Q30 -> Q60 (below 2^61), to Q56 - growth: 9 terms below 2^61. */
-                    sum += wide_ldexp(IMU_WMUL(phi[i][k], c->p[cell(k, j)]), c->e[k] - c->e[i] - growth - 4, sat);
-                }
+            for (t = 0; t < count[i]; ++t) {
+                k = cols[i][t];
+                /* Q30 * Q30 -> Q60 (below 2^61), to Q56 - growth: 9 terms below 2^61. */
+                sum += wide_ldexp(IMU_WMUL(phi[i][k], c->p[cell(k, j)]), c->e[k] - c->e[i] - growth[i] - 4, sat);
             }
             m[i][j] = sum;
             biggest = wide_abs(sum) > biggest ? wide_abs(sum) : biggest;
@@ -387,20 +407,18 @@ void imu_cov_predict(imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], const imu_wide_
         for (j = 0; j < n; ++j) {
             m[i][j] = wide_ldexp(m[i][j], -row_shift, sat);
         }
-        row_scale[i] = growth - 26 + row_shift; /* Q56 -> Q30 is 2^-26 */
+        row_scale[i] = growth[i] - 26 + row_shift; /* Q56 -> Q30 is 2^-26 */
     }
     for (i = 0; i < n; ++i) {
         for (j = i; j < n; ++j) {
-            const int growth = row_growth(c, phi, j);
             imu_wide_t sum = 0;
-            for (k = 0; k < n; ++k) {
-                if (phi[j][k] != 0) {
-                    /* (|m| < 2^31) * Q30 -> below 2^62, to Q-4 - growth: 9 terms below 2^62. */
-                    sum += wide_ldexp(IMU_WMUL(m[i][k], phi[j][k]), c->e[k] - c->e[j] - growth - 4, sat);
-                }
+            for (t = 0; t < count[j]; ++t) {
+                k = cols[j][t];
+                /* (|m| < 2^31) * Q30 -> below 2^62, to Q-4 - growth: 9 terms below 2^62. */
+                sum += wide_ldexp(IMU_WMUL(m[i][k], phi[j][k]), c->e[k] - c->e[j] - growth[j] - 4, sat);
             }
             /* sum * 2^(growth + 4 - 30) is in units of m; times 2^row_scale -> Q30. */
-            w[cell(i, j)] = wide_ldexp(sum, growth - 26 + row_scale[i], sat);
+            w[cell(i, j)] = wide_ldexp(sum, growth[j] - 26 + row_scale[i], sat);
         }
         w[cell(i, i)] += variance_mantissa(c, i, qvar[i], qvar_q, sat); /* both below 2^62 */
     }
@@ -450,8 +468,10 @@ int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu
     for (i = 0; i < n; ++i) {
         imu_wide_t sum = 0;
         for (j = 0; j < n; ++j) {
-            /* Q30 * Q30 -> Q60 -> Q58: 9 terms below 2^58 each. */
-            sum += wide_ldexp(IMU_WMUL(c->p[cell(i, j)], hs[j]), -2, sat);
+            if (hs[j] != 0) {
+                /* Q30 * Q30 -> Q60 -> Q58: 9 terms below 2^58 each. */
+                sum += wide_ldexp(IMU_WMUL(c->p[cell(i, j)], hs[j]), -2, sat);
+            }
         }
         ch[i] = Q58_TO_Q30(sum);
     }
@@ -476,6 +496,11 @@ int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu
 void imu_cov_cap_unit_variance(imu_cov_t *c, int i)
 {
     cap_unit_variance(c, i);
+}
+
+imu_real_t imu_cov_element_q30(const imu_cov_t *c, int i, int j, uint32_t *sat)
+{
+    return IMU_WIDE_SAT(wide_ldexp(c->p[cell(i, j)], c->e[i] + c->e[j], sat), sat);
 }
 
 void imu_cov_get(const imu_cov_t *c, int i, int j, imu_real_t *mant, int32_t *exp)

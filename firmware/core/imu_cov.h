@@ -88,4 +88,7 @@ void imu_cov_cap_unit_variance(imu_cov_t *c, int i);
  */
 void imu_cov_get(const imu_cov_t *c, int i, int j, imu_real_t *mant, int32_t *exp);
 
+/** @brief Element (i, j) in Q30 of the states' units (saturated to int32 in the fixed build). */
+imu_real_t imu_cov_element_q30(const imu_cov_t *c, int i, int j, uint32_t *sat);
+
 #endif /* IMU_COV_H */

@@ -443,14 +443,61 @@ static void scalar_update(imu_eskf_t *f, const imu_q30_t h[9], imu_q30_t z, imu_
     }
 }
 
-/** Gravity measurement: a / g = v + [v x] dtheta + ba (three scalar updates). */
+/**
+ * The norm row's second-order part. |v_true + dba| - 1 = v . dba + q, dba the
+ * accelerometer-bias error, q = (v x dtheta) . dba + |dba across v|^2 / 2 + ...: at rest the
+ * tilt and the horizontal bias trade against each other (the pair is not observable), and
+ * q, about the variance of that horizontal bias, does not average out: left in the
+ * innovation it became a vertical bias. Out: E[q] (g, Q30, into the innovation); the
+ * return value is 1 while the vertical bias's variance v' P v is above var(q) (about
+ * E[|dba across v|^2 / 2]^2, exact for two equal variances): below it the norm holds no
+ * information a linear update could use.
+ */
+static int norm_second_order(imu_eskf_t *f, const imu_q30_t up[3], imu_q30_t *mean)
+{
+    const imu_q30_t cross[3][3] = {{0, -up[2], up[1]}, {up[2], 0, -up[0]}, {-up[1], up[0], 0}};
+    imu_wide_t coupling = 0; /* E[(v x dtheta) . dba], Q60 */
+    imu_wide_t trace = 0;    /* tr P_ba, Q60 */
+    imu_wide_t vertical = 0; /* v' P_ba v, Q60 */
+    imu_q30_t across;        /* E|dba across v|^2 / 2, Q30 */
+    int i, j;
+    for (i = 0; i < 3; ++i) {
+        imu_wide_t p_up = 0; /* (P_ba v)_i, Q60 */
+        for (j = 0; j < 3; ++j) {
+            coupling += IMU_WMUL(cross[i][j], imu_cov_element_q30(&f->cov, ACC_BIAS + i, ATT + j, &f->saturations));
+            p_up += IMU_WMUL(imu_cov_element_q30(&f->cov, ACC_BIAS + i, ACC_BIAS + j, &f->saturations), up[j]);
+        }
+        trace += IMU_WMUL(imu_cov_element_q30(&f->cov, ACC_BIAS + i, ACC_BIAS + i, &f->saturations), IMU_ONE_Q30);
+        vertical += IMU_WMUL(IMU_NARROW(IMU_WSHR(p_up, 30)), up[i]);
+    }
+    across = IMU_HALF(IMU_WIDE_SAT(IMU_WSHR(trace - vertical, 30), &f->saturations));
+    *mean = IMU_WIDE_SAT(IMU_WSHR(coupling, 30) + across, &f->saturations);
+    return vertical > IMU_WMUL(across, across);
+}
+
+/**
+ * Gravity measurement: c = a / g - ba = v + [v x] dtheta + (ba - ba_est), v the estimated
+ * up in the sensor frame, taken apart along the estimated earth axes:
+ * - east and north (two rows, e . c with H = [e x v, 0, e]): the tilt and the horizontal
+ *   accelerometer bias;
+ * - up (9 states only): the norm, |c| - 1 = v . (ba - ba_est), which does not depend on the
+ *   attitude. The linear row v . c - 1 would read the tilt error's second-order term
+ *   (1 - cos e, e the tilt that the horizontal bias makes unobservable at rest) as
+ *   vertical bias, and the filter became overconfident in it (docs/accuracy.md). Its H
+ *   is taken along v, not along c: a direction that moved with the noise would make the
+ *   tilt / horizontal-bias trade look observable.
+ * The acceleration noise is isotropic, so the rows keep independent noise.
+ */
 static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q30_t up[3], imu_q30_t dx[9])
 {
     const imu_eskf_settings_t *st = &f->settings;
+    imu_q30_t c[3];         /* a / g - ba, g, Q30 */
+    imu_q30_t axes[2][3];   /* east and north in the sensor frame, Q30 */
     imu_q30_t unit[3];
-    imu_real_t norm;
+    imu_real_t norm;        /* |a|, m/s^2, Q16 */
     imu_q30_t h[9];
     imu_real_t noise_g; /* specific-force noise in g, Q26 (up to 100 m/s^2 over 9 m/s^2: 11 g) */
+    imu_wide_t r;       /* its square, Q52 g^2 */
     imu_q30_t gain_map[IMU_COV_MAX][IMU_COV_MAX]; /* Q30 */
     imu_q30_t (*map)[IMU_COV_MAX] = NULL;
     int k, i;
@@ -464,30 +511,50 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q30_
     }
     /* |a| / g - 1: Q16 * Q30 >> 22 -> Q24 (below 512 m/s^2: 53 g). */
     f->acc_weight = imu_deviation_weight(IMU_SUB(IMU_MUL(norm, f->inv_gravity, 22), IMU_QCONST(1.0, 24)),
-                                     IMU_SHR(st->acc_tolerance, 6), &f->saturations);
+                                         IMU_SHR(st->acc_tolerance, 6), &f->saturations);
     if (f->acc_weight == 0) {
         return; /* far from 1 g (taps, free fall): no gravity information */
     }
     noise_g = IMU_MUL(st->acc_noise, f->inv_gravity, 28); /* Q24 * Q30 >> 28 -> Q26 (g) */
+    r = IMU_WMUL(noise_g, noise_g);
     if (f->at_rest) {
         set_gain_map(gain_map, 1, 0, 1, NULL); /* the gyro bias is the rest measurement's */
         map = gain_map;
     }
     for (k = 0; k < 3; ++k) {
-        /* Row k of [[v x], 0, I]. */
-        const imu_q30_t cross[3][3] = {{0, -up[2], up[1]}, {up[2], 0, -up[0]}, {-up[1], up[0], 0}};
-        /* z = a_k / g - v_k - ba_k: Q16 * Q30 >> 16 -> Q30 (g). */
-        const imu_q30_t z = IMU_SUB_SAT(IMU_SUB_SAT(IMU_MUL_SAT(acc[k], f->inv_gravity, 16, &f->saturations), up[k],
-                                                    &f->saturations),
-                                        f->acc_bias[k], &f->saturations);
-        for (i = 0; i < 9; ++i) {
-            h[i] = 0;
-        }
+        /* Q16 * Q30 >> 16 -> Q30 (g): below 16 acc_tolerance of 1 g, at most 17 g, saturated
+         * beyond 2 g where the weight makes the update negligible. */
+        c[k] = IMU_SUB_SAT(IMU_MUL_SAT(acc[k], f->inv_gravity, 16, &f->saturations), f->acc_bias[k],
+                           &f->saturations);
+    }
+    imu_quat_matrix_row(f->q, 0, axes[0]);
+    imu_quat_matrix_row(f->q, 1, axes[1]);
+    for (k = 0; k < 2; ++k) {
+        const imu_q30_t *e = axes[k];
+        /* e . c: each |c_k| <= 2 g, the sum up to 2 sqrt(3) g: saturated to Q30 */
+        const imu_q30_t z = IMU_WIDE_SAT(
+            IMU_WSHR(IMU_WMUL(e[0], c[0]) + IMU_WMUL(e[1], c[1]) + IMU_WMUL(e[2], c[2]), 30), &f->saturations);
+        imu_vec3_cross(e, up, &h[ATT]);
         for (i = 0; i < 3; ++i) {
-            h[ATT + i] = cross[k][i];
+            h[GYRO_BIAS + i] = 0;
+            h[ACC_BIAS + i] = e[i];
         }
-        h[ACC_BIAS + k] = IMU_ONE_Q30;
-        scalar_update(f, h, z, IMU_WMUL(noise_g, noise_g), 52, f->acc_weight, map, dx);
+        scalar_update(f, h, z, r, 52, f->acc_weight, map, dx);
+    }
+    if (imu_eskf_state_count(f) == 9) {
+        imu_real_t c_norm; /* |c|, g, Q30 */
+        imu_q30_t second_order;
+        if (imu_vec3_normalize(c, unit, &c_norm) && norm_second_order(f, up, &second_order)) {
+            const imu_q30_t z = IMU_SUB_SAT(IMU_SUB_SAT(c_norm, IMU_ONE_Q30, &f->saturations), second_order,
+                                            &f->saturations);
+            for (i = 0; i < 6; ++i) {
+                h[i] = 0;
+            }
+            for (i = 0; i < 3; ++i) {
+                h[ACC_BIAS + i] = up[i];
+            }
+            scalar_update(f, h, z, r, 52, f->acc_weight, map, dx);
+        }
     }
 }
 

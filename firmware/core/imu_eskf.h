@@ -29,8 +29,9 @@
  * 1 rad^2 (imu_cov_cap_unit_variance).
  *
  * Measurements (eq. 8-9), as sequential scalar updates (no matrix inverse):
- * - gravity: a / g = v + [v x] dtheta + ba, three components, where v is the
- *   estimated up direction in the sensor frame. The accelerometer bias is
+ * - gravity: a / g = v + [v x] dtheta + ba, where v is the estimated up direction
+ *   in the sensor frame, read along the estimated east and north and (9 states) as
+ *   the norm of a / g - ba, which does not depend on the attitude. The accelerometer bias is
  *   observable through rotations (it is not in the seed's H); it can be switched
  *   off (`estimate_acc_bias` = 0: 6 states).
  * - heading: the east share of the unit magnetic field in the estimated earth

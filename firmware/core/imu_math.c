@@ -91,10 +91,10 @@ static uint32_t isqrt64(uint64_t v)
     return (uint32_t)(root >> k);
 }
 
-/** |v| as uint32 (2^31 for INT32_MIN), without a wrapping operation. */
+/** |v| as uint32 (2^31 for INT32_MIN). */
 static uint32_t abs32(int32_t v)
 {
-    return v < 0 ? (uint32_t)(-(v + 1)) + 1u : (uint32_t)v;
+    return v < 0 ? (uint32_t)(-(int64_t)v) : (uint32_t)v;
 }
 
 int imu_vec3_normalize(const imu_real_t v[3], imu_q30_t unit[3], imu_real_t *norm)
@@ -224,7 +224,7 @@ imu_angle_t imu_atan2(imu_real_t y, imu_real_t x)
         int32_t p = c->a4;
         p = c->a3 + (int32_t)(((int64_t)p * h) >> 32);
         p = c->a2 + (int32_t)(((int64_t)p * h) >> 32);
-        p = (int32_t)((int64_t)c->a1 - ((int64_t)1 << 31)) + (int32_t)(((int64_t)p * h) >> 32); /* [-2^30, 0] */
+        p = (int32_t)((int64_t)c->a1 - ((int64_t)1 << 31)) + (int32_t)(((int64_t)p * h) >> 32); /* in [-2^30, 0] */
         a = (int64_t)c->a0 + h + (((int64_t)p * h) >> 31);
     }
     if (steep) {
