@@ -143,11 +143,11 @@ size_t imu_proto_cobs_encode(const uint8_t *in, size_t len, uint8_t *out, size_t
  * (IMU_PROTO_MAX_FRAME); longer ones take the streaming writer. The bytes are the same
  * either way. The messages' encoders pack their payload straight to wire + 1 +
  * IMU_PROTO_HEADER_SIZE (FRAME_PAYLOAD_OFFSET); frame_seal adds the header and the CRC
- * and encodes: some 8 Cortex-M4 instructions per byte where the streaming writer after
- * a byte-wise CRC took 30. wire holds at least payload_len + IMU_PROTO_MIN_FRAME + 2
- * bytes (the code byte and the delimiter); the frame is at most FRAME_IN_PLACE_MAX.
+ * and encodes: about 9 Cortex-M4 instructions per frame byte, where the streaming writer
+ * after a CRC by nibbles took 34 (docs/performance.md).
  */
 #define FRAME_IN_PLACE_MAX 253u
+#define FRAME_PAYLOAD_OFFSET (1u + IMU_PROTO_HEADER_SIZE)
 
 /** Index (0-3, lowest address first in get_u32's order) of the lowest byte of m with
  *  bit 7 set; m has only bits 7 of bytes set, at least one. */
@@ -164,13 +164,15 @@ static size_t lowest_marked_byte(uint32_t m)
     return k;
 #endif
 }
-#define FRAME_PAYLOAD_OFFSET (1u + IMU_PROTO_HEADER_SIZE)
 
+/** The frame of a payload already at wire + FRAME_PAYLOAD_OFFSET (payload_len bytes, the
+ *  frame at most FRAME_IN_PLACE_MAX), encoded in place; wire holds payload_len +
+ *  IMU_PROTO_MIN_FRAME + 2 bytes (code byte and delimiter). Returns that length. */
 static size_t frame_seal(uint8_t msg_id, uint16_t seq, size_t payload_len, uint8_t *wire)
 {
     const size_t len = IMU_PROTO_HEADER_SIZE + payload_len + IMU_PROTO_CRC_SIZE;
-    const uint8_t *p = wire + 1;
-    const uint8_t *const end = wire + 1 + len;
+    uint8_t *p = wire + 1;
+    uint8_t *const end = wire + 1 + len;
     uint8_t *code = wire;
     size_t words;
     wire[1] = msg_id;
@@ -184,16 +186,16 @@ static size_t frame_seal(uint8_t msg_id, uint16_t seq, size_t payload_len, uint8
         const uint32_t v = get_u32(p);
         uint32_t zeros = ~(((v & 0x7F7F7F7Fu) + 0x7F7F7F7Fu) | v | 0x7F7F7F7Fu);
         while (zeros != 0) {
-            const uint8_t *z = p + lowest_marked_byte(zeros);
+            uint8_t *z = p + lowest_marked_byte(zeros);
             *code = (uint8_t)(z - code); /* below 254 */
-            code = wire + (z - wire);
+            code = z;
             zeros &= zeros - 1u;
         }
     }
     for (; p != end; ++p) {
         if (*p == 0) {
             *code = (uint8_t)(p - code);
-            code = wire + (p - wire);
+            code = p;
         }
     }
     *code = (uint8_t)(end - code);
@@ -211,7 +213,8 @@ size_t imu_proto_frame_encode(uint8_t msg_id, uint16_t seq, const uint8_t *paylo
     if (wire_cap == 0) {
         return 0;
     }
-    if (payload_len <= FRAME_IN_PLACE_MAX - IMU_PROTO_MIN_FRAME && payload_len + IMU_PROTO_MIN_FRAME + 2u <= wire_cap) {
+    if (payload_len <= FRAME_IN_PLACE_MAX - IMU_PROTO_MIN_FRAME &&
+        payload_len + IMU_PROTO_MIN_FRAME + 2u <= wire_cap) {
         size_t i;
         for (i = 0; i < payload_len; ++i) {
             wire[FRAME_PAYLOAD_OFFSET + i] = payload[i];
