@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from imulink import calibration as cal, sim
+from imulink import calibration as cal, live_calibration, sim
 from imulink.counts import DEFAULT_PROFILE, STANDARD_GRAVITY, si_to_counts
 from imulink.sensor_input import SensorRecord
 from imulink.sim.sensors import AccModel, GyroModel, MagModel, SensorSuite
@@ -427,3 +427,76 @@ def test_calibrate_gyro_from_a_recording_of_the_emulated_board(tmp_path, capsys)
     bias = np.array(printed["offset_counts"]) * P.gyro_scale
     assert np.all(np.abs(bias - truth) < 4.0 * noise / np.sqrt(3000) + 1e-6), (bias, truth)
     assert printed["report"]["input"].startswith("recording still.imulog (profile gy86-default)")
+
+
+# ---------------------------------------------------------------------------- live, on a board
+
+
+def test_live_coverage_waits_for_the_board_to_turn():
+    still = np.array([[100, -50, 300]]) + np.random.default_rng(0).integers(-2, 3, (500, 3))
+    assert live_calibration.live_coverage(still.astype(float), P) is None  # noise about one point covers nothing
+    turned = rotating_mag()
+    counts = si_to_counts(turned.gyr, turned.acc, turned.mag, P)[2].astype(float)
+    found = live_calibration.live_coverage(counts, P)
+    assert found is not None and found.missing == []
+    assert "the field has hardly changed" in live_calibration.status_line(1.0, 500, None)
+    assert "25 of 26 directions; missing -z" in live_calibration.status_line(
+        1.0, 500, cal.Coverage({name: 0 if name == "-z" else 9 for name in cal.GRID_NAMES}, ["-z"]))
+
+
+@pytest.mark.parametrize("text, port", [("socket://127.0.0.1:5760", True), ("/dev/ttyUSB7", True), ("COM3", True),
+                                        ("/dev/null", True), ("turned.imulog", False), ("README.md", False)])
+def test_calibrate_mag_tells_a_port_from_a_file(text, port):
+    from imulink.cli import _is_port
+
+    assert _is_port(text) is port
+
+
+def test_calibrate_mag_live_on_an_emulated_board(tmp_path, capsys):
+    """`imulink calibrate mag PORT --apply`: the emulated board, its magnetometer with hard
+    and soft iron, streams while it turns; the fit recovers the distortion, the file is
+    written, and the board takes the calibration (read back)."""
+    from imulink import hil
+    from imulink.cli import main
+    from imulink.emulator import EmulatedBoard
+    from imulink.link import Link
+
+    turned = rotating_mag(seconds=120.0, seed=5)
+    output = tmp_path / "board.json"
+    with EmulatedBoard(simulation=turned, rate_hz=RATE) as board:
+        assert main(["calibrate", "mag", board.address, "-o", str(output), "--json", "--apply"]) == 0
+        printed = json.loads(capsys.readouterr().out.split("\n}\n")[0] + "\n}")
+        with Link(board.address) as link:
+            link.connect()
+            on_board = hil.read_calibration(link, P)
+    report = printed["report"]
+    assert report["input"].startswith(f"{board.address} (live, ")
+    assert report["coverage"]["missing"] == [] and report["samples"] < len(turned.mag)  # stopped once covered
+    np.testing.assert_allclose(np.array(printed["offset_counts"]) * P.mag_scale, HARD_IRON, atol=0.3)
+    assert report["norm_spread_before_uT"] > 5.0 > 20 * report["norm_spread_after_uT"]
+    written = cal.load(output)
+    assert cal.to_fixed(on_board.sensor("mag")) == cal.to_fixed(written.sensor("mag"))
+    assert cal.to_fixed(on_board.sensor("gyr")) == cal.to_fixed(cal.SensorCalibration.identity("gyr"))
+
+
+def test_calibrate_mag_live_refuses_a_board_that_did_not_turn(tmp_path, capsys):
+    from imulink.cli import main
+    from imulink.emulator import EmulatedBoard
+
+    output = tmp_path / "board.json"
+    with EmulatedBoard(scenario="static", duration_s=60.0, rate_hz=RATE, realtime=True) as board:
+        assert main(["calibrate", "mag", board.address, "-o", str(output), "--max-duration", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "1 s passed" in err and "imulink: error:" in err and not output.exists()
+    recording = tmp_path / "turned.csv"
+    recording.write_text("time_s,mag_x_uT,mag_y_uT,mag_z_uT\n")
+    assert main(["calibrate", "mag", str(recording), "--apply", "-o", str(output)]) == 2
+    assert "--apply is for a board" in capsys.readouterr().err
+
+
+def test_mag_of_a_still_board_is_refused():
+    """A still board's readings are noise about one point: they fit a sphere of a fraction of
+    a uT that "covers" every direction; no calibration comes of them."""
+    still = sim.make_scenario("static", 30.0, RATE, seed=2)
+    with pytest.raises(cal.CalibrationError, match="the board hardly turned"):
+        cal.mag_ellipsoid(record_of(still.gyr, still.acc, still.mag), P)

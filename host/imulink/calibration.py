@@ -70,6 +70,10 @@ MIN_MAG_SAMPLES = 100
 #: is the fit of readings that do not span the directions (the board turned about one
 #: axis: a circle lies on countless ellipsoids), not a measurement.
 MAX_AXIS_RATIO = 2.0
+#: Smallest field a magnetometer calibration may find, uT. The earth's field is 25-65 uT;
+#: a fitted sphere far smaller is the readings of a board that hardly turned (a still
+#: board's noise about one point fits a tiny sphere and "covers" every direction).
+MIN_FIELD_NORM_UT = 10.0
 #: A direction of the coverage grid counts as covered with at least this many samples.
 COVERAGE_MIN_SAMPLES = 3
 
@@ -370,6 +374,10 @@ def mag_ellipsoid(record: SensorRecord, profile: SensorProfile) -> SensorCalibra
                                f"{axes.max() / axes.min():.3g} (soft iron does not do that): the readings do not "
                                "span the directions; turn the board through more directions")
     radius = float(np.mean(np.linalg.norm(points - centre, axis=1)))
+    if radius * profile.mag_scale < MIN_FIELD_NORM_UT:
+        raise CalibrationError(f"{record.description}: the magnetometer readings lie within "
+                               f"{radius * profile.mag_scale:.2g} uT of one point (the earth's field is 25-65 uT): "
+                               "the board hardly turned; turn it slowly through every direction")
     matrix = radius * _symmetric_sqrt(a)
     corrected = (points - centre) @ matrix.T
     before = np.linalg.norm(points, axis=1) * profile.mag_scale

@@ -6,7 +6,10 @@ line `imulink: error: ...` on stderr, never a traceback.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
+import os
+import re
 import signal
 import sys
 import time
@@ -187,26 +190,62 @@ def _cmd_allan(args) -> int:
 CALIBRATE_SENSORS = {"gyro": "gyr", "accel": "acc", "mag": "mag"}
 
 
-@_command
-def _cmd_calibrate_apply(args) -> int:
+def _give_calibration(port: str, baud: int, calibration) -> None:
+    """Give the board at `port` `calibration`, read it back and print it; HilError when the
+    board reports another."""
     from . import calibration as cal, hil
-    from .counts import DEFAULT_PROFILE
     from .link import Link
 
-    if (args.file is None) == (not args.identity):
-        raise UsageError("give a calibration FILE or --identity (not both)")
-    calibration = cal.Calibration(DEFAULT_PROFILE) if args.identity else cal.load(args.file)
-    with Link(args.port, args.baud) as link:
+    with Link(port, baud) as link:
         link.connect()
         hil.set_calibration(link, calibration)
         board = hil.read_calibration(link, calibration.profile)
     expected = {name: cal.to_fixed(calibration.sensor(name)) for name in cal.SENSORS}
     if {name: cal.to_fixed(board.sensor(name)) for name in cal.SENSORS} != expected:
-        raise hil.HilError(f"{args.port} reports another calibration than it was given")
+        raise hil.HilError(f"{port} reports another calibration than it was given")
     print(cal.format_calibration(board))
+
+
+@_command
+def _cmd_calibrate_apply(args) -> int:
+    from . import calibration as cal
+    from .counts import DEFAULT_PROFILE
+
+    if (args.file is None) == (not args.identity):
+        raise UsageError("give a calibration FILE or --identity (not both)")
+    calibration = cal.Calibration(DEFAULT_PROFILE) if args.identity else cal.load(args.file)
+    _give_calibration(args.port, args.baud, calibration)
     print(f"{args.port}: calibration " + ("identity" if args.identity else f"of {args.file}")
           + " applied and read back (kept until a RESET)")
     return 0
+
+
+def _is_port(text: str) -> bool:
+    """Whether `calibrate mag`'s INPUT names a board (a pyserial URL, a device) rather than a file."""
+    import stat
+
+    if "://" in text or re.fullmatch(r"COM\d+", text, re.IGNORECASE):
+        return True
+    try:
+        return stat.S_ISCHR(os.stat(text).st_mode)
+    except OSError:
+        return text.startswith("/dev/")
+
+
+def _live_mag_record(args):
+    """The magnetometer readings of the board at args.input, collected while the user turns it."""
+    from . import hil, live_calibration
+    from .counts import DEFAULT_PROFILE
+
+    profile = args.profile or DEFAULT_PROFILE
+    print(f"{args.input}: turn the board slowly through every direction (each axis up and down, and the "
+          f"diagonals between); it stops when all 26 directions are covered, after {args.max_duration:g} s, or "
+          "on Ctrl-C", file=sys.stderr)
+    collected = live_calibration.collect_mag(args.input, profile, baud=args.baud, max_duration_s=args.max_duration,
+                                             progress=hil.Progress())
+    print(f"{args.input}: {len(collected.counts)} samples in {collected.time_s[-1] if len(collected.time_s) else 0:.1f} "
+          f"s ({collected.stop_reason})", file=sys.stderr)
+    return collected.record(profile)
 
 
 @_command
@@ -217,14 +256,21 @@ def _cmd_calibrate(args) -> int:
     from .counts import DEFAULT_PROFILE
     from .files import check_output
 
-    check_output(args.output, inputs=[args.input])  # before the work
-    status, phase = _late_progress()
-    try:
-        record = sensor_input.read(args.input, progress=phase(f"reading {args.input}"))
-    finally:
-        status.done()
+    live = args.sensor == "mag" and _is_port(args.input)
+    if args.apply and not live:
+        raise UsageError("--apply is for a board (calibrate mag PORT); give a file's calibration to a board with "
+                         "`imulink calibrate apply FILE PORT`")
+    check_output(args.output, inputs=[] if live else [args.input])  # before the work
+    if live:
+        record = _live_mag_record(args)
+    else:
+        status, phase = _late_progress()
+        try:
+            record = sensor_input.read(args.input, progress=phase(f"reading {args.input}"))
+        finally:
+            status.done()
     profile = record.profile or args.profile or DEFAULT_PROFILE
-    if args.profile is not None and record.profile is not None and args.profile != record.profile:
+    if args.profile is not None and record.profile is not None and args.profile != record.profile and not live:
         raise UsageError(f"{args.input} holds counts of profile {record.profile.name}; --profile "
                          f"{args.profile.name} contradicts it (--profile is for a CSV, which does not say)")
     sensor = CALIBRATE_SENSORS[args.sensor]
@@ -246,10 +292,15 @@ def _cmd_calibrate(args) -> int:
         raise cal.CalibrationError(f"{cal.missing_advice(axes)}; {args.output} is left as it is "
                                    "(--allow-gaps writes it anyway)")
     merged, replaced = cal.merged(args.output, result, profile)
-    cal.save(merged, args.output, inputs=[args.input])
+    cal.save(merged, args.output, inputs=[] if live else [args.input])
     others = [cal.SENSOR_NAMES[s] for s in cal.SENSORS if s in merged.sensors and s != sensor]
+    out = sys.stderr if args.json else sys.stdout
     print(f"calibration: {args.output} ({cal.SENSOR_NAMES[sensor]} {'replaced' if replaced else 'written'}"
-          + (f"; {', '.join(others)} kept" if others else "") + ")", file=sys.stderr if args.json else sys.stdout)
+          + (f"; {', '.join(others)} kept" if others else "") + ")", file=out)
+    if args.apply:
+        with contextlib.redirect_stdout(out):
+            _give_calibration(args.input, args.baud, merged)
+        print(f"{args.input}: calibration of {args.output} applied and read back (kept until a RESET)", file=out)
     return 0
 
 
@@ -331,6 +382,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_allan)
 
     from .link import DEFAULT_BAUD
+    from .live_calibration import DEFAULT_MAX_DURATION_S
 
     calibrate = sub.add_parser(
         "calibrate", help="calibrate a sensor from a recording; give a board a calibration file",
@@ -344,6 +396,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "                                  and down, a few seconds each\n"
                     "  imulink calibrate mag INPUT     hard and soft iron: an ellipsoid fit to the board turned\n"
                     "                                  slowly in every direction\n"
+                    "  imulink calibrate mag PORT      the same, live: turn a connected board until every\n"
+                    "                                  direction is covered (--apply: the board takes it)\n"
                     "  imulink calibrate apply FILE PORT   the board takes the calibration of FILE\n\n"
                     "docs/calibration.md gives the procedure for each sensor.")
     kinds = calibrate.add_subparsers(dest="sensor", metavar="SENSOR")
@@ -352,6 +406,10 @@ def build_parser() -> argparse.ArgumentParser:
                    "(or any with timestamp_us or time_s and the SI columns gyr_x_rad_s.., acc_x_m_s2.., "
                    "mag_x_uT..; give its --profile), or a BROAD trial (.mat). The calibration goes into --output; "
                    "the other sensors' entries of an existing file are kept.")
+    live_help = ("With a board's PORT (a serial device or pyserial URL) instead of INPUT, the board streams while "
+                 "you turn it; the directions covered so far are shown, and it stops when all 26 are covered "
+                 "(--max-duration, Ctrl-C: sooner). The board's calibration is not changed unless --apply; the "
+                 "SAMPLE frames carry raw counts, so an old calibration on the board does not matter.")
     for kind, summary in (("gyro", "gyroscope bias: the mean rate over the rests (5 s still or more in all)"),
                           ("accel", "accelerometer offset and scale per axis: six rests, each axis up and down "
                                     "(a few seconds each); --misalignment: a symmetric matrix from 9 positions "
@@ -360,13 +418,16 @@ def build_parser() -> argparse.ArgumentParser:
                                   "in every direction; reports the coverage of 26 directions and the spread of "
                                   "the field norm before and after, and refuses when the field never lay along "
                                   "one of the board's axes (--allow-gaps writes it anyway)")):
-        p = kinds.add_parser(kind, help=summary, description=f"{summary[0].upper()}{summary[1:]}. {inputs_help}")
-        p.add_argument("input", metavar="INPUT", help="a recording, a replay CSV or a BROAD .mat")
+        p = kinds.add_parser(kind, help=summary, description=f"{summary[0].upper()}{summary[1:]}. {inputs_help}"
+                             + (f" {live_help}" if kind == "mag" else ""))
+        p.add_argument("input", metavar="INPUT" if kind != "mag" else "INPUT|PORT",
+                       help="a recording, a replay CSV or a BROAD .mat" + (", or a board's PORT" if kind == "mag"
+                                                                           else ""))
         p.add_argument("--output", "-o", default="calibration.json",
                        help="calibration file to write or update (default: calibration.json)")
         p.add_argument("--profile", type=_profile, default=None,
-                       help="sensor profile of a CSV's data (default: gy86-default; a recording and a BROAD trial "
-                            "say theirs)")
+                       help="sensor profile of a CSV's data or of a board's (default: gy86-default; a recording "
+                            "and a BROAD trial say theirs)")
         p.add_argument("--json", action="store_true", help="print the calibration and its report as JSON")
         if kind == "accel":
             p.add_argument("--misalignment", action="store_true",
@@ -374,7 +435,14 @@ def build_parser() -> argparse.ArgumentParser:
         if kind == "mag":
             p.add_argument("--allow-gaps", action="store_true",
                            help="write the calibration even when the field never lay along some axis")
-        p.set_defaults(func=_cmd_calibrate, misalignment=False, allow_gaps=False)
+            p.add_argument("--apply", action="store_true",
+                           help="with a PORT: also give the board the calibration written (read back to check)")
+            p.add_argument("--max-duration", type=_positive_float, default=DEFAULT_MAX_DURATION_S, metavar="S",
+                           help="with a PORT: stop turning after S seconds even when directions are missing "
+                                f"(default: {DEFAULT_MAX_DURATION_S:g})")
+            p.add_argument("--baud", type=_baud, default=DEFAULT_BAUD,
+                           help=f"with a PORT: line rate of a real serial port (default: {DEFAULT_BAUD})")
+        p.set_defaults(func=_cmd_calibrate, misalignment=False, allow_gaps=False, apply=False)
     p = kinds.add_parser(
         "apply", help="give a board the calibration of a file",
         description="Send the calibration of FILE to the board (SET_CALIBRATION for every sensor and axis; a "

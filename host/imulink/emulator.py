@@ -190,13 +190,16 @@ class EmulatedBoard:
         profile: sensor profile of the emulated GY-86 (its counts and the firmware's scales).
         faults, schema_hash: a fault proxy in front of the board.
         image: the firmware to run instead of the built one.
+        simulation: a simulated run (imulink.sim.simulate) to feed instead of the scenario's,
+            e.g. with other sensor errors; its rate must be rate_hz.
     """
 
     def __init__(self, target: str = "native", *, front: str = "pty", port: int = 0, scenario: str = "rests",
                  duration_s: float = 600.0, rate_hz: float = 100.0, seed: int = 0, filter_name: str = "eecf",
                  realtime: bool = False, profile: SensorProfile = DEFAULT_PROFILE,
                  faults: FaultConfig | None = None, schema_hash: int | None = None,
-                 image: str | os.PathLike | None = None, baud: int = 921600):
+                 image: str | os.PathLike | None = None, baud: int = 921600,
+                 simulation: sim.SimResult | None = None):
         if filter_name not in core.FILTERS:
             raise EmulatorError(f"unknown filter {filter_name!r}; choose one of {', '.join(core.FILTERS)}")
         core.Filter(filter_name, rate_hz)  # SettingsError for a rate the filter is not made for (nor the host's replay)
@@ -213,7 +216,10 @@ class EmulatedBoard:
         self.filter_name = filter_name
         self.faults = faults if faults is not None and faults.active else None
         self.schema_hash = schema_hash
-        self.simulation = sim.make_scenario(scenario, duration_s, rate_hz, seed)
+        if simulation is not None and simulation.rate_hz != self.rate_hz:
+            raise EmulatorError(f"the simulation runs at {simulation.rate_hz:g} Hz, the board at {rate_hz:g} Hz")
+        self.simulation = simulation if simulation is not None else sim.make_scenario(scenario, duration_s, rate_hz,
+                                                                                      seed)
         self._counts = (self.simulation.gyr_counts, self.simulation.acc_counts, self.simulation.mag_counts)
         if profile != self.simulation.profile:
             self._counts = si_to_counts(self.simulation.gyr, self.simulation.acc, self.simulation.mag, profile)
