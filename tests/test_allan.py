@@ -240,16 +240,37 @@ def test_setting_ranges_are_the_cores(filter_name):
 def test_settings_from_terms():
     terms = {"gyro_arw": [1e-3, 2e-3, None], "gyro_rrw": [5e-3, 1e-5, 1e-5], "acc_vrw": [3e-3, 1e-3, 2e-3],
              "acc_rrw": [None, None, None], "sample_rate_hz": 300.0}
-    derived = allan.derive_settings(terms, "eskf")
+    derived = allan.derive_settings(terms, "eskf", sensor_only=True)
     assert derived.values == pytest.approx({"gyro_arw": 2e-3, "gyro_rrw": 1.9e-3,  # clamped to the range
                                             "acc_noise": 3e-3 * math.sqrt(100.0)})  # three samples of 300 Hz
     assert any("gyro_rrw" in note and "clamped" in note for note in derived.notes)
     assert any("acc_bias_rw is left at its default" in note for note in derived.notes)
     core.Filter("eskf", 300.0, "fixed", derived.values)  # the core takes them
-    kf1d = allan.settings_from_terms(terms, "kf1d")
+    kf1d = allan.settings_from_terms(terms, "kf1d", sensor_only=True)
     assert kf1d == pytest.approx({"q_angle": 4e-6, "q_bias": 5e-6})  # rrw^2 = 2.5e-5 clamped to 5e-6
     with pytest.raises(AllanError, match="eecf"):
         allan.settings_from_terms(terms, "eecf")
+
+
+def test_settings_for_a_moving_board_add_the_motion_allowance():
+    """The white-noise settings add, in variance, what the defaults carry beyond the
+    sensor they were tuned on: BROAD's own terms give the defaults back, a noisier sensor
+    more, a quieter one hardly less; the sensor's random walks are taken as they are."""
+    eskf, kf1d = core.default_settings("eskf"), core.default_settings("kf1d")
+    broad = {"gyro_arw": [allan.TUNED_ON_GYRO_ARW] * 3, "gyro_rrw": [None] * 3,
+             "acc_vrw": [allan.TUNED_ON_ACC_NOISE / math.sqrt(285.7 / 3.0)] * 3, "acc_rrw": [None] * 3,
+             "sample_rate_hz": 285.7}
+    assert allan.settings_from_terms(broad, "eskf") == pytest.approx(
+        {"gyro_arw": eskf["gyro_arw"], "acc_noise": eskf["acc_noise"]}, rel=1e-12)
+    assert allan.settings_from_terms(broad, "kf1d") == pytest.approx({"q_angle": kf1d["q_angle"]}, rel=1e-12)
+    noisy = dict(broad, gyro_arw=[4e-3] * 3, gyro_rrw=[2e-5] * 3, acc_vrw=[0.05] * 3)
+    settings = allan.settings_from_terms(noisy, "eskf")
+    assert settings["gyro_arw"] == pytest.approx(math.hypot(4e-3, math.sqrt(allan.motion_allowance("eskf")["gyro_arw"])))
+    assert settings["gyro_arw"] > 4e-3 and settings["acc_noise"] > 0.05 * math.sqrt(285.7 / 3.0)
+    assert settings["gyro_rrw"] == 2e-5
+    quiet = dict(broad, gyro_arw=[1e-6] * 3, acc_vrw=[1e-5] * 3)
+    assert allan.settings_from_terms(quiet, "eskf")["gyro_arw"] > 0.99 * eskf["gyro_arw"]
+    assert any("--sensor-only" in note for note in allan.derive_settings(broad, "eskf").notes)
 
 
 # ---------------------------------------------------------------------------- inputs
@@ -341,15 +362,22 @@ def test_cli_json(csv_file):
 
 def test_cli_report_plots_and_settings(csv_file, tmp_path):
     png, svg = tmp_path / "allan.png", tmp_path / "allan.svg"
-    result = run_cli("allan", csv_file, "--plot", png, "--settings", "eskf")
+    def printed_settings(stdout: str) -> dict[str, float]:
+        return {name: float(value) for name, value in (line.split("#")[0].strip().split("=")
+                for line in stdout.splitlines() if "=" in line.split("#")[0] and not line.startswith(" "))}
+
+    result = run_cli("allan", csv_file, "--plot", png, "--settings", "eskf", "--sensor-only")
     assert result.returncode == 0, result.stderr
     assert "angle random walk" in result.stdout and "deg/sqrt(h)" in result.stdout
     assert "velocity random walk" in result.stdout and "not identified" in result.stdout
-    settings = dict(line.split("#")[0].strip().split("=") for line in result.stdout.splitlines()
-                    if "=" in line.split("#")[0] and not line.startswith(" "))
-    assert float(settings["gyro_arw"]) == pytest.approx(1e-3, rel=0.05)
-    assert float(settings["acc_noise"]) == pytest.approx(2e-3 * math.sqrt(100 / 3), rel=0.05)
-    assert "gyro_rrw" not in settings and "acc_bias_rw is left at its default" in result.stdout
+    sensor = printed_settings(result.stdout)
+    assert sensor["gyro_arw"] == pytest.approx(1e-3, rel=0.05)
+    assert sensor["acc_noise"] == pytest.approx(2e-3 * math.sqrt(100 / 3), rel=0.05)
+    assert "gyro_rrw" not in sensor and "acc_bias_rw is left at its default" in result.stdout
+    moving = printed_settings(run_cli("allan", csv_file, "--settings", "eskf").stdout)  # the default
+    allowance = allan.motion_allowance("eskf")
+    for name in ("gyro_arw", "acc_noise"):
+        assert moving[name] == pytest.approx(math.sqrt(sensor[name] ** 2 + allowance[name]), rel=1e-5)
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     result = run_cli("allan", csv_file, "--plot", svg, "--json")
     assert result.returncode == 0, result.stderr
@@ -375,7 +403,7 @@ def test_cli_recording_of_an_emulated_board(tmp_path):
     path = tmp_path / "still.imulog"
     with EmulatedBoard(front="tcp", scenario="static", duration_s=120.0, rate_hz=100.0, filter_name="kf1d") as board:
         hil.record(board.address, path)
-    result = run_cli("allan", path, "--json", "--settings", "eskf")
+    result = run_cli("allan", path, "--json", "--settings", "eskf", "--sensor-only")
     assert result.returncode == 0, result.stderr
     out = json.loads(result.stdout)
     assert out["sample_rate_hz"] == 100.0 and out["samples"] == 12_000

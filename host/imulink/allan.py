@@ -630,36 +630,77 @@ def _largest(terms: Mapping[str, Sequence[float | None]], key: str) -> float | N
     return max(values) if values else None
 
 
-def derive_settings(terms: Mapping[str, Sequence[float | None]], filter_name: str) -> DerivedSettings:
+#: The sensor terms of the recordings the filters' default settings were tuned on: BROAD's
+#: longest rest (02_undisturbed_slow_rotation_B, docs/calibration.md), its noisiest axis.
+#: Gyroscope angle random walk, rad/s^0.5 (0.396 deg/sqrt(h)); the specific-force noise of
+#: one ESKF step at BROAD's 285.7 Hz, m/s^2 (velocity random walk 0.00412 m/s^2/sqrt(Hz)
+#: times sqrt(285.7 / 3)).
+TUNED_ON_GYRO_ARW = math.radians(0.396) / 60.0
+TUNED_ON_ACC_NOISE = 0.00412 * math.sqrt(285.7 / 3.0)
+
+
+def motion_allowance(filter_name: str) -> dict[str, float]:
+    """What a filter's noise settings allow for beyond the sensor's own noise, as variances
+    (the settings' units squared): the default less the sensor term of the recordings it was
+    tuned on. On a moving board the gyroscope's unmodelled errors (scale factor,
+    misalignment, g-sensitivity) add to its white noise, and the board's own accelerations
+    to the accelerometer's in the gravity measurement; the defaults carry them, eight
+    (gyroscope) and seven (accelerometer) times the tuned-on sensor's noise."""
+    from . import core
+
+    defaults = core.default_settings(filter_name)
+    if filter_name == "eskf":
+        return {"gyro_arw": defaults["gyro_arw"] ** 2 - TUNED_ON_GYRO_ARW**2,
+                "acc_noise": defaults["acc_noise"] ** 2 - TUNED_ON_ACC_NOISE**2}
+    return {"q_angle": defaults["q_angle"] - TUNED_ON_GYRO_ARW**2}
+
+
+def derive_settings(terms: Mapping[str, Sequence[float | None]], filter_name: str,
+                    sensor_only: bool = False) -> DerivedSettings:
     """The settings of `filter_name` that the noise terms determine, clamped to their
-    ranges (see :func:`settings_from_terms`), and notes on each choice."""
+    ranges (see :func:`settings_from_terms`), and notes on each choice.
+
+    The white-noise settings (ESKF gyro_arw and acc_noise, KF1D q_angle) add the
+    :func:`motion_allowance` to the sensor's term in variance, so that a sensor as quiet as
+    the one the defaults were tuned on gets the defaults back; `sensor_only` leaves it out
+    (the sensor's terms alone: a board that barely moves)."""
     if filter_name not in SETTING_RANGES:
         raise AllanError(f"no setting of {filter_name!r} follows from noise terms; choose from "
                          f"{', '.join(SETTING_RANGES)}")
     gyro_arw, gyro_rrw = _largest(terms, "gyro_arw"), _largest(terms, "gyro_rrw")
     acc_vrw, acc_rrw = _largest(terms, "acc_vrw"), _largest(terms, "acc_rrw")
     rate_hz = terms.get("sample_rate_hz")
+    allowance = motion_allowance(filter_name)
+    if sensor_only:
+        allowance = dict.fromkeys(allowance, 0.0)
     wanted: dict[str, float | None] = {}
     notes = ["each value is the largest of the three axes: the filter has one per sensor, and one that assumes "
              "too little noise trusts its model too much"]
+    if sensor_only:
+        notes.append("the sensor's noise alone (--sensor-only): on a moving board these settings trust the "
+                     "gyroscope and the gravity measurement too much")
+    else:
+        notes.append("the white-noise settings add to the sensor's term what a moving board adds (the "
+                     "gyroscope's scale, misalignment and g-sensitivity errors, the board's own accelerations): "
+                     "the allowance the defaults carry beyond the sensor they were tuned on (--sensor-only: "
+                     "without it)")
     if filter_name == "eskf":
         # The ESKF's process noise is Q = diag(gyro_arw^2, gyro_rrw^2, acc_bias_rw^2) T (imu_eskf.h): the
-        # Allan terms themselves, in rad/s^0.5 (= rad/s/sqrt(Hz)), rad/s^1.5 and m/s^2.5.
-        wanted["gyro_arw"], wanted["gyro_rrw"], wanted["acc_bias_rw"] = gyro_arw, gyro_rrw, acc_rrw
+        # Allan terms, in rad/s^0.5 (= rad/s/sqrt(Hz)), rad/s^1.5 and m/s^2.5.
+        wanted["gyro_arw"] = None if gyro_arw is None else math.sqrt(gyro_arw**2 + allowance["gyro_arw"])
+        wanted["gyro_rrw"], wanted["acc_bias_rw"] = gyro_rrw, acc_rrw
         # acc_noise is the standard deviation of one filter step's specific force: the mean of three
         # samples, T = 3 / rate, so vrw / sqrt(T), as the ESKF takes arw^2 / T for its rest measurement.
         if acc_vrw is not None and rate_hz:
-            wanted["acc_noise"] = acc_vrw * math.sqrt(rate_hz / 3.0)
-            notes.append(f"acc_noise is the sensor's own noise over one filter step (3 samples at "
-                         f"{rate_hz:.6g} Hz); the accelerations of a moving board add to it: the default "
-                         "0.3 m/s^2 allows for them")
+            wanted["acc_noise"] = math.sqrt(acc_vrw**2 * rate_hz / 3.0 + allowance["acc_noise"])
+            notes.append(f"acc_noise counts the sensor's noise over one filter step (3 samples at {rate_hz:.6g} Hz)")
         else:
             wanted["acc_noise"] = None
         notes.append("bias instability has no ESKF setting (the filter models the bias as a random walk)")
     else:
         # KF1D: P = A P A^T + Q dt with Q = diag(q_angle, q_bias) (imu_kf1d.h): the variance densities,
         # rad^2/s = arw^2 and rad^2/s^3 = rrw^2.
-        wanted["q_angle"] = None if gyro_arw is None else gyro_arw**2
+        wanted["q_angle"] = None if gyro_arw is None else gyro_arw**2 + allowance["q_angle"]
         wanted["q_bias"] = None if gyro_rrw is None else gyro_rrw**2
     values = {}
     for name, value in wanted.items():
@@ -676,7 +717,8 @@ def derive_settings(terms: Mapping[str, Sequence[float | None]], filter_name: st
     return DerivedSettings(values, notes)
 
 
-def settings_from_terms(terms: Mapping[str, Sequence[float | None]], filter_name: str) -> dict[str, float]:
+def settings_from_terms(terms: Mapping[str, Sequence[float | None]], filter_name: str,
+                        sensor_only: bool = False) -> dict[str, float]:
     """The settings of `filter_name` ("eskf" or "kf1d") that noise terms determine, in SI.
 
     terms: as :func:`terms_json` gives them (gyro_arw, gyro_rrw, acc_vrw, acc_rrw: [x, y, z],
@@ -684,7 +726,7 @@ def settings_from_terms(terms: Mapping[str, Sequence[float | None]], filter_name
     missing is left out (the filter keeps its default); one outside its range
     (SETTING_RANGES) is clamped to it. :func:`derive_settings` also says why.
     """
-    return derive_settings(terms, filter_name).values
+    return derive_settings(terms, filter_name, sensor_only).values
 
 
 # ---------------------------------------------------------------------------- the plot

@@ -146,6 +146,8 @@ def _cmd_allan(args) -> int:
 
     if args.write and not args.settings:
         raise UsageError("--write needs --settings FILTER (the filter whose settings it writes)")
+    if args.sensor_only and not args.settings:
+        raise UsageError("--sensor-only needs --settings FILTER (it changes the settings derived)")
     if args.write:
         check_output(args.write, inputs=[args.input])
     if args.plot:  # before the work: a plot that cannot be written is known at once
@@ -158,7 +160,8 @@ def _cmd_allan(args) -> int:
         result = allan.analyse(record, args.confidence, progress=phase("Allan deviation"))
     finally:
         status.done()
-    derived = allan.derive_settings(allan.to_json(result), args.settings) if args.settings else None
+    derived = (allan.derive_settings(allan.to_json(result), args.settings, args.sensor_only) if args.settings
+               else None)
     units = {f.name: f.unit for f in core.settings_fields(args.settings)} if args.settings else {}
     if args.json:
         out = allan.to_json(result)
@@ -374,6 +377,9 @@ def build_parser() -> argparse.ArgumentParser:
                                                   "pip install 'imulink[plot]')")
     p.add_argument("--settings", metavar="FILTER", choices=("eskf", "kf1d"),
                    help="also print the settings of FILTER (eskf or kf1d) that follow from the terms")
+    p.add_argument("--sensor-only", action="store_true",
+                   help="with --settings: the sensor's noise alone, without the allowance for a moving board that "
+                        "the white-noise settings get otherwise (for a board that barely moves)")
     p.add_argument("--write", metavar="FILE",
                    help="with --settings: write them to a settings file (JSON) that record, inject, emulate and "
                         "core.run take with --settings FILE")
