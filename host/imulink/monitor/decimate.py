@@ -19,8 +19,10 @@ def peaks(rows: np.ndarray, bins: int) -> np.ndarray:
         return rows
     step = -(-n // bins)
     whole = n - n % step
-    runs = rows[:whole].reshape(-1, step, rows.shape[1])
+    # each run's values of a column contiguous: numpy reduces along the last axis several
+    # times faster than across a strided middle one
+    runs = np.ascontiguousarray(rows[:whole].reshape(-1, step, rows.shape[1]).transpose(0, 2, 1))
     out = np.empty((2 * len(runs), rows.shape[1]))
-    out[0::2], out[1::2] = np.fmin.reduce(runs, axis=1), np.fmax.reduce(runs, axis=1)
+    out[0::2], out[1::2] = np.fmin.reduce(runs, axis=2), np.fmax.reduce(runs, axis=2)
     out[0::2, 0] = out[1::2, 0] = runs[:, 0, 0]
     return np.concatenate([out, rows[whole:]])
