@@ -378,3 +378,100 @@ def test_screenshot_from_the_command_line(qt, tmp_path, eskf_recording, capsys):
     assert main(["monitor", str(eskf_recording), "--screenshot", str(tmp_path / "no" / "x.png")]) == 2
     assert capsys.readouterr().err.endswith("imulink: error: cannot write " + str(tmp_path / "no" / "x.png")
                                             + ": its directory does not exist\n")
+
+
+# ---------------------------------------------------------------------------- the 3D board
+
+
+def test_board_view_turns_the_board_by_the_estimate(qt):
+    """The board's rotation from the Euler angles the window shows is the estimate's own
+    (the sensor-to-earth rotation of the quaternion they came from)."""
+    from imulink.analysis import quat_to_euler
+    from imulink.monitor import board3d
+    from imulink.sim import quat
+
+    rng = np.random.default_rng(4)
+    for q in rng.standard_normal((50, 4)):
+        q /= np.linalg.norm(q)
+        euler = np.degrees(quat_to_euler(q))
+        np.testing.assert_allclose(board3d.rotation_matrix(*euler), quat.to_rotmat(q), atol=1e-12)
+
+
+def test_offscreen_window_shows_the_horizon_and_says_why_there_is_no_3d_view(qt, eskf_recording):
+    from imulink.monitor.sources import ReplaySource
+
+    window = open_window(ReplaySource(eskf_recording))
+    try:
+        assert window.board_view is None and window.horizon.isVisible()
+        assert "3D view not shown: Qt's offscreen platform has no OpenGL" in window.log.toPlainText()
+    finally:
+        window.close()
+
+
+_XVFB_VIEW = """
+import json, sys
+import numpy as np
+from imulink.monitor.qt import QtGui, QtWidgets
+app = QtWidgets.QApplication([])
+from imulink.monitor import board3d
+problem = board3d.opengl_problem()
+if problem:
+    print(json.dumps({"problem": problem}))
+    sys.exit(0)
+view = board3d.make_view()
+view.resize(320, 280)
+view.show()
+shots, transforms = [], []
+for attitude in ((0, 0, 0), (0, 0, 90), (60, 0, 0)):
+    view.set_attitude(*attitude)
+    for _ in range(5):
+        app.processEvents()
+    image = view.grabFramebuffer().convertToFormat(QtGui.QImage.Format.Format_RGB888)
+    bits = image.constBits()
+    bits.setsize(image.sizeInBytes())
+    rows = np.frombuffer(bits, np.uint8).reshape(image.height(), image.bytesPerLine())
+    shots.append(rows[:, :3 * image.width()].reshape(image.height(), image.width(), 3).astype(int).tolist())
+    transforms.append(np.array(view.board.transform().data()).reshape(4, 4).T.tolist())  # data() is by columns
+print(json.dumps({"problem": None, "shots": shots, "transforms": transforms}))
+"""
+
+
+def test_board_view_draws_the_board_in_a_real_window(tmp_path):
+    """In Xvfb (software OpenGL): the view draws the board, with its top face's green, and
+    the board's transform is the attitude's rotation; a turn changes the picture."""
+    import json
+    import shutil
+    import subprocess
+    import sys
+
+    pytest.importorskip("OpenGL", reason="the monitor extra (PyOpenGL) is not installed")
+    from imulink.monitor import board3d
+
+    xvfb = shutil.which("Xvfb")
+    assert xvfb, "Xvfb is missing: tools/install-system-packages.sh installs it"
+    read_end, write_end = os.pipe()
+    server = subprocess.Popen([xvfb, "-displayfd", str(write_end), "-screen", "0", "800x600x24", "-nolisten", "tcp"],
+                              pass_fds=(write_end,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    os.close(write_end)
+    try:
+        with os.fdopen(read_end) as ready:
+            display = ready.readline().strip()
+        env = dict(os.environ, DISPLAY=f":{display}", QT_QPA_PLATFORM="xcb", XDG_CONFIG_HOME=str(tmp_path))
+        result = subprocess.run([sys.executable, "-c", _XVFB_VIEW], env=env, capture_output=True, text=True,
+                                timeout=120)
+    finally:
+        server.terminate()
+        server.wait()
+    assert result.returncode == 0, result.stderr
+    out = json.loads(result.stdout.splitlines()[-1])
+    assert out["problem"] is None, out["problem"]
+    shots = [np.array(shot) for shot in out["shots"]]
+    top = np.array([0.15, 0.55, 0.25]) * 255  # the top face's colour (flat, unlit)
+    green = [int(np.sum(np.all(np.abs(shot - top) < 12, axis=2))) for shot in shots]
+    assert green[0] > 2000, green  # the flat board shows its top to the camera above
+    for k, attitude in enumerate(((0, 0, 0), (0, 0, 90), (60, 0, 0))):
+        np.testing.assert_allclose(np.array(out["transforms"][k])[:3, :3], board3d.rotation_matrix(*attitude),
+                                   atol=1e-6)
+    for a in range(3):
+        for b in range(a + 1, 3):
+            assert np.sum(np.any(shots[a] != shots[b], axis=2)) > 500  # each turn moves the board on screen

@@ -10,6 +10,8 @@
 #   xvfb, libxcb-cursor0, libxcb-icccm4,       `imulink monitor` in a real window without a display (Xvfb):
 #   libxcb-keysyms1                            the X libraries Qt's xcb platform (PyQt6-Qt6) loads that a
 #                                              minimal Debian lacks (Qt 6.5+ needs libxcb-cursor0)
+#   libgl1, libglx-mesa0, libegl1,             OpenGL in software (Mesa's llvmpipe) for the monitor's 3D
+#   libgl1-mesa-dri                            board view, in Xvfb too
 #
 # Installs only what is missing: as root directly, otherwise through sudo. Exits 1 with the
 # apt-get command to run when it cannot install them itself.
@@ -60,9 +62,11 @@ fi
 have qemu-system-arm || missing="$missing qemu-system-arm"
 have clang || missing="$missing clang"
 have Xvfb || missing="$missing xvfb"
-for lib in cursor.so.0:libxcb-cursor0 icccm.so.4:libxcb-icccm4 keysyms.so.1:libxcb-keysyms1; do
-    ldconfig -p 2>/dev/null | grep -q "libxcb-${lib%%:*}" || missing="$missing ${lib#*:}"
+for lib in xcb-cursor.so.0:libxcb-cursor0 xcb-icccm.so.4:libxcb-icccm4 xcb-keysyms.so.1:libxcb-keysyms1 \
+           GL.so.1:libgl1 GLX_mesa.so.0:libglx-mesa0 EGL.so.1:libegl1; do
+    ldconfig -p 2>/dev/null | grep -q "lib${lib%%:*}" || missing="$missing ${lib#*:}"
 done
+ls /usr/lib/*/dri/swrast_dri.so >/dev/null 2>&1 || missing="$missing libgl1-mesa-dri"
 
 [ -z "$missing" ] || install_packages "$missing"
 

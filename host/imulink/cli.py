@@ -672,7 +672,7 @@ def _cmd_monitor(args) -> int:
                                  speed=args.speed, emulation=emulation)
     title = "emulated board" if args.emulate else args.port
     exit_after = args.exit_after if args.exit_after or not args.screenshot else 5.0
-    return window.run(source, title, screenshot=args.screenshot, exit_after=exit_after)
+    return window.run(source, title, screenshot=args.screenshot, exit_after=exit_after, view_3d=not args.no_3d)
 
 
 SWD_PORTS = ("swd", "pyocd", "openocd")
@@ -986,8 +986,8 @@ def _add_hil_commands(sub) -> None:
         description="Open a window on a board (PORT), an emulated board started here (--emulate, real time) or "
                     "a recording (FILE, played at its own pace or --speed times it, with a time slider): "
                     "scrolling plots of the raw sensors in physical units, the Euler angles, gyro bias and "
-                    "ESKF covariance the filter sends and the live fixed-vs-float difference; an artificial "
-                    "horizon with a heading tape; link health with the bit-exact verdict so far; filter, "
+                    "ESKF covariance the filter sends and the live fixed-vs-float difference; a 3D board in "
+                    "the earth's axes (where OpenGL is) and an artificial horizon with a heading tape; link health with the bit-exact verdict so far; filter, "
                     "settings, stream, record and reset controls. A lost port is reopened when it comes back. "
                     "Needs the monitor extra: pip install 'imulink[monitor]'. docs/monitor.md describes it.")
     p.add_argument("port", metavar="PORT|FILE", nargs="?",
@@ -1002,6 +1002,8 @@ def _add_hil_commands(sub) -> None:
     p.add_argument("--screenshot", metavar="FILE", help="write the window to FILE (PNG) after --exit-after "
                                                         "seconds (default 5), then exit")
     p.add_argument("--exit-after", type=_positive_float, metavar="S", help="close the window after S seconds")
+    p.add_argument("--no-3d", action="store_true",
+                   help="no 3D board view (it needs OpenGL; without it the window shows the horizon alone)")
     p.set_defaults(func=_cmd_monitor)
 
     p = sub.add_parser(

@@ -81,7 +81,8 @@ class HorizonWidget(QtWidgets.QWidget):
         painter.drawLine(QtCore.QPointF(radius * 0.12, 0), QtCore.QPointF(radius * 0.45, 0))
         painter.drawEllipse(QtCore.QPointF(0, 0), 3, 3)
         painter.setPen(QtCore.Qt.GlobalColor.white)
-        painter.drawText(QtCore.QRectF(-radius, radius - 22, 2 * radius, 20),
+        # across the panel's width, not the dial's: in a short panel the text is wider than the dial
+        painter.drawText(QtCore.QRectF(-rect.width() / 2, radius - 22, rect.width(), 20),
                          QtCore.Qt.AlignmentFlag.AlignCenter, f"roll {self.roll:+.1f}°  pitch {self.pitch:+.1f}°")
         painter.restore()
 

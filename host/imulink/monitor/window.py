@@ -18,6 +18,7 @@ import numpy as np
 from .. import core, protocol
 from ..files import FileError, create_beside
 from .decimate import peaks
+from . import board3d
 from .horizon import HorizonWidget
 from .qt import QtCore, QtGui, QtWidgets, pg
 from .sources import ESTIMATE_COLUMNS, FILTER_NAMES, MAX_SPAN_S, SAMPLE_COLUMNS, Health
@@ -76,9 +77,10 @@ class Curve(pg.PlotCurveItem):
 class MonitorWindow(QtWidgets.QMainWindow):
     """The window on one source (a LiveSource or a ReplaySource)."""
 
-    def __init__(self, source, title: str):
+    def __init__(self, source, title: str, view_3d: bool = True):
         super().__init__()
         self.source = source
+        self.view_3d = view_3d
         self.setWindowTitle(f"imulink monitor: {title}")
         self.store = QtCore.QSettings("imulink", "monitor")
         self.paused = False
@@ -140,8 +142,15 @@ class MonitorWindow(QtWidgets.QMainWindow):
 
         side = QtWidgets.QWidget()
         column = QtWidgets.QVBoxLayout(side)
-        self.horizon = HorizonWidget()
-        column.addWidget(self.horizon, 3)
+        self.board_view = None  # the 3D board, where OpenGL is
+        problem = board3d.opengl_problem() if self.view_3d else "--no-3d"
+        if problem is None:
+            self.board_view = board3d.make_view()
+            column.addWidget(self.board_view, 3)
+        self.horizon = HorizonWidget()  # always: it reads at a glance what the 3D view shows
+        if self.board_view is not None:
+            self.horizon.setMinimumSize(200, 150)  # room for both in the side column
+        column.addWidget(self.horizon, 2 if self.board_view else 3)
         self.health_label = QtWidgets.QLabel()
         self.health_label.setTextFormat(QtCore.Qt.TextFormat.RichText)
         self.health_label.setAlignment(QtCore.Qt.AlignmentFlag.AlignTop)
@@ -154,6 +163,8 @@ class MonitorWindow(QtWidgets.QMainWindow):
         self.log.setMaximumBlockCount(500)
         self.log.setFixedHeight(70)
         column.addWidget(self.log)
+        if problem is not None and self.view_3d:
+            self._log(f"3D view not shown: {problem}")
 
         self.splitter = QtWidgets.QSplitter()
         self.splitter.addWidget(self.plots_widget)
@@ -366,7 +377,10 @@ class MonitorWindow(QtWidgets.QMainWindow):
                 if self.plots[0].vb.viewRange()[0] != [-span, 0.0]:  # seconds before now: the time axes stand still
                     self.plots[0].setXRange(-span, 0.0, padding=0)
                 self._autoscale_y(drawn)
-                self.horizon.set_attitude(*self.source.attitude())
+                attitude = self.source.attitude()
+                self.horizon.set_attitude(*attitude)
+                if self.board_view is not None:
+                    self.board_view.set_attitude(*attitude)
             if not self.source.live and not self.slider.isSliderDown():
                 self.slider.setValue(int(now * 10))
         if self.frames % HEALTH_EVERY == 0:
@@ -476,11 +490,11 @@ def _escape(text: str) -> str:
     return str(text).replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
 
 
-def run(source, title: str, screenshot=None, exit_after: float | None = None) -> int:
+def run(source, title: str, screenshot=None, exit_after: float | None = None, view_3d: bool = True) -> int:
     """Show the window until it is closed (or `exit_after` s, writing `screenshot` first). Exit status."""
     app = QtWidgets.QApplication.instance() or QtWidgets.QApplication(sys.argv[:1])
     app.setApplicationName("imulink monitor")
-    window = MonitorWindow(source, title)
+    window = MonitorWindow(source, title, view_3d=view_3d)
     window.show()
     status = {"code": 0}
 
