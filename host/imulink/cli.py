@@ -6,7 +6,6 @@ line `imulink: error: ...` on stderr, never a traceback.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import math
 import os
 import re
@@ -193,9 +192,9 @@ def _cmd_allan(args) -> int:
 CALIBRATE_SENSORS = {"gyro": "gyr", "accel": "acc", "mag": "mag"}
 
 
-def _give_calibration(port: str, baud: int, calibration) -> None:
-    """Give the board at `port` `calibration`, read it back and print it; HilError when the
-    board reports another."""
+def _give_calibration(port: str, baud: int, calibration) -> str:
+    """Give the board at `port` `calibration` and read it back; the board's calibration as
+    text. HilError when the board reports another."""
     from . import calibration as cal, hil
     from .link import Link
 
@@ -206,7 +205,7 @@ def _give_calibration(port: str, baud: int, calibration) -> None:
     expected = {name: cal.to_fixed(calibration.sensor(name)) for name in cal.SENSORS}
     if {name: cal.to_fixed(board.sensor(name)) for name in cal.SENSORS} != expected:
         raise hil.HilError(f"{port} reports another calibration than it was given")
-    print(cal.format_calibration(board))
+    return cal.format_calibration(board)
 
 
 @_command
@@ -217,7 +216,7 @@ def _cmd_calibrate_apply(args) -> int:
     if (args.file is None) == (not args.identity):
         raise UsageError("give a calibration FILE or --identity (not both)")
     calibration = cal.Calibration(DEFAULT_PROFILE) if args.identity else cal.load(args.file)
-    _give_calibration(args.port, args.baud, calibration)
+    print(_give_calibration(args.port, args.baud, calibration))
     print(f"{args.port}: calibration " + ("identity" if args.identity else f"of {args.file}")
           + " applied and read back (kept until a RESET)")
     return 0
@@ -246,8 +245,8 @@ def _live_mag_record(args):
           "on Ctrl-C", file=sys.stderr)
     collected = live_calibration.collect_mag(args.input, profile, baud=args.baud, max_duration_s=args.max_duration,
                                              progress=hil.Progress())
-    print(f"{args.input}: {len(collected.counts)} samples in {collected.time_s[-1] if len(collected.time_s) else 0:.1f} "
-          f"s ({collected.stop_reason})", file=sys.stderr)
+    seconds = collected.time_s[-1] if len(collected.time_s) else 0.0
+    print(f"{args.input}: {len(collected.counts)} samples in {seconds:.1f} s ({collected.stop_reason})", file=sys.stderr)
     return collected.record(profile)
 
 
@@ -273,7 +272,7 @@ def _cmd_calibrate(args) -> int:
         finally:
             status.done()
     profile = record.profile or args.profile or DEFAULT_PROFILE
-    if args.profile is not None and record.profile is not None and args.profile != record.profile and not live:
+    if args.profile is not None and record.profile is not None and args.profile != record.profile:
         raise UsageError(f"{args.input} holds counts of profile {record.profile.name}; --profile "
                          f"{args.profile.name} contradicts it (--profile is for a CSV, which does not say)")
     sensor = CALIBRATE_SENSORS[args.sensor]
@@ -301,8 +300,7 @@ def _cmd_calibrate(args) -> int:
     print(f"calibration: {args.output} ({cal.SENSOR_NAMES[sensor]} {'replaced' if replaced else 'written'}"
           + (f"; {', '.join(others)} kept" if others else "") + ")", file=out)
     if args.apply:
-        with contextlib.redirect_stdout(out):
-            _give_calibration(args.input, args.baud, merged)
+        print(_give_calibration(args.input, args.baud, merged), file=out)
         print(f"{args.input}: calibration of {args.output} applied and read back (kept until a RESET)", file=out)
     return 0
 
