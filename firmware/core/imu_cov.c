@@ -59,6 +59,13 @@ static int headroom(imu_wide_t magnitude, int bits)
     return excess > 0 ? excess : 0;
 }
 
+/** A value brought below 2^31 by headroom(., 31) and a rounding shift, as int32: the
+ *  rounding can reach +2^31 exactly, which becomes INT32_MAX (one unit in 2^31). */
+static imu_real_t headroom_int32(imu_wide_t v)
+{
+    return (imu_real_t)(v > INT32_MAX ? INT32_MAX : v);
+}
+
 /**
  * Choose new exponents so that every diagonal mantissa lies in [2^28, 2^30), and
  * store the rescaled wide matrix `w` (Q30 in the old exponents) as int32.
@@ -219,6 +226,11 @@ static int headroom(imu_wide_t magnitude, int bits)
     return 0;
 }
 
+static imu_real_t headroom_int32(imu_wide_t v)
+{
+    return v;
+}
+
 static void renormalize(imu_cov_t *c, imu_wide_t w[IMU_COV_CELLS], uint32_t *sat)
 {
     int i, j;
@@ -361,7 +373,8 @@ void imu_cov_predict(imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], const imu_wide_
      * with the row's total scale kept in row_scale: no int64 product or sum
      * overflows, and only a truly out-of-range result saturates. Only the non-zero
      * entries of phi take part (a filter's transition is mostly identity). */
-    imu_wide_t m[IMU_COV_MAX][IMU_COV_MAX]; /* m_ij (Q30) = m[i][j] * 2^row_scale[i] */
+    imu_real_t m[IMU_COV_MAX][IMU_COV_MAX]; /* m_ij (Q30) = m[i][j] * 2^row_scale[i], |m[i][j]| < 2^31 */
+    imu_wide_t row[IMU_COV_MAX];            /* a row of m before its shift */
     int row_scale[IMU_COV_MAX];
     unsigned char cols[IMU_COV_MAX][IMU_COV_MAX];
     int count[IMU_COV_MAX], growth[IMU_COV_MAX];
@@ -381,12 +394,12 @@ void imu_cov_predict(imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], const imu_wide_
                 /* Q30 * Q30 -> Q60 (below 2^61), to Q56 - growth: 9 terms below 2^61. */
                 sum += wide_ldexp(IMU_WMUL(phi[i][k], c->p[cell(k, j)]), c->e[k] - c->e[i] - growth[i] - 4, sat);
             }
-            m[i][j] = sum;
+            row[j] = sum;
             biggest = wide_abs(sum) > biggest ? wide_abs(sum) : biggest;
         }
         row_shift = headroom(biggest, 31);
         for (j = 0; j < n; ++j) {
-            m[i][j] = wide_ldexp(m[i][j], -row_shift, sat);
+            m[i][j] = headroom_int32(wide_ldexp(row[j], -row_shift, sat));
         }
         row_scale[i] = growth[i] - 26 + row_shift; /* Q56 -> Q30 is 2^-26 */
     }
