@@ -168,8 +168,14 @@ def test_record_starts_on_a_link_that_loses_one_percent_of_its_bytes(tmp_path):
 # ---------------------------------------------------------------------------- differences
 
 
+#: Host time (Unix, s) of a synthetic recording's first frame: a real clock's magnitude,
+#: where nine significant digits would only resolve 10 s.
+SYNTHETIC_START_S = 1795394010.123457
+
+
 def _synthetic_recording(path, tamper: int | None) -> sim.SimResult:
-    """A recording written as a board would send it, with estimate `tamper` changed by one LSB."""
+    """A recording written as a board would send it (a frame pair every 10 ms from
+    SYNTHETIC_START_S), with estimate `tamper` changed by one LSB."""
     data = sim.make_scenario("random", 3.0, 100.0, seed=2)
     settings = FirmwareFilter.default_raw_settings("eecf", 100.0)
     firmware = FirmwareFilter("eecf", settings)
@@ -188,7 +194,7 @@ def _synthetic_recording(path, tamper: int | None) -> sim.SimResult:
                 estimate["euler"][2] += 1
             wire = protocol.encode("SAMPLE", seq, timestamp_us=k * 10_000, index=k, gyr=gyr, acc=acc, mag=mag,
                                    temperature=0) + protocol.encode("ESTIMATE", seq + 1, **estimate)
-            writer.received(wire, float(k))
+            writer.received(wire, SYNTHETIC_START_S + k * 0.01)
             seq += 2
     return data
 
@@ -226,6 +232,29 @@ def test_replay_exports_csv_and_npz_with_units(tmp_path, capsys):
     np.testing.assert_array_equal(npz["samples_gyr"], data.gyr_counts)
     np.testing.assert_array_equal(npz["board_quat"], npz["host_fixed_quat"])
     assert "gy86-default" in str(npz["metadata"])
+
+
+def test_replay_csv_keeps_every_value_exactly(tmp_path, capsys):
+    """Every number in the CSV reads back as the very value replay computed (host times
+    of a real clock included); integer columns are written as integers."""
+    path = tmp_path / "exact.imulog"
+    _synthetic_recording(path, tamper=50)
+    csv_path = tmp_path / "exact.csv"
+    run_cli(capsys, "replay", path, "--csv", csv_path)
+    recording = load_recording(path)
+    run = hil.host_run(recording)
+    columns = hil.replay_columns(recording, run, hil.compare(recording, run))
+    with open(csv_path) as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == list(columns)
+    for k, (name, values) in enumerate(columns.items()):
+        cells = [row[k] for row in rows[1:]]
+        if np.issubdtype(np.asarray(values).dtype, np.integer) or name in ("identical", "verifiable"):
+            assert all(re.fullmatch(r"-?[0-9]+|", cell) for cell in cells), name
+        read = np.array([float(cell) if cell else np.nan for cell in cells])
+        np.testing.assert_array_equal(read, np.asarray(values, np.float64), err_msg=name)
+    host_times = [float(row[0]) for row in rows[1:]]
+    assert len(set(host_times)) == len(host_times)  # 10 ms apart, each its own value
 
 
 def test_replay_defaults_to_a_csv_beside_the_recording(tmp_path, capsys):

@@ -20,7 +20,6 @@ build of the same C, inject samples into a board, and the no-hardware demo.
 from __future__ import annotations
 
 import json
-import math
 import sys
 import tempfile
 import time
@@ -653,16 +652,26 @@ def replay_columns(recording: Recording, run: HostRun, comparison: Comparison) -
     return columns
 
 
+#: Replay columns that hold integers (a float column only where some rows have no value).
+_INTEGER_COLUMNS = ("timestamp_us", "segment", "index", "verifiable", "identical")
+
+
 def export_csv(columns: dict[str, np.ndarray], path) -> None:
-    """Write replay columns as CSV (empty cells where a value is missing)."""
+    """Write replay columns as CSV (empty cells where a value is missing). Every number
+    reads back as the value it was: integers as integers, floats in Python's shortest
+    round-trip form (a Unix host time keeps its microseconds, not nine digits)."""
     names = list(columns)
-    data = np.column_stack([np.asarray(columns[k], np.float64) for k in names])
-    integer = [k in ("timestamp_us", "segment", "index", "verifiable", "identical") for k in names]
+
+    def cells(name: str) -> list[str]:
+        values = np.asarray(columns[name])
+        if name in _INTEGER_COLUMNS or np.issubdtype(values.dtype, np.integer):
+            return ["" if v != v else str(int(v)) for v in values.tolist()]  # v != v: NaN
+        return ["" if v != v else repr(v) for v in values.astype(np.float64).tolist()]
+
     with open(path, "w", encoding="utf-8") as out:
         out.write(",".join(names) + "\n")
-        for row in data:
-            out.write(",".join("" if math.isnan(v) else (str(int(v)) if integer[i] else f"{v:.9g}")
-                               for i, v in enumerate(row)) + "\n")
+        for row in zip(*(cells(name) for name in names)):
+            out.write(",".join(row) + "\n")
 
 
 def export_npz(recording: Recording, run: HostRun, columns: dict[str, np.ndarray], path) -> None:
