@@ -165,6 +165,48 @@ def test_record_starts_on_a_link_that_loses_one_percent_of_its_bytes(tmp_path):
         assert comparison.identical_count == comparison.verified_count
 
 
+def _verifiable_estimates(recording) -> int:
+    """How many estimates have every SAMPLE of their filter run up to their own: those the
+    host can reproduce (counted here from the indices alone)."""
+    samples, estimates = recording.samples, recording.estimates
+    first_gap = {}
+    for segment in set(samples.segment.tolist()):
+        present = set(samples.index[samples.segment == segment].tolist())
+        first_gap[segment] = next(k for k in range(len(present) + 1) if k not in present)
+    return sum(int(index) < first_gap.get(int(segment), 0)
+               for segment, index in zip(estimates.segment, estimates.index))
+
+
+def test_heavy_faults_leave_too_few_verified_estimates_for_a_yes(tmp_path, capsys):
+    """Over a link that loses one byte in a thousand, a fast stream leaves a handful of
+    thousands of estimates verifiable: all identical, but that proves nothing of the rest.
+    The verdict says how many, and exits 1 below --min-verified."""
+    path = tmp_path / "heavy.imulog"
+    with EmulatedBoard(duration_s=5.0, rate_hz=1000.0, faults=FaultConfig(drop_byte=1e-3, seed=1)) as board:
+        hil.record(board.address, path)
+    recording = load_recording(path)
+    received, verifiable = len(recording.estimates), _verifiable_estimates(recording)
+    assert 0 < verifiable < 0.99 * received
+    code, out, _ = run_cli(capsys, "compare", path)
+    assert code == 1
+    assert (f"bit-exact: not proven: only {verifiable} of {received} recorded estimates verified "
+            f"({int(1000 * verifiable / received) / 10:g} %, below the minimum 99 % of --min-verified), "
+            "all identical") in out
+    code, out, _ = run_cli(capsys, "compare", path, "--min-verified", "0")
+    assert code == 0 and f"bit-exact: yes ({verifiable} of {received} recorded estimates verified, all identical)" in out
+    code, out, _ = run_cli(capsys, "replay", path, "--csv", tmp_path / "heavy.csv")
+    assert code == 1 and "not proven: only" in out and (tmp_path / "heavy.csv").exists()
+
+
+def test_a_clean_recording_passes_with_its_coverage_in_the_verdict(tmp_path, capsys):
+    path = tmp_path / "clean.imulog"
+    data = _synthetic_recording(path, tamper=None)
+    for command in ("compare", "replay"):
+        code, out, _ = run_cli(capsys, command, path, "--min-verified", "1")
+        assert code == 0, out
+        assert f"bit-exact: yes ({len(data)} of {len(data)} recorded estimates verified, all identical)" in out
+
+
 # ---------------------------------------------------------------------------- differences
 
 
@@ -203,8 +245,10 @@ def test_compare_names_the_first_difference(tmp_path, capsys):
     path = tmp_path / "tampered.imulog"
     _synthetic_recording(path, tamper=123)
     code, out, _ = run_cli(capsys, "compare", path)
-    assert code == 1 and "bit-exact: NO" in out
+    assert code == 1 and "bit-exact: NO (1 of the 300 verified differ; 300 of 300 recorded estimates verified)" in out
     assert "300 received, 300 verifiable, 299 identical, 1 different" in out
+    code, replayed, _ = run_cli(capsys, "replay", path, "--csv", tmp_path / "tampered.csv")
+    assert code == 1 and "bit-exact: NO" in replayed and str(hil.compare(load_recording(path)).first_difference) in replayed
     comparison = hil.compare(load_recording(path))
     difference = comparison.first_difference
     assert (difference.estimate, difference.index, difference.field) == (123, 123, "euler")
@@ -514,6 +558,11 @@ def test_inject_counts_unanswered_samples_and_measures_accuracy_over_the_answere
                          out)
     assert accuracy is not None and 0 < int(accuracy.group(1)) <= 250 and float(accuracy.group(2)) < 20
     assert "nan deg" not in out and code in (0, 1)
+    # every sample not answered counts against the verdict: at 100 % required, not proven
+    with EmulatedBoard(duration_s=1.0, faults=FaultConfig(drop_byte=5e-4, seed=3)) as board:
+        code, out, _ = run_cli(capsys, "inject", board.address, "--input", "sim:rests:15:50:1", "--min-verified", "1")
+    answered = int(re.search(r": (\d+) answered, ", out).group(1))
+    assert code == 1 and f"bit-exact: not proven: only {answered} of 750 injected samples verified" in out
 
 
 def test_inject_bad_inputs(capsys, tmp_path):

@@ -18,8 +18,9 @@ EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
 EXIT_STATUS_HELP = """exit status:
   0    success
-  1    not proven bit-exact: an estimate differs from the host build, none could be
-       verified, or the recording is damaged (compare, inject, demo)
+  1    not proven bit-exact: an estimate differs from the host build, fewer than
+       --min-verified of them could be verified, or the recording is damaged
+       (compare, replay, inject, demo)
   2    a usage error or a failure (argument, port, board, file, disk), said in one line
        "imulink: error: ..."
   130  interrupted (Ctrl-C or SIGTERM); a recording is closed and readable"""
@@ -526,7 +527,7 @@ def _cmd_replay(args) -> int:
             check_output(output, inputs=[args.file])
     recording = load_recording(args.file)
     run = hil.host_run(recording)
-    comparison = hil.compare(recording, run)
+    comparison = hil.compare(recording, run, min_verified=args.min_verified)
     columns = hil.replay_columns(recording, run, comparison)
     print(hil.format_comparison(recording, comparison))
     if csv_path:
@@ -535,7 +536,7 @@ def _cmd_replay(args) -> int:
     if args.npz:
         write_replacing(args.npz, lambda path: hil.export_npz(recording, run, columns, path), inputs=[args.file])
         print(f"NPZ: {args.npz}")
-    return 0
+    return 0 if comparison.verdict.passed else EXIT_MISMATCH
 
 
 @_command
@@ -544,9 +545,9 @@ def _cmd_compare(args) -> int:
     from .recording import load_recording
 
     recording = load_recording(args.file)
-    comparison = hil.compare(recording)
+    comparison = hil.compare(recording, min_verified=args.min_verified)
     print(hil.format_comparison(recording, comparison))
-    return 0 if comparison.bit_exact else EXIT_MISMATCH
+    return 0 if comparison.verdict.passed else EXIT_MISMATCH
 
 
 @_command
@@ -555,9 +556,9 @@ def _cmd_inject(args) -> int:
 
     source = hil.load_injection_input(args.input)
     result = hil.inject(args.port, source, baud=args.baud, filter_name=args.filter, board_profile=args.board_profile,
-                        progress=hil.Progress(), settings=_settings_file(args))
+                        progress=hil.Progress(), settings=_settings_file(args), min_verified=args.min_verified)
     print(hil.format_inject(result))
-    return 0 if result.bit_exact else EXIT_MISMATCH
+    return 0 if result.verdict.passed else EXIT_MISMATCH
 
 
 @_command
@@ -566,11 +567,11 @@ def _cmd_demo(args) -> int:
 
     report = hil.demo(target=args.target, transport=args.transport, scenario=args.scenario, duration_s=args.duration,
                       rate_hz=args.rate, seed=args.seed, filter_name=args.filter, output=args.output,
-                      force=args.force, progress=hil.Progress())
+                      force=args.force, progress=hil.Progress(), min_verified=args.min_verified)
     print(report.format())
     if report.record.interrupted:
         return EXIT_INTERRUPTED
-    return 0 if report.comparison.bit_exact else EXIT_MISMATCH
+    return 0 if report.comparison.verdict.passed else EXIT_MISMATCH
 
 
 @_command
@@ -743,6 +744,12 @@ def _add_hil_commands(sub) -> None:
             p.add_argument("--baud", type=_baud, default=DEFAULT_BAUD,
                            help=f"line rate for --serial (default: {DEFAULT_BAUD})")
 
+    def min_verified_argument(p, what: str):
+        p.add_argument("--min-verified", type=_probability, default=hil.MIN_VERIFIED, metavar="FRACTION",
+                       help=f"the least share of {what} that must be verified for a bit-exact pass (default: "
+                            f"{hil.MIN_VERIFIED:g}); below it the verdict is \"not proven\" and the exit status 1, "
+                            "even when every verified one is identical")
+
     def fault_arguments(p):
         p.add_argument("--schema-hash", type=_u32, default=None,
                        help="rewrite HELLO to report this schema hash (a board built from another protocol definition)")
@@ -765,13 +772,14 @@ def _add_hil_commands(sub) -> None:
                     "QEMU with --target qemu, its sensors fed by the simulator), record its simulated run over a "
                     "TCP loopback or a pty as fast as the link goes, replay the recording through the host build "
                     "of the same C, and report: frames and losses, bit-exactness, the fixed-vs-float difference, "
-                    "and the accuracy against the simulated truth. Exit status 0 when every estimate is "
-                    "bit-exact, 1 otherwise.")
+                    "and the accuracy against the simulated truth. Exit status 0 when every verified estimate is "
+                    "bit-exact and at least --min-verified of them were verified, 1 otherwise.")
     simulation_arguments(p, 60.0)
     target_arguments(p)
     p.add_argument("--transport", choices=("tcp", "pty"), default="tcp", help="link to the board (default: tcp)")
     p.add_argument("--output", "-o", metavar="FILE", help="keep the recording here (default: not kept)")
     p.add_argument("--force", action="store_true", help="replace an existing --output file")
+    min_verified_argument(p, "the recorded estimates")
     p.set_defaults(func=_cmd_demo)
 
     p = sub.add_parser(
@@ -890,10 +898,13 @@ def _add_hil_commands(sub) -> None:
                     "Writes one row per sample: inputs in SI units, the board's estimate, the host fixed and "
                     "float outputs, and whether the board's estimate was identical; units are in the column "
                     "names. Without --csv or --npz the CSV goes next to the recording. An output is written "
-                    "under a temporary name and renamed when complete; the recording itself is never written over.")
+                    "under a temporary name and renamed when complete; the recording itself is never written over. "
+                    "The exit status is compare's: the outputs are written either way, and the status is 1 "
+                    "unless the recording is proven bit-exact.")
     p.add_argument("file", metavar="FILE", help="recording written by `imulink record` or `imulink demo`")
     p.add_argument("--csv", help="CSV file to write")
     p.add_argument("--npz", help="numpy .npz file to write (also the raw integers and the metadata)")
+    min_verified_argument(p, "the recorded estimates")
     p.set_defaults(func=_cmd_replay)
 
     p = sub.add_parser(
@@ -902,9 +913,12 @@ def _add_hil_commands(sub) -> None:
                     "report the counts of identical frames, the first differing frame and field with both "
                     "values, and the fixed-vs-float statistics. Estimates after a lost sample of their filter "
                     "run cannot be reproduced and are reported as unverifiable. Damaged parts of the file are "
-                    "skipped and reported by offset. Exit status 0 when every verifiable estimate is identical, "
-                    "1 on any difference, when none can be verified, or when the file is damaged.")
+                    "skipped and reported by offset. The verdict line says how many of the recorded estimates "
+                    "were verified. Exit status 0 when every verified estimate is identical and they are at "
+                    "least --min-verified of the recorded ones; 1 on any difference, on fewer verified, when "
+                    "none can be verified, or when the file is damaged.")
     p.add_argument("file", metavar="FILE", help="recording to check")
+    min_verified_argument(p, "the recorded estimates")
     p.set_defaults(func=_cmd_compare)
 
     p = sub.add_parser(
@@ -936,7 +950,8 @@ def _add_hil_commands(sub) -> None:
         description="Put the board in injection mode, send every sample of the input with INJECT_SAMPLE\n"
                     "and compare each ESTIMATE with the host fixed-point build as it arrives. The board's\n"
                     "sample_rate is set to the input's (and, for a recording, its filter and settings are\n"
-                    "applied); changed settings are restored afterwards. Exit status 1 on any difference.\n\n"
+                    "applied); changed settings are restored afterwards. Exit status 1 on any difference,\n"
+                    "or when fewer than --min-verified of the samples were answered and verified.\n\n"
                     "INPUT is one of:\n"
                     "  sim:SCENARIO[:SECONDS[:RATE_HZ[:SEED]]]  a simulated run, e.g. sim:rests:60\n"
                     "  FILE.mat                                 a BROAD trial (counts with profile gy86-broad)\n"
@@ -949,6 +964,7 @@ def _add_hil_commands(sub) -> None:
                    help="the sensor profile the board runs with (default: gy86-default); it must match the input's")
     settings_argument(p, "the injection runs with them (its filter, over a recording's settings); the board's "
                          "changed settings are restored afterwards")
+    min_verified_argument(p, "the injected samples (answered and compared)")
     p.set_defaults(func=_cmd_inject)
 
 

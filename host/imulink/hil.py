@@ -20,6 +20,7 @@ build of the same C, inject samples into a board, and the no-hardware demo.
 from __future__ import annotations
 
 import json
+import math
 import sys
 import tempfile
 import time
@@ -460,6 +461,56 @@ def _segment_filter(recording: Recording, segment: int) -> int:
     return recording.active_filter
 
 
+#: Default least share of a run that must be verified for a bit-exact "yes" (--min-verified):
+#: a few hundred identical estimates out of thousands prove little about the rest.
+MIN_VERIFIED = 0.99
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """Bit-exact or not, and how much of the run that covers: `verified` of `total` (the
+    recorded estimates, or the injected samples: `what`) were checked against the host
+    fixed-point build and `identical` of those were equal. It passes only when something
+    was verified, all of it identical, at least `min_verified` of the total, and the
+    recording is not `damaged`."""
+
+    total: int
+    verified: int
+    identical: int
+    what: str = "recorded estimates"
+    damaged: bool = False
+    min_verified: float = MIN_VERIFIED
+
+    @property
+    def coverage(self) -> float:
+        """The share of the total that was verified (0 when there is nothing)."""
+        return self.verified / self.total if self.total else 0.0
+
+    @property
+    def different(self) -> int:
+        return self.verified - self.identical
+
+    @property
+    def passed(self) -> bool:
+        return (self.verified > 0 and not self.different and not self.damaged
+                and self.coverage >= self.min_verified)
+
+    def __str__(self) -> str:
+        """The verdict line: "bit-exact: yes (542 of 550 recorded estimates verified, all identical)"."""
+        covered = f"{self.verified} of {self.total} {self.what} verified"
+        if self.different:
+            return f"bit-exact: NO ({self.different} of the {self.verified} verified differ; {covered})"
+        if not self.verified:
+            return f"bit-exact: no estimate to verify ({covered})"
+        if self.damaged:
+            return f"bit-exact: not proven: the recording is damaged ({covered}, all identical)"
+        if self.coverage < self.min_verified:
+            shown = math.floor(self.coverage * 1000) / 10  # never rounded up to the minimum
+            return (f"bit-exact: not proven: only {covered} ({shown:g} %, below the minimum "
+                    f"{self.min_verified * 100:g} % of --min-verified), all identical")
+        return f"bit-exact: yes ({covered}, all identical)"
+
+
 @dataclass
 class Difference:
     """The first estimate that differs from the host: where, which field, both values."""
@@ -487,7 +538,9 @@ class Comparison:
     between the board's quaternion and the float twin's (deg: max, mean, rms), the
     largest Euler angle difference (deg) and gyro bias difference (deg/s). damaged: the
     recording's damaged spans; what they held was not compared, so a damaged recording
-    is never bit-exact.
+    is never bit-exact. leftover: per estimate, whether it came from a stream the board
+    was already sending before the recording began (not part of the recorded run).
+    min_verified: the least share of the recorded estimates to verify for a pass.
     """
 
     sample_row: np.ndarray
@@ -496,6 +549,8 @@ class Comparison:
     first_difference: Difference | None
     fixed_vs_float: dict
     damaged: list[tuple[int, int]]
+    leftover: np.ndarray
+    min_verified: float = MIN_VERIFIED
 
     @property
     def estimates(self) -> int:
@@ -510,8 +565,20 @@ class Comparison:
         return int(self.identical.sum())
 
     @property
+    def recorded_count(self) -> int:
+        """The estimates of the recorded run (all but the leftovers of an earlier stream)."""
+        return int((~self.leftover).sum())
+
+    @property
     def bit_exact(self) -> bool:
+        """Every verified estimate identical (at least one) and the file undamaged, however
+        few were verified: :attr:`verdict` also weighs the coverage."""
         return self.verified_count > 0 and self.identical_count == self.verified_count and not self.damaged
+
+    @property
+    def verdict(self) -> Verdict:
+        return Verdict(self.recorded_count, self.verified_count, self.identical_count, damaged=bool(self.damaged),
+                       min_verified=self.min_verified)
 
 
 def _sample_rows(recording: Recording) -> np.ndarray:
@@ -521,8 +588,9 @@ def _sample_rows(recording: Recording) -> np.ndarray:
     return np.array([rows.get((int(s), int(i)), -1) for s, i in zip(estimates.segment, estimates.index)], np.int64)
 
 
-def compare(recording: Recording, run: HostRun | None = None) -> Comparison:
-    """Compare every verifiable board estimate with the host fixed-point build, bit for bit."""
+def compare(recording: Recording, run: HostRun | None = None, min_verified: float = MIN_VERIFIED) -> Comparison:
+    """Compare every verifiable board estimate with the host fixed-point build, bit for bit;
+    its verdict passes with at least `min_verified` of the recorded estimates verified."""
     run = run or host_run(recording)
     estimates = recording.estimates
     sample_row = _sample_rows(recording)
@@ -544,7 +612,8 @@ def compare(recording: Recording, run: HostRun | None = None) -> Comparison:
                            getattr(estimates, name)[position].tolist(), run.fixed[name][row].tolist())
     return Comparison(sample_row, verified, identical, first,
                       _fixed_vs_float(estimates, positions, run.float_quat[rows], run.float_euler[rows],
-                                      run.float_gyro_bias[rows]), recording.damaged)
+                                      run.float_gyro_bias[rows]), recording.damaged,
+                      np.asarray(estimates.leftover, bool), min_verified)
 
 
 def _fixed_vs_float(estimates: Estimates, positions, float_quat, float_euler, float_bias) -> dict:
@@ -590,13 +659,7 @@ def format_comparison(recording: Recording, comparison: Comparison) -> str:
                  + (f" ({'; '.join(reasons)})" if reasons else ""))
     if c.first_difference is not None:
         lines.append(f"first difference: {c.first_difference}")
-    if c.bit_exact:
-        verdict = "yes"
-    elif c.verified_count and c.identical_count == c.verified_count:
-        verdict = "not proven: the recording is damaged"
-    else:
-        verdict = "no estimate to verify" if not c.verified_count else "NO"
-    lines.append(f"bit-exact: {verdict}")
+    lines.append(str(c.verdict))
     ff = comparison.fixed_vs_float
     if ff:
         lines.append(f"fixed vs float: attitude max {ff['angle_max_deg']:.5f} deg, RMS {ff['angle_rms_deg']:.5f} deg; "
@@ -770,10 +833,16 @@ class InjectResult:
     filter_name: str
     duration_s: float
     accuracy: dict | None  # RMS errors in deg (total, heading, inclination) over `samples` answered samples
+    min_verified: float = MIN_VERIFIED  # the least share of the samples answered and verified for a pass
 
     @property
     def bit_exact(self) -> bool:
         return self.answered > 0 and self.identical == self.answered
+
+    @property
+    def verdict(self) -> Verdict:
+        return Verdict(self.samples, self.answered, self.identical, what="injected samples",
+                       min_verified=self.min_verified)
 
 
 def format_inject(result: InjectResult) -> str:
@@ -785,8 +854,7 @@ def format_inject(result: InjectResult) -> str:
              f"{unanswered} unanswered"
              + (f" ({result.answers_lost} answers lost on the way, {result.filter_restarts} samples without any reply, "
                 "after each of which the filter was restarted)" if unanswered else "")]
-    lines.append(f"bit-exact: {'yes' if result.bit_exact else 'NO'} ({result.identical} of {result.answered} "
-                 "answers identical to the host fixed-point build)")
+    lines.append(str(result.verdict))
     if result.first_difference:
         lines.append(f"first difference: {result.first_difference}")
     if result.accuracy:
@@ -828,12 +896,13 @@ def _configure_for_injection(link: Link, source: InjectionInput, filter_name: st
 
 def inject(url: str, source: InjectionInput, *, baud: int = DEFAULT_BAUD, filter_name: str | None = None,
            board_profile: SensorProfile = DEFAULT_PROFILE, progress: Progress | None = None,
-           settings=None) -> InjectResult:
+           settings=None, min_verified: float = MIN_VERIFIED) -> InjectResult:
     """Inject every sample of `source` into the board and compare each ESTIMATE with the
     host fixed-point build (with the board's calibration) on the fly.
 
     settings: an imulink.settings_file.FilterSettings: its filter and settings are used
-    (over a recording's); changed settings are restored afterwards.
+    (over a recording's); changed settings are restored afterwards. min_verified: the
+    least share of the samples answered and verified for the verdict to pass.
 
     An ESTIMATE lost on the way is counted (answers_lost). A sample whose ACK never
     comes may or may not have run on the board, so the filter is restarted on both
@@ -855,6 +924,7 @@ def inject(url: str, source: InjectionInput, *, baud: int = DEFAULT_BAUD, filter
         link.command("SET_INJECTION_MODE", enabled=1)
         try:
             result = _inject_samples(link, source, name, raw_settings, board_profile, calibration, progress)
+            result.min_verified = min_verified
         finally:  # leave the board as it was found
             link.command("SET_INJECTION_MODE", enabled=0)
             for index, value in changed.items():
@@ -942,8 +1012,7 @@ class DemoReport:
             f"recorded: {r.samples} samples, {r.estimates} estimates, {rec.counters['frames']} frames in "
             f"{r.duration_s:.2f} s ({rec.counters['frames'] / max(r.duration_s, 1e-9):.0f} frames/s); "
             f"lost frames {lost}, CRC errors {rec.counters['crc_errors']}",
-            f"bit-exact: {'yes' if c.bit_exact else 'NO'} ({c.identical_count} of {c.verified_count} verifiable estimates "
-            f"identical to the host fixed-point build)",
+            str(c.verdict),
         ]
         if c.first_difference is not None:
             lines.append(f"first difference: {c.first_difference}")
@@ -962,7 +1031,7 @@ class DemoReport:
 
 def demo(*, target: str = "native", transport: str = "tcp", scenario: str = "rests", duration_s: float = 60.0,
          rate_hz: float = 100.0, seed: int = 0, filter_name: str = "eskf", output=None, force: bool = False,
-         progress: Progress | None = None) -> DemoReport:
+         progress: Progress | None = None, min_verified: float = MIN_VERIFIED) -> DemoReport:
     """Record an emulated board's simulated run (as fast as the link goes) and verify it.
 
     `target` is "native" (the firmware as a host process) or "qemu" (the ARM image in
@@ -980,7 +1049,7 @@ def demo(*, target: str = "native", transport: str = "tcp", scenario: str = "res
         recording = load_recording(path)
         samples = recording.samples
         truth = board.truth(samples.gyr, samples.acc, samples.mag)
-    comparison = compare(recording)
+    comparison = compare(recording, min_verified=min_verified)
     accuracy = {}
     verified = comparison.verified
     if verified.any():
