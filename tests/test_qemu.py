@@ -86,7 +86,8 @@ def test_a_mismatch_names_the_first_differing_sample_and_field(qemu_board):
     counts = si_to_counts(run.gyr, run.acc, run.mag, other)
     source = hil.InjectionInput("simulated random", *counts, 100.0, other)
     result = hil.inject(qemu_board.address, source, filter_name="eecf", board_profile=other)
-    assert not result.bit_exact and result.first_difference.startswith("sample 0: quat: board [")
+    assert not result.bit_exact and (result.first_difference["sample_index"], result.first_difference["field"]) == (
+        0, "quat")
 
 
 # ---------------------------------------------------------------------------- the command line on QEMU

@@ -72,6 +72,30 @@ def _interrupt(signum, frame):
     raise KeyboardInterrupt
 
 
+def _json_value(value):
+    """`value` with every non-finite float as null: JSON has no NaN or infinity."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {key: _json_value(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_value(item) for item in value]
+    return value
+
+
+def _print_json(report: dict) -> None:
+    """--json: the command's one JSON object, alone on stdout (progress and messages are on stderr)."""
+    import json
+
+    print(json.dumps(_json_value(report), indent=1, allow_nan=False))
+
+
+def _json_argument(p, what: str) -> None:
+    p.add_argument("--json", action="store_true",
+                   help=f"print {what} as one JSON object on stdout (progress and messages on stderr; keys in "
+                        "docs/cli.md)")
+
+
 @_command
 def _cmd_simulate(args) -> int:
     from . import core, sim
@@ -83,22 +107,34 @@ def _cmd_simulate(args) -> int:
     print(f"simulating {args.scenario!r}: {args.duration:g} s at {args.rate:g} Hz, seed {args.seed}", file=sys.stderr)
     result = sim.make_scenario(args.scenario, args.duration, args.rate, seed=args.seed)
     settle = int(args.settle * args.rate)
-    print(f"samples: {len(result.t)}; errors are RMS after the first {args.settle:g} s, in degrees")
-    header = f"{'filter':<6} {'arith':<6} {'total':>8} {'heading':>8} {'incl.':>8} {'sat':>5} {'samples/s':>11}"
-    print(header)
-    print("-" * len(header))
+    report = {"scenario": args.scenario, "duration_s": args.duration, "rate_hz": args.rate, "seed": args.seed,
+              "settle_s": args.settle, "samples": len(result.t), "filters": []}
+    if not args.json:
+        print(f"samples: {len(result.t)}; errors are RMS after the first {args.settle:g} s, in degrees")
+        header = f"{'filter':<6} {'arith':<6} {'total':>8} {'heading':>8} {'incl.':>8} {'sat':>5} {'samples/s':>11}"
+        print(header)
+        print("-" * len(header))
     for name in filters:
-        runs = {}
+        runs, entry = {}, {"filter": name}
         for arithmetic in core.ARITHMETICS:
             start = time.perf_counter()
             runs[arithmetic] = core.run(name, result.gyr, result.acc, result.mag, args.rate, arithmetic,
                                         profile=result.profile)
             speed = len(result.t) / (time.perf_counter() - start)
             err = rmse(attitude_errors(runs[arithmetic].quat[settle:], result.quat_true[settle:]))
-            print(f"{name:<6} {arithmetic:<6} {err['total']:8.3f} {err['heading']:8.3f} {err['inclination']:8.3f} "
-                  f"{runs[arithmetic].saturations:5d} {speed:11.0f}")
+            entry[arithmetic] = {"rms_total_deg": err["total"], "rms_heading_deg": err["heading"],
+                                 "rms_inclination_deg": err["inclination"],
+                                 "saturations": runs[arithmetic].saturations, "samples_per_s": speed}
+            if not args.json:
+                print(f"{name:<6} {arithmetic:<6} {err['total']:8.3f} {err['heading']:8.3f} "
+                      f"{err['inclination']:8.3f} {runs[arithmetic].saturations:5d} {speed:11.0f}")
         diff = angle_difference(runs["fixed"].quat, runs["float"].quat)
-        print(f"{name:<6} fixed vs float: max {diff.max():.5f} deg, mean {diff.mean():.5f} deg")
+        entry.update(fixed_vs_float_max_deg=float(diff.max()), fixed_vs_float_mean_deg=float(diff.mean()))
+        report["filters"].append(entry)
+        if not args.json:
+            print(f"{name:<6} fixed vs float: max {diff.max():.5f} deg, mean {diff.mean():.5f} deg")
+    if args.json:
+        _print_json(report)
     return 0
 
 
@@ -106,11 +142,19 @@ def _cmd_simulate(args) -> int:
 def _cmd_filters(args) -> int:
     from . import core
 
+    report = {"filters": []}
     for name in _parse_filters(args.filters):
-        print(f"{name}:")
         defaults = core.default_settings(name)
-        for field in core.settings_fields(name):
+        fields = core.settings_fields(name)
+        report["filters"].append({"filter": name, "settings": [
+            {"name": f.name, "default": defaults[f.name], "unit": f.unit, "frac_bits": f.frac_bits} for f in fields]})
+        if args.json:
+            continue
+        print(f"{name}:")
+        for field in fields:
             print(f"  {field.name:<12} {defaults[field.name]:<14.6g} {field.unit:<10} (fixed: Q{field.frac_bits})")
+    if args.json:
+        _print_json(report)
     return 0
 
 
@@ -287,11 +331,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seconds excluded from the error statistics (alignment and convergence, default: 10); "
                         "shorter than --duration")
     p.add_argument("--filters", default="all", help="comma-separated filter names (default: all)")
+    _json_argument(p, "the errors and the fixed-vs-float agreement")
     p.set_defaults(func=_cmd_simulate)
 
     p = sub.add_parser("filters", help="list the filters and their default settings",
                        description="List each filter's settings: default value, SI unit and fixed-point format.")
     p.add_argument("--filters", default="all", help="comma-separated filter names (default: all)")
+    _json_argument(p, "the settings")
     p.set_defaults(func=_cmd_filters)
 
     p = sub.add_parser(
@@ -504,6 +550,9 @@ def _cmd_record(args) -> int:
     result = hil.record(args.port, args.output, duration_s=args.duration, baud=args.baud, profile=args.profile,
                         resync=not args.no_resync, silence_timeout_s=args.silence_timeout, force=args.force,
                         progress=hil.Progress(), settings=_settings_file(args))
+    if args.json:
+        _print_json(result.to_json())
+        return EXIT_INTERRUPTED if result.interrupted else 0
     print(f"recorded {result.samples} samples and {result.estimates} estimates of {result.filter_name} in "
           f"{result.duration_s:.1f} s to {result.path} ({result.stop_reason}); "
           f"{hil.link_summary(result.counters)}"
@@ -529,13 +578,19 @@ def _cmd_replay(args) -> int:
     run = hil.host_run(recording)
     comparison = hil.compare(recording, run, min_verified=args.min_verified)
     columns = hil.replay_columns(recording, run, comparison)
-    print(hil.format_comparison(recording, comparison))
+    messages = sys.stderr if args.json else sys.stdout
+    if not args.json:
+        print(hil.format_comparison(recording, comparison))
     if csv_path:
         write_replacing(csv_path, lambda path: hil.export_csv(columns, path), inputs=[args.file])
-        print(f"CSV: {csv_path} ({len(recording.samples)} rows, {len(columns)} columns)")
+        print(f"CSV: {csv_path} ({len(recording.samples)} rows, {len(columns)} columns)", file=messages)
     if args.npz:
         write_replacing(args.npz, lambda path: hil.export_npz(recording, run, columns, path), inputs=[args.file])
-        print(f"NPZ: {args.npz}")
+        print(f"NPZ: {args.npz}", file=messages)
+    if args.json:
+        _print_json({**hil.comparison_json(recording, comparison), "outputs": {
+            "csv": str(csv_path) if csv_path else None, "csv_rows": len(recording.samples) if csv_path else None,
+            "csv_columns": len(columns) if csv_path else None, "npz": args.npz}})
     return 0 if comparison.verdict.passed else EXIT_MISMATCH
 
 
@@ -546,7 +601,10 @@ def _cmd_compare(args) -> int:
 
     recording = load_recording(args.file)
     comparison = hil.compare(recording, min_verified=args.min_verified)
-    print(hil.format_comparison(recording, comparison))
+    if args.json:
+        _print_json(hil.comparison_json(recording, comparison))
+    else:
+        print(hil.format_comparison(recording, comparison))
     return 0 if comparison.verdict.passed else EXIT_MISMATCH
 
 
@@ -557,7 +615,10 @@ def _cmd_inject(args) -> int:
     source = hil.load_injection_input(args.input)
     result = hil.inject(args.port, source, baud=args.baud, filter_name=args.filter, board_profile=args.board_profile,
                         progress=hil.Progress(), settings=_settings_file(args), min_verified=args.min_verified)
-    print(hil.format_inject(result))
+    if args.json:
+        _print_json(result.to_json())
+    else:
+        print(hil.format_inject(result))
     return 0 if result.verdict.passed else EXIT_MISMATCH
 
 
@@ -568,7 +629,10 @@ def _cmd_demo(args) -> int:
     report = hil.demo(target=args.target, transport=args.transport, scenario=args.scenario, duration_s=args.duration,
                       rate_hz=args.rate, seed=args.seed, filter_name=args.filter, output=args.output,
                       force=args.force, progress=hil.Progress(), min_verified=args.min_verified)
-    print(report.format())
+    if args.json:
+        _print_json(report.to_json())
+    else:
+        print(report.format())
     if report.record.interrupted:
         return EXIT_INTERRUPTED
     return 0 if report.comparison.verdict.passed else EXIT_MISMATCH
@@ -780,6 +844,7 @@ def _add_hil_commands(sub) -> None:
     p.add_argument("--output", "-o", metavar="FILE", help="keep the recording here (default: not kept)")
     p.add_argument("--force", action="store_true", help="replace an existing --output file")
     min_verified_argument(p, "the recorded estimates")
+    _json_argument(p, "the report")
     p.set_defaults(func=_cmd_demo)
 
     p = sub.add_parser(
@@ -888,6 +953,7 @@ def _add_hil_commands(sub) -> None:
                    help="the board's sensor profile, stored for replay (default: gy86-default); the protocol "
                         "cannot report it")
     p.add_argument("--no-resync", action="store_true", help="never restart the filter after a lost sample")
+    _json_argument(p, "the summary")
     settings_argument(p, "the board gets them (its filter made active) before recording")
     p.set_defaults(func=_cmd_record)
 
@@ -905,6 +971,7 @@ def _add_hil_commands(sub) -> None:
     p.add_argument("--csv", help="CSV file to write")
     p.add_argument("--npz", help="numpy .npz file to write (also the raw integers and the metadata)")
     min_verified_argument(p, "the recorded estimates")
+    _json_argument(p, "the comparison and the outputs written")
     p.set_defaults(func=_cmd_replay)
 
     p = sub.add_parser(
@@ -919,6 +986,7 @@ def _add_hil_commands(sub) -> None:
                     "none can be verified, or when the file is damaged.")
     p.add_argument("file", metavar="FILE", help="recording to check")
     min_verified_argument(p, "the recorded estimates")
+    _json_argument(p, "the comparison")
     p.set_defaults(func=_cmd_compare)
 
     p = sub.add_parser(
@@ -965,6 +1033,7 @@ def _add_hil_commands(sub) -> None:
     settings_argument(p, "the injection runs with them (its filter, over a recording's settings); the board's "
                          "changed settings are restored afterwards")
     min_verified_argument(p, "the injected samples (answered and compared)")
+    _json_argument(p, "the report")
     p.set_defaults(func=_cmd_inject)
 
 

@@ -102,6 +102,34 @@ def link_summary(counters: dict) -> str:
             f"resyncs {counters['resyncs']}, lost {counters['lost_frames']}")
 
 
+def link_json(counters: dict) -> dict:
+    """Link counters for --json (the frame rate only where the live link measured it)."""
+    out = {"frames": counters["frames"], "bytes": counters["bytes"], "crc_errors": counters["crc_errors"],
+           "resyncs": counters["resyncs"], "lost_frames": counters["lost_frames"]}
+    if "frame_rate" in counters:
+        out["frame_rate_hz"] = counters["frame_rate"]
+    return out
+
+
+def accuracy_json(accuracy: dict | None) -> dict | None:
+    """RMS attitude errors (deg) for --json, after SETTLE_S s; None without a truth."""
+    if not accuracy:
+        return None
+    out = {"rms_total_deg": accuracy["total"], "rms_heading_deg": accuracy["heading"],
+           "rms_inclination_deg": accuracy["inclination"], "settle_s": SETTLE_S}
+    if "samples" in accuracy:
+        out["samples"] = accuracy["samples"]
+    return out
+
+
+def _board_json(hello: dict | None) -> dict | None:
+    if not hello:
+        return None
+    return {"name": hello["board"], "firmware_version": f"{hello['firmware_major']}.{hello['firmware_minor']}."
+                                                         f"{hello['firmware_patch']}",
+            "schema_hash": f"0x{hello['schema_hash']:08X}"}
+
+
 def _board_log(progress: Progress | None, fields: dict) -> None:
     if progress is not None:
         level = {v: k for k, v in protocol.LOG_LEVELS.items()}.get(fields["level"], str(fields["level"]))
@@ -197,6 +225,13 @@ class RecordResult:
     def interrupted(self) -> bool:
         """Whether Ctrl-C (or SIGTERM) ended the recording."""
         return self.stop_reason == INTERRUPTED
+
+    def to_json(self) -> dict:
+        """The summary of `imulink record --json`."""
+        return {"recording": str(self.path), "board": _board_json(self.hello), "filter": self.filter_name,
+                "samples": self.samples, "estimates": self.estimates, "duration_s": self.duration_s,
+                "stop_reason": self.stop_reason, "interrupted": self.interrupted,
+                "filter_restarts": self.filter_restarts, "link": link_json(self.counters)}
 
 
 def default_silence_timeout(status: dict) -> float:
@@ -510,6 +545,12 @@ class Verdict:
                     f"{self.min_verified * 100:g} % of --min-verified), all identical")
         return f"bit-exact: yes ({covered}, all identical)"
 
+    def to_json(self) -> dict:
+        return {"passed": self.passed, "line": str(self), "counted": self.what, "total": self.total,
+                "verified": self.verified, "identical": self.identical, "different": self.different,
+                "verified_fraction": self.coverage, "min_verified_fraction": self.min_verified,
+                "damaged": self.damaged}
+
 
 @dataclass
 class Difference:
@@ -525,6 +566,10 @@ class Difference:
     def __str__(self) -> str:
         return (f"estimate #{self.estimate} (segment {self.segment}, sample index {self.index}): {self.field}: "
                 f"board {self.board}, host {self.host}")
+
+    def to_json(self) -> dict:
+        return {"estimate": self.estimate, "segment": self.segment, "sample_index": self.index,
+                "field": self.field, "board": self.board, "host": self.host}
 
 
 @dataclass
@@ -665,6 +710,28 @@ def format_comparison(recording: Recording, comparison: Comparison) -> str:
         lines.append(f"fixed vs float: attitude max {ff['angle_max_deg']:.5f} deg, RMS {ff['angle_rms_deg']:.5f} deg; "
                      f"Euler max {ff['euler_max_deg']:.5f} deg; gyro bias max {ff['gyro_bias_max_deg_s']:.2e} deg/s")
     return "\n".join(lines)
+
+
+def comparison_json(recording: Recording, comparison: Comparison) -> dict:
+    """What `imulink compare --json` prints: the facts of :func:`format_comparison`."""
+    c = comparison
+    unverifiable = ~c.verified
+    leftover = int((unverifiable & c.leftover).sum())
+    counters = recording.counters
+    return {
+        "recording": str(recording.path), "board": _board_json(recording.hello),
+        "sensor_profile": recording.profile.name,
+        "link": {**link_json(counters), "filter_runs": recording.segments,
+                 "truncated_tail_bytes": recording.truncated_bytes},
+        "damaged_spans": [{"offset_bytes": offset, "length_bytes": length} for offset, length in recording.damaged],
+        "estimates": {"received": c.estimates, "recorded": c.recorded_count, "verifiable": c.verified_count,
+                      "identical": c.identical_count, "different": c.verified_count - c.identical_count,
+                      "unverifiable": c.estimates - c.verified_count, "unverifiable_left_over": leftover,
+                      "unverifiable_after_lost_sample": int(unverifiable.sum()) - leftover},
+        "first_difference": c.first_difference.to_json() if c.first_difference is not None else None,
+        "verdict": c.verdict.to_json(),
+        "fixed_vs_float": dict(c.fixed_vs_float) or None,
+    }
 
 
 # ---------------------------------------------------------------------------- replay export
@@ -829,7 +896,7 @@ class InjectResult:
     identical: int
     answers_lost: int
     filter_restarts: int
-    first_difference: str | None
+    first_difference: dict | None  # sample_index, field, board, host (raw integers)
     filter_name: str
     duration_s: float
     accuracy: dict | None  # RMS errors in deg (total, heading, inclination) over `samples` answered samples
@@ -844,6 +911,15 @@ class InjectResult:
         return Verdict(self.samples, self.answered, self.identical, what="injected samples",
                        min_verified=self.min_verified)
 
+    def to_json(self) -> dict:
+        """What `imulink inject --json` prints: the facts of :func:`format_inject`."""
+        return {"input": self.description, "filter": self.filter_name, "samples": self.samples,
+                "answered": self.answered, "unanswered": self.samples - self.answered,
+                "answers_lost": self.answers_lost, "filter_restarts": self.filter_restarts,
+                "duration_s": self.duration_s, "samples_per_s": self.samples / max(self.duration_s, 1e-9),
+                "verdict": self.verdict.to_json(), "first_difference": self.first_difference,
+                "accuracy": accuracy_json(self.accuracy)}
+
 
 def format_inject(result: InjectResult) -> str:
     """The human report of `imulink inject`."""
@@ -856,7 +932,9 @@ def format_inject(result: InjectResult) -> str:
                 "after each of which the filter was restarted)" if unanswered else "")]
     lines.append(str(result.verdict))
     if result.first_difference:
-        lines.append(f"first difference: {result.first_difference}")
+        d = result.first_difference
+        lines.append(f"first difference: sample {d['sample_index']}: {d['field']}: board {d['board']}, "
+                     f"host {d['host']}")
     if result.accuracy:
         a = result.accuracy
         lines.append(f"accuracy vs truth (RMS after {SETTLE_S:g} s, over the {a['samples']} answered samples): "
@@ -973,8 +1051,8 @@ def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings:
         if different is None:
             identical += 1
         elif first is None:
-            theirs = list(got[different]) if isinstance(got[different], tuple) else got[different]
-            first = f"sample {k}: {different}: board {theirs}, host {expected[different]}"
+            first = {"sample_index": k, "field": different, "board": np.asarray(got[different]).tolist(),
+                     "host": np.asarray(expected[different]).tolist()}
         if progress is not None:
             progress.update(f"injecting: {k + 1}/{n} samples, {identical}/{answered} identical, "
                             f"{(k + 1) / (time.monotonic() - started):.0f} samples/s")
@@ -1027,6 +1105,16 @@ class DemoReport:
         lines.append(f"recording: {rec.path}" if self.kept else "recording: not kept (--output FILE keeps it)")
         lines.append(f"demo took {self.duration_s:.1f} s")
         return "\n".join(lines)
+
+    def to_json(self) -> dict:
+        """What `imulink demo --json` prints: the record summary and the comparison (as
+        `record --json` and `compare --json` give them), the accuracy, the kept file."""
+        record, comparison = self.record.to_json(), comparison_json(self.recording, self.comparison)
+        if not self.kept:  # the temporary file is gone
+            record["recording"] = comparison["recording"] = None
+        return {"emulated_board": {"address": self.address, "target": self.target}, "record": record,
+                "compare": comparison, "verdict": comparison["verdict"], "accuracy": accuracy_json(self.accuracy),
+                "recording": str(self.recording.path) if self.kept else None, "duration_s": self.duration_s}
 
 
 def demo(*, target: str = "native", transport: str = "tcp", scenario: str = "rests", duration_s: float = 60.0,
