@@ -11,8 +11,13 @@ found and named; every error case ends in one line and exit status 2.
 from __future__ import annotations
 
 import csv
+import os
 import re
+import signal
 import socket
+import subprocess
+import sys
+import tempfile
 import threading
 import time
 
@@ -25,7 +30,7 @@ from imulink.analysis import attitude_errors, rmse
 from imulink.cli import main
 from imulink.counts import BROAD_PROFILE, DEFAULT_PROFILE, counts_to_si
 from imulink.emulator import EmulatedBoard
-from imulink.link import Link
+from imulink.link import Disconnected, Link
 from imulink.proxy import FaultConfig
 from imulink.recording import RecordingWriter, load_recording, read_records
 from imulink.reference import FirmwareFilter
@@ -593,3 +598,49 @@ def test_demo(tmp_path, capsys, transport):
     expected = rmse(attitude_errors(host.quat[1000:], data.quat_true[1000:]))["total"]
     reported = float(out.split("accuracy vs simulated truth (RMS after 10 s): total ")[1].split(" deg")[0])
     assert reported == pytest.approx(expected, abs=1e-3)
+
+
+CLI = [sys.executable, "-c", "import sys; from imulink.cli import main; sys.exit(main())"]
+
+
+def _demo_in(temporary, *argv) -> subprocess.Popen:
+    """`imulink demo ARGV` in a process of its own whose temporary directory is `temporary`."""
+    return subprocess.Popen(CLI + ["demo", *map(str, argv)], env={**os.environ, "TMPDIR": str(temporary)},
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+@pytest.mark.parametrize("transport", ["tcp", "pty"])
+def test_demo_leaves_nothing_in_the_temporary_directory(tmp_path, transport):
+    process = _demo_in(tmp_path, "--transport", transport, "--duration", "10")
+    out, err = process.communicate(timeout=120)
+    assert process.returncode == 0, err
+    assert "recording: not kept" in out and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_an_interrupted_demo_leaves_nothing_in_the_temporary_directory(tmp_path, signum):
+    process = _demo_in(tmp_path, "--duration", "600", "--rate", "200")  # 120 000 samples: seconds of recording
+    deadline = time.monotonic() + 60
+    while not any(p.stat().st_size for p in tmp_path.glob("imulink-demo-*/*.imulog")):  # recording under way
+        assert process.poll() is None and time.monotonic() < deadline, process.communicate()[1]
+        time.sleep(0.02)
+    assert list(tmp_path.glob("imulink-board-*"))  # the emulated board's folder is there too
+    process.send_signal(signum)
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 130, err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_failed_demo_leaves_nothing_in_the_temporary_directory(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    present = []
+
+    def board_gone(*args, **kwargs):
+        present.extend(sorted(p.name.rsplit("-", 1)[0] for p in tmp_path.iterdir()))
+        raise Disconnected("the board went away")
+
+    monkeypatch.setattr(hil, "record", board_gone)
+    code, _, err = run_cli(capsys, "demo", "--duration", "5")
+    assert code == 2
+    assert_one_line_error(err, "the board went away")
+    assert present == ["imulink-board", "imulink-demo"] and list(tmp_path.iterdir()) == []

@@ -12,6 +12,7 @@ them they fail, saying what is missing (CI installs both: `make setup`).
 """
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -104,6 +105,13 @@ def test_demo_on_the_arm_image(tmp_path, capsys):
     assert code == 0, out
     assert "qemu-stm32f405, qemu target" in out and "recorded: 2000 samples, 2000 estimates" in out
     assert "bit-exact: yes (2000 of 2000" in out and "accuracy vs simulated truth" in out
+
+
+def test_demo_on_the_arm_image_leaves_nothing_in_the_temporary_directory(tmp_path):
+    result = subprocess.run([sys.executable, "-m", "imulink.cli", "demo", "--target", "qemu", "--duration", "10"],
+                            env={**os.environ, "TMPDIR": str(tmp_path)}, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert "recording: not kept" in result.stdout and list(tmp_path.iterdir()) == []
 
 
 def test_every_host_verb_against_imulink_emulate_target_qemu(tmp_path):
