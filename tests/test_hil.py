@@ -11,8 +11,13 @@ found and named; every error case ends in one line and exit status 2.
 from __future__ import annotations
 
 import csv
+import os
 import re
+import signal
 import socket
+import subprocess
+import sys
+import tempfile
 import threading
 import time
 
@@ -25,7 +30,7 @@ from imulink.analysis import attitude_errors, rmse
 from imulink.cli import main
 from imulink.counts import BROAD_PROFILE, DEFAULT_PROFILE, counts_to_si
 from imulink.emulator import EmulatedBoard
-from imulink.link import Link
+from imulink.link import Disconnected, Link
 from imulink.proxy import FaultConfig
 from imulink.recording import RecordingWriter, load_recording, read_records
 from imulink.reference import FirmwareFilter
@@ -165,11 +170,59 @@ def test_record_starts_on_a_link_that_loses_one_percent_of_its_bytes(tmp_path):
         assert comparison.identical_count == comparison.verified_count
 
 
+def _verifiable_estimates(recording) -> int:
+    """How many estimates have every SAMPLE of their filter run up to their own: those the
+    host can reproduce (counted here from the indices alone)."""
+    samples, estimates = recording.samples, recording.estimates
+    first_gap = {}
+    for segment in set(samples.segment.tolist()):
+        present = set(samples.index[samples.segment == segment].tolist())
+        first_gap[segment] = next(k for k in range(len(present) + 1) if k not in present)
+    return sum(int(index) < first_gap.get(int(segment), 0)
+               for segment, index in zip(estimates.segment, estimates.index))
+
+
+def test_heavy_faults_leave_too_few_verified_estimates_for_a_yes(tmp_path, capsys):
+    """Over a link that loses one byte in a thousand, a fast stream leaves a handful of
+    thousands of estimates verifiable: all identical, but that proves nothing of the rest.
+    The verdict says how many, and exits 1 below --min-verified."""
+    path = tmp_path / "heavy.imulog"
+    with EmulatedBoard(duration_s=5.0, rate_hz=1000.0, faults=FaultConfig(drop_byte=1e-3, seed=1)) as board:
+        hil.record(board.address, path)
+    recording = load_recording(path)
+    received, verifiable = len(recording.estimates), _verifiable_estimates(recording)
+    assert 0 < verifiable < 0.99 * received
+    code, out, _ = run_cli(capsys, "compare", path)
+    assert code == 1
+    assert (f"bit-exact: not proven: only {verifiable} of {received} recorded estimates verified "
+            f"({int(1000 * verifiable / received) / 10:g} %, below the minimum 99 % of --min-verified), "
+            "all identical") in out
+    code, out, _ = run_cli(capsys, "compare", path, "--min-verified", "0")
+    assert code == 0 and f"bit-exact: yes ({verifiable} of {received} recorded estimates verified, all identical)" in out
+    code, out, _ = run_cli(capsys, "replay", path, "--csv", tmp_path / "heavy.csv")
+    assert code == 1 and "not proven: only" in out and (tmp_path / "heavy.csv").exists()
+
+
+def test_a_clean_recording_passes_with_its_coverage_in_the_verdict(tmp_path, capsys):
+    path = tmp_path / "clean.imulog"
+    data = _synthetic_recording(path, tamper=None)
+    for command in ("compare", "replay"):
+        code, out, _ = run_cli(capsys, command, path, "--min-verified", "1")
+        assert code == 0, out
+        assert f"bit-exact: yes ({len(data)} of {len(data)} recorded estimates verified, all identical)" in out
+
+
 # ---------------------------------------------------------------------------- differences
 
 
+#: Host time (Unix, s) of a synthetic recording's first frame: a real clock's magnitude,
+#: where nine significant digits would only resolve 10 s.
+SYNTHETIC_START_S = 1795394010.123457
+
+
 def _synthetic_recording(path, tamper: int | None) -> sim.SimResult:
-    """A recording written as a board would send it, with estimate `tamper` changed by one LSB."""
+    """A recording written as a board would send it (a frame pair every 10 ms from
+    SYNTHETIC_START_S), with estimate `tamper` changed by one LSB."""
     data = sim.make_scenario("random", 3.0, 100.0, seed=2)
     settings = FirmwareFilter.default_raw_settings("eecf", 100.0)
     firmware = FirmwareFilter("eecf", settings)
@@ -188,7 +241,7 @@ def _synthetic_recording(path, tamper: int | None) -> sim.SimResult:
                 estimate["euler"][2] += 1
             wire = protocol.encode("SAMPLE", seq, timestamp_us=k * 10_000, index=k, gyr=gyr, acc=acc, mag=mag,
                                    temperature=0) + protocol.encode("ESTIMATE", seq + 1, **estimate)
-            writer.received(wire, float(k))
+            writer.received(wire, SYNTHETIC_START_S + k * 0.01)
             seq += 2
     return data
 
@@ -197,8 +250,10 @@ def test_compare_names_the_first_difference(tmp_path, capsys):
     path = tmp_path / "tampered.imulog"
     _synthetic_recording(path, tamper=123)
     code, out, _ = run_cli(capsys, "compare", path)
-    assert code == 1 and "bit-exact: NO" in out
+    assert code == 1 and "bit-exact: NO (1 of the 300 verified differ; 300 of 300 recorded estimates verified)" in out
     assert "300 received, 300 verifiable, 299 identical, 1 different" in out
+    code, replayed, _ = run_cli(capsys, "replay", path, "--csv", tmp_path / "tampered.csv")
+    assert code == 1 and "bit-exact: NO" in replayed and str(hil.compare(load_recording(path)).first_difference) in replayed
     comparison = hil.compare(load_recording(path))
     difference = comparison.first_difference
     assert (difference.estimate, difference.index, difference.field) == (123, 123, "euler")
@@ -226,6 +281,29 @@ def test_replay_exports_csv_and_npz_with_units(tmp_path, capsys):
     np.testing.assert_array_equal(npz["samples_gyr"], data.gyr_counts)
     np.testing.assert_array_equal(npz["board_quat"], npz["host_fixed_quat"])
     assert "gy86-default" in str(npz["metadata"])
+
+
+def test_replay_csv_keeps_every_value_exactly(tmp_path, capsys):
+    """Every number in the CSV reads back as the very value replay computed (host times
+    of a real clock included); integer columns are written as integers."""
+    path = tmp_path / "exact.imulog"
+    _synthetic_recording(path, tamper=50)
+    csv_path = tmp_path / "exact.csv"
+    run_cli(capsys, "replay", path, "--csv", csv_path)
+    recording = load_recording(path)
+    run = hil.host_run(recording)
+    columns = hil.replay_columns(recording, run, hil.compare(recording, run))
+    with open(csv_path) as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == list(columns)
+    for k, (name, values) in enumerate(columns.items()):
+        cells = [row[k] for row in rows[1:]]
+        if np.issubdtype(np.asarray(values).dtype, np.integer) or name in ("identical", "verifiable"):
+            assert all(re.fullmatch(r"-?[0-9]+|", cell) for cell in cells), name
+        read = np.array([float(cell) if cell else np.nan for cell in cells])
+        np.testing.assert_array_equal(read, np.asarray(values, np.float64), err_msg=name)
+    host_times = [float(row[0]) for row in rows[1:]]
+    assert len(set(host_times)) == len(host_times)  # 10 ms apart, each its own value
 
 
 def test_replay_defaults_to_a_csv_beside_the_recording(tmp_path, capsys):
@@ -485,6 +563,11 @@ def test_inject_counts_unanswered_samples_and_measures_accuracy_over_the_answere
                          out)
     assert accuracy is not None and 0 < int(accuracy.group(1)) <= 250 and float(accuracy.group(2)) < 20
     assert "nan deg" not in out and code in (0, 1)
+    # every sample not answered counts against the verdict: at 100 % required, not proven
+    with EmulatedBoard(duration_s=1.0, faults=FaultConfig(drop_byte=5e-4, seed=3)) as board:
+        code, out, _ = run_cli(capsys, "inject", board.address, "--input", "sim:rests:15:50:1", "--min-verified", "1")
+    answered = int(re.search(r": (\d+) answered, ", out).group(1))
+    assert code == 1 and f"bit-exact: not proven: only {answered} of 750 injected samples verified" in out
 
 
 def test_inject_bad_inputs(capsys, tmp_path):
@@ -515,3 +598,49 @@ def test_demo(tmp_path, capsys, transport):
     expected = rmse(attitude_errors(host.quat[1000:], data.quat_true[1000:]))["total"]
     reported = float(out.split("accuracy vs simulated truth (RMS after 10 s): total ")[1].split(" deg")[0])
     assert reported == pytest.approx(expected, abs=1e-3)
+
+
+CLI = [sys.executable, "-c", "import sys; from imulink.cli import main; sys.exit(main())"]
+
+
+def _demo_in(temporary, *argv) -> subprocess.Popen:
+    """`imulink demo ARGV` in a process of its own whose temporary directory is `temporary`."""
+    return subprocess.Popen(CLI + ["demo", *map(str, argv)], env={**os.environ, "TMPDIR": str(temporary)},
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+@pytest.mark.parametrize("transport", ["tcp", "pty"])
+def test_demo_leaves_nothing_in_the_temporary_directory(tmp_path, transport):
+    process = _demo_in(tmp_path, "--transport", transport, "--duration", "10")
+    out, err = process.communicate(timeout=120)
+    assert process.returncode == 0, err
+    assert "recording: not kept" in out and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM], ids=["ctrl-c", "sigterm"])
+def test_an_interrupted_demo_leaves_nothing_in_the_temporary_directory(tmp_path, signum):
+    process = _demo_in(tmp_path, "--duration", "600", "--rate", "200")  # 120 000 samples: seconds of recording
+    deadline = time.monotonic() + 60
+    while not any(p.stat().st_size for p in tmp_path.glob("imulink-demo-*/*.imulog")):  # recording under way
+        assert process.poll() is None and time.monotonic() < deadline, process.communicate()[1]
+        time.sleep(0.02)
+    assert list(tmp_path.glob("imulink-board-*"))  # the emulated board's folder is there too
+    process.send_signal(signum)
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 130, err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_failed_demo_leaves_nothing_in_the_temporary_directory(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    present = []
+
+    def board_gone(*args, **kwargs):
+        present.extend(sorted(p.name.rsplit("-", 1)[0] for p in tmp_path.iterdir()))
+        raise Disconnected("the board went away")
+
+    monkeypatch.setattr(hil, "record", board_gone)
+    code, _, err = run_cli(capsys, "demo", "--duration", "5")
+    assert code == 2
+    assert_one_line_error(err, "the board went away")
+    assert present == ["imulink-board", "imulink-demo"] and list(tmp_path.iterdir()) == []

@@ -12,6 +12,7 @@ them they fail, saying what is missing (CI installs both: `make setup`).
 """
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -86,7 +87,8 @@ def test_a_mismatch_names_the_first_differing_sample_and_field(qemu_board):
     counts = si_to_counts(run.gyr, run.acc, run.mag, other)
     source = hil.InjectionInput("simulated random", *counts, 100.0, other)
     result = hil.inject(qemu_board.address, source, filter_name="eecf", board_profile=other)
-    assert not result.bit_exact and result.first_difference.startswith("sample 0: quat: board [")
+    assert not result.bit_exact and (result.first_difference["sample_index"], result.first_difference["field"]) == (
+        0, "quat")
 
 
 # ---------------------------------------------------------------------------- the command line on QEMU
@@ -103,6 +105,13 @@ def test_demo_on_the_arm_image(tmp_path, capsys):
     assert code == 0, out
     assert "qemu-stm32f405, qemu target" in out and "recorded: 2000 samples, 2000 estimates" in out
     assert "bit-exact: yes (2000 of 2000" in out and "accuracy vs simulated truth" in out
+
+
+def test_demo_on_the_arm_image_leaves_nothing_in_the_temporary_directory(tmp_path):
+    result = subprocess.run([sys.executable, "-m", "imulink.cli", "demo", "--target", "qemu", "--duration", "10"],
+                            env={**os.environ, "TMPDIR": str(tmp_path)}, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    assert "recording: not kept" in result.stdout and list(tmp_path.iterdir()) == []
 
 
 def test_every_host_verb_against_imulink_emulate_target_qemu(tmp_path):

@@ -20,8 +20,9 @@ EXIT_ERROR = 2
 EXIT_INTERRUPTED = 130
 EXIT_STATUS_HELP = """exit status:
   0    success
-  1    not proven bit-exact: an estimate differs from the host build, none could be
-       verified, or the recording is damaged (compare, inject, demo)
+  1    not proven bit-exact: an estimate differs from the host build, fewer than
+       --min-verified of them could be verified, or the recording is damaged
+       (compare, replay, inject, demo)
   2    a usage error or a failure (argument, port, board, file, disk), said in one line
        "imulink: error: ..."
   130  interrupted (Ctrl-C or SIGTERM); a recording is closed and readable"""
@@ -73,6 +74,30 @@ def _interrupt(signum, frame):
     raise KeyboardInterrupt
 
 
+def _json_value(value):
+    """`value` with every non-finite float as null: JSON has no NaN or infinity."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {key: _json_value(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_value(item) for item in value]
+    return value
+
+
+def _print_json(report: dict) -> None:
+    """--json: the command's one JSON object, alone on stdout (progress and messages are on stderr)."""
+    import json
+
+    print(json.dumps(_json_value(report), indent=1, allow_nan=False))
+
+
+def _json_argument(p, what: str) -> None:
+    p.add_argument("--json", action="store_true",
+                   help=f"print {what} as one JSON object on stdout (progress and messages on stderr; keys in "
+                        "docs/cli.md)")
+
+
 @_command
 def _cmd_simulate(args) -> int:
     from . import core, sim
@@ -84,22 +109,34 @@ def _cmd_simulate(args) -> int:
     print(f"simulating {args.scenario!r}: {args.duration:g} s at {args.rate:g} Hz, seed {args.seed}", file=sys.stderr)
     result = sim.make_scenario(args.scenario, args.duration, args.rate, seed=args.seed)
     settle = int(args.settle * args.rate)
-    print(f"samples: {len(result.t)}; errors are RMS after the first {args.settle:g} s, in degrees")
-    header = f"{'filter':<6} {'arith':<6} {'total':>8} {'heading':>8} {'incl.':>8} {'sat':>5} {'samples/s':>11}"
-    print(header)
-    print("-" * len(header))
+    report = {"scenario": args.scenario, "duration_s": args.duration, "rate_hz": args.rate, "seed": args.seed,
+              "settle_s": args.settle, "samples": len(result.t), "filters": []}
+    if not args.json:
+        print(f"samples: {len(result.t)}; errors are RMS after the first {args.settle:g} s, in degrees")
+        header = f"{'filter':<6} {'arith':<6} {'total':>8} {'heading':>8} {'incl.':>8} {'sat':>5} {'samples/s':>11}"
+        print(header)
+        print("-" * len(header))
     for name in filters:
-        runs = {}
+        runs, entry = {}, {"filter": name}
         for arithmetic in core.ARITHMETICS:
             start = time.perf_counter()
             runs[arithmetic] = core.run(name, result.gyr, result.acc, result.mag, args.rate, arithmetic,
                                         profile=result.profile)
             speed = len(result.t) / (time.perf_counter() - start)
             err = rmse(attitude_errors(runs[arithmetic].quat[settle:], result.quat_true[settle:]))
-            print(f"{name:<6} {arithmetic:<6} {err['total']:8.3f} {err['heading']:8.3f} {err['inclination']:8.3f} "
-                  f"{runs[arithmetic].saturations:5d} {speed:11.0f}")
+            entry[arithmetic] = {"rms_total_deg": err["total"], "rms_heading_deg": err["heading"],
+                                 "rms_inclination_deg": err["inclination"],
+                                 "saturations": runs[arithmetic].saturations, "samples_per_s": speed}
+            if not args.json:
+                print(f"{name:<6} {arithmetic:<6} {err['total']:8.3f} {err['heading']:8.3f} "
+                      f"{err['inclination']:8.3f} {runs[arithmetic].saturations:5d} {speed:11.0f}")
         diff = angle_difference(runs["fixed"].quat, runs["float"].quat)
-        print(f"{name:<6} fixed vs float: max {diff.max():.5f} deg, mean {diff.mean():.5f} deg")
+        entry.update(fixed_vs_float_max_deg=float(diff.max()), fixed_vs_float_mean_deg=float(diff.mean()))
+        report["filters"].append(entry)
+        if not args.json:
+            print(f"{name:<6} fixed vs float: max {diff.max():.5f} deg, mean {diff.mean():.5f} deg")
+    if args.json:
+        _print_json(report)
     return 0
 
 
@@ -107,11 +144,19 @@ def _cmd_simulate(args) -> int:
 def _cmd_filters(args) -> int:
     from . import core
 
+    report = {"filters": []}
     for name in _parse_filters(args.filters):
-        print(f"{name}:")
         defaults = core.default_settings(name)
-        for field in core.settings_fields(name):
+        fields = core.settings_fields(name)
+        report["filters"].append({"filter": name, "settings": [
+            {"name": f.name, "default": defaults[f.name], "unit": f.unit, "frac_bits": f.frac_bits} for f in fields]})
+        if args.json:
+            continue
+        print(f"{name}:")
+        for field in fields:
             print(f"  {field.name:<12} {defaults[field.name]:<14.6g} {field.unit:<10} (fixed: Q{field.frac_bits})")
+    if args.json:
+        _print_json(report)
     return 0
 
 
@@ -338,11 +383,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="seconds excluded from the error statistics (alignment and convergence, default: 10); "
                         "shorter than --duration")
     p.add_argument("--filters", default="all", help="comma-separated filter names (default: all)")
+    _json_argument(p, "the errors and the fixed-vs-float agreement")
     p.set_defaults(func=_cmd_simulate)
 
     p = sub.add_parser("filters", help="list the filters and their default settings",
                        description="List each filter's settings: default value, SI unit and fixed-point format.")
     p.add_argument("--filters", default="all", help="comma-separated filter names (default: all)")
+    _json_argument(p, "the settings")
     p.set_defaults(func=_cmd_filters)
 
     p = sub.add_parser(
@@ -575,6 +622,9 @@ def _cmd_record(args) -> int:
     result = hil.record(args.port, args.output, duration_s=args.duration, baud=args.baud, profile=args.profile,
                         resync=not args.no_resync, silence_timeout_s=args.silence_timeout, force=args.force,
                         progress=hil.Progress(), settings=_settings_file(args))
+    if args.json:
+        _print_json(result.to_json())
+        return EXIT_INTERRUPTED if result.interrupted else 0
     print(f"recorded {result.samples} samples and {result.estimates} estimates of {result.filter_name} in "
           f"{result.duration_s:.1f} s to {result.path} ({result.stop_reason}); "
           f"{hil.link_summary(result.counters)}"
@@ -598,16 +648,22 @@ def _cmd_replay(args) -> int:
             check_output(output, inputs=[args.file])
     recording = load_recording(args.file)
     run = hil.host_run(recording)
-    comparison = hil.compare(recording, run)
+    comparison = hil.compare(recording, run, min_verified=args.min_verified)
     columns = hil.replay_columns(recording, run, comparison)
-    print(hil.format_comparison(recording, comparison))
+    messages = sys.stderr if args.json else sys.stdout
+    if not args.json:
+        print(hil.format_comparison(recording, comparison))
     if csv_path:
         write_replacing(csv_path, lambda path: hil.export_csv(columns, path), inputs=[args.file])
-        print(f"CSV: {csv_path} ({len(recording.samples)} rows, {len(columns)} columns)")
+        print(f"CSV: {csv_path} ({len(recording.samples)} rows, {len(columns)} columns)", file=messages)
     if args.npz:
         write_replacing(args.npz, lambda path: hil.export_npz(recording, run, columns, path), inputs=[args.file])
-        print(f"NPZ: {args.npz}")
-    return 0
+        print(f"NPZ: {args.npz}", file=messages)
+    if args.json:
+        _print_json({**hil.comparison_json(recording, comparison), "outputs": {
+            "csv": str(csv_path) if csv_path else None, "csv_rows": len(recording.samples) if csv_path else None,
+            "csv_columns": len(columns) if csv_path else None, "npz": args.npz}})
+    return 0 if comparison.verdict.passed else EXIT_MISMATCH
 
 
 @_command
@@ -616,9 +672,12 @@ def _cmd_compare(args) -> int:
     from .recording import load_recording
 
     recording = load_recording(args.file)
-    comparison = hil.compare(recording)
-    print(hil.format_comparison(recording, comparison))
-    return 0 if comparison.bit_exact else EXIT_MISMATCH
+    comparison = hil.compare(recording, min_verified=args.min_verified)
+    if args.json:
+        _print_json(hil.comparison_json(recording, comparison))
+    else:
+        print(hil.format_comparison(recording, comparison))
+    return 0 if comparison.verdict.passed else EXIT_MISMATCH
 
 
 @_command
@@ -627,9 +686,12 @@ def _cmd_inject(args) -> int:
 
     source = hil.load_injection_input(args.input)
     result = hil.inject(args.port, source, baud=args.baud, filter_name=args.filter, board_profile=args.board_profile,
-                        progress=hil.Progress(), settings=_settings_file(args))
-    print(hil.format_inject(result))
-    return 0 if result.bit_exact else EXIT_MISMATCH
+                        progress=hil.Progress(), settings=_settings_file(args), min_verified=args.min_verified)
+    if args.json:
+        _print_json(result.to_json())
+    else:
+        print(hil.format_inject(result))
+    return 0 if result.verdict.passed else EXIT_MISMATCH
 
 
 @_command
@@ -638,11 +700,14 @@ def _cmd_demo(args) -> int:
 
     report = hil.demo(target=args.target, transport=args.transport, scenario=args.scenario, duration_s=args.duration,
                       rate_hz=args.rate, seed=args.seed, filter_name=args.filter, output=args.output,
-                      force=args.force, progress=hil.Progress())
-    print(report.format())
+                      force=args.force, progress=hil.Progress(), min_verified=args.min_verified)
+    if args.json:
+        _print_json(report.to_json())
+    else:
+        print(report.format())
     if report.record.interrupted:
         return EXIT_INTERRUPTED
-    return 0 if report.comparison.bit_exact else EXIT_MISMATCH
+    return 0 if report.comparison.verdict.passed else EXIT_MISMATCH
 
 
 @_command
@@ -815,6 +880,12 @@ def _add_hil_commands(sub) -> None:
             p.add_argument("--baud", type=_baud, default=DEFAULT_BAUD,
                            help=f"line rate for --serial (default: {DEFAULT_BAUD})")
 
+    def min_verified_argument(p, what: str):
+        p.add_argument("--min-verified", type=_probability, default=hil.MIN_VERIFIED, metavar="FRACTION",
+                       help=f"the least share of {what} that must be verified for a bit-exact pass (default: "
+                            f"{hil.MIN_VERIFIED:g}); below it the verdict is \"not proven\" and the exit status 1, "
+                            "even when every verified one is identical")
+
     def fault_arguments(p):
         p.add_argument("--schema-hash", type=_u32, default=None,
                        help="rewrite HELLO to report this schema hash (a board built from another protocol definition)")
@@ -837,13 +908,15 @@ def _add_hil_commands(sub) -> None:
                     "QEMU with --target qemu, its sensors fed by the simulator), record its simulated run over a "
                     "TCP loopback or a pty as fast as the link goes, replay the recording through the host build "
                     "of the same C, and report: frames and losses, bit-exactness, the fixed-vs-float difference, "
-                    "and the accuracy against the simulated truth. Exit status 0 when every estimate is "
-                    "bit-exact, 1 otherwise.")
+                    "and the accuracy against the simulated truth. Exit status 0 when every verified estimate is "
+                    "bit-exact and at least --min-verified of them were verified, 1 otherwise.")
     simulation_arguments(p, 60.0)
     target_arguments(p)
     p.add_argument("--transport", choices=("tcp", "pty"), default="tcp", help="link to the board (default: tcp)")
     p.add_argument("--output", "-o", metavar="FILE", help="keep the recording here (default: not kept)")
     p.add_argument("--force", action="store_true", help="replace an existing --output file")
+    min_verified_argument(p, "the recorded estimates")
+    _json_argument(p, "the report")
     p.set_defaults(func=_cmd_demo)
 
     p = sub.add_parser(
@@ -952,6 +1025,7 @@ def _add_hil_commands(sub) -> None:
                    help="the board's sensor profile, stored for replay (default: gy86-default); the protocol "
                         "cannot report it")
     p.add_argument("--no-resync", action="store_true", help="never restart the filter after a lost sample")
+    _json_argument(p, "the summary")
     settings_argument(p, "the board gets them (its filter made active) before recording")
     p.set_defaults(func=_cmd_record)
 
@@ -962,10 +1036,14 @@ def _add_hil_commands(sub) -> None:
                     "Writes one row per sample: inputs in SI units, the board's estimate, the host fixed and "
                     "float outputs, and whether the board's estimate was identical; units are in the column "
                     "names. Without --csv or --npz the CSV goes next to the recording. An output is written "
-                    "under a temporary name and renamed when complete; the recording itself is never written over.")
+                    "under a temporary name and renamed when complete; the recording itself is never written over. "
+                    "The exit status is compare's: the outputs are written either way, and the status is 1 "
+                    "unless the recording is proven bit-exact.")
     p.add_argument("file", metavar="FILE", help="recording written by `imulink record` or `imulink demo`")
     p.add_argument("--csv", help="CSV file to write")
     p.add_argument("--npz", help="numpy .npz file to write (also the raw integers and the metadata)")
+    min_verified_argument(p, "the recorded estimates")
+    _json_argument(p, "the comparison and the outputs written")
     p.set_defaults(func=_cmd_replay)
 
     p = sub.add_parser(
@@ -974,9 +1052,13 @@ def _add_hil_commands(sub) -> None:
                     "report the counts of identical frames, the first differing frame and field with both "
                     "values, and the fixed-vs-float statistics. Estimates after a lost sample of their filter "
                     "run cannot be reproduced and are reported as unverifiable. Damaged parts of the file are "
-                    "skipped and reported by offset. Exit status 0 when every verifiable estimate is identical, "
-                    "1 on any difference, when none can be verified, or when the file is damaged.")
+                    "skipped and reported by offset. The verdict line says how many of the recorded estimates "
+                    "were verified. Exit status 0 when every verified estimate is identical and they are at "
+                    "least --min-verified of the recorded ones; 1 on any difference, on fewer verified, when "
+                    "none can be verified, or when the file is damaged.")
     p.add_argument("file", metavar="FILE", help="recording to check")
+    min_verified_argument(p, "the recorded estimates")
+    _json_argument(p, "the comparison")
     p.set_defaults(func=_cmd_compare)
 
     p = sub.add_parser(
@@ -1010,7 +1092,8 @@ def _add_hil_commands(sub) -> None:
         description="Put the board in injection mode, send every sample of the input with INJECT_SAMPLE\n"
                     "and compare each ESTIMATE with the host fixed-point build as it arrives. The board's\n"
                     "sample_rate is set to the input's (and, for a recording, its filter and settings are\n"
-                    "applied); changed settings are restored afterwards. Exit status 1 on any difference.\n\n"
+                    "applied); changed settings are restored afterwards. Exit status 1 on any difference,\n"
+                    "or when fewer than --min-verified of the samples were answered and verified.\n\n"
                     "INPUT is one of:\n"
                     "  sim:SCENARIO[:SECONDS[:RATE_HZ[:SEED]]]  a simulated run, e.g. sim:rests:60\n"
                     "  FILE.mat                                 a BROAD trial (counts with profile gy86-broad)\n"
@@ -1023,6 +1106,8 @@ def _add_hil_commands(sub) -> None:
                    help="the sensor profile the board runs with (default: gy86-default); it must match the input's")
     settings_argument(p, "the injection runs with them (its filter, over a recording's settings); the board's "
                          "changed settings are restored afterwards")
+    min_verified_argument(p, "the injected samples (answered and compared)")
+    _json_argument(p, "the report")
     p.set_defaults(func=_cmd_inject)
 
 

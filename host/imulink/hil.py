@@ -102,6 +102,34 @@ def link_summary(counters: dict) -> str:
             f"resyncs {counters['resyncs']}, lost {counters['lost_frames']}")
 
 
+def link_json(counters: dict) -> dict:
+    """Link counters for --json (the frame rate only where the live link measured it)."""
+    out = {"frames": counters["frames"], "bytes": counters["bytes"], "crc_errors": counters["crc_errors"],
+           "resyncs": counters["resyncs"], "lost_frames": counters["lost_frames"]}
+    if "frame_rate" in counters:
+        out["frame_rate_hz"] = counters["frame_rate"]
+    return out
+
+
+def accuracy_json(accuracy: dict | None) -> dict | None:
+    """RMS attitude errors (deg) for --json, after SETTLE_S s; None without a truth."""
+    if not accuracy:
+        return None
+    out = {"rms_total_deg": accuracy["total"], "rms_heading_deg": accuracy["heading"],
+           "rms_inclination_deg": accuracy["inclination"], "settle_s": SETTLE_S}
+    if "samples" in accuracy:
+        out["samples"] = accuracy["samples"]
+    return out
+
+
+def _board_json(hello: dict | None) -> dict | None:
+    if not hello:
+        return None
+    return {"name": hello["board"], "firmware_version": f"{hello['firmware_major']}.{hello['firmware_minor']}."
+                                                         f"{hello['firmware_patch']}",
+            "schema_hash": f"0x{hello['schema_hash']:08X}"}
+
+
 def _board_log(progress: Progress | None, fields: dict) -> None:
     if progress is not None:
         level = {v: k for k, v in protocol.LOG_LEVELS.items()}.get(fields["level"], str(fields["level"]))
@@ -197,6 +225,13 @@ class RecordResult:
     def interrupted(self) -> bool:
         """Whether Ctrl-C (or SIGTERM) ended the recording."""
         return self.stop_reason == INTERRUPTED
+
+    def to_json(self) -> dict:
+        """The summary of `imulink record --json`."""
+        return {"recording": str(self.path), "board": _board_json(self.hello), "filter": self.filter_name,
+                "samples": self.samples, "estimates": self.estimates, "duration_s": self.duration_s,
+                "stop_reason": self.stop_reason, "interrupted": self.interrupted,
+                "filter_restarts": self.filter_restarts, "link": link_json(self.counters)}
 
 
 def default_silence_timeout(status: dict) -> float:
@@ -461,6 +496,62 @@ def _segment_filter(recording: Recording, segment: int) -> int:
     return recording.active_filter
 
 
+#: Default least share of a run that must be verified for a bit-exact "yes" (--min-verified):
+#: a few hundred identical estimates out of thousands prove little about the rest.
+MIN_VERIFIED = 0.99
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """Bit-exact or not, and how much of the run that covers: `verified` of `total` (the
+    recorded estimates, or the injected samples: `what`) were checked against the host
+    fixed-point build and `identical` of those were equal. It passes only when something
+    was verified, all of it identical, at least `min_verified` of the total, and the
+    recording is not `damaged`."""
+
+    total: int
+    verified: int
+    identical: int
+    what: str = "recorded estimates"
+    damaged: bool = False
+    min_verified: float = MIN_VERIFIED
+
+    @property
+    def coverage(self) -> float:
+        """The share of the total that was verified (0 when there is nothing)."""
+        return self.verified / self.total if self.total else 0.0
+
+    @property
+    def different(self) -> int:
+        return self.verified - self.identical
+
+    @property
+    def passed(self) -> bool:
+        return (self.verified > 0 and not self.different and not self.damaged
+                and self.coverage >= self.min_verified)
+
+    def __str__(self) -> str:
+        """The verdict line: "bit-exact: yes (542 of 550 recorded estimates verified, all identical)"."""
+        covered = f"{self.verified} of {self.total} {self.what} verified"
+        if self.different:
+            return f"bit-exact: NO ({self.different} of the {self.verified} verified differ; {covered})"
+        if not self.verified:
+            return f"bit-exact: no estimate to verify ({covered})"
+        if self.damaged:
+            return f"bit-exact: not proven: the recording is damaged ({covered}, all identical)"
+        if self.coverage < self.min_verified:
+            shown = math.floor(self.coverage * 1000) / 10  # never rounded up to the minimum
+            return (f"bit-exact: not proven: only {covered} ({shown:g} %, below the minimum "
+                    f"{self.min_verified * 100:g} % of --min-verified), all identical")
+        return f"bit-exact: yes ({covered}, all identical)"
+
+    def to_json(self) -> dict:
+        return {"passed": self.passed, "line": str(self), "counted": self.what, "total": self.total,
+                "verified": self.verified, "identical": self.identical, "different": self.different,
+                "verified_fraction": self.coverage, "min_verified_fraction": self.min_verified,
+                "damaged": self.damaged}
+
+
 @dataclass
 class Difference:
     """The first estimate that differs from the host: where, which field, both values."""
@@ -476,6 +567,10 @@ class Difference:
         return (f"estimate #{self.estimate} (segment {self.segment}, sample index {self.index}): {self.field}: "
                 f"board {self.board}, host {self.host}")
 
+    def to_json(self) -> dict:
+        return {"estimate": self.estimate, "segment": self.segment, "sample_index": self.index,
+                "field": self.field, "board": self.board, "host": self.host}
+
 
 @dataclass
 class Comparison:
@@ -488,7 +583,9 @@ class Comparison:
     between the board's quaternion and the float twin's (deg: max, mean, rms), the
     largest Euler angle difference (deg) and gyro bias difference (deg/s). damaged: the
     recording's damaged spans; what they held was not compared, so a damaged recording
-    is never bit-exact.
+    is never bit-exact. leftover: per estimate, whether it came from a stream the board
+    was already sending before the recording began (not part of the recorded run).
+    min_verified: the least share of the recorded estimates to verify for a pass.
     """
 
     sample_row: np.ndarray
@@ -497,6 +594,8 @@ class Comparison:
     first_difference: Difference | None
     fixed_vs_float: dict
     damaged: list[tuple[int, int]]
+    leftover: np.ndarray
+    min_verified: float = MIN_VERIFIED
 
     @property
     def estimates(self) -> int:
@@ -511,8 +610,20 @@ class Comparison:
         return int(self.identical.sum())
 
     @property
+    def recorded_count(self) -> int:
+        """The estimates of the recorded run (all but the leftovers of an earlier stream)."""
+        return int((~self.leftover).sum())
+
+    @property
     def bit_exact(self) -> bool:
+        """Every verified estimate identical (at least one) and the file undamaged, however
+        few were verified: :attr:`verdict` also weighs the coverage."""
         return self.verified_count > 0 and self.identical_count == self.verified_count and not self.damaged
+
+    @property
+    def verdict(self) -> Verdict:
+        return Verdict(self.recorded_count, self.verified_count, self.identical_count, damaged=bool(self.damaged),
+                       min_verified=self.min_verified)
 
 
 def _sample_rows(recording: Recording) -> np.ndarray:
@@ -522,8 +633,9 @@ def _sample_rows(recording: Recording) -> np.ndarray:
     return np.array([rows.get((int(s), int(i)), -1) for s, i in zip(estimates.segment, estimates.index)], np.int64)
 
 
-def compare(recording: Recording, run: HostRun | None = None) -> Comparison:
-    """Compare every verifiable board estimate with the host fixed-point build, bit for bit."""
+def compare(recording: Recording, run: HostRun | None = None, min_verified: float = MIN_VERIFIED) -> Comparison:
+    """Compare every verifiable board estimate with the host fixed-point build, bit for bit;
+    its verdict passes with at least `min_verified` of the recorded estimates verified."""
     run = run or host_run(recording)
     estimates = recording.estimates
     sample_row = _sample_rows(recording)
@@ -545,7 +657,8 @@ def compare(recording: Recording, run: HostRun | None = None) -> Comparison:
                            getattr(estimates, name)[position].tolist(), run.fixed[name][row].tolist())
     return Comparison(sample_row, verified, identical, first,
                       _fixed_vs_float(estimates, positions, run.float_quat[rows], run.float_euler[rows],
-                                      run.float_gyro_bias[rows]), recording.damaged)
+                                      run.float_gyro_bias[rows]), recording.damaged,
+                      np.asarray(estimates.leftover, bool), min_verified)
 
 
 def _fixed_vs_float(estimates: Estimates, positions, float_quat, float_euler, float_bias) -> dict:
@@ -591,18 +704,34 @@ def format_comparison(recording: Recording, comparison: Comparison) -> str:
                  + (f" ({'; '.join(reasons)})" if reasons else ""))
     if c.first_difference is not None:
         lines.append(f"first difference: {c.first_difference}")
-    if c.bit_exact:
-        verdict = "yes"
-    elif c.verified_count and c.identical_count == c.verified_count:
-        verdict = "not proven: the recording is damaged"
-    else:
-        verdict = "no estimate to verify" if not c.verified_count else "NO"
-    lines.append(f"bit-exact: {verdict}")
+    lines.append(str(c.verdict))
     ff = comparison.fixed_vs_float
     if ff:
         lines.append(f"fixed vs float: attitude max {ff['angle_max_deg']:.5f} deg, RMS {ff['angle_rms_deg']:.5f} deg; "
                      f"Euler max {ff['euler_max_deg']:.5f} deg; gyro bias max {ff['gyro_bias_max_deg_s']:.2e} deg/s")
     return "\n".join(lines)
+
+
+def comparison_json(recording: Recording, comparison: Comparison) -> dict:
+    """What `imulink compare --json` prints: the facts of :func:`format_comparison`."""
+    c = comparison
+    unverifiable = ~c.verified
+    leftover = int((unverifiable & c.leftover).sum())
+    counters = recording.counters
+    return {
+        "recording": str(recording.path), "board": _board_json(recording.hello),
+        "sensor_profile": recording.profile.name,
+        "link": {**link_json(counters), "filter_runs": recording.segments,
+                 "truncated_tail_bytes": recording.truncated_bytes},
+        "damaged_spans": [{"offset_bytes": offset, "length_bytes": length} for offset, length in recording.damaged],
+        "estimates": {"received": c.estimates, "recorded": c.recorded_count, "verifiable": c.verified_count,
+                      "identical": c.identical_count, "different": c.verified_count - c.identical_count,
+                      "unverifiable": c.estimates - c.verified_count, "unverifiable_left_over": leftover,
+                      "unverifiable_after_lost_sample": int(unverifiable.sum()) - leftover},
+        "first_difference": c.first_difference.to_json() if c.first_difference is not None else None,
+        "verdict": c.verdict.to_json(),
+        "fixed_vs_float": dict(c.fixed_vs_float) or None,
+    }
 
 
 # ---------------------------------------------------------------------------- replay export
@@ -653,16 +782,26 @@ def replay_columns(recording: Recording, run: HostRun, comparison: Comparison) -
     return columns
 
 
+#: Replay columns that hold integers (a float column only where some rows have no value).
+_INTEGER_COLUMNS = ("timestamp_us", "segment", "index", "verifiable", "identical")
+
+
 def export_csv(columns: dict[str, np.ndarray], path) -> None:
-    """Write replay columns as CSV (empty cells where a value is missing)."""
+    """Write replay columns as CSV (empty cells where a value is missing). Every number
+    reads back as the value it was: integers as integers, floats in Python's shortest
+    round-trip form (a Unix host time keeps its microseconds, not nine digits)."""
     names = list(columns)
-    data = np.column_stack([np.asarray(columns[k], np.float64) for k in names])
-    integer = [k in ("timestamp_us", "segment", "index", "verifiable", "identical") for k in names]
+
+    def cells(name: str) -> list[str]:
+        values = np.asarray(columns[name])
+        if name in _INTEGER_COLUMNS or np.issubdtype(values.dtype, np.integer):
+            return ["" if v != v else str(int(v)) for v in values.tolist()]  # v != v: NaN
+        return ["" if v != v else repr(v) for v in values.astype(np.float64).tolist()]
+
     with open(path, "w", encoding="utf-8") as out:
         out.write(",".join(names) + "\n")
-        for row in data:
-            out.write(",".join("" if math.isnan(v) else (str(int(v)) if integer[i] else f"{v:.9g}")
-                               for i, v in enumerate(row)) + "\n")
+        for row in zip(*(cells(name) for name in names)):
+            out.write(",".join(row) + "\n")
 
 
 def export_npz(recording: Recording, run: HostRun, columns: dict[str, np.ndarray], path) -> None:
@@ -757,14 +896,29 @@ class InjectResult:
     identical: int
     answers_lost: int
     filter_restarts: int
-    first_difference: str | None
+    first_difference: dict | None  # sample_index, field, board, host (raw integers)
     filter_name: str
     duration_s: float
     accuracy: dict | None  # RMS errors in deg (total, heading, inclination) over `samples` answered samples
+    min_verified: float = MIN_VERIFIED  # the least share of the samples answered and verified for a pass
 
     @property
     def bit_exact(self) -> bool:
         return self.answered > 0 and self.identical == self.answered
+
+    @property
+    def verdict(self) -> Verdict:
+        return Verdict(self.samples, self.answered, self.identical, what="injected samples",
+                       min_verified=self.min_verified)
+
+    def to_json(self) -> dict:
+        """What `imulink inject --json` prints: the facts of :func:`format_inject`."""
+        return {"input": self.description, "filter": self.filter_name, "samples": self.samples,
+                "answered": self.answered, "unanswered": self.samples - self.answered,
+                "answers_lost": self.answers_lost, "filter_restarts": self.filter_restarts,
+                "duration_s": self.duration_s, "samples_per_s": self.samples / max(self.duration_s, 1e-9),
+                "verdict": self.verdict.to_json(), "first_difference": self.first_difference,
+                "accuracy": accuracy_json(self.accuracy)}
 
 
 def format_inject(result: InjectResult) -> str:
@@ -776,10 +930,11 @@ def format_inject(result: InjectResult) -> str:
              f"{unanswered} unanswered"
              + (f" ({result.answers_lost} answers lost on the way, {result.filter_restarts} samples without any reply, "
                 "after each of which the filter was restarted)" if unanswered else "")]
-    lines.append(f"bit-exact: {'yes' if result.bit_exact else 'NO'} ({result.identical} of {result.answered} "
-                 "answers identical to the host fixed-point build)")
+    lines.append(str(result.verdict))
     if result.first_difference:
-        lines.append(f"first difference: {result.first_difference}")
+        d = result.first_difference
+        lines.append(f"first difference: sample {d['sample_index']}: {d['field']}: board {d['board']}, "
+                     f"host {d['host']}")
     if result.accuracy:
         a = result.accuracy
         lines.append(f"accuracy vs truth (RMS after {SETTLE_S:g} s, over the {a['samples']} answered samples): "
@@ -819,12 +974,13 @@ def _configure_for_injection(link: Link, source: InjectionInput, filter_name: st
 
 def inject(url: str, source: InjectionInput, *, baud: int = DEFAULT_BAUD, filter_name: str | None = None,
            board_profile: SensorProfile = DEFAULT_PROFILE, progress: Progress | None = None,
-           settings=None) -> InjectResult:
+           settings=None, min_verified: float = MIN_VERIFIED) -> InjectResult:
     """Inject every sample of `source` into the board and compare each ESTIMATE with the
     host fixed-point build (with the board's calibration) on the fly.
 
     settings: an imulink.settings_file.FilterSettings: its filter and settings are used
-    (over a recording's); changed settings are restored afterwards.
+    (over a recording's); changed settings are restored afterwards. min_verified: the
+    least share of the samples answered and verified for the verdict to pass.
 
     An ESTIMATE lost on the way is counted (answers_lost). A sample whose ACK never
     comes may or may not have run on the board, so the filter is restarted on both
@@ -846,6 +1002,7 @@ def inject(url: str, source: InjectionInput, *, baud: int = DEFAULT_BAUD, filter
         link.command("SET_INJECTION_MODE", enabled=1)
         try:
             result = _inject_samples(link, source, name, raw_settings, board_profile, calibration, progress)
+            result.min_verified = min_verified
         finally:  # leave the board as it was found
             link.command("SET_INJECTION_MODE", enabled=0)
             for index, value in changed.items():
@@ -894,8 +1051,8 @@ def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings:
         if different is None:
             identical += 1
         elif first is None:
-            theirs = list(got[different]) if isinstance(got[different], tuple) else got[different]
-            first = f"sample {k}: {different}: board {theirs}, host {expected[different]}"
+            first = {"sample_index": k, "field": different, "board": np.asarray(got[different]).tolist(),
+                     "host": np.asarray(expected[different]).tolist()}
         if progress is not None:
             progress.update(f"injecting: {k + 1}/{n} samples, {identical}/{answered} identical, "
                             f"{(k + 1) / (time.monotonic() - started):.0f} samples/s")
@@ -933,8 +1090,7 @@ class DemoReport:
             f"recorded: {r.samples} samples, {r.estimates} estimates, {rec.counters['frames']} frames in "
             f"{r.duration_s:.2f} s ({rec.counters['frames'] / max(r.duration_s, 1e-9):.0f} frames/s); "
             f"lost frames {lost}, CRC errors {rec.counters['crc_errors']}",
-            f"bit-exact: {'yes' if c.bit_exact else 'NO'} ({c.identical_count} of {c.verified_count} verifiable estimates "
-            f"identical to the host fixed-point build)",
+            str(c.verdict),
         ]
         if c.first_difference is not None:
             lines.append(f"first difference: {c.first_difference}")
@@ -950,10 +1106,20 @@ class DemoReport:
         lines.append(f"demo took {self.duration_s:.1f} s")
         return "\n".join(lines)
 
+    def to_json(self) -> dict:
+        """What `imulink demo --json` prints: the record summary and the comparison (as
+        `record --json` and `compare --json` give them), the accuracy, the kept file."""
+        record, comparison = self.record.to_json(), comparison_json(self.recording, self.comparison)
+        if not self.kept:  # the temporary file is gone
+            record["recording"] = comparison["recording"] = None
+        return {"emulated_board": {"address": self.address, "target": self.target}, "record": record,
+                "compare": comparison, "verdict": comparison["verdict"], "accuracy": accuracy_json(self.accuracy),
+                "recording": str(self.recording.path) if self.kept else None, "duration_s": self.duration_s}
+
 
 def demo(*, target: str = "native", transport: str = "tcp", scenario: str = "rests", duration_s: float = 60.0,
          rate_hz: float = 100.0, seed: int = 0, filter_name: str = "eskf", output=None, force: bool = False,
-         progress: Progress | None = None) -> DemoReport:
+         progress: Progress | None = None, min_verified: float = MIN_VERIFIED) -> DemoReport:
     """Record an emulated board's simulated run (as fast as the link goes) and verify it.
 
     `target` is "native" (the firmware as a host process) or "qemu" (the ARM image in
@@ -971,7 +1137,7 @@ def demo(*, target: str = "native", transport: str = "tcp", scenario: str = "res
         recording = load_recording(path)
         samples = recording.samples
         truth = board.truth(samples.gyr, samples.acc, samples.mag)
-    comparison = compare(recording)
+    comparison = compare(recording, min_verified=min_verified)
     accuracy = {}
     verified = comparison.verified
     if verified.any():
