@@ -461,9 +461,13 @@ def test_calibrate_mag_live_on_an_emulated_board(tmp_path, capsys):
     from imulink.emulator import EmulatedBoard
     from imulink.link import Link
 
-    turned = rotating_mag(seconds=120.0, seed=5)
+    # turned fast (up to some 1000 deg/s): every direction within about 10 s of the 60 s run, which
+    # the board streams in real time, so the collection stops well before the run ends
+    suite = SensorSuite(GyroModel.seed000(), AccModel(),
+                        MagModel(noise_std=MAG_NOISE_UT, hard_iron=HARD_IRON, soft_iron=SOFT_IRON))
+    turned = sim.simulate(sim.random_motion(60.0, RATE, seed=5, max_rate_dps=1000.0), suite, seed=5)
     output = tmp_path / "board.json"
-    with EmulatedBoard(simulation=turned, rate_hz=RATE) as board:
+    with EmulatedBoard(simulation=turned, rate_hz=RATE, realtime=True) as board:
         assert main(["calibrate", "mag", board.address, "-o", str(output), "--json", "--apply"]) == 0
         printed = json.loads(capsys.readouterr().out.split("\n}\n")[0] + "\n}")
         with Link(board.address) as link:
@@ -471,7 +475,7 @@ def test_calibrate_mag_live_on_an_emulated_board(tmp_path, capsys):
             on_board = hil.read_calibration(link, P)
     report = printed["report"]
     assert report["input"].startswith(f"{board.address} (live, ")
-    assert report["coverage"]["missing"] == [] and report["samples"] < len(turned.mag)  # stopped once covered
+    assert report["coverage"]["missing"] == [] and report["samples"] < len(turned.mag) / 2  # stopped once covered
     np.testing.assert_allclose(np.array(printed["offset_counts"]) * P.mag_scale, HARD_IRON, atol=0.3)
     assert report["norm_spread_before_uT"] > 5.0 > 20 * report["norm_spread_after_uT"]
     written = cal.load(output)

@@ -344,7 +344,8 @@ def fit_ellipsoid(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return mean + unit * centre, a / unit**2
 
 
-def _symmetric_sqrt(a: np.ndarray) -> np.ndarray:
+def symmetric_sqrt(a: np.ndarray) -> np.ndarray:
+    """The symmetric square root of a symmetric positive definite matrix."""
     values, vectors = np.linalg.eigh(a)
     root = (vectors * np.sqrt(values)) @ vectors.T
     return (root + root.T) / 2.0  # symmetric to the last bit, not only to rounding
@@ -378,7 +379,7 @@ def mag_ellipsoid(record: SensorRecord, profile: SensorProfile) -> SensorCalibra
         raise CalibrationError(f"{record.description}: the magnetometer readings lie within "
                                f"{radius * profile.mag_scale:.2g} uT of one point (the earth's field is 25-65 uT): "
                                "the board hardly turned; turn it slowly through every direction")
-    matrix = radius * _symmetric_sqrt(a)
+    matrix = radius * symmetric_sqrt(a)
     corrected = (points - centre) @ matrix.T
     before = np.linalg.norm(points, axis=1) * profile.mag_scale
     after = np.linalg.norm(corrected, axis=1) * profile.mag_scale

@@ -7,9 +7,8 @@ directions of :func:`imulink.calibration.coverage` the field has taken so far. I
 when every direction is covered, after `max_duration_s`, or on Ctrl-C; the fit itself is
 :func:`imulink.calibration.mag_ellipsoid`, the same as for a recording.
 
-While collecting, the directions are taken about the midpoint of each axis's range, which
-is the hard iron once the board has turned each axis both ways; the final coverage comes
-from the fitted ellipsoid.
+While collecting, the directions are those of the readings so far corrected by their own
+ellipsoid fit, so that the coverage shown is the one the final report will give.
 """
 from __future__ import annotations
 
@@ -54,11 +53,14 @@ class MagCollection:
 
 
 def live_coverage(counts: np.ndarray, profile: SensorProfile) -> Coverage | None:
-    """Coverage of the directions about the midpoint of each axis's range; None while some
-    axis spans less than twice MIN_FIELD_NORM_UT: the board has not turned enough for the
-    directions to mean anything (an axis turned both ways along the earth's field spans
+    """Coverage of the directions the readings so far take, corrected as the final fit will
+    correct them (the ellipsoid fit of :mod:`imulink.calibration` on the readings so far;
+    about the midpoint of each axis's range while they fit no ellipsoid yet). None while
+    some axis spans less than twice MIN_FIELD_NORM_UT: the board has not turned enough for
+    the directions to mean anything (an axis turned both ways along the earth's field spans
     50 uT or more; a still board's noise about one point would "cover" every direction)."""
-    from .calibration import MIN_FIELD_NORM_UT, coverage
+    from .calibration import (MAX_AXIS_RATIO, MIN_FIELD_NORM_UT, CalibrationError, coverage, fit_ellipsoid,
+                              symmetric_sqrt)
 
     if len(counts) == 0:
         return None
@@ -66,6 +68,14 @@ def live_coverage(counts: np.ndarray, profile: SensorProfile) -> Coverage | None
     if np.any((high - low) * profile.mag_scale < 2.0 * MIN_FIELD_NORM_UT):
         return None
     centred = counts - (low + high) / 2.0
+    try:
+        centre, shape = fit_ellipsoid(counts)
+    except CalibrationError:
+        pass
+    else:
+        axes = 1.0 / np.sqrt(np.linalg.eigvalsh(shape))
+        if axes.max() <= MAX_AXIS_RATIO * axes.min():  # an ellipsoid mag_ellipsoid would accept
+            centred = (counts - centre) @ symmetric_sqrt(shape)
     return coverage(centred[np.any(centred != 0, axis=1)])
 
 
