@@ -153,10 +153,83 @@ def _cmd_filters(args) -> int:
         if args.json:
             continue
         print(f"{name}:")
-        for field in fields:
-            print(f"  {field.name:<12} {defaults[field.name]:<14.6g} {field.unit:<10} (fixed: Q{field.frac_bits})")
+        print(_columns([(f"  {f.name}", f"{defaults[f.name]:.6g}", f.unit, f"(fixed: Q{f.frac_bits})") for f in fields]))
     if args.json:
         _print_json(report)
+    return 0
+
+
+def _columns(rows: list[tuple[str, ...]]) -> str:
+    """Rows of cells as lines, each column as wide as its widest cell (names of any length line up)."""
+    widths = [max(len(row[k]) for row in rows) for k in range(len(rows[0]))]
+    return "\n".join(" ".join(cell.ljust(width) for cell, width in zip(row, widths)).rstrip() for row in rows)
+
+
+def _assignments(texts: list[str]) -> dict[str, float]:
+    """NAME=VALUE arguments as a dict (UsageError for anything else)."""
+    values = {}
+    for text in texts:
+        name, sep, value = text.partition("=")
+        try:
+            number = float(value)
+        except ValueError:
+            number = math.nan
+        if not sep or not name or not math.isfinite(number):
+            raise UsageError(f"{text!r} is not NAME=VALUE with a finite number (e.g. acc_noise=0.4)")
+        values[name.strip()] = number
+    return values
+
+
+@_command
+def _cmd_settings(args) -> int:
+    from . import core, hil, protocol, settings_file
+    from .files import check_output
+    from .link import Link
+
+    wanted = _assignments(args.assignments)
+    if args.save:
+        check_output(args.save)
+    loaded = settings_file.load(args.load) if args.load else None
+    if loaded is not None and args.filter is not None and args.filter != loaded.filter_name:
+        raise UsageError(f"{args.load} holds {loaded.filter_name} settings; --filter {args.filter} contradicts it")
+    changed = set()
+    with Link(args.port, args.baud) as link:
+        link.connect()
+        if loaded is not None:
+            hil.apply_settings(link, loaded)
+            changed |= set(loaded.values)
+        elif args.filter is not None:
+            link.command("SELECT_FILTER", filter_id=core.FILTERS[args.filter][0])
+        filter_id, board = hil.read_settings(link)
+        by_name = {s["name"]: (index, s) for index, s in board.items()}
+        unknown = [name for name in wanted if name not in by_name]
+        if unknown:
+            raise UsageError(f"the board's {hil.name_of_filter(filter_id)} has no setting {', '.join(unknown)}; "
+                             f"it has {', '.join(by_name)}")
+        for name, value in wanted.items():  # in the board's own formats (its SETTING answers)
+            index, setting = by_name[name]
+            try:
+                link.command("SET_SETTING", index=index, value=core.to_fixed(value, setting["frac_bits"], name))
+            except protocol.CommandError as exc:
+                raise hil.HilError(f"the board refuses {name} = {value:g} {setting['unit']} ({exc.reason}); "
+                                   "nothing after it was set") from None
+            changed.add(name)
+        if changed:
+            filter_id, board = hil.read_settings(link)  # read back: what the board now runs with
+    name = hil.name_of_filter(filter_id)
+    rows = [{"name": s["name"], "value": s["value"] / 2.0 ** s["frac_bits"], "raw": s["value"], "unit": s["unit"],
+             "frac_bits": s["frac_bits"], "changed": s["name"] in changed} for s in board.values()]
+    if args.save:
+        values = {r["name"]: r["value"] for r in rows if r["name"] != "sample_rate"}
+        settings_file.save(settings_file.FilterSettings(name, values), args.save)
+    if args.json:
+        _print_json({"port": args.port, "filter": name, "settings": rows, "saved_to": args.save})
+        return 0
+    print(f"{args.port}: filter {name}" + (" (settings read back after the change)" if changed else ""))
+    print(_columns([(f"  {r['name']}", f"{r['value']:.6g}", r["unit"], f"Q{r['frac_bits']}",
+                     "changed" if r["changed"] else "") for r in rows]))
+    if args.save:
+        print(f"settings file: {args.save} ({name}, every setting but sample_rate)")
     return 0
 
 
@@ -991,6 +1064,25 @@ def _add_hil_commands(sub) -> None:
     p.set_defaults(func=_cmd_flash)
 
     p = sub.add_parser(
+        "settings", help="a board's filter settings: list them, set some by name, keep them in a file",
+        description="Read the active filter's settings from the board (its own table: names, units, fixed-point "
+                    "formats) and print them in SI units. NAME=VALUE arguments set settings first (SET_SETTING in "
+                    "the board's format, then all are read back; the filter restarts with each), --filter makes "
+                    "another filter active, --load gives the board a settings file (its filter and values), "
+                    "--save writes what the board then runs with to a settings file (record, inject, emulate and "
+                    "core.run take it with --settings FILE). A value the board refuses ends the command with its "
+                    "reason; the settings set before it stay.")
+    p.add_argument("port", metavar="PORT", help="serial device or pyserial URL of the board")
+    p.add_argument("assignments", metavar="NAME=VALUE", nargs="*", help="settings to set, in SI units")
+    p.add_argument("--filter", choices=list(core.FILTERS), help="make this filter active first")
+    p.add_argument("--load", metavar="FILE", help="give the board the settings of FILE (and make its filter active)")
+    p.add_argument("--save", metavar="FILE", help="write the board's settings to FILE (a settings file)")
+    p.add_argument("--baud", type=_baud, default=DEFAULT_BAUD,
+                   help=f"line rate of a real serial port (default: {DEFAULT_BAUD}; ignored by sockets and ptys)")
+    _json_argument(p, "the filter and its settings")
+    p.set_defaults(func=_cmd_settings)
+
+    p = sub.add_parser(
         "ports", help="list the serial ports and what is behind each",
         description="List the serial ports (pyserial's list_ports) with their USB VID:PID, description and a "
                     "guess of what is behind each (ST-Link virtual COM port, CP210x, CH340, FTDI, ...). --probe "
@@ -1113,7 +1205,11 @@ def _add_hil_commands(sub) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extras = parser.parse_known_args(argv)
+    if extras and getattr(args, "assignments", None) is not None and not any(e.startswith("-") for e in extras):
+        args.assignments += extras  # `settings PORT --filter kf1d q_angle=...`: argparse stops at the option
+    elif extras:
+        parser.error(f"unrecognized arguments: {' '.join(extras)}")
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

@@ -45,6 +45,11 @@ PROFILES = {p.name: p for p in (DEFAULT_PROFILE, BROAD_PROFILE)}
 #: Seconds excluded from accuracy statistics (alignment and convergence).
 SETTLE_S = 10.0
 _FILTER_NAMES = {filter_id: name for name, (filter_id, _) in core.FILTERS.items()}
+
+
+def name_of_filter(filter_id: int) -> str:
+    """The name of a filter id a board reports (the number itself for one this host does not know)."""
+    return _FILTER_NAMES.get(filter_id, str(filter_id))
 _Q = {"quat": core.QUAT_FRAC_BITS, "euler": core.EULER_FRAC_BITS, "gyro_bias": core.RATE_FRAC_BITS}
 
 
@@ -297,7 +302,7 @@ def snapshot(link: Link, writer: RecordingWriter | None, settings=None) -> tuple
         apply_settings(link, settings)
     status = link.command("GET_STATUS").data.fields
     filter_id, settings = read_settings(link)
-    filter_name = _FILTER_NAMES.get(filter_id, str(filter_id))
+    filter_name = name_of_filter(filter_id)
     if writer is not None:
         calibration = read_calibration(link, writer.profile)
         writer.event("snapshot", status=status, filter=filter_name,
