@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from imulink import allan, hil
+from imulink import allan, hil, plotting
 from imulink.emulator import EmulatedBoard
 from imulink.sim import AccModel, GyroModel
 
@@ -98,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--trial", default="02_undisturbed_slow_rotation_B", help="the BROAD trial")
     parser.add_argument("--broad", type=Path, default=BROAD, help="the BROAD directory (default: ../shared/data/broad)")
     args = parser.parse_args(argv)
-    allan.check_plotting()
+    plotting.check_plotting()
     simulated(args.hours, args.rate)
     broad(args.broad, args.trial)
     return 0

@@ -34,6 +34,7 @@ from scipy.stats import chi2
 
 from . import sensor_input
 from .counts import STANDARD_GRAVITY
+from .plotting import check_plotting, plot_format
 from .sensor_input import CSV_COLUMNS, InputError, SensorRecord
 
 #: Default confidence of the intervals: one standard deviation of a normal distribution.
@@ -736,24 +737,6 @@ def settings_from_terms(terms: Mapping[str, Sequence[float | None]], filter_name
 #: RRW deg/h/sqrt(h), drawn for comparison with a gyroscope's curve.
 SEED000_TABLE1 = {"arw": (3.3197, 2.6794, 2.885), "bias_instability": (39.8887, 36.4465, 34.5215),
                   "rrw": (520.5, 598.05, 471.84)}
-PLOT_FORMATS = ("png", "svg")
-PLOT_INSTALL = "pip install 'imulink[plot]'"
-
-
-def plot_format(path) -> str:
-    """"png" or "svg" from the file name; AllanError otherwise."""
-    suffix = Path(path).suffix.lower().lstrip(".")
-    if suffix not in PLOT_FORMATS:
-        raise AllanError(f"cannot tell the plot format of {path}: name it .png or .svg")
-    return suffix
-
-
-def check_plotting() -> None:
-    """AllanError (with the install command) unless matplotlib can be imported."""
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError:
-        raise AllanError(f"plotting needs matplotlib: {PLOT_INSTALL}") from None
 
 
 def plot(result: AllanResult, path, reference: bool = True) -> None:

@@ -51,6 +51,7 @@ def _command(func):
         from .flash import FlashError
         from .hil import HilError
         from .link import LinkError
+        from .plotting import PlotError
         from .recording import RecordingError
         from .sensor_input import InputError
         from .sim import ScenarioError
@@ -59,7 +60,8 @@ def _command(func):
         try:
             return func(args)
         except (LinkError, protocol.ProtocolError, RecordingError, HilError, EmulatorError, FlashError, FileError,
-                core.SettingsError, ScenarioError, SensorDataError, InputError, UsageError, OSError) as exc:
+                core.SettingsError, ScenarioError, SensorDataError, InputError, PlotError, UsageError,
+                OSError) as exc:
             print(f"imulink: error: {exc}", file=sys.stderr)
             return EXIT_ERROR
         except KeyboardInterrupt:
@@ -258,7 +260,7 @@ def _cmd_allan(args) -> int:
     import json
     from pathlib import Path
 
-    from . import allan, core
+    from . import allan, core, plotting
     from .files import check_output, write_replacing
 
     if args.write and not args.settings:
@@ -268,8 +270,8 @@ def _cmd_allan(args) -> int:
     if args.write:
         check_output(args.write, inputs=[args.input])
     if args.plot:  # before the work: a plot that cannot be written is known at once
-        allan.plot_format(args.plot)
-        allan.check_plotting()
+        plotting.plot_format(args.plot)
+        plotting.check_plotting()
         check_output(args.plot, inputs=[args.input])
     status, phase = _late_progress()
     try:
@@ -740,6 +742,27 @@ def _cmd_replay(args) -> int:
 
 
 @_command
+def _cmd_plot(args) -> int:
+    from . import hil, plotting
+    from .files import check_output, write_replacing
+    from .recording import load_recording
+
+    plotting.plot_format(args.output)  # before the work: a figure that cannot be written is known at once
+    plotting.check_plotting()
+    check_output(args.output, inputs=[args.file])
+    recording = load_recording(args.file)
+    run = hil.host_run(recording)
+    comparison = hil.compare(recording, run)
+    columns = hil.replay_columns(recording, run, comparison)
+    verdict = hil.format_comparison(recording, comparison).splitlines()
+    line = next((text for text in verdict if text.startswith("bit-exact")), verdict[-1])
+    write_replacing(args.output, lambda path: plotting.plot_recording(recording, columns, line, path),
+                    inputs=[args.file])
+    print(f"plot: {args.output} ({len(recording.samples)} samples; {line})")
+    return 0
+
+
+@_command
 def _cmd_compare(args) -> int:
     from . import hil
     from .recording import load_recording
@@ -1137,6 +1160,18 @@ def _add_hil_commands(sub) -> None:
     min_verified_argument(p, "the recorded estimates")
     _json_argument(p, "the comparison and the outputs written")
     p.set_defaults(func=_cmd_replay)
+
+    p = sub.add_parser(
+        "plot", help="a recording as a figure (PNG or SVG): sensors, attitudes, differences, events",
+        description="Draw a recording to one figure, without a display: the raw sensors in SI units; the Euler "
+                    "angles of the board, the host fixed build and the float twin; the board-vs-host and "
+                    "fixed-vs-float differences; the gyro-bias estimate; with filter restarts (dashed lines), lost "
+                    "samples (red ticks), estimates the host could not verify (grey) or that differ (red dots) "
+                    "marked, and the bit-exact verdict in the title. The format follows the name (.png, .svg); "
+                    "needs matplotlib: pip install 'imulink[plot]'.")
+    p.add_argument("file", metavar="FILE", help="recording written by `imulink record` or `imulink demo`")
+    p.add_argument("--output", "-o", required=True, metavar="FILE.png|FILE.svg", help="the figure to write")
+    p.set_defaults(func=_cmd_plot)
 
     p = sub.add_parser(
         "compare", help="bit-exactness verdict of a recording",

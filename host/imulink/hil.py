@@ -37,7 +37,7 @@ from .counts import BROAD_PROFILE, DEFAULT_PROFILE, SensorDataError, SensorProfi
 from .emulator import EmulatedBoard
 from .files import check_writable_target, create_beside, publish
 from .link import COMMAND_ATTEMPTS, DEFAULT_BAUD, CommandTimeout, Disconnected, Link, LinkError, ReceiveTimeout
-from .recording import Estimates, Recording, RecordingError, RecordingWriter, load_recording
+from .recording import Estimates, Recording, RecordingError, RecordingWriter, load_recording, sample_times
 from .reference import FirmwareFilter
 
 #: Sensor profiles a board can be declared to use (the protocol cannot report them).
@@ -743,9 +743,10 @@ def comparison_json(recording: Recording, comparison: Comparison) -> dict:
 
 
 def replay_columns(recording: Recording, run: HostRun, comparison: Comparison) -> dict[str, np.ndarray]:
-    """One row per recorded sample: inputs in SI, the board's estimate (NaN where its
-    ESTIMATE was lost), the host fixed build and the float twin, and whether the board's
-    estimate was identical (1), different (0) or not verifiable (NaN). Keys are CSV
+    """One row per recorded sample: its time (recording.sample_times), inputs in SI, the
+    board's estimate (NaN where its ESTIMATE was lost), the host fixed build and the float
+    twin, and whether the board's estimate was identical (1), different (0) or not
+    verifiable (NaN). Keys are CSV
     column names that carry their units."""
     s, e, p = recording.samples, recording.estimates, recording.profile
     n = len(s)
@@ -759,7 +760,9 @@ def replay_columns(recording: Recording, run: HostRun, comparison: Comparison) -
         out[have] = values[estimate_of[have]] * 2.0**-frac_bits
         return out
 
-    columns = {"host_time_s": s.host_time, "timestamp_us": s.timestamp_us, "segment": s.segment,
+    # time_s first: strictly increasing (the sample index at the board's rate), the axis a plotting tool wants
+    columns = {"time_s": sample_times(recording), "host_time_s": s.host_time, "timestamp_us": s.timestamp_us,
+               "segment": s.segment,
                "index": s.index, "verifiable": run.verifiable.astype(int)}
     axes = ("x", "y", "z")
     for name, counts, scale, unit in (("gyr", s.gyr, p.gyro_scale, "rad_s"), ("acc", s.acc, p.acc_scale, "m_s2"),

@@ -392,6 +392,18 @@ class _Segmenter:
         return self.segment
 
 
+def sample_times(recording: Recording) -> np.ndarray:
+    """Each sample's time (s from the first) at the board's sample rate (its STATUS; 100 Hz
+    when the recording has none), by sample index: a recording taken as fast as the link
+    goes keeps the pace the board sampled at, and a lost sample leaves its gap. Where a
+    filter run restarts (index 0 again), one period passes."""
+    samples, status = recording.samples, recording.status
+    rate_hz = status["sample_rate_mhz"] / 1000.0 if status and status["sample_rate_mhz"] else 100.0
+    steps = np.diff(samples.index)
+    same_run = (np.diff(samples.segment) == 0) & (steps > 0)
+    return np.concatenate(([0.0], np.cumsum(np.where(same_run, steps, 1)) / rate_hz))
+
+
 def load_recording(path, progress: Callable[[int, int], None] | None = None) -> Recording:
     """Read and decode a recording file (see the module docstring).
 

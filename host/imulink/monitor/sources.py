@@ -34,7 +34,7 @@ from ..analysis import angle_difference
 from ..counts import DEFAULT_PROFILE, SensorProfile
 from ..files import FileError, check_writable_target, create_beside, publish
 from ..link import DEFAULT_BAUD, Disconnected, Link, LinkError
-from ..recording import RecordingError, RecordingWriter, load_recording
+from ..recording import RecordingError, RecordingWriter, load_recording, sample_times
 from .check import CheckSummary, LiveCheck
 from .ring import RingBuffer
 
@@ -378,7 +378,7 @@ class ReplaySource:
         run = hil.host_run(self.recording)
         self.comparison = hil.compare(self.recording, run)
         s, e = self.recording.samples, self.recording.estimates
-        self.sample_rows = sample_rows(self._timeline(s), s.gyr, s.acc, s.mag, self.recording.profile)
+        self.sample_rows = sample_rows(sample_times(self.recording), s.gyr, s.acc, s.mag, self.recording.profile)
         angle = np.full(len(e), np.nan)
         verified = self.comparison.verified
         angle[verified] = angle_difference(e.quat[verified] / 2.0**core.QUAT_FRAC_BITS,
@@ -390,16 +390,6 @@ class ReplaySource:
         self.playing = True
         self._position = 0.0
         self._clock = time.monotonic()
-
-    def _timeline(self, samples) -> np.ndarray:
-        """Playback time of each sample at the board's sample rate (STATUS), by sample index:
-        a recording taken as fast as the link goes plays at the pace the board sampled, and
-        a lost sample leaves its gap. Where a filter run restarts, one period passes."""
-        status = self.recording.status
-        rate_hz = status["sample_rate_mhz"] / 1000.0 if status and status["sample_rate_mhz"] else 100.0
-        steps = np.diff(samples.index)
-        same_run = (np.diff(samples.segment) == 0) & (steps > 0)
-        return np.concatenate(([0.0], np.cumsum(np.where(same_run, steps, 1)) / rate_hz))
 
     def _estimate_times(self) -> np.ndarray:
         """Each estimate at its sample's playback time (its receive time where its SAMPLE was lost)."""
