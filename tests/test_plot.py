@@ -39,7 +39,8 @@ def test_plot_marks_restarts_and_lost_samples(faulty_recording, tmp_path, capsys
     assert code == 0 and verdict in out
     text = svg.read_text()
     assert f"{len(s)} samples, {runs} filter run(s), {lost} lost sample(s)" in text
-    assert verdict.split(" (")[0] in text and "lost sample" in text and "not verifiable" in text  # an SVG comment holds no "--"
+    # the title as matplotlib keeps it in an SVG comment, which holds no "--": the verdict up to its parenthesis
+    assert verdict.split(" (")[0] in text and "lost sample" in text and "not verifiable" in text
 
 
 def test_plot_png_and_refusals(faulty_recording, tmp_path, capsys, monkeypatch):

@@ -155,7 +155,8 @@ def _cmd_filters(args) -> int:
         if args.json:
             continue
         print(f"{name}:")
-        print(_columns([(f"  {f.name}", f"{defaults[f.name]:.6g}", f.unit, f"(fixed: Q{f.frac_bits})") for f in fields]))
+        print(_columns([(f"  {f.name}", f"{defaults[f.name]:.6g}", f.unit, f"(fixed: Q{f.frac_bits})")
+                        for f in fields]))
     if args.json:
         _print_json(report)
     return 0
@@ -366,7 +367,8 @@ def _live_mag_record(args):
     collected = live_calibration.collect_mag(args.input, profile, baud=args.baud, max_duration_s=args.max_duration,
                                              progress=hil.Progress())
     seconds = collected.time_s[-1] if len(collected.time_s) else 0.0
-    print(f"{args.input}: {len(collected.counts)} samples in {seconds:.1f} s ({collected.stop_reason})", file=sys.stderr)
+    print(f"{args.input}: {len(collected.counts)} samples in {seconds:.1f} s ({collected.stop_reason})",
+          file=sys.stderr)
     return collected.record(profile)
 
 
@@ -1194,7 +1196,8 @@ def _add_hil_commands(sub) -> None:
                     "a recording (FILE, played at its own pace or --speed times it, with a time slider): "
                     "scrolling plots of the raw sensors in physical units, the Euler angles, gyro bias and "
                     "ESKF covariance the filter sends and the live fixed-vs-float difference; a 3D board in "
-                    "the earth's axes (where OpenGL is) and an artificial horizon with a heading tape; link health with the bit-exact verdict so far; filter, "
+                    "the earth's axes (where OpenGL is) and an artificial horizon with a heading tape; link "
+                    "health with the bit-exact verdict so far; filter, "
                     "settings, stream, record and reset controls. A lost port is reopened when it comes back. "
                     "Needs the monitor extra: pip install 'imulink[monitor]'. docs/monitor.md describes it.")
     p.add_argument("port", metavar="PORT|FILE", nargs="?",
