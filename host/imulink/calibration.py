@@ -344,6 +344,12 @@ def fit_ellipsoid(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return mean + unit * centre, a / unit**2
 
 
+def axis_ratio(a: np.ndarray) -> float:
+    """Longest over shortest axis of the ellipsoid x^T a x = 1."""
+    axes = 1.0 / np.sqrt(np.linalg.eigvalsh(a))
+    return float(axes.max() / axes.min())
+
+
 def symmetric_sqrt(a: np.ndarray) -> np.ndarray:
     """The symmetric square root of a symmetric positive definite matrix."""
     values, vectors = np.linalg.eigh(a)
@@ -369,10 +375,9 @@ def mag_ellipsoid(record: SensorRecord, profile: SensorProfile) -> SensorCalibra
         raise CalibrationError(f"{record.description}: {len(points)} magnetometer sample(s) within the register's "
                                f"range; an ellipsoid fit needs at least {MIN_MAG_SAMPLES}")
     centre, a = fit_ellipsoid(points)
-    axes = 1.0 / np.sqrt(np.linalg.eigvalsh(a))
-    if axes.max() > MAX_AXIS_RATIO * axes.min():
+    if axis_ratio(a) > MAX_AXIS_RATIO:
         raise CalibrationError(f"{record.description}: the fitted ellipsoid's axes differ by a factor of "
-                               f"{axes.max() / axes.min():.3g} (soft iron does not do that): the readings do not "
+                               f"{axis_ratio(a):.3g} (soft iron does not do that): the readings do not "
                                "span the directions; turn the board through more directions")
     radius = float(np.mean(np.linalg.norm(points - centre, axis=1)))
     if radius * profile.mag_scale < MIN_FIELD_NORM_UT:

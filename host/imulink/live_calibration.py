@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -59,8 +58,8 @@ def live_coverage(counts: np.ndarray, profile: SensorProfile) -> Coverage | None
     some axis spans less than twice MIN_FIELD_NORM_UT: the board has not turned enough for
     the directions to mean anything (an axis turned both ways along the earth's field spans
     50 uT or more; a still board's noise about one point would "cover" every direction)."""
-    from .calibration import (MAX_AXIS_RATIO, MIN_FIELD_NORM_UT, CalibrationError, coverage, fit_ellipsoid,
-                              symmetric_sqrt)
+    from .calibration import (MAX_AXIS_RATIO, MIN_FIELD_NORM_UT, CalibrationError, axis_ratio, coverage,
+                              fit_ellipsoid, symmetric_sqrt)
 
     if len(counts) == 0:
         return None
@@ -73,8 +72,7 @@ def live_coverage(counts: np.ndarray, profile: SensorProfile) -> Coverage | None
     except CalibrationError:
         pass
     else:
-        axes = 1.0 / np.sqrt(np.linalg.eigvalsh(shape))
-        if axes.max() <= MAX_AXIS_RATIO * axes.min():  # an ellipsoid mag_ellipsoid would accept
+        if axis_ratio(shape) <= MAX_AXIS_RATIO:  # an ellipsoid mag_ellipsoid would accept
             centred = (counts - centre) @ symmetric_sqrt(shape)
     return coverage(centred[np.any(centred != 0, axis=1)])
 
@@ -101,6 +99,7 @@ def collect_mag(url: str, profile: SensorProfile, *, baud: int, max_duration_s: 
     from . import hil, protocol
     from .calibration import MIN_MAG_SAMPLES
     from .link import Link, LinkError
+    from .sensor_input import unwrap_us
 
     readings: list[tuple[int, int, int]] = []
     stamps: list[int] = []
@@ -148,7 +147,5 @@ def collect_mag(url: str, profile: SensorProfile, *, baud: int, max_duration_s: 
         except (LinkError, protocol.ProtocolError):
             pass
     counts = np.array(readings, np.float64).reshape(-1, 3)
-    # the board's 32-bit microsecond clock wraps every 71.6 minutes: sum the steps modulo 2^32
-    steps = np.diff(np.asarray(stamps, np.int64)) % 2**32
-    time_s = np.concatenate([[0], np.cumsum(steps)])[:len(stamps)] / 1e6
+    time_s = unwrap_us(np.asarray(stamps)) if stamps else np.zeros(0)
     return MagCollection(url, counts, time_s, stop_reason)
