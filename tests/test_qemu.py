@@ -101,8 +101,8 @@ def run_cli(capsys, *argv) -> tuple[int, str, str]:
 
 
 def test_demo_on_the_arm_image(tmp_path, capsys):
-    code, out, _ = run_cli(capsys, "demo", "--target", "qemu", "--duration", "20", "--output", tmp_path / "d.imulog")
-    assert code == 0, out
+    code, out, err = run_cli(capsys, "demo", "--target", "qemu", "--duration", "20", "--output", tmp_path / "d.imulog")
+    assert code == 0, out + err
     assert "qemu-stm32f405, qemu target" in out and "recorded: 2000 samples, 2000 estimates" in out
     assert "bit-exact: yes (2000 of 2000" in out and "accuracy vs simulated truth" in out
 
