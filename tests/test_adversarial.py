@@ -195,7 +195,7 @@ BAD_ARGUMENTS = [
     (["inject", "loop://", "--input", "sim:rests:1:2:3:4"], "bad simulated input"),
     (["inject", "loop://", "--input", "sim:moon"], "bad simulated input"),
     (["inject", "loop://", "--input", "nothing.imulog"], "not found"),
-    (["inject", "loop://", "--input", "sim:rests:20", "--board-profile", "x"], "unknown sensor profile"),
+    (["record", "loop://", "--profile", "x"], "unknown sensor profile"),
     (["inject", "loop://", "--input", "sim:rests:20", "--filter", "x"], "--filter: invalid choice"),
     (["inject", "loop://", "--input", "sim:rests:20"], "no imulink board answered on loop://"),
     (["inject", "/dev/imulink-no-such-port", "--input", "sim:rests:20"], "no such port"),
@@ -264,7 +264,7 @@ BAD_INJECTION_FILES = [
 @pytest.mark.parametrize("name, message", BAD_INJECTION_FILES, ids=[n for n, _ in BAD_INJECTION_FILES])
 def test_inject_refuses_bad_input_files(files, name, message):
     with Unchanged(files):
-        result = imulink("inject", "loop://", "--input", name, "--board-profile", "gy86-broad", cwd=files)
+        result = imulink("inject", "loop://", "--input", name, cwd=files)
     assert_error(result, message)
 
 

@@ -329,7 +329,8 @@ def test_tcp_board_greets_every_client():
 
 def test_fault_injector_is_deterministic_and_counts():
     frame = protocol.encode("ESTIMATE", 1, index=1, filter_id=1, quat=(1, 2, 3, 4), gyro_bias=(0, 0, 0),
-                            euler=(0, 0, 0), cov_mantissa=(0,) * 9, cov_exponent=(0,) * 9, saturations=0)
+                            euler=(0, 0, 0), cov_mantissa=(0,) * 9, cov_exponent=(0,) * 9, saturations=0,
+                            weights=(0, 0))
     config = FaultConfig(drop_byte=0.01, flip_bit=0.01, garbage=0.05, seed=7)
     runs = []
     for _ in range(2):

@@ -367,9 +367,9 @@ def test_emulated_board_applies_a_calibration_bit_exact(tmp_path, target, second
     with EmulatedBoard(target, duration_s=seconds, rate_hz=100.0, filter_name="eskf") as board:
         with Link(board.address) as link:
             link.connect()
-            assert hil.read_calibration(link, P).sensors["mag"].matrix.tolist() == np.eye(3).tolist()
+            assert hil.read_calibration(link).sensors["mag"].matrix.tolist() == np.eye(3).tolist()
             hil.set_calibration(link, BOARD_CALIBRATION)
-            back = hil.read_calibration(link, P)
+            back = hil.read_calibration(link)
             for name in cal.SENSORS:
                 assert cal.to_fixed(back.sensor(name)) == cal.to_fixed(BOARD_CALIBRATION.sensor(name))
             for args, reason in (({"sensor": 3, "axis": 0}, "BAD_ARGUMENT"), ({"sensor": 0, "axis": 3}, "BAD_ARGUMENT"),
@@ -472,7 +472,7 @@ def test_calibrate_mag_live_on_an_emulated_board(tmp_path, capsys):
         printed = json.loads(capsys.readouterr().out.split("\n}\n")[0] + "\n}")
         with Link(board.address) as link:
             link.connect()
-            on_board = hil.read_calibration(link, P)
+            on_board = hil.read_calibration(link)
     report = printed["report"]
     assert report["input"].startswith(f"{board.address} (live, ")
     assert report["coverage"]["missing"] == [] and report["samples"] < len(turned.mag) / 2  # stopped once covered

@@ -11,11 +11,12 @@ import sys
 
 import pytest
 
-from imulink import core, sim
+from imulink import core, protocol, sim
 from imulink.analysis import attitude_errors, rmse
 from imulink.cli import main
+from imulink.counts import BROAD_PROFILE, fixed_scales
 from imulink.emulator import EmulatedBoard
-from imulink.recording import load_recording
+from imulink.recording import KIND_EVENT, KIND_RECEIVED, RecordingWriter, load_recording, read_records
 
 CLI = [sys.executable, "-c", "import sys; from imulink.cli import main; sys.exit(main())"]
 
@@ -87,32 +88,48 @@ def test_simulate_json_holds_the_table_s_numbers(capsys):
 # ---------------------------------------------------------------------------- a board
 
 
+def _stating_other_scales(source, path) -> None:
+    """A copy of recording `source` in which the board's HELLO states gy86-broad's
+    sensitivities: a firmware whose sensor scales are not the ones its filter ran with, so
+    every estimate differs from the host's."""
+    decoder = protocol.FrameDecoder()
+    broad = dict(zip(("gyro_scale", "acc_scale", "mag_scale"), fixed_scales(BROAD_PROFILE)))
+    with RecordingWriter(path, "test://", None) as writer:
+        for record in read_records(source).records:
+            if record.kind == KIND_EVENT:
+                details = json.loads(record.body)
+                writer.event(details.pop("event"), **details)
+            elif record.kind == KIND_RECEIVED:
+                writer.received(b"".join(protocol.encode(m.name, m.seq, **({**m.fields, **broad} if m.name == "HELLO"
+                                                                            else m.fields))
+                                         for m in decoder.feed(record.body)), record.time)
+
+
 @pytest.fixture(scope="module")
 def recordings(tmp_path_factory):
     """Two recordings of the same emulated run (`record --json` summaries beside them): one
-    declared with the board's sensor profile, one with another (every estimate differs)."""
+    as recorded, one whose board states other sensor scales than it ran with (every
+    estimate differs)."""
     folder = tmp_path_factory.mktemp("json")
-    summaries = {}
-    for name, profile in (("clean", "gy86-default"), ("wrong", "gy86-broad")):
-        path = folder / f"{name}.imulog"
-        with EmulatedBoard(duration_s=5.0, filter_name="eecf") as board:
-            command = CLI + ["record", board.address, "-o", str(path), "--profile", profile, "--json"]
-            result = subprocess.run(command, capture_output=True, text=True, timeout=120)
-        assert result.returncode == 0, result.stderr
-        summaries[name] = json.loads(result.stdout)
-    return folder, summaries
+    path = folder / "clean.imulog"
+    with EmulatedBoard(duration_s=5.0, filter_name="eecf") as board:
+        command = CLI + ["record", board.address, "-o", str(path), "--json"]
+        result = subprocess.run(command, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    summary = json.loads(result.stdout)
+    _stating_other_scales(path, folder / "wrong.imulog")
+    return folder, summary
 
 
 def test_record_json_is_the_file_s_summary(recordings):
-    folder, summaries = recordings
-    for name, summary in summaries.items():
-        recording = load_recording(folder / f"{name}.imulog")
-        assert summary["recording"] == str(folder / f"{name}.imulog")
-        assert summary["samples"] == len(recording.samples) == 500
-        assert summary["estimates"] == len(recording.estimates)
-        assert summary["filter"] == "eecf" and summary["board"]["name"] == recording.hello["board"]
-        assert summary["stop_reason"] == "the board stopped streaming" and summary["interrupted"] is False
-        assert summary["link"]["frames"] == recording.counters["frames"] and summary["duration_s"] > 0
+    folder, summary = recordings
+    recording = load_recording(folder / "clean.imulog")
+    assert summary["recording"] == str(folder / "clean.imulog")
+    assert summary["samples"] == len(recording.samples) == 500
+    assert summary["estimates"] == len(recording.estimates)
+    assert summary["filter"] == "eecf" and summary["board"]["name"] == recording.hello["board"]
+    assert summary["stop_reason"] == "the board stopped streaming" and summary["interrupted"] is False
+    assert summary["link"]["frames"] == recording.counters["frames"] and summary["duration_s"] > 0
 
 
 def _estimates_line(out: str) -> dict:
@@ -147,7 +164,7 @@ def test_compare_json_holds_the_report_s_facts(recordings, capsys):
             assert line(out, "first difference: ") == (
                 f"first difference: estimate #{d['estimate']} (segment {d['segment']}, sample index "
                 f"{d['sample_index']}): {d['field']}: board {d['board']}, host {d['host']}")
-            assert counts["different"] == counts["verifiable"] > 0  # a wrong profile: every estimate differs
+            assert counts["different"] == counts["verifiable"] > 0  # other scales: every estimate differs
 
 
 def test_replay_json_is_compare_s_and_names_its_outputs(recordings, capsys, tmp_path):

@@ -218,6 +218,28 @@ def test_settings_fields_agree_between_builds(filter_name):
 
 
 @pytest.mark.parametrize("filter_name", FILTER_NAMES)
+def test_setting_ranges_are_what_the_filters_accept(filter_name):
+    """Each descriptor's [minimum, maximum] (what SETTING reports to the host) is the range
+    set_settings enforces in both builds: its ends are accepted, one step of the Q format
+    beyond either end is refused (or does not fit the format at all)."""
+    defaults = core.default_settings(filter_name)
+    for arithmetic in ARITHS:
+        for f in core.settings_fields(filter_name, arithmetic):
+            if arithmetic == "float":  # the defaults as the exact reals (the fixed build rounds both)
+                assert f.minimum <= defaults[f.name] <= f.maximum, f.name
+            step = 2.0 ** -f.frac_bits
+            for value, accepted in ((f.minimum, True), (f.maximum, True), (f.minimum - step, False),
+                                    (f.maximum + step, False)):
+                # the sample rate is a setting of its own and the rate the filter runs at
+                rate, settings = (value, {}) if f.name == "sample_rate" else (100.0, {f.name: value})
+                if accepted:
+                    core.Filter(filter_name, rate, arithmetic, settings)
+                else:
+                    with pytest.raises(core.SettingsError):
+                        core.Filter(filter_name, rate, arithmetic, settings)
+
+
+@pytest.mark.parametrize("filter_name", FILTER_NAMES)
 def test_default_settings_round_trip_through_fixed(filter_name):
     """The float defaults, converted with to_fixed, are the fixed build's default struct, and the
     raw integers converted back to SI convert to the same integers again."""

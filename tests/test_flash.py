@@ -278,7 +278,8 @@ class FirmwareThenBootloader:
                 if command.name == "GET_VERSION":
                     out += protocol.encode("HELLO", seq, firmware_major=0, firmware_minor=1, firmware_patch=0,
                                            protocol_version=protocol.PROTOCOL_VERSION,
-                                           schema_hash=protocol.SCHEMA_HASH, board="stm32f407-gy86", filters=14)
+                                           schema_hash=protocol.SCHEMA_HASH, board="stm32f407-gy86", filters=14,
+                                           gyro_scale=1, acc_scale=2, mag_scale=3)
                 out += protocol.encode("ACK", seq + 1, command_seq=command.command_seq,
                                        command=protocol.COMMAND_IDS[command.name], reason=0)
                 seq += 2

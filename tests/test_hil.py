@@ -81,14 +81,28 @@ def test_recording_snapshot_lets_replay_reproduce_changed_settings(tmp_path):
     assert hil.compare(recording).bit_exact
 
 
-def test_eskf_covariance_is_verified_too(tmp_path):
+def test_eskf_covariance_and_measurement_weights_are_verified_too(tmp_path):
     path = tmp_path / "eskf.imulog"
     with EmulatedBoard(front="tcp", duration_s=10.0, filter_name="eskf") as board:
         hil.record(board.address, path)
     recording = load_recording(path)
     assert (recording.estimates.cov_mantissa[:, :6] >= 2**28).all()
+    weights = recording.estimates.weights
+    assert ((0 <= weights) & (weights <= 1 << 30)).all() and (weights > 0).any(axis=0).all()  # both took part
     comparison = hil.compare(recording)
     assert comparison.bit_exact and comparison.verified_count == 1000
+    assert "weights" in recording.estimates.COMPARED
+    np.testing.assert_array_equal(hil.host_run(recording).fixed["weights"], weights)
+
+
+def test_record_refuses_a_board_that_states_another_profile_and_writes_nothing(tmp_path):
+    path = tmp_path / "broad.imulog"
+    with EmulatedBoard(duration_s=2.0, profile=BROAD_PROFILE) as board:
+        with pytest.raises(hil.HilError, match="states sensor profile gy86-broad .*; --profile says gy86-default"):
+            hil.record(board.address, path, profile=DEFAULT_PROFILE)
+        assert not path.exists() and not list(tmp_path.iterdir())
+        hil.record(board.address, path)  # no profile declared: the board's
+    assert load_recording(path).profile == BROAD_PROFILE and load_recording(path).header["profile"] is None
 
 
 # ---------------------------------------------------------------------------- faults
@@ -231,7 +245,7 @@ def _synthetic_recording(path, tamper: int | None) -> sim.SimResult:
         seq = 0
         for i, f in enumerate(fields):
             writer.received(protocol.encode("SETTING", seq, filter_id=1, index=i, setting_count=len(fields),
-                                            value=settings[f.name], frac_bits=f.frac_bits, name=f.name, unit=f.unit),
+                                            value=settings[f.name], frac_bits=f.frac_bits, name=f.name, unit=f.unit, min=core.to_fixed(f.minimum, f.frac_bits), max=core.to_fixed(f.maximum, f.frac_bits)),
                             0.0)
             seq += 1
         for k in range(len(data)):
@@ -371,7 +385,8 @@ def test_leftover_frames_of_an_earlier_stream_are_named_as_such(tmp_path, capsys
         writer.event("snapshot", status={}, filter="eecf", settings={})
         writer.received(b"".join(protocol.encode("SETTING", i, filter_id=1, index=i, setting_count=len(fields),
                                                  value=settings[f.name], frac_bits=f.frac_bits, name=f.name,
-                                                 unit=f.unit) for i, f in enumerate(fields))
+                                                 unit=f.unit, min=core.to_fixed(f.minimum, f.frac_bits), max=core.to_fixed(f.maximum, f.frac_bits))
+                                 for i, f in enumerate(fields))
                         + protocol.encode("ACK", 30, command_seq=1, command=protocol.COMMAND_IDS["SELECT_FILTER"],
                                           reason=0)
                         + stream(new_run, range(100), 31), 2.0)
@@ -537,19 +552,16 @@ def _broad_like_mat(path, rate_hz: float = 285.714) -> None:
                    "sampling_rate": np.array([[rate_hz]]), "movement": np.ones((len(data), 1))})
 
 
-def test_inject_mat_needs_the_broad_profile(tmp_path, capsys):
+def test_inject_mat_needs_a_board_that_states_the_broad_profile(tmp_path, capsys):
     mat = tmp_path / "trial.mat"
     _broad_like_mat(mat)
-    with EmulatedBoard(duration_s=1.0) as board:
+    with EmulatedBoard(duration_s=1.0) as board:  # gy86-default: every estimate would differ
         code, _, err = run_cli(capsys, "inject", board.address, "--input", mat)
         assert code == 2
-        assert_one_line_error(err, "gy86-broad", "can neither read nor set", "--board-profile gy86-broad")
-        # a board that runs another profile than declared computes something else: caught
-        code, out, _ = run_cli(capsys, "inject", board.address, "--input", mat, "--board-profile", "gy86-broad")
-        assert code == 1 and "bit-exact: NO" in out and "first difference: sample " in out
+        assert_one_line_error(err, "the board (native) states sensor profile gy86-default", "says gy86-broad")
     with EmulatedBoard(duration_s=1.0, profile=BROAD_PROFILE) as board:
-        code, out, _ = run_cli(capsys, "inject", board.address, "--input", mat, "--board-profile", "gy86-broad")
-        assert code == 0 and "bit-exact: yes" in out and "injected 3429 samples" in out
+        code, out, _ = run_cli(capsys, "inject", board.address, "--input", mat)
+        assert code == 0 and "bit-exact: yes" in out and "injected 3429 samples" in out, out
 
 
 def test_inject_counts_unanswered_samples_and_measures_accuracy_over_the_answered(capsys):

@@ -50,7 +50,7 @@ class ScriptedPeer:
 def hello(seq: int = 0, schema_hash: int = protocol.SCHEMA_HASH) -> bytes:
     return protocol.encode("HELLO", seq, firmware_major=9, firmware_minor=8, firmware_patch=7,
                            protocol_version=protocol.PROTOCOL_VERSION, schema_hash=schema_hash, board="scripted",
-                           filters=2)
+                           filters=2, gyro_scale=1, acc_scale=2, mag_scale=3)
 
 
 def ack(command: protocol.Command, seq: int = 1) -> bytes:

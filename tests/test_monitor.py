@@ -310,10 +310,10 @@ def test_a_setting_edited_in_the_window_reaches_the_board(qt, tmp_path):
             identical = window.source.health().check.identical
             wait_until(qt, lambda: window.source.health().check.identical > identical + 200, what="estimates after it")
             assert window.source.health().check.different == 0  # the board and the host ran the new value
+            assert window.settings_table.item(row, 3).text() == "[0, 0.001]"  # the board's range (SETTING)
             window.settings_table.item(row, 1).setText("0.0015")  # fits Q40, but not the KF1D's range
-            window.apply_settings()
-            wait_until(qt, lambda: (window.redraw() or "OUT_OF_RANGE" in window.log.toPlainText()),
-                       what="the board's refusal in the log")
+            window.apply_settings()  # refused before it is sent
+            assert "q_angle: 0.0015 is outside the board's range [0, 0.001]" in window.log.toPlainText()
             window.start_recording(path)  # and the board's own SETTING answers, in a file
             wait_until(qt, lambda: window.source.health().recording == str(path), what="the recording")
             window.source.request("stop_recording")

@@ -195,9 +195,11 @@ def test_fixed_layout_of_sample_is_little_endian_and_packed():
     ("ACK", {"command_seq": 1.5, "command": 1, "reason": 0}, "ACK.command_seq: 1.5"),
     ("LOG", {"level": 20, "text": "x" * 201}, "LOG.text: at most 200 bytes"),
     ("HELLO", {"firmware_major": 0, "firmware_minor": 1, "firmware_patch": 0, "protocol_version": 1,
-               "schema_hash": 0, "board": "a\0b", "filters": 0}, "HELLO.board"),
+               "schema_hash": 0, "board": "a\0b", "filters": 0, "gyro_scale": 1, "acc_scale": 1, "mag_scale": 1},
+     "HELLO.board"),
     ("HELLO", {"firmware_major": 0, "firmware_minor": 1, "firmware_patch": 0, "protocol_version": 1,
-               "schema_hash": 0, "board": "x" * 17, "filters": 0}, "at most 16 UTF-8 bytes"),
+               "schema_hash": 0, "board": "x" * 17, "filters": 0, "gyro_scale": 1, "acc_scale": 1, "mag_scale": 1},
+     "at most 16 UTF-8 bytes"),
     ("NOPE", {}, "unknown message 'NOPE'"),
 ])
 def test_encode_names_the_bad_field(name, fields, needle):
@@ -286,7 +288,8 @@ def test_bad_commands_carry_the_nack_reason():
 
 def _hello(**overrides) -> dict:
     fields = dict(firmware_major=1, firmware_minor=2, firmware_patch=3, protocol_version=protocol.PROTOCOL_VERSION,
-                  schema_hash=protocol.SCHEMA_HASH, board="qemu-netduino", filters=0b1110)
+                  schema_hash=protocol.SCHEMA_HASH, board="qemu-netduino", filters=0b1110, gyro_scale=1, acc_scale=2,
+                  mag_scale=3)
     fields.update(overrides)
     return protocol.decode(protocol.encode("HELLO", 0, **fields)).fields
 
@@ -529,7 +532,7 @@ def test_sequence_restarts_are_not_losses():
 def _hello_wire(seq: int) -> bytes:
     return protocol.encode("HELLO", seq, firmware_major=0, firmware_minor=1, firmware_patch=0,
                            protocol_version=protocol.PROTOCOL_VERSION, schema_hash=protocol.SCHEMA_HASH,
-                           board="emulator", filters=14)
+                           board="emulator", filters=14, gyro_scale=1, acc_scale=2, mag_scale=3)
 
 
 def test_an_endless_span_is_dropped_once_and_memory_stays_bounded():

@@ -63,7 +63,7 @@ def test_injected_simulated_run_is_bit_exact(qemu_board, filter_name):
     run = sim.make_scenario("rests", 8.0, 100.0, seed=7)
     counts = si_to_counts(run.gyr, run.acc, run.mag, qemu_board.profile)
     source = hil.InjectionInput("simulated rests", *counts, 100.0, qemu_board.profile, truth=run.quat_true)
-    result = hil.inject(qemu_board.address, source, filter_name=filter_name, board_profile=qemu_board.profile)
+    result = hil.inject(qemu_board.address, source, filter_name=filter_name)
     assert result.answered == result.samples == 800 and result.answers_lost == 0
     assert result.bit_exact, result.first_difference
 
@@ -76,19 +76,20 @@ def test_injected_broad_trial_is_bit_exact(filter_name):
     source = hil.InjectionInput(trial.description, trial.gyr[:n], trial.acc[:n], trial.mag[:n], trial.rate_hz,
                                 trial.profile)
     with EmulatedBoard("qemu", duration_s=1.0, profile=BROAD_PROFILE) as board:
-        result = hil.inject(board.address, source, filter_name=filter_name, board_profile=BROAD_PROFILE)
+        result = hil.inject(board.address, source, filter_name=filter_name)
     assert result.answered == n and result.bit_exact, result.first_difference
 
 
-def test_a_mismatch_names_the_first_differing_sample_and_field(qemu_board):
-    """The host computing with other sensor scales than the board: the first difference is named."""
+def test_the_image_states_its_sensor_profile_and_another_is_refused(qemu_board):
+    """The ARM image states the profile it was started with in HELLO; counts of another
+    profile (every estimate would differ) are refused before anything is injected."""
+    with Link(qemu_board.address) as link:
+        assert hil.board_profile(link.connect()) == qemu_board.profile
     other = BROAD_PROFILE if qemu_board.profile == DEFAULT_PROFILE else DEFAULT_PROFILE
     run = sim.make_scenario("random", 2.0, 100.0, seed=1)
-    counts = si_to_counts(run.gyr, run.acc, run.mag, other)
-    source = hil.InjectionInput("simulated random", *counts, 100.0, other)
-    result = hil.inject(qemu_board.address, source, filter_name="eecf", board_profile=other)
-    assert not result.bit_exact and (result.first_difference["sample_index"], result.first_difference["field"]) == (
-        0, "quat")
+    source = hil.InjectionInput("simulated random", *si_to_counts(run.gyr, run.acc, run.mag, other), 100.0, other)
+    with pytest.raises(hil.HilError, match=f"states sensor profile {qemu_board.profile.name} .* says {other.name}"):
+        hil.inject(qemu_board.address, source, filter_name="eecf")
 
 
 # ---------------------------------------------------------------------------- the command line on QEMU

@@ -21,9 +21,9 @@ import zlib
 import numpy as np
 import pytest
 
-from imulink import protocol
+from imulink import core, protocol
 from imulink.reference import FirmwareFilter
-from imulink.counts import BROAD_PROFILE, DEFAULT_PROFILE
+from imulink.counts import BROAD_PROFILE, DEFAULT_PROFILE, fixed_scales
 from imulink import recording as recording_module
 from imulink.recording import (
     KIND_EVENT,
@@ -39,13 +39,16 @@ from imulink.recording import (
 SETTINGS = FirmwareFilter.default_raw_settings("eecf", 100.0)
 
 
+def hello_scales(profile) -> dict:
+    """The HELLO fields in which a board states its sensor profile."""
+    return dict(zip(("gyro_scale", "acc_scale", "mag_scale"), fixed_scales(profile)))
+
+
 def _setting_frames(seq: int = 0) -> bytes:
     """SETTING frames for every eecf setting, as a board answers GET_SETTING."""
-    from imulink import core
-
     fields = core.settings_fields("eecf")
     return b"".join(protocol.encode("SETTING", seq + i, filter_id=1, index=i, setting_count=len(fields),
-                                    value=SETTINGS[f.name], frac_bits=f.frac_bits, name=f.name, unit=f.unit)
+                                    value=SETTINGS[f.name], frac_bits=f.frac_bits, name=f.name, unit=f.unit, min=core.to_fixed(f.minimum, f.frac_bits), max=core.to_fixed(f.maximum, f.frac_bits))
                     for i, f in enumerate(fields))
 
 
@@ -57,7 +60,7 @@ def _stream_frames(indices, seq: int = 100) -> bytes:
                                acc=(0, 0, 4096), mag=(100, 0, -200), temperature=0)
         out += protocol.encode("ESTIMATE", seq + 2 * k + 1, index=index, filter_id=1, quat=(1 << 30, 0, 0, 0),
                                gyro_bias=(0, 0, 0), euler=(0, 0, 0), cov_mantissa=(0,) * 9, cov_exponent=(0,) * 9,
-                               saturations=0)
+                               saturations=0, weights=(0, 0))
     return out
 
 
@@ -193,7 +196,7 @@ def test_unknown_record_kinds_are_skipped(tmp_path):
 def test_load_recording_tables_and_snapshot(tmp_path):
     hello = protocol.encode("HELLO", 5, firmware_major=1, firmware_minor=2, firmware_patch=3,
                             protocol_version=protocol.PROTOCOL_VERSION, schema_hash=protocol.SCHEMA_HASH,
-                            board="test", filters=2)
+                            board="test", filters=2, **hello_scales(BROAD_PROFILE))
     path = _write(tmp_path / "t.imulog", [hello, _setting_frames(6), _stream_frames(range(8))], BROAD_PROFILE)
     recording = load_recording(path)
     assert recording.hello["board"] == "test"
@@ -207,11 +210,36 @@ def test_load_recording_tables_and_snapshot(tmp_path):
     assert recording.events[-1]["event"] == "stopped"
 
 
+def test_the_profile_is_the_one_the_board_states(tmp_path):
+    """The counts' profile is the HELLO's; the header's (what a user declared) only stands in
+    for a missing HELLO, and without either the recording is refused."""
+    hello = protocol.encode("HELLO", 0, firmware_major=1, firmware_minor=2, firmware_patch=3,
+                            protocol_version=protocol.PROTOCOL_VERSION, schema_hash=protocol.SCHEMA_HASH,
+                            board="test", filters=2, **hello_scales(BROAD_PROFILE))
+    assert load_recording(_write(tmp_path / "a.imulog", [hello], None)).profile == BROAD_PROFILE
+    assert load_recording(_write(tmp_path / "b.imulog", [hello], DEFAULT_PROFILE)).profile == BROAD_PROFILE
+    assert load_recording(_write(tmp_path / "c.imulog", [_stream_frames(range(2))], BROAD_PROFILE)).profile == (
+        BROAD_PROFILE)
+    with pytest.raises(RecordingError, match="no HELLO and no profile in the header"):
+        load_recording(_write(tmp_path / "d.imulog", [_stream_frames(range(2))], None))
+    odd = protocol.encode("HELLO", 0, firmware_major=1, firmware_minor=2, firmware_patch=3,
+                          protocol_version=protocol.PROTOCOL_VERSION, schema_hash=protocol.SCHEMA_HASH,
+                          board="test", filters=2, gyro_scale=1 << 30, acc_scale=1 << 22, mag_scale=1 << 20)
+    other = load_recording(_write(tmp_path / "e.imulog", [odd], None)).profile
+    assert other.name == "board" and fixed_scales(other) == (1 << 30, 1 << 22, 1 << 20)
+    zero = protocol.encode("HELLO", 0, firmware_major=1, firmware_minor=2, firmware_patch=3,
+                           protocol_version=protocol.PROTOCOL_VERSION, schema_hash=protocol.SCHEMA_HASH,
+                           board="test", filters=2, gyro_scale=0, acc_scale=1, mag_scale=1)
+    with pytest.raises(RecordingError, match="states no usable sensor sensitivities"):
+        load_recording(_write(tmp_path / "f.imulog", [zero], None))
+
+
 def test_segments_start_at_restarts_and_index_drops(tmp_path):
     restart_ack = protocol.encode("ACK", 50, command_seq=7, command=protocol.COMMAND_IDS["SELECT_FILTER"], reason=0)
     other_ack = protocol.encode("ACK", 51, command_seq=8, command=protocol.COMMAND_IDS["GET_STATUS"], reason=0)
     reset_hello = protocol.encode("HELLO", 0, firmware_major=0, firmware_minor=1, firmware_patch=0,
-                                  protocol_version=1, schema_hash=protocol.SCHEMA_HASH, board="x", filters=2)
+                                  protocol_version=1, schema_hash=protocol.SCHEMA_HASH, board="x", filters=2,
+                                  **hello_scales(DEFAULT_PROFILE))
     chunks = [_stream_frames(range(4)), restart_ack, _stream_frames(range(3), 300), other_ack,
               _stream_frames(range(3, 5), 400), _stream_frames(range(2), 500), reset_hello, _stream_frames([0], 600)]
     recording = load_recording(_write(tmp_path / "s.imulog", chunks))

@@ -40,6 +40,10 @@ def test_lists_sets_by_name_and_reads_back(board, capsys):
     name, raw = board_settings(board.address)
     assert name == "eskf" and raw["acc_noise"] == core.to_fixed(0.4, 24) and raw["mag_noise"] == 2 << 16
     assert changed["acc_noise"] == raw["acc_noise"] / 2.0**24  # what is printed is what the board runs with
+    # the ranges are the board's own descriptor table (SETTING.min/max): the host build's, as the firmware's C
+    ranges = {row["name"]: (row["min"], row["max"]) for row in report["settings"]}
+    assert ranges == {f.name: (f.minimum, f.maximum) for f in core.settings_fields("eskf")}
+    assert ranges["gyro_rrw"] == (0.0, pytest.approx(1.9e-3, abs=2.0**-40))
 
 
 def test_save_and_load_carry_a_board_s_settings(board, tmp_path, capsys):
@@ -60,7 +64,8 @@ def test_refusals_are_one_line(board, tmp_path, capsys):
     for argv, fragment in (([board.address, "bogus=1"], "has no setting bogus; it has sample_rate, gyro_arw"),
                            ([board.address, "acc_noise"], "'acc_noise' is not NAME=VALUE"),
                            ([board.address, "acc_noise=nan"], "is not NAME=VALUE with a finite number"),
-                           ([board.address, "--filter", "kf1d", "q_bias=6e-6"], "the board refuses q_bias = 6e-06"),
+                           ([board.address, "--filter", "kf1d", "q_bias=6e-6"],
+                            "q_bias = 6e-06 rad^2/s^3 is outside the board's range [0, 5e-06]; nothing was set"),
                            (["/dev/imulink-no-such-port"], "cannot open")):
         assert main(["settings", *argv]) == 2, argv
         err = capsys.readouterr().err

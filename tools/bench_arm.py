@@ -577,7 +577,7 @@ def simulated_data(samples: int):
 
 
 #: Per-sample outputs compared between the emulated ELF and the host build, in this order.
-OUTPUT_FIELDS = ("quat", "euler", "gyro_bias", "saturations", "cov_mantissa", "cov_exponent")
+OUTPUT_FIELDS = ("quat", "euler", "gyro_bias", "saturations", "cov_mantissa", "cov_exponent", "weights")
 
 
 @dataclass
@@ -590,10 +590,11 @@ class Outputs:
     saturations: np.ndarray
     cov_mantissa: np.ndarray
     cov_exponent: np.ndarray
+    weights: np.ndarray
 
     @classmethod
     def empty(cls, n: int) -> "Outputs":
-        return cls(*(np.zeros((n, k), np.int64) for k in (4, 3, 3, 1, 9, 9)))
+        return cls(*(np.zeros((n, k), np.int64) for k in (4, 3, 3, 1, 9, 9, 2)))
 
 
 def host_outputs(config: FilterConfig, data, n: int) -> Outputs:
@@ -608,6 +609,7 @@ def host_outputs(config: FilterConfig, data, n: int) -> Outputs:
         out.saturations[i] = r.saturations
         if config.filter_name == "eskf":
             out.cov_mantissa[i], out.cov_exponent[i] = filt.covariance_diagonal_raw()
+            out.weights[i] = filt.measurement_weights_raw()
     return out
 
 
@@ -636,7 +638,7 @@ def settings_bytes(config: FilterConfig) -> tuple[bytes, bytes]:
     return bytes(mod.ffi.buffer(sensor)), bytes(mod.ffi.buffer(filter_settings))
 
 
-_STATE = struct.Struct("<I3i9i9i")  # struct bench_state in harness.c
+_STATE = struct.Struct("<I3i9i9i2i")  # struct bench_state in harness.c
 _OUTPUT = struct.Struct("<10i")     # imu_output_t: quat[4], euler[3], gyro_bias[3]
 _RAW = struct.Struct("<9h")         # imu_raw_sample_t: gyr[3], acc[3], mag[3]
 _SIZES = struct.Struct("<8I")       # struct bench_sizes in harness.c
@@ -723,6 +725,7 @@ def run_filter(emu: Emulator, config: FilterConfig, data, n: int) -> tuple[Filte
         outputs.quat[i], outputs.euler[i], outputs.gyro_bias[i] = values[0:4], values[4:7], values[7:10]
         outputs.saturations[i] = state[0]
         outputs.cov_mantissa[i], outputs.cov_exponent[i] = state[4:13], state[13:22]
+        outputs.weights[i] = state[22:24]
     phases = {}
     for name in PHASES.get(config.filter_name, ()):
         stat = Stat.of([c for c, p in zip(update, phase) if p == name])
@@ -776,7 +779,8 @@ def estimate_fields(i: int, filter_id: int, outputs: Outputs) -> dict:
     return dict(index=i, filter_id=filter_id, quat=tuple(map(int, outputs.quat[i])),
                 gyro_bias=tuple(map(int, outputs.gyro_bias[i])), euler=tuple(map(int, outputs.euler[i])),
                 cov_mantissa=tuple(map(int, outputs.cov_mantissa[i])),
-                cov_exponent=tuple(map(int, outputs.cov_exponent[i])), saturations=int(outputs.saturations[i, 0]))
+                cov_exponent=tuple(map(int, outputs.cov_exponent[i])), saturations=int(outputs.saturations[i, 0]),
+                weights=tuple(map(int, outputs.weights[i])))
 
 
 def measure_codec(emu: Emulator, data, n: int, decode_samples: int | None = None) -> CodecCost:
@@ -800,7 +804,7 @@ def measure_codec(emu: Emulator, data, n: int, decode_samples: int | None = None
         emu.write("bench_raw", _RAW.pack(*(int(v) for v in counts[i])))
         emu.write("bench_out", _OUTPUT.pack(*outputs.quat[i], *outputs.euler[i], *outputs.gyro_bias[i]))
         emu.write("bench_state", _STATE.pack(int(outputs.saturations[i, 0]), 0, 0, 0, *outputs.cov_mantissa[i],
-                                             *outputs.cov_exponent[i]))
+                                             *outputs.cov_exponent[i], *outputs.weights[i]))
         emu.call("bench_fill_messages", i, i * period_us, TEMPERATURE_COUNTS, filter_id)
         sample = dict(timestamp_us=i * period_us, index=i, gyr=tuple(map(int, data.gyr_counts[i])),
                       acc=tuple(map(int, data.acc_counts[i])), mag=tuple(map(int, data.mag_counts[i])),

@@ -45,7 +45,8 @@ def imulink_pairs(n: int, rate_hz: float = 100.0, seed: int = 1) -> list[tuple[d
                         gyro_bias=tuple(map(int, result.raw["gyro_bias"][i])),
                         euler=tuple(map(int, result.raw["euler"][i])),
                         cov_mantissa=tuple(map(int, rng.integers(2**29, 2**30, 9))),
-                        cov_exponent=tuple(map(int, rng.integers(-30, -5, 9))), saturations=0)
+                        cov_exponent=tuple(map(int, rng.integers(-30, -5, 9))), saturations=0,
+                        weights=tuple(map(int, rng.integers(0, 2**30 + 1, 2))))
         pairs.append((sample, estimate))
     return pairs
 

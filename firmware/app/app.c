@@ -129,6 +129,9 @@ void app_send_hello(app_t *app)
     for (i = 0; i < FILTER_COUNT; ++i) {
         hello.filters = (uint8_t)(hello.filters | (1u << filters[i].id));
     }
+    hello.gyro_scale = app->config.sensor.gyro_scale;
+    hello.acc_scale = app->config.sensor.acc_scale;
+    hello.mag_scale = app->config.sensor.mag_scale;
     send_wire(app, imu_proto_hello_encode(&hello, app->tx_seq, app->wire, sizeof app->wire));
 }
 
@@ -192,8 +195,10 @@ static void run_filter(app_t *app, const imu_raw_sample_t *raw, uint32_t index)
         e.cov_mantissa[i] = 0;
         e.cov_exponent[i] = 0;
     }
+    e.weights[0] = e.weights[1] = 0;
     eskf = imu_filter_eskf(&app->filter);
     if (eskf != 0) {
+        imu_eskf_get_weights(eskf, &e.weights[0], &e.weights[1]);
         const int states = imu_eskf_state_count(eskf);
         for (i = 0; i < states; ++i) {
             int32_t exponent;
@@ -408,6 +413,8 @@ static outcome_t cmd_get_setting(app_t *app, const imu_proto_command_t *c)
     s.setting_count = (uint8_t)*info->count;
     s.value = *setting_field(settings_of(&app->settings, info), info, a.index);
     s.frac_bits = (int8_t)desc->frac_bits;
+    s.min = desc->min;
+    s.max = desc->max;
     for (i = 0; i < sizeof s.name; ++i) {
         s.name[i] = i < text_length(desc->name) ? desc->name[i] : '\0';
     }

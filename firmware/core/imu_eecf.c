@@ -30,14 +30,27 @@ const imu_eecf_settings_t imu_eecf_default_settings = {
     IMU_QCONST(20.0, 16),     /* rest_bias_tau, s: ARW / RRW (0.049 deg/sqrt(s) / 0.0024 deg/s/sqrt(s)) */
 };
 
-#define DESC(field, q, unit) {#field, offsetof(imu_eecf_settings_t, field), q, unit}
+/* Each field with its Q format, unit and accepted range [lo, hi] in the unit. */
+#define DESC(field, q, unit, lo, hi) \
+    {#field, offsetof(imu_eecf_settings_t, field), q, unit, IMU_QCONST(lo, q), IMU_QCONST(hi, q)}
 const imu_setting_desc_t imu_eecf_setting_descs[] = {
-    DESC(sample_rate, 16, "Hz"),  DESC(kp, 16, "1/s"),          DESC(kp_mag, 16, "1/s"),
-    DESC(ki, 30, "1/s^2"),        DESC(bias_limit, 24, "rad/s"), DESC(align_time, 16, "s"),
-    DESC(align_tau, 16, "s"),     DESC(ki_mag, 30, "1/s^2"),    DESC(rest_time, 16, "s"),
-    DESC(rest_tau, 16, "s"),      DESC(rest_gyro, 24, "rad/s"), DESC(rest_acc, 16, "m/s^2"),
-    DESC(rest_turn, 30, "rad"),   DESC(rest_kp, 16, "1/s"),     DESC(rest_kp_mag, 16, "1/s"),
-    DESC(acc_tolerance, 24, "m/s^2"), DESC(rest_bias_tau, 16, "s"),
+    DESC(sample_rate, 16, "Hz", 10.0, IMU_Q16_LARGEST),
+    DESC(kp, 16, "1/s", 0.0, 100.0),
+    DESC(kp_mag, 16, "1/s", 0.0, 100.0),
+    DESC(ki, 30, "1/s^2", 0.0, 1.0),
+    DESC(bias_limit, 24, "rad/s", 0.0, 1.0),
+    DESC(align_time, 16, "s", 0.0, 60.0),
+    DESC(align_tau, 16, "s", 0.0, 10.0),
+    DESC(ki_mag, 30, "1/s^2", 0.0, 1.0),
+    DESC(rest_time, 16, "s", 0.0, 60.0),
+    DESC(rest_tau, 16, "s", 0.0, 10.0),
+    DESC(rest_gyro, 24, "rad/s", 0.0, 1.0),
+    DESC(rest_acc, 16, "m/s^2", 0.0, 100.0),
+    DESC(rest_turn, 30, "rad", 0.0, 0.5),
+    DESC(rest_kp, 16, "1/s", 0.0, 100.0),
+    DESC(rest_kp_mag, 16, "1/s", 0.0, 100.0),
+    DESC(acc_tolerance, 24, "m/s^2", IMU_Q24_SMALLEST, 1.9),
+    DESC(rest_bias_tau, 16, "s", 0.0, 1000.0),
 };
 #undef DESC
 const int imu_eecf_setting_count = (int)(sizeof imu_eecf_setting_descs / sizeof imu_eecf_setting_descs[0]);
@@ -52,11 +65,6 @@ const int imu_eecf_setting_count = (int)(sizeof imu_eecf_setting_descs / sizeof 
 void imu_eecf_init(imu_eecf_t *f)
 {
     (void)imu_eecf_set_settings(f, &imu_eecf_default_settings);
-}
-
-static int in_range(imu_real_t v, imu_real_t lo, imu_real_t hi)
-{
-    return v >= lo && v <= hi;
 }
 
 /**
@@ -81,15 +89,7 @@ static imu_q30_t lowpass_weight(imu_q30_t dt, imu_q16_t tau, uint32_t *sat)
 imu_status_t imu_eecf_set_settings(imu_eecf_t *f, const imu_eecf_settings_t *s)
 {
     int i;
-    if (s->sample_rate < IMU_QCONST(10.0, 16) || !in_range(s->kp, 0, IMU_QCONST(100.0, 16)) ||
-        !in_range(s->kp_mag, 0, IMU_QCONST(100.0, 16)) || !in_range(s->ki, 0, IMU_QCONST(1.0, 30)) ||
-        !in_range(s->ki_mag, 0, IMU_QCONST(1.0, 30)) || !in_range(s->bias_limit, 0, IMU_QCONST(1.0, 24)) ||
-        !in_range(s->align_time, 0, IMU_QCONST(60.0, 16)) || !in_range(s->align_tau, 0, IMU_QCONST(10.0, 16)) ||
-        !in_range(s->rest_time, 0, IMU_QCONST(60.0, 16)) || !in_range(s->rest_tau, 0, IMU_QCONST(10.0, 16)) ||
-        !in_range(s->rest_gyro, 0, IMU_QCONST(1.0, 24)) || !in_range(s->rest_acc, 0, IMU_QCONST(100.0, 16)) ||
-        !in_range(s->rest_turn, 0, IMU_QCONST(0.5, 30)) || !in_range(s->rest_kp, 0, IMU_QCONST(100.0, 16)) ||
-        !in_range(s->rest_kp_mag, 0, IMU_QCONST(100.0, 16)) || s->acc_tolerance <= 0 ||
-        s->acc_tolerance > IMU_QCONST(1.9, 24) || !in_range(s->rest_bias_tau, 0, IMU_QCONST(1000.0, 16))) {
+    if (imu_settings_check(imu_eecf_setting_descs, imu_eecf_setting_count, s) != IMU_OK) {
         return IMU_ERR_RANGE;
     }
     f->settings = *s;

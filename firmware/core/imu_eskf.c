@@ -32,23 +32,25 @@ const imu_eskf_settings_t imu_eskf_default_settings = {
     IMU_QCONST(3.0, 16),      /* acc_lowpass, s */
 };
 
-#define DESC(field, q, unit) {#field, offsetof(imu_eskf_settings_t, field), q, unit}
+/* Each field with its Q format, unit and accepted range [lo, hi] in the unit. */
+#define DESC(field, q, unit, lo, hi) \
+    {#field, offsetof(imu_eskf_settings_t, field), q, unit, IMU_QCONST(lo, q), IMU_QCONST(hi, q)}
 const imu_setting_desc_t imu_eskf_setting_descs[] = {
-    DESC(sample_rate, 16, "Hz"),
-    DESC(gyro_arw, 32, "rad/s^0.5"),
-    DESC(gyro_rrw, 40, "rad/s^1.5"),
-    DESC(acc_bias_rw, 32, "m/s^2.5"),
-    DESC(acc_noise, 24, "m/s^2"),
-    DESC(mag_noise, 16, "uT"),
-    DESC(init_attitude_std, 28, "rad"),
-    DESC(init_gyro_bias_std, 30, "rad/s"),
-    DESC(init_acc_bias_std, 24, "m/s^2"),
-    DESC(estimate_acc_bias, 0, "1"),
-    DESC(gravity, 24, "m/s^2"),
-    DESC(acc_tolerance, 30, "1"),
-    DESC(mag_tolerance, 30, "1"),
-    DESC(dip_tolerance, 30, "rad"),
-    DESC(acc_lowpass, 16, "s"),
+    DESC(sample_rate, 16, "Hz", 30.0, 32767.0),
+    DESC(gyro_arw, 32, "rad/s^0.5", 0.0, 0.49),
+    DESC(gyro_rrw, 40, "rad/s^1.5", 0.0, 1.9e-3),
+    DESC(acc_bias_rw, 32, "m/s^2.5", 0.0, 0.49),
+    DESC(acc_noise, 24, "m/s^2", 1e-3, 100.0),
+    DESC(mag_noise, 16, "uT", 1e-3, 1000.0),
+    DESC(init_attitude_std, 28, "rad", 1e-4, 3.2),
+    DESC(init_gyro_bias_std, 30, "rad/s", 1e-5, 1.0),
+    DESC(init_acc_bias_std, 24, "m/s^2", 1e-4, 10.0),
+    DESC(estimate_acc_bias, 0, "1", 0.0, 1.0),
+    DESC(gravity, 24, "m/s^2", 9.0, 10.5),
+    DESC(acc_tolerance, 30, "1", 1e-3, 1.0),
+    DESC(mag_tolerance, 30, "1", 1e-3, 1.0),
+    DESC(dip_tolerance, 30, "rad", 1e-3, 1.5),
+    DESC(acc_lowpass, 16, "s", 0.0, 60.0),
 };
 #undef DESC
 const int imu_eskf_setting_count = (int)(sizeof imu_eskf_setting_descs / sizeof imu_eskf_setting_descs[0]);
@@ -81,11 +83,6 @@ const int imu_eskf_setting_count = (int)(sizeof imu_eskf_setting_descs / sizeof 
 #define CONING_13 IMU_QCONST(0.4125, 30) /* 33/80 */
 #define CONING_2 IMU_QCONST(0.7125, 30)  /* 57/80 */
 
-static int in_range(imu_real_t v, imu_real_t lo, imu_real_t hi)
-{
-    return v >= lo && v <= hi;
-}
-
 void imu_eskf_init(imu_eskf_t *f)
 {
     (void)imu_eskf_set_settings(f, &imu_eskf_default_settings);
@@ -100,20 +97,9 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
 {
     imu_q30_t t;
     int k;
-    if (!in_range(s->sample_rate, IMU_QCONST(30.0, 16), IMU_QCONST(32767.0, 16)) ||
-        !in_range(s->gyro_arw, 0, IMU_QCONST(0.49, 32)) || !in_range(s->gyro_rrw, 0, IMU_QCONST(1.9e-3, 40)) ||
-        !in_range(s->acc_bias_rw, 0, IMU_QCONST(0.49, 32)) ||
-        !in_range(s->acc_noise, IMU_QCONST(1e-3, 24), IMU_QCONST(100.0, 24)) ||
-        !in_range(s->mag_noise, IMU_QCONST(1e-3, 16), IMU_QCONST(1000.0, 16)) ||
-        !in_range(s->init_attitude_std, IMU_QCONST(1e-4, 28), IMU_QCONST(3.2, 28)) ||
-        !in_range(s->init_gyro_bias_std, IMU_QCONST(1e-5, 30), IMU_QCONST(1.0, 30)) ||
-        !in_range(s->init_acc_bias_std, IMU_QCONST(1e-4, 24), IMU_QCONST(10.0, 24)) ||
-        (s->estimate_acc_bias != 0 && s->estimate_acc_bias != IMU_QCONST(1.0, 0)) ||
-        !in_range(s->gravity, IMU_QCONST(9.0, 24), IMU_QCONST(10.5, 24)) ||
-        !in_range(s->acc_tolerance, IMU_QCONST(1e-3, 30), IMU_QCONST(1.0, 30)) ||
-        !in_range(s->mag_tolerance, IMU_QCONST(1e-3, 30), IMU_QCONST(1.0, 30)) ||
-        !in_range(s->dip_tolerance, IMU_QCONST(1e-3, 30), IMU_QCONST(1.5, 30)) ||
-        !in_range(s->acc_lowpass, 0, IMU_QCONST(60.0, 16))) {
+    /* estimate_acc_bias is a switch: 0 or 1, nothing between (the float build could hold 0.5) */
+    if (imu_settings_check(imu_eskf_setting_descs, imu_eskf_setting_count, s) != IMU_OK ||
+        (s->estimate_acc_bias != 0 && s->estimate_acc_bias != IMU_QCONST(1.0, 0))) {
         return IMU_ERR_RANGE;
     }
     f->settings = *s;

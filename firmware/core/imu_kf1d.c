@@ -17,10 +17,16 @@ const imu_kf1d_settings_t imu_kf1d_default_settings = {
     IMU_QCONST(0.2, 24),   /* acc_tolerance, m/s^2: 10 sigma of the accelerometer noise, as the EECF's */
 };
 
-#define DESC(field, q, unit) {#field, offsetof(imu_kf1d_settings_t, field), q, unit}
+/* Each field with its Q format, unit and accepted range [lo, hi] in the unit. */
+#define DESC(field, q, unit, lo, hi) \
+    {#field, offsetof(imu_kf1d_settings_t, field), q, unit, IMU_QCONST(lo, q), IMU_QCONST(hi, q)}
 const imu_setting_desc_t imu_kf1d_setting_descs[] = {
-    DESC(sample_rate, 16, "Hz"), DESC(q_angle, 40, "rad^2/s"), DESC(q_bias, 48, "rad^2/s^3"),
-    DESC(r_angle, 35, "rad^2"),  DESC(r_heading, 35, "rad^2"), DESC(acc_tolerance, 24, "m/s^2"),
+    DESC(sample_rate, 16, "Hz", 10.0, IMU_Q16_LARGEST),
+    DESC(q_angle, 40, "rad^2/s", 0.0, 1e-3),
+    DESC(q_bias, 48, "rad^2/s^3", 0.0, 5e-6),
+    DESC(r_angle, 35, "rad^2", 1e-6, 0.03),
+    DESC(r_heading, 35, "rad^2", 1e-6, 0.03),
+    DESC(acc_tolerance, 24, "m/s^2", IMU_Q24_SMALLEST, 1.9),
 };
 #undef DESC
 const int imu_kf1d_setting_count = (int)(sizeof imu_kf1d_setting_descs / sizeof imu_kf1d_setting_descs[0]);
@@ -36,10 +42,7 @@ void imu_kf1d_init(imu_kf1d_t *f)
 imu_status_t imu_kf1d_set_settings(imu_kf1d_t *f, const imu_kf1d_settings_t *s)
 {
     int k;
-    if (s->sample_rate < IMU_QCONST(10.0, 16) || s->q_angle < 0 || s->q_angle > IMU_QCONST(1e-3, 40) ||
-        s->q_bias < 0 || s->q_bias > IMU_QCONST(5e-6, 48) || s->r_angle < IMU_QCONST(1e-6, 35) ||
-        s->r_angle > IMU_QCONST(0.03, 35) || s->r_heading < IMU_QCONST(1e-6, 35) ||
-        s->r_heading > IMU_QCONST(0.03, 35) || s->acc_tolerance <= 0 || s->acc_tolerance > IMU_QCONST(1.9, 24)) {
+    if (imu_settings_check(imu_kf1d_setting_descs, imu_kf1d_setting_count, s) != IMU_OK) {
         return IMU_ERR_RANGE;
     }
     f->settings = *s;

@@ -444,6 +444,9 @@ size_t imu_proto_hello_pack(const imu_proto_hello_t *m, uint8_t *payload)
         payload[8 + i] = ((const unsigned char *)m->board)[i];
     }
     payload[24] = (uint8_t)m->filters;
+    put_u32(payload + 25, (uint32_t)m->gyro_scale);
+    put_u32(payload + 29, (uint32_t)m->acc_scale);
+    put_u32(payload + 33, (uint32_t)m->mag_scale);
     return IMU_PROTO_HELLO_SIZE;
 }
 
@@ -462,6 +465,9 @@ imu_proto_result_t imu_proto_hello_unpack(imu_proto_hello_t *m, const uint8_t *p
         ((unsigned char *)m->board)[i] = payload[8 + i];
     }
     m->filters = payload[24];
+    m->gyro_scale = to_i32(get_u32(payload + 25));
+    m->acc_scale = to_i32(get_u32(payload + 29));
+    m->mag_scale = to_i32(get_u32(payload + 33));
     return IMU_PROTO_OK;
 }
 
@@ -627,6 +633,8 @@ size_t imu_proto_setting_pack(const imu_proto_setting_t *m, uint8_t *payload)
     for (i = 0; i < 12; ++i) {
         payload[32 + i] = ((const unsigned char *)m->unit)[i];
     }
+    put_u32(payload + 44, (uint32_t)m->min);
+    put_u32(payload + 48, (uint32_t)m->max);
     return IMU_PROTO_SETTING_SIZE;
 }
 
@@ -647,6 +655,8 @@ imu_proto_result_t imu_proto_setting_unpack(imu_proto_setting_t *m, const uint8_
     for (i = 0; i < 12; ++i) {
         ((unsigned char *)m->unit)[i] = payload[32 + i];
     }
+    m->min = to_i32(get_u32(payload + 44));
+    m->max = to_i32(get_u32(payload + 48));
     return IMU_PROTO_OK;
 }
 
@@ -768,6 +778,9 @@ size_t imu_proto_estimate_pack(const imu_proto_estimate_t *m, uint8_t *payload)
         payload[81 + i] = (uint8_t)m->cov_exponent[i];
     }
     put_u32(payload + 90, (uint32_t)m->saturations);
+    for (i = 0; i < 2; ++i) {
+        put_u32(payload + 94 + 4 * i, (uint32_t)m->weights[i]);
+    }
     return IMU_PROTO_ESTIMATE_SIZE;
 }
 
@@ -795,6 +808,9 @@ imu_proto_result_t imu_proto_estimate_unpack(imu_proto_estimate_t *m, const uint
         m->cov_exponent[i] = to_i8(payload[81 + i]);
     }
     m->saturations = get_u32(payload + 90);
+    for (i = 0; i < 2; ++i) {
+        m->weights[i] = to_i32(get_u32(payload + 94 + 4 * i));
+    }
     return IMU_PROTO_OK;
 }
 

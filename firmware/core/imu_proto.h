@@ -130,7 +130,7 @@ int imu_proto_decoder_push(imu_proto_decoder_t *d, uint8_t byte, imu_proto_frame
 /** Protocol version ([protocol] version), sent in HELLO. */
 #define IMU_PROTO_VERSION 1u
 /** Schema hash of shared/protocol.toml (CRC-32 of its canonical form), sent in HELLO. */
-#define IMU_PROTO_SCHEMA_HASH 0x983638F5u
+#define IMU_PROTO_SCHEMA_HASH 0x7DFE47FDu
 /** Largest payload of any message, bytes. */
 #define IMU_PROTO_MAX_PAYLOAD 201u
 
@@ -202,7 +202,7 @@ typedef enum {
 } imu_proto_log_level_t;
 
 /** HELLO payload bytes. */
-#define IMU_PROTO_HELLO_SIZE 25u
+#define IMU_PROTO_HELLO_SIZE 37u
 
 /** HELLO (id 0x01, to_host): Who the board is. Sent after every start-up or reset and in answer to
  *  GET_VERSION; the host refuses a board whose schema_hash differs from its own.
@@ -215,6 +215,9 @@ typedef struct {
     uint32_t schema_hash; /**< schema hash of the firmware's protocol definition */
     char board[16]; /**< board name: stm32f407-gy86, qemu-stm32f405 (QEMU netduinoplus2), native */
     uint8_t filters; /**< filters the firmware has: bit (1 << filter id) set for each */
+    int32_t gyro_scale; /**< gyroscope sensitivity the filters use, rad/s per count, Q40 (imu_sensor_settings_t); the range is 32768 counts (MPU6050 FS_SEL=3: 1.0642e-3, +-2000 deg/s) */
+    int32_t acc_scale; /**< accelerometer sensitivity, m/s^2 per count, Q32; the range is 32768 counts (MPU6050 AFS_SEL=2: 2.3943e-3, +-8 g) */
+    int32_t mag_scale; /**< magnetometer sensitivity, uT per count, Q24; the range is 2048 counts (HMC5883L GN=1: 9.1743e-2, +-1.3 gauss) */
 } imu_proto_hello_t;
 
 /** @brief Payload bytes of HELLO into `payload` (IMU_PROTO_HELLO_SIZE bytes); returns IMU_PROTO_HELLO_SIZE. */
@@ -308,7 +311,7 @@ imu_proto_result_t imu_proto_nack_unpack(imu_proto_nack_t *m, const uint8_t *pay
 size_t imu_proto_nack_encode(const imu_proto_nack_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 
 /** SETTING payload bytes. */
-#define IMU_PROTO_SETTING_SIZE 44u
+#define IMU_PROTO_SETTING_SIZE 52u
 
 /** SETTING (id 0x06, to_host): One setting of the active filter (answer to GET_SETTING). value is
  *  the raw fixed-point integer: the real value is value * 2^-frac_bits.
@@ -321,6 +324,8 @@ typedef struct {
     int8_t frac_bits; /**< fraction bits of the fixed-point format */
     char name[24]; /**< field name as in the C settings struct */
     char unit[12]; /**< SI unit of the real value */
+    int32_t min; /**< smallest value SET_SETTING accepts, raw in Q(frac_bits) (the filter's descriptor table) */
+    int32_t max; /**< largest value SET_SETTING accepts, raw in Q(frac_bits) */
 } imu_proto_setting_t;
 
 /** @brief Payload bytes of SETTING into `payload` (IMU_PROTO_SETTING_SIZE bytes); returns IMU_PROTO_SETTING_SIZE. */
@@ -374,7 +379,7 @@ imu_proto_result_t imu_proto_sample_unpack(imu_proto_sample_t *m, const uint8_t 
 size_t imu_proto_sample_encode(const imu_proto_sample_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 
 /** ESTIMATE payload bytes. */
-#define IMU_PROTO_ESTIMATE_SIZE 94u
+#define IMU_PROTO_ESTIMATE_SIZE 102u
 
 /** ESTIMATE (id 0x11, to_host): The filter output after sample `index`, exactly as the fixed-point
  *  core computed it.
@@ -388,6 +393,7 @@ typedef struct {
     int32_t cov_mantissa[9]; /**< covariance diagonal P_ii = cov_mantissa[i] * 2^(cov_exponent[i] - 30); ESKF order: attitude error x, y, z (rad^2), gyro bias x, y, z ((rad/s)^2), accelerometer bias x, y, z (g^2); zero where a filter has no such state */
     int8_t cov_exponent[9]; /**< exponents of the covariance diagonal */
     uint32_t saturations; /**< saturation events of the filter since it (re)started */
+    int32_t weights[2]; /**< weights of the ESKF's last gravity and heading measurements, Q30 in [0, 1] (0: rejected as disturbed); zero for the other filters */
 } imu_proto_estimate_t;
 
 /** @brief Payload bytes of ESTIMATE into `payload` (IMU_PROTO_ESTIMATE_SIZE bytes); returns IMU_PROTO_ESTIMATE_SIZE. */

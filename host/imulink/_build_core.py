@@ -11,8 +11,8 @@ from cffi import FFI
 
 ROOT = Path(__file__).resolve().parents[2]
 CORE_DIR = ROOT / "firmware" / "core"
-CORE_SOURCES = ["imu_math.c", "imu_sensor.c", "imu_cov.c", "imu_rest.c", "imu_eecf.c", "imu_kf1d.c", "imu_eskf.c", "imu_filter.c",
-                "imu_proto.c"]
+CORE_SOURCES = ["imu_math.c", "imu_settings.c", "imu_sensor.c", "imu_cov.c", "imu_rest.c", "imu_eecf.c", "imu_kf1d.c",
+                "imu_eskf.c", "imu_filter.c", "imu_proto.c"]
 
 _TYPEDEFS = {
     "fixed": """
@@ -34,7 +34,9 @@ _DECLARATIONS = """
     typedef struct { imu_sensor_cal_t gyr; imu_sensor_cal_t acc; imu_sensor_cal_t mag; } imu_calibration_t;
     typedef struct { imu_rate_t gyr[3]; imu_q16_t acc[3]; imu_q16_t mag[3]; unsigned clipped; } imu_sample_t;
     typedef struct { imu_q30_t quat[4]; imu_angle_t euler[3]; imu_rate_t gyro_bias[3]; } imu_output_t;
-    typedef struct { const char *name; size_t offset; int frac_bits; const char *unit; } imu_setting_desc_t;
+    typedef struct {
+        const char *name; size_t offset; int frac_bits; const char *unit; imu_real_t min; imu_real_t max;
+    } imu_setting_desc_t;
     typedef struct { ...; } imu_eecf_settings_t;
     typedef struct { ...; } imu_kf1d_settings_t;
     typedef struct { ...; } imu_eskf_settings_t;

@@ -7,7 +7,7 @@ the last field only, text / bytes (length: the maximum, variable on the wire).
 """
 
 PROTOCOL_VERSION = 1
-SCHEMA_HASH = 0x983638F5
+SCHEMA_HASH = 0x7DFE47FD
 HEADER_SIZE = 3
 CRC_SIZE = 4
 MAX_PAYLOAD = 201
@@ -22,6 +22,9 @@ MESSAGES = {
         ('schema_hash', 'u32', None),
         ('board', 'char', 16),
         ('filters', 'u8', None),
+        ('gyro_scale', 'i32', None),
+        ('acc_scale', 'i32', None),
+        ('mag_scale', 'i32', None),
     )},
     'STATUS': {'id': 0x02, 'direction': 'to_host', 'fields': (
         ('uptime_ms', 'u32', None),
@@ -59,6 +62,8 @@ MESSAGES = {
         ('frac_bits', 'i8', None),
         ('name', 'char', 24),
         ('unit', 'char', 12),
+        ('min', 'i32', None),
+        ('max', 'i32', None),
     )},
     'CALIBRATION': {'id': 0x07, 'direction': 'to_host', 'fields': (
         ('sensor', 'u8', None),
@@ -85,6 +90,7 @@ MESSAGES = {
         ('cov_mantissa', 'i32', 9),
         ('cov_exponent', 'i8', 9),
         ('saturations', 'u32', None),
+        ('weights', 'i32', 2),
     )},
     'COMMAND': {'id': 0x20, 'direction': 'to_board', 'fields': (
         ('command', 'u8', None),
@@ -154,7 +160,7 @@ typedef enum { IMU_PROTO_REASON_OK = 0, IMU_PROTO_REASON_UNKNOWN_COMMAND = 1, IM
 typedef enum { IMU_PROTO_SENSOR_GYROSCOPE = 0, IMU_PROTO_SENSOR_ACCELEROMETER = 1, IMU_PROTO_SENSOR_MAGNETOMETER = 2 } imu_proto_sensor_t;
 typedef enum { IMU_PROTO_LOG_LEVEL_DEBUG = 10, IMU_PROTO_LOG_LEVEL_INFO = 20, IMU_PROTO_LOG_LEVEL_WARNING = 30, IMU_PROTO_LOG_LEVEL_ERROR = 40 } imu_proto_log_level_t;
 #define IMU_PROTO_HELLO_SIZE ...
-typedef struct { uint8_t firmware_major; uint8_t firmware_minor; uint8_t firmware_patch; uint8_t protocol_version; uint32_t schema_hash; char board[16]; uint8_t filters; } imu_proto_hello_t;
+typedef struct { uint8_t firmware_major; uint8_t firmware_minor; uint8_t firmware_patch; uint8_t protocol_version; uint32_t schema_hash; char board[16]; uint8_t filters; int32_t gyro_scale; int32_t acc_scale; int32_t mag_scale; } imu_proto_hello_t;
 size_t imu_proto_hello_pack(const imu_proto_hello_t *m, uint8_t *payload);
 imu_proto_result_t imu_proto_hello_unpack(imu_proto_hello_t *m, const uint8_t *payload, size_t len);
 size_t imu_proto_hello_encode(const imu_proto_hello_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
@@ -179,7 +185,7 @@ size_t imu_proto_nack_pack(const imu_proto_nack_t *m, uint8_t *payload);
 imu_proto_result_t imu_proto_nack_unpack(imu_proto_nack_t *m, const uint8_t *payload, size_t len);
 size_t imu_proto_nack_encode(const imu_proto_nack_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 #define IMU_PROTO_SETTING_SIZE ...
-typedef struct { uint8_t filter_id; uint8_t index; uint8_t setting_count; int32_t value; int8_t frac_bits; char name[24]; char unit[12]; } imu_proto_setting_t;
+typedef struct { uint8_t filter_id; uint8_t index; uint8_t setting_count; int32_t value; int8_t frac_bits; char name[24]; char unit[12]; int32_t min; int32_t max; } imu_proto_setting_t;
 size_t imu_proto_setting_pack(const imu_proto_setting_t *m, uint8_t *payload);
 imu_proto_result_t imu_proto_setting_unpack(imu_proto_setting_t *m, const uint8_t *payload, size_t len);
 size_t imu_proto_setting_encode(const imu_proto_setting_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
@@ -194,7 +200,7 @@ size_t imu_proto_sample_pack(const imu_proto_sample_t *m, uint8_t *payload);
 imu_proto_result_t imu_proto_sample_unpack(imu_proto_sample_t *m, const uint8_t *payload, size_t len);
 size_t imu_proto_sample_encode(const imu_proto_sample_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 #define IMU_PROTO_ESTIMATE_SIZE ...
-typedef struct { uint32_t index; uint8_t filter_id; int32_t quat[4]; int32_t gyro_bias[3]; int32_t euler[3]; int32_t cov_mantissa[9]; int8_t cov_exponent[9]; uint32_t saturations; } imu_proto_estimate_t;
+typedef struct { uint32_t index; uint8_t filter_id; int32_t quat[4]; int32_t gyro_bias[3]; int32_t euler[3]; int32_t cov_mantissa[9]; int8_t cov_exponent[9]; uint32_t saturations; int32_t weights[2]; } imu_proto_estimate_t;
 size_t imu_proto_estimate_pack(const imu_proto_estimate_t *m, uint8_t *payload);
 imu_proto_result_t imu_proto_estimate_unpack(imu_proto_estimate_t *m, const uint8_t *payload, size_t len);
 size_t imu_proto_estimate_encode(const imu_proto_estimate_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);

@@ -609,13 +609,17 @@ def format_report(result: AllanResult) -> str:
 # ---------------------------------------------------------------------------- filter settings
 
 
-#: The allowed range of each setting the terms determine, as firmware/core/imu_eskf.h and
-#: imu_kf1d.h document them (tests/test_allan.py checks them against the C core's check).
-SETTING_RANGES = {
-    "eskf": {"gyro_arw": (0.0, 0.49), "gyro_rrw": (0.0, 1.9e-3), "acc_bias_rw": (0.0, 0.49),
-             "acc_noise": (1e-3, 100.0)},
-    "kf1d": {"q_angle": (0.0, 1e-3), "q_bias": (0.0, 5e-6)},
-}
+#: The filters whose settings follow from noise terms.
+DERIVABLE_FILTERS = ("eskf", "kf1d")
+
+
+def setting_range(filter_name: str, name: str) -> tuple[float, float]:
+    """The range the C core accepts for a setting (its descriptor table), in the setting's unit:
+    the float twin's ends, the exact reals (the fixed build's are those rounded to its Q format)."""
+    from . import core
+
+    field = next(f for f in core.settings_fields(filter_name, "float") if f.name == name)
+    return field.minimum, field.maximum
 
 
 @dataclass
@@ -665,9 +669,9 @@ def derive_settings(terms: Mapping[str, Sequence[float | None]], filter_name: st
     :func:`motion_allowance` to the sensor's term in variance, so that a sensor as quiet as
     the one the defaults were tuned on gets the defaults back; `sensor_only` leaves it out
     (the sensor's terms alone: a board that barely moves)."""
-    if filter_name not in SETTING_RANGES:
+    if filter_name not in DERIVABLE_FILTERS:
         raise AllanError(f"no setting of {filter_name!r} follows from noise terms; choose from "
-                         f"{', '.join(SETTING_RANGES)}")
+                         f"{', '.join(DERIVABLE_FILTERS)}")
     gyro_arw, gyro_rrw = _largest(terms, "gyro_arw"), _largest(terms, "gyro_rrw")
     acc_vrw, acc_rrw = _largest(terms, "acc_vrw"), _largest(terms, "acc_rrw")
     rate_hz = terms.get("sample_rate_hz")
@@ -708,7 +712,7 @@ def derive_settings(terms: Mapping[str, Sequence[float | None]], filter_name: st
         if value is None:
             notes.append(f"{name} is left at its default: its term was not identified")
             continue
-        low, high = SETTING_RANGES[filter_name][name]
+        low, high = setting_range(filter_name, name)
         if not low <= value <= high:
             clamped = min(max(value, low), high)
             notes.append(f"{name} = {value:.4g} lies outside the filter's range [{low:g}, {high:g}]: "
@@ -725,7 +729,7 @@ def settings_from_terms(terms: Mapping[str, Sequence[float | None]], filter_name
     terms: as :func:`terms_json` gives them (gyro_arw, gyro_rrw, acc_vrw, acc_rrw: [x, y, z],
     None where a term was not identified) plus sample_rate_hz. A setting whose term is
     missing is left out (the filter keeps its default); one outside its range
-    (SETTING_RANGES) is clamped to it. :func:`derive_settings` also says why.
+    (:func:`setting_range`) is clamped to it. :func:`derive_settings` also says why.
     """
     return derive_settings(terms, filter_name, sensor_only).values
 

@@ -209,8 +209,13 @@ def _cmd_settings(args) -> int:
         if unknown:
             raise UsageError(f"the board's {hil.name_of_filter(filter_id)} has no setting {', '.join(unknown)}; "
                              f"it has {', '.join(by_name)}")
-        for name, value in wanted.items():  # in the board's own formats (its SETTING answers)
+        for name, value in wanted.items():  # in the board's own formats and ranges (its SETTING answers)
             index, setting = by_name[name]
+            low, high = hil.setting_range(setting)
+            if not low <= value <= high:
+                raise UsageError(f"{name} = {value:g} {setting['unit']} is outside the board's range "
+                                 f"{hil.setting_range_text(setting)}"
+                                 + ("; nothing was set" if not changed else "; nothing after it was set"))
             try:
                 link.command("SET_SETTING", index=index, value=core.to_fixed(value, setting["frac_bits"], name))
             except protocol.CommandError as exc:
@@ -221,7 +226,8 @@ def _cmd_settings(args) -> int:
             filter_id, board = hil.read_settings(link)  # read back: what the board now runs with
     name = hil.name_of_filter(filter_id)
     rows = [{"name": s["name"], "value": s["value"] / 2.0 ** s["frac_bits"], "raw": s["value"], "unit": s["unit"],
-             "frac_bits": s["frac_bits"], "changed": s["name"] in changed} for s in board.values()]
+             "frac_bits": s["frac_bits"], "min": hil.setting_range(s)[0], "max": hil.setting_range(s)[1],
+             "range": hil.setting_range_text(s), "changed": s["name"] in changed} for s in board.values()]
     if args.save:
         values = {r["name"]: r["value"] for r in rows if r["name"] != "sample_rate"}
         settings_file.save(settings_file.FilterSettings(name, values), args.save)
@@ -229,8 +235,8 @@ def _cmd_settings(args) -> int:
         _print_json({"port": args.port, "filter": name, "settings": rows, "saved_to": args.save})
         return 0
     print(f"{args.port}: filter {name}" + (" (settings read back after the change)" if changed else ""))
-    print(_columns([(f"  {r['name']}", f"{r['value']:.6g}", r["unit"], f"Q{r['frac_bits']}",
-                     "changed" if r["changed"] else "") for r in rows]))
+    print(_columns([(f"  {r['name']}", f"{r['value']:.6g}", r["unit"], r["range"],
+                     f"Q{r['frac_bits']}", "changed" if r["changed"] else "") for r in rows]))
     if args.save:
         print(f"settings file: {args.save} ({name}, every setting but sample_rate)")
     return 0
@@ -314,15 +320,19 @@ CALIBRATE_SENSORS = {"gyro": "gyr", "accel": "acc", "mag": "mag"}
 
 
 def _give_calibration(port: str, baud: int, calibration) -> str:
-    """Give the board at `port` `calibration` and read it back; the board's calibration as
-    text. HilError when the board reports another."""
+    """Give the board at `port` `calibration` (None: the identity) and read it back; the
+    board's calibration as text. HilError when the board states another sensor profile
+    than the calibration's, or reports another calibration."""
     from . import calibration as cal, hil
     from .link import Link
 
     with Link(port, baud) as link:
-        link.connect()
+        hello = link.connect()
+        if calibration is None:
+            calibration = cal.Calibration(hil.board_profile(hello))
+        hil.check_profile(calibration.profile, hello, "the calibration")
         hil.set_calibration(link, calibration)
-        board = hil.read_calibration(link, calibration.profile)
+        board = hil.read_calibration(link)
     expected = {name: cal.to_fixed(calibration.sensor(name)) for name in cal.SENSORS}
     if {name: cal.to_fixed(board.sensor(name)) for name in cal.SENSORS} != expected:
         raise hil.HilError(f"{port} reports another calibration than it was given")
@@ -332,11 +342,10 @@ def _give_calibration(port: str, baud: int, calibration) -> str:
 @_command
 def _cmd_calibrate_apply(args) -> int:
     from . import calibration as cal
-    from .counts import DEFAULT_PROFILE
 
     if (args.file is None) == (not args.identity):
         raise UsageError("give a calibration FILE or --identity (not both)")
-    calibration = cal.Calibration(DEFAULT_PROFILE) if args.identity else cal.load(args.file)
+    calibration = None if args.identity else cal.load(args.file)
     print(_give_calibration(args.port, args.baud, calibration))
     print(f"{args.port}: calibration " + ("identity" if args.identity else f"of {args.file}")
           + " applied and read back (kept until a RESET)")
@@ -358,18 +367,16 @@ def _is_port(text: str) -> bool:
 def _live_mag_record(args):
     """The magnetometer readings of the board at args.input, collected while the user turns it."""
     from . import hil, live_calibration
-    from .counts import DEFAULT_PROFILE
 
-    profile = args.profile or DEFAULT_PROFILE
     print(f"{args.input}: turn the board slowly through every direction (each axis up and down, and the "
           f"diagonals between); it stops when all 26 directions are covered, after {args.max_duration:g} s, or "
           "on Ctrl-C", file=sys.stderr)
-    collected = live_calibration.collect_mag(args.input, profile, baud=args.baud, max_duration_s=args.max_duration,
-                                             progress=hil.Progress())
+    collected = live_calibration.collect_mag(args.input, args.profile, baud=args.baud,
+                                             max_duration_s=args.max_duration, progress=hil.Progress())
     seconds = collected.time_s[-1] if len(collected.time_s) else 0.0
     print(f"{args.input}: {len(collected.counts)} samples in {seconds:.1f} s ({collected.stop_reason})",
           file=sys.stderr)
-    return collected.record(profile)
+    return collected.record()
 
 
 @_command
@@ -554,8 +561,8 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--output", "-o", default="calibration.json",
                        help="calibration file to write or update (default: calibration.json)")
         p.add_argument("--profile", type=_profile, default=None,
-                       help="sensor profile of a CSV's data or of a board's (default: gy86-default; a recording "
-                            "and a BROAD trial say theirs)")
+                       help=f"sensor profile of a CSV's data (default: gy86-default; a recording, a BROAD trial "
+                            f"and a board state theirs, and this must agree; profiles: {_profile_list()})")
         p.add_argument("--json", action="store_true", help="print the calibration and its report as JSON")
         if kind == "accel":
             p.add_argument("--misalignment", action="store_true",
@@ -592,8 +599,14 @@ def build_parser() -> argparse.ArgumentParser:
 # (emulate); these functions only parse and print.
 
 
+def _profile_list() -> str:
+    from .counts import PROFILES, describe_profile
+
+    return ", ".join(describe_profile(p) for p in PROFILES.values())
+
+
 def _profile(name: str):
-    from .hil import PROFILES
+    from .counts import PROFILES
 
     try:
         return PROFILES[name]
@@ -783,8 +796,7 @@ def _cmd_inject(args) -> int:
     from . import hil
 
     source = hil.load_injection_input(args.input)
-    result = hil.inject(args.port, source, baud=args.baud, filter_name=args.filter, board_profile=args.board_profile,
-                        progress=hil.Progress(), settings=_settings_file(args), min_verified=args.min_verified)
+    result = hil.inject(args.port, source, baud=args.baud, filter_name=args.filter, progress=hil.Progress(), settings=_settings_file(args), min_verified=args.min_verified)
     if args.json:
         _print_json(result.to_json())
     else:
@@ -1030,7 +1042,8 @@ def _add_hil_commands(sub) -> None:
     p.add_argument("--fast", action="store_true", help="a sample whenever the host has read the last ones "
                                                        "(default: real time)")
     p.add_argument("--profile", type=_profile, default=DEFAULT_PROFILE,
-                   help="sensor profile: gy86-default (+-8 g) or gy86-broad (+-16 g) (default: gy86-default)")
+                   help=f"the board's sensor profile, which it states in HELLO (default: gy86-default; "
+                        f"profiles: {_profile_list()})")
     fault_arguments(p)
     settings_argument(p, "the board starts with them (its filter active, instead of --filter)")
     p.set_defaults(func=_cmd_emulate)
@@ -1138,9 +1151,9 @@ def _add_hil_commands(sub) -> None:
                    help=f"seconds without a frame after which the board counts as silent: the recording ends "
                         f"with an error (default: {hil.SILENCE_MIN_S:g} s or {hil.SILENCE_PERIODS} sample periods "
                         "at the board's rate, whichever is longer)")
-    p.add_argument("--profile", type=_profile, default=DEFAULT_PROFILE,
-                   help="the board's sensor profile, stored for replay (default: gy86-default); the protocol "
-                        "cannot report it")
+    p.add_argument("--profile", type=_profile, default=None,
+                   help=f"refuse a board that states another sensor profile than this one, before a file is "
+                        f"written (default: whatever the board states; profiles: {_profile_list()})")
     p.add_argument("--no-resync", action="store_true", help="never restart the filter after a lost sample")
     _json_argument(p, "the summary")
     settings_argument(p, "the board gets them (its filter made active) before recording")
@@ -1204,8 +1217,9 @@ def _add_hil_commands(sub) -> None:
                    help="serial device or pyserial URL of a board, or a recording to replay")
     p.add_argument("--baud", type=_baud, default=DEFAULT_BAUD,
                    help=f"line rate of a real serial port (default: {DEFAULT_BAUD})")
-    p.add_argument("--profile", type=_profile, default=DEFAULT_PROFILE,
-                   help="the board's sensor profile, for physical units and the live check (default: gy86-default)")
+    p.add_argument("--profile", type=_profile, default=None,
+                   help=f"refuse a board that states another sensor profile than this one (default: whatever "
+                        f"the board states; profiles: {_profile_list()})")
     p.add_argument("--emulate", action="store_true", help="start an emulated board (the native firmware) and show it")
     simulation_arguments(p, 600.0)
     p.add_argument("--speed", type=_positive_float, default=1.0, help="replay speed of a recording (default: 1)")
@@ -1227,13 +1241,13 @@ def _add_hil_commands(sub) -> None:
                     "INPUT is one of:\n"
                     "  sim:SCENARIO[:SECONDS[:RATE_HZ[:SEED]]]  a simulated run, e.g. sim:rests:60\n"
                     "  FILE.mat                                 a BROAD trial (counts with profile gy86-broad)\n"
-                    "  FILE                                     a recording")
+                    "  FILE                                     a recording\n\n"
+                    "The input's sensor profile must be the one the board states (an emulated board\n"
+                    "takes it with `imulink emulate --profile`).")
     port_arguments(p)
     p.add_argument("--input", "-i", required=True, help="what to inject (see above)")
     p.add_argument("--filter", choices=list(core.FILTERS), help="select this filter first (default: the board's "
                                                                  "active filter, or the recording's)")
-    p.add_argument("--board-profile", type=_profile, default=DEFAULT_PROFILE,
-                   help="the sensor profile the board runs with (default: gy86-default); it must match the input's")
     settings_argument(p, "the injection runs with them (its filter, over a recording's settings); the board's "
                          "changed settings are restored afterwards")
     min_verified_argument(p, "the injected samples (answered and compared)")

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import _core_fixed, _core_float
-from .counts import DEFAULT_PROFILE, SensorProfile, check_counts, si_to_counts
+from .counts import DEFAULT_PROFILE, SCALE_FRAC_BITS, SensorProfile, check_counts, fixed_scales, si_to_counts
 
 ARITHMETICS = ("fixed", "float")
 
@@ -50,21 +50,26 @@ class SettingField:
     unit: str
     frac_bits: int  # Q format in the fixed build
     offset: int
+    minimum: float  # the accepted range in the unit, as this build checks it (fixed: raw / 2^frac_bits)
+    maximum: float
 
 
 def settings_fields(filter_name: str, arithmetic: str = "fixed") -> list[SettingField]:
     """The settings of a filter as the C core declares them (name, unit, Q format,
-    offset in that build's struct)."""
+    offset in that build's struct, accepted range)."""
     _, prefix = _check_filter(filter_name)
     mod = _module(arithmetic)
     descs = getattr(mod.lib, f"{prefix}_setting_descs")
     count = getattr(mod.lib, f"{prefix}_setting_count")
+    scale = (lambda d: 2.0 ** -d.frac_bits) if arithmetic == "fixed" else (lambda d: 1.0)
     return [
         SettingField(
             mod.ffi.string(descs[i].name).decode(),
             mod.ffi.string(descs[i].unit).decode(),
             descs[i].frac_bits,
             descs[i].offset,
+            descs[i].min * scale(descs[i]),
+            descs[i].max * scale(descs[i]),
         )
         for i in range(count)
     ]
@@ -127,9 +132,8 @@ def resolve_settings(filter_name: str, rate_hz: float, settings) -> dict[str, fl
 def sensor_struct(mod, arithmetic: str, profile: SensorProfile):
     s = mod.ffi.new("imu_sensor_settings_t *")
     if arithmetic == "fixed":
-        s.gyro_scale = to_fixed(profile.gyro_scale, 40, "gyro_scale")
-        s.acc_scale = to_fixed(profile.acc_scale, 32, "acc_scale")
-        s.mag_scale = to_fixed(profile.mag_scale, 24, "mag_scale")
+        for name, value, q in zip(("gyro_scale", "acc_scale", "mag_scale"), fixed_scales(profile), SCALE_FRAC_BITS):
+            setattr(s, name, to_fixed(value * 2.0**-q, q, name))  # the same integer; to_fixed checks it fits
     else:
         s.gyro_scale, s.acc_scale, s.mag_scale = profile.gyro_scale, profile.acc_scale, profile.mag_scale
     return s
@@ -202,10 +206,10 @@ class Filter:
         if not self._apply(self.settings):
             defaults = default_settings(filter_name)
             bad = [k for k, v in self.settings.items() if not self._apply({**defaults, k: v})]
-            fields = {f.name: f for f in settings_fields(filter_name)}
-            detail = ", ".join(f"{k}={self.settings[k]!r} {fields[k].unit}" for k in bad) or str(self.settings)
-            raise SettingsError(f"setting out of range for {filter_name!r}: {detail} "
-                                f"(ranges are documented in firmware/core/{FILTERS[filter_name][1]}.h)")
+            fields = {f.name: f for f in settings_fields(filter_name, "float")}
+            detail = ", ".join(f"{k}={self.settings[k]!r} {fields[k].unit} (range [{fields[k].minimum:g}, "
+                               f"{fields[k].maximum:g}])" for k in bad) or str(self.settings)
+            raise SettingsError(f"setting out of range for {filter_name!r}: {detail}")
 
     def _apply(self, values: dict[str, float]) -> bool:
         struct = _settings_struct(self.mod, self.arithmetic, self.filter_name, values)
@@ -291,6 +295,13 @@ class Filter:
         self.mod.lib.imu_eskf_get_weights(state, gravity, heading)
         scale = 2.0**-30 if self.arithmetic == "fixed" else 1.0
         return gravity[0] * scale, heading[0] * scale
+
+    def measurement_weights_raw(self) -> list[int]:
+        """The same weights as the fixed build stores them (what the board sends in
+        ESTIMATE): Q30 integers. Fixed build only."""
+        if self.arithmetic != "fixed":
+            raise ValueError("the raw weights exist in the fixed build only")
+        return [round(w * 2**30) for w in self.measurement_weights()]
 
     def acc_bias(self) -> np.ndarray:
         """ESKF accelerometer bias estimate, m/s^2 (3,)."""

@@ -71,6 +71,41 @@ DEFAULT_PROFILE = SensorProfile()
 #: +-2000 deg/s keep every trial unsaturated (see docs/numerics.md).
 BROAD_PROFILE = SensorProfile(name="gy86-broad", acc_lsb_per_g=2048.0)
 
+#: The profiles imulink knows by name (the emulated boards run either).
+PROFILES = {p.name: p for p in (DEFAULT_PROFILE, BROAD_PROFILE)}
+
+#: Q formats of the firmware's sensitivities (imu_sensor_settings_t: gyroscope rad/s per LSB
+#: Q40, accelerometer m/s^2 per LSB Q32, magnetometer uT per LSB Q24), which a board states in HELLO.
+SCALE_FRAC_BITS = (40, 32, 24)
+
+
+def fixed_scales(profile: SensorProfile) -> tuple[int, int, int]:
+    """The profile's gyroscope, accelerometer and magnetometer sensitivities as the fixed-point
+    core holds them (and HELLO carries them): rounded to SCALE_FRAC_BITS."""
+    scales = (profile.gyro_scale, profile.acc_scale, profile.mag_scale)
+    return tuple(int(np.rint(scale * 2.0**q)) for scale, q in zip(scales, SCALE_FRAC_BITS))
+
+
+def profile_from_scales(gyro_scale: int, acc_scale: int, mag_scale: int) -> SensorProfile:
+    """The profile of a board that states these fixed-point sensitivities (HELLO): the known
+    profile with exactly these, else one named "board" with the sensitivities they give.
+    ValueError unless all three are positive."""
+    raw = (gyro_scale, acc_scale, mag_scale)
+    if min(raw) <= 0:
+        raise ValueError(f"sensitivities {raw} are not all positive")
+    for profile in PROFILES.values():
+        if fixed_scales(profile) == raw:
+            return profile
+    gyro, acc, mag = (value * 2.0**-q for value, q in zip(raw, SCALE_FRAC_BITS))
+    return SensorProfile(name="board", gyro_lsb_per_dps=float(np.deg2rad(1.0) / gyro),
+                         acc_lsb_per_g=STANDARD_GRAVITY / acc, mag_lsb_per_gauss=100.0 / mag)
+
+
+def describe_profile(profile: SensorProfile) -> str:
+    """"gy86-default (16.4 LSB per deg/s, 4096 LSB/g, 1090 LSB/gauss)": name and sensitivities."""
+    return (f"{profile.name} ({profile.gyro_lsb_per_dps:.6g} LSB per deg/s, {profile.acc_lsb_per_g:.6g} LSB/g, "
+            f"{profile.mag_lsb_per_gauss:.6g} LSB/gauss)")
+
 
 class SensorDataError(ValueError):
     """Sensor data no sensor delivers: NaN or infinite values, counts that are not

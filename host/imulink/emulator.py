@@ -32,14 +32,12 @@ from pathlib import Path
 import numpy as np
 
 from . import core, protocol, sim
-from .counts import BROAD_PROFILE, DEFAULT_PROFILE, SensorProfile, si_to_counts
+from .counts import DEFAULT_PROFILE, PROFILES, SensorProfile, si_to_counts
 from .files import FileError, read_regular_file
 from .firmware_image import MAX_IMAGE_BYTES
 from .proxy import FaultConfig, Proxy, make_front
 
 TARGETS = ("native", "qemu")
-#: The profiles the firmware's --profile option knows (boards/emulated/options.c).
-FIRMWARE_PROFILES = {p.name: p for p in (DEFAULT_PROFILE, BROAD_PROFILE)}
 #: MPU6050 temperature register at 25 degC ((25 - 36.53) * 340).
 TEMPERATURE_25C = -3920
 #: QEMU machine of the qemu target and the ELF the firmware build names for it.
@@ -203,8 +201,9 @@ class EmulatedBoard:
         if filter_name not in core.FILTERS:
             raise EmulatorError(f"unknown filter {filter_name!r}; choose one of {', '.join(core.FILTERS)}")
         core.Filter(filter_name, rate_hz)  # SettingsError for a rate the filter is not made for (nor the host's replay)
-        if profile.name not in FIRMWARE_PROFILES or FIRMWARE_PROFILES[profile.name] != profile:
-            raise EmulatorError(f"the firmware knows the sensor profiles {', '.join(FIRMWARE_PROFILES)}, "
+        # the profiles the firmware's --profile option knows (boards/emulated/options.c)
+        if profile.name not in PROFILES or PROFILES[profile.name] != profile:
+            raise EmulatorError(f"the firmware knows the sensor profiles {', '.join(PROFILES)}, "
                                 f"not {profile.name!r}")
         self.target = target
         self.image = find_image(target, image)

@@ -33,15 +33,14 @@ import numpy as np
 from . import core, protocol, sim
 from .analysis import angle_difference, attitude_errors, rmse, wrap_deg
 from .broad import BroadError, load_broad
-from .counts import BROAD_PROFILE, DEFAULT_PROFILE, SensorDataError, SensorProfile, si_to_counts
+from .counts import (BROAD_PROFILE, DEFAULT_PROFILE, SensorDataError, SensorProfile, describe_profile, fixed_scales,
+                     profile_from_scales, si_to_counts)
 from .emulator import EmulatedBoard
 from .files import check_writable_target, create_beside, publish
 from .link import COMMAND_ATTEMPTS, DEFAULT_BAUD, CommandTimeout, Disconnected, Link, LinkError, ReceiveTimeout
 from .recording import Estimates, Recording, RecordingError, RecordingWriter, load_recording, sample_times
 from .reference import FirmwareFilter
 
-#: Sensor profiles a board can be declared to use (the protocol cannot report them).
-PROFILES = {p.name: p for p in (DEFAULT_PROFILE, BROAD_PROFILE)}
 #: Seconds excluded from accuracy statistics (alignment and convergence).
 SETTLE_S = 10.0
 _FILTER_NAMES = {filter_id: name for name, (filter_id, _) in core.FILTERS.items()}
@@ -153,6 +152,21 @@ def read_settings(link: Link) -> tuple[int, dict[int, dict]]:
     return first["filter_id"], settings
 
 
+def setting_range(setting: dict) -> tuple[float, float]:
+    """The range [min, max] a SETTING states, in the setting's unit."""
+    return setting["min"] / 2.0 ** setting["frac_bits"], setting["max"] / 2.0 ** setting["frac_bits"]
+
+
+def setting_range_text(setting: dict) -> str:
+    """"[0.001, 32767]": a SETTING's range, four significant digits (the ends are the Q
+    format's nearest values: 0.001 in Q24 is 0.000999987)."""
+    def short(value: float) -> str:
+        return f"{value:.4g}" if abs(value) < 1e4 else f"{value:.0f}"
+
+    low, high = setting_range(setting)
+    return f"[{short(low)}, {short(high)}]"
+
+
 def apply_settings(link: Link, settings) -> None:
     """Make the settings file's filter (an imulink.settings_file.FilterSettings) active and
     give it the file's settings (SET_SETTING, raw); the others keep the board's values.
@@ -173,14 +187,33 @@ def apply_settings(link: Link, settings) -> None:
 _SENSOR_CODES = dict(zip(("gyr", "acc", "mag"), ("GYROSCOPE", "ACCELEROMETER", "MAGNETOMETER")))
 
 
-def read_calibration(link: Link, profile: SensorProfile):
+def board_profile(hello: dict) -> SensorProfile:
+    """The sensor profile a board states in its HELLO (its sensitivities; see
+    counts.profile_from_scales). HilError when they are not usable."""
+    try:
+        return profile_from_scales(hello["gyro_scale"], hello["acc_scale"], hello["mag_scale"])
+    except ValueError as exc:
+        raise HilError(f"board {hello['board']!r} states no usable sensor sensitivities: {exc}") from None
+
+
+def check_profile(declared: SensorProfile | None, hello: dict, what: str = "--profile") -> SensorProfile:
+    """The board's profile (HELLO); HilError when `declared` (None: nothing declared) has
+    other sensitivities, as every estimate would then differ."""
+    board = board_profile(hello)
+    if declared is not None and fixed_scales(declared) != fixed_scales(board):
+        raise HilError(f"the board ({hello['board']}) states sensor profile {describe_profile(board)}; "
+                       f"{what} says {describe_profile(declared)}")
+    return board
+
+
+def read_calibration(link: Link):
     """The board's calibration (GET_CALIBRATION of every sensor and axis), as an
-    imulink.calibration.Calibration of `profile` (the protocol cannot report the profile)."""
+    imulink.calibration.Calibration of the profile the board states (link.connect() first)."""
     from .calibration import Calibration, calibration_from_frames
 
     frames = [link.command("GET_CALIBRATION", sensor=protocol.SENSORS[code], axis=axis).data.fields
               for code in _SENSOR_CODES.values() for axis in range(3)]
-    return Calibration(profile, calibration_from_frames(frames))
+    return Calibration(board_profile(link.hello), calibration_from_frames(frames))
 
 
 def set_calibration(link: Link, calibration) -> None:
@@ -246,7 +279,7 @@ def default_silence_timeout(status: dict) -> float:
 
 
 def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAULT_BAUD,
-           profile: SensorProfile = DEFAULT_PROFILE, resync: bool = True, silence_timeout_s: float | None = None,
+           profile: SensorProfile | None = None, resync: bool = True, silence_timeout_s: float | None = None,
            force: bool = False, progress: Progress | None = None, settings=None) -> RecordResult:
     """Record a board's stream to `path` until `duration_s` s have passed, the board stops
     streaming (STATUS.streaming = 0), or Ctrl-C (then `interrupted`).
@@ -263,7 +296,9 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
     raises RecordingError at once.
 
     settings: an imulink.settings_file.FilterSettings given to the board (its filter
-    made active) before the snapshot, so the recording runs with them.
+    made active) before the snapshot, so the recording runs with them. profile: the sensor
+    profile the caller expects (None: whatever the board states); HilError, and no file,
+    when the board states another.
     """
     path = Path(path)
     check_writable_target(path, replace=force)
@@ -273,7 +308,7 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
         # the file holds every byte from the moment the port opens
         link = Link(url, baud, tap=writer.received, attempts=RECORD_COMMAND_ATTEMPTS)
         try:
-            hello, filter_id, filter_name, status = snapshot(link, writer, settings)
+            hello, filter_id, filter_name, status = snapshot(link, writer, settings, profile)
             writer.check()
             publish(temporary, path, replace=force)
         except BaseException:
@@ -288,12 +323,15 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
         return _StreamRecorder(link, writer, filter_id, resync, progress).run(hello, filter_name, duration_s, silence)
 
 
-def snapshot(link: Link, writer: RecordingWriter | None, settings=None) -> tuple[dict, int, str, dict]:
-    """Handshake, quiet the board (and give it `settings`), read its state, settings and
+def snapshot(link: Link, writer: RecordingWriter | None, settings=None,
+             profile: SensorProfile | None = None) -> tuple[dict, int, str, dict]:
+    """Handshake (HilError when the board states another sensor profile than `profile`,
+    None: any), quiet the board (and give it `settings`), read its state, settings and
     calibration (into the recording, when there is one), and restart its filter so that
     the stream starts at sample index 0. Returns the HELLO fields, the active filter's id
     and name, and the STATUS fields."""
     hello = link.connect()
+    check_profile(profile, hello)
     if writer is not None:
         writer.event("connected", hello=hello)
     link.command("STOP_STREAM")
@@ -304,7 +342,7 @@ def snapshot(link: Link, writer: RecordingWriter | None, settings=None) -> tuple
     filter_id, settings = read_settings(link)
     filter_name = name_of_filter(filter_id)
     if writer is not None:
-        calibration = read_calibration(link, writer.profile)
+        calibration = read_calibration(link)
         writer.event("snapshot", status=status, filter=filter_name,
                      settings={s["name"]: s["value"] for s in settings.values()},
                      calibration={name: {"offset_counts": c.offset.tolist(), "matrix": c.matrix.tolist()}
@@ -424,7 +462,7 @@ class _StreamRecorder:
 
 #: ESTIMATE fields the host computes (Estimates.COMPARED) and the shape of one sample's value.
 _ESTIMATE_SHAPES = {"filter_id": (), "quat": (4,), "gyro_bias": (3,), "euler": (3,), "cov_mantissa": (9,),
-                    "cov_exponent": (9,), "saturations": ()}
+                    "cov_exponent": (9,), "saturations": (), "weights": (2,)}
 
 
 @dataclass
@@ -482,7 +520,7 @@ def fixed_outputs(filter_name: str, raw_settings: dict[str, int], profile: Senso
             return {"filter_id": np.full(n, reference.filter_id), "quat": batch.raw["quat"],
                     "gyro_bias": batch.raw["gyro_bias"], "euler": batch.raw["euler"],
                     "cov_mantissa": np.zeros((n, 9), np.int64), "cov_exponent": np.zeros((n, 9), np.int64),
-                    "saturations": np.zeros(n, np.int64)}
+                    "saturations": np.zeros(n, np.int64), "weights": np.zeros((n, 2), np.int64)}
         reference = FirmwareFilter(filter_name, raw_settings, profile, calibration)  # again, sample by sample
     out = {name: np.zeros((n,) + shape, np.int64) for name, shape in _ESTIMATE_SHAPES.items()}
     for k in range(n):
@@ -781,6 +819,8 @@ def replay_columns(recording: Recording, run: HostRun, comparison: Comparison) -
             columns[f"{source}_{angle}_deg"] = np.degrees(euler[:, k])
         for k, axis in enumerate(axes):
             columns[f"{source}_gyro_bias_{axis}_rad_s"] = bias[:, k]
+    weights = board(e.weights, 30)  # zero but for the ESKF
+    columns["board_gravity_weight"], columns["board_heading_weight"] = weights[:, 0], weights[:, 1]
     identical = np.full(n, np.nan)
     checked = have.copy()
     checked[have] = comparison.verified[estimate_of[have]]
@@ -981,7 +1021,7 @@ def _configure_for_injection(link: Link, source: InjectionInput, filter_name: st
 
 
 def inject(url: str, source: InjectionInput, *, baud: int = DEFAULT_BAUD, filter_name: str | None = None,
-           board_profile: SensorProfile = DEFAULT_PROFILE, progress: Progress | None = None,
+           progress: Progress | None = None,
            settings=None, min_verified: float = MIN_VERIFIED) -> InjectResult:
     """Inject every sample of `source` into the board and compare each ESTIMATE with the
     host fixed-point build (with the board's calibration) on the fly.
@@ -993,23 +1033,20 @@ def inject(url: str, source: InjectionInput, *, baud: int = DEFAULT_BAUD, filter
     An ESTIMATE lost on the way is counted (answers_lost). A sample whose ACK never
     comes may or may not have run on the board, so the filter is restarted on both
     sides (SET_INJECTION_MODE 1) and the comparison goes on from the next sample.
+    The input's counts must be in the sensor profile the board states (HELLO), else HilError.
     """
-    if source.profile != board_profile:
-        raise HilError(f"{source.description} is in sensor profile {source.profile.name!r} but the board is declared "
-                       f"as {board_profile.name!r}; protocol v{protocol.PROTOCOL_VERSION} can neither read nor set a "
-                       f"board's sensor scales. Start the board with profile {source.profile.name!r} (imulink emulate "
-                       f"--profile {source.profile.name}) and pass --board-profile {source.profile.name}")
     if settings is not None and filter_name not in (None, settings.filter_name):
         raise HilError(f"the settings file is for {settings.filter_name}, not {filter_name}")
     with Link(url, baud) as link:
-        link.connect()
+        hello = link.connect()
+        profile = check_profile(source.profile, hello, f"the input ({source.description})")
         link.command("STOP_STREAM")
         original_filter = link.command("GET_STATUS").data.fields["active_filter"]
         name, raw_settings, changed = _configure_for_injection(link, source, filter_name, settings)
-        calibration = read_calibration(link, board_profile)
+        calibration = read_calibration(link)
         link.command("SET_INJECTION_MODE", enabled=1)
         try:
-            result = _inject_samples(link, source, name, raw_settings, board_profile, calibration, progress)
+            result = _inject_samples(link, source, name, raw_settings, profile, calibration, progress)
             result.min_verified = min_verified
         finally:  # leave the board as it was found
             link.command("SET_INJECTION_MODE", enabled=0)

@@ -36,19 +36,21 @@ SILENCE_S = 3.0
 @dataclass
 class MagCollection:
     """What the board sent: counts (N,3) raw magnetometer counts, time_s (N,) the board's
-    sample times from the first, and why the collection ended."""
+    sample times from the first, why the collection ended, and the sensor profile the
+    board states."""
 
     url: str
     counts: np.ndarray
     time_s: np.ndarray
     stop_reason: str
+    profile: SensorProfile
 
-    def record(self, profile: SensorProfile) -> SensorRecord:
+    def record(self) -> SensorRecord:
         """The readings as a SensorRecord (uT) for :func:`imulink.calibration.mag_ellipsoid`."""
         from .sensor_input import SensorRecord
 
         return SensorRecord(f"{self.url} (live, {len(self.counts)} samples)", self.time_s, None, None,
-                            self.counts * profile.mag_scale, profile=profile)
+                            self.counts * self.profile.mag_scale, profile=self.profile)
 
 
 def live_coverage(counts: np.ndarray, profile: SensorProfile) -> Coverage | None:
@@ -90,12 +92,13 @@ def status_line(elapsed_s: float, samples: int, found: Coverage | None) -> str:
     return text
 
 
-def collect_mag(url: str, profile: SensorProfile, *, baud: int, max_duration_s: float = DEFAULT_MAX_DURATION_S,
+def collect_mag(url: str, profile: SensorProfile | None = None, *, baud: int, max_duration_s: float = DEFAULT_MAX_DURATION_S,
                 progress: Progress | None = None) -> MagCollection:
     """Stream the board at `url` and keep its magnetometer counts until all 26 directions
     are covered (with at least MIN_MAG_SAMPLES samples), `max_duration_s` has passed, or
     Ctrl-C. The board's stream is stopped at the end; its filter and settings are not
-    changed. LinkError for a port that is not a board, HilError for one that goes silent."""
+    changed. LinkError for a port that is not a board, HilError for one that goes silent or
+    states another sensor profile than `profile` (None: the board's, whatever it is)."""
     from . import hil, protocol
     from .calibration import MIN_MAG_SAMPLES
     from .link import Link, LinkError
@@ -104,7 +107,8 @@ def collect_mag(url: str, profile: SensorProfile, *, baud: int, max_duration_s: 
     readings: list[tuple[int, int, int]] = []
     stamps: list[int] = []
     with Link(url, baud) as link:
-        hil.snapshot(link, None)
+        hello, *_ = hil.snapshot(link, None, profile=profile)
+        profile = hil.board_profile(hello)
         start_ack = link.command("START_STREAM").ack
         streaming = False  # frames before the START_STREAM ACK belong to the snapshot
         started = last_heard = next_check = time.monotonic()
@@ -148,4 +152,4 @@ def collect_mag(url: str, profile: SensorProfile, *, baud: int, max_duration_s: 
             pass
     counts = np.array(readings, np.float64).reshape(-1, 3)
     time_s = unwrap_us(np.asarray(stamps)) if stamps else np.zeros(0)
-    return MagCollection(url, counts, time_s, stop_reason)
+    return MagCollection(url, counts, time_s, stop_reason, profile)

@@ -6,7 +6,7 @@ File layout (all little-endian)::
     record*  u32 body_length | u8 kind | f64 host_time (s, Unix) | body | u32 crc32(all before it)
 
 Kinds: HEADER (the first record; JSON: format version, host version, schema hash, port,
-sensor profile), RECEIVED (a chunk of bytes exactly as read from the port, frames
+the sensor profile the user declared or null), RECEIVED (a chunk of bytes exactly as read from the port, frames
 and damage alike), EVENT (JSON: connected, snapshot, stream started, stopped with the
 reason and the link counters, ...). Records of unknown kinds are skipped.
 
@@ -18,7 +18,8 @@ the damaged span by offset. Bytes after which no valid record follows are a trun
 tail (a partial last record, zero fill): ignored, everything before kept.
 
 :func:`load_recording` refuses a recording whose header names another protocol
-version or schema hash than this host's: its frames would be misread.
+version or schema hash than this host's: its frames would be misread. The counts' sensor
+profile is the one the board states in its HELLO (the header's only without a HELLO).
 
 :func:`load_recording` decodes the frames of a file into numpy tables of samples and
 estimates, split into *segments*: runs of the filter from sample index 0 (a filter
@@ -43,7 +44,7 @@ from typing import Callable
 import numpy as np
 
 from . import __version__, core, protocol
-from .counts import SensorProfile
+from .counts import SensorProfile, profile_from_scales
 from .files import FileError, read_regular_file
 
 MAGIC = b"IMULOG1\n"
@@ -72,7 +73,9 @@ class RecordingError(Exception):
 # ---------------------------------------------------------------------------- writing
 
 
-def profile_to_json(profile: SensorProfile) -> dict:
+def profile_to_json(profile: SensorProfile | None) -> dict | None:
+    if profile is None:
+        return None
     return {"name": profile.name, "gyro_lsb_per_dps": profile.gyro_lsb_per_dps,
             "acc_lsb_per_g": profile.acc_lsb_per_g, "mag_lsb_per_gauss": profile.mag_lsb_per_gauss}
 
@@ -101,7 +104,7 @@ class RecordingWriter:
     never raises, so that a failure cannot kill the reader thread that writes.
     """
 
-    def __init__(self, path, port: str, profile: SensorProfile, fd: int | None = None):
+    def __init__(self, path, port: str, profile: SensorProfile | None, fd: int | None = None):
         self.path = Path(path)
         self.profile = profile
         self._lock = threading.Lock()
@@ -288,9 +291,10 @@ class Estimates:
     cov_mantissa: np.ndarray
     cov_exponent: np.ndarray
     saturations: np.ndarray
+    weights: np.ndarray  # ESKF gravity and heading measurement weights, Q30 (n, 2)
 
     #: the fields compared bit for bit, in the order a difference is reported
-    COMPARED = ("filter_id", "quat", "gyro_bias", "euler", "cov_mantissa", "cov_exponent", "saturations")
+    COMPARED = ("filter_id", "quat", "gyro_bias", "euler", "cov_mantissa", "cov_exponent", "saturations", "weights")
 
     def __len__(self) -> int:
         return len(self.index)
@@ -414,7 +418,7 @@ def load_recording(path, progress: Callable[[int, int], None] | None = None) -> 
     found = read_records(path)
     records = found.records
     total = records[-1].offset + len(records[-1].body) if records else 0
-    header, profile = _header(path, records)
+    header, declared_profile = _header(path, records)
     events = [(record.offset, {"time": record.time, **_json_object(path, record, "event")})
               for record in records if record.kind == KIND_EVENT]
     snapshot_at = next((offset for offset, event in events if event.get("event") == "snapshot"), -1)
@@ -449,6 +453,7 @@ def load_recording(path, progress: Callable[[int, int], None] | None = None) -> 
                 calibration_frames.append(fields)
     if progress is not None:
         progress(total, total)
+    profile = _profile(path, hello, declared_profile)
     sample_table, estimate_table = _sample_table(samples), _estimate_table(estimates)
     segments = len(set(sample_table.segment.tolist()) | set(estimate_table.segment.tolist()))
     return Recording(path, header, profile, [event for _, event in events], hello, status, settings, sample_table,
@@ -467,9 +472,23 @@ def _json_object(path: Path, record: LogRecord, what: str) -> dict:
     return value
 
 
-def _header(path: Path, records: list[LogRecord]) -> tuple[dict, SensorProfile]:
-    """The header and sensor profile; RecordingError unless this imulink can decode the file:
-    its frames are decoded with this host's protocol schema, so the file's must be the same."""
+def _profile(path: Path, hello: dict | None, declared: SensorProfile | None) -> SensorProfile:
+    """The sensor profile of the counts: the one the board states in its HELLO, else (a
+    recording without one) the one the header declares."""
+    if hello is not None:
+        try:
+            return profile_from_scales(hello["gyro_scale"], hello["acc_scale"], hello["mag_scale"])
+        except ValueError as exc:
+            raise RecordingError(f"{path}: the board's HELLO states no usable sensor sensitivities: {exc}") from None
+    if declared is None:
+        raise RecordingError(f"{path}: no HELLO and no profile in the header: the counts' sensor profile is unknown")
+    return declared
+
+
+def _header(path: Path, records: list[LogRecord]) -> tuple[dict, SensorProfile | None]:
+    """The header and the sensor profile it declares (None: none, the board's HELLO says);
+    RecordingError unless this imulink can decode the file: its frames are decoded with this
+    host's protocol schema, so the file's must be the same."""
     if not records or records[0].kind != KIND_HEADER or records[0].offset != len(MAGIC):
         raise RecordingError(f"{path} has no header record (the record at byte {len(MAGIC)} is missing or damaged)")
     header = _json_object(path, records[0], "header")
@@ -482,6 +501,8 @@ def _header(path: Path, records: list[LogRecord]) -> tuple[dict, SensorProfile]:
         raise RecordingError(f"{path} was recorded with protocol v{version!r}, schema hash {schema_text}; this "
                              f"imulink decodes v{protocol.PROTOCOL_VERSION}, 0x{protocol.SCHEMA_HASH:08X}: read it "
                              f"with the imulink that recorded it (version {header.get('imulink', 'unknown')})")
+    if header.get("profile", 0) is None:
+        return header, None
     try:
         profile = profile_from_json(header["profile"])
     except (KeyError, TypeError, ValueError) as exc:
@@ -517,4 +538,5 @@ def _estimate_table(rows) -> Estimates:
         cov_mantissa=np.array([x["cov_mantissa"] for x in f], np.int64).reshape(-1, 9),
         cov_exponent=np.array([x["cov_exponent"] for x in f], np.int64).reshape(-1, 9),
         saturations=np.array([x["saturations"] for x in f], np.int64),
+        weights=np.array([x["weights"] for x in f], np.int64).reshape(-1, 2),
     )

@@ -47,9 +47,11 @@ class FirmwareFilter:
         self.saturations = result.saturations
         if self._has_covariance:
             mantissas, exponents = self.core.covariance_diagonal_raw()
+            weights = self.core.measurement_weights_raw()
         else:
-            mantissas, exponents = [0] * 9, [0] * 9
+            mantissas, exponents, weights = [0] * 9, [0] * 9, [0, 0]
         raw = result.raw
         return {"index": index, "filter_id": self.filter_id, "quat": raw["quat"][0].tolist(),
                 "gyro_bias": raw["gyro_bias"][0].tolist(), "euler": raw["euler"][0].tolist(),
-                "cov_mantissa": mantissas, "cov_exponent": exponents, "saturations": result.saturations}
+                "cov_mantissa": mantissas, "cov_exponent": exponents, "saturations": result.saturations,
+                "weights": weights}

@@ -32,6 +32,7 @@ struct bench_state {
     int32_t eecf_aligning;    /* EECF: 1 while the next update is an alignment step */
     int32_t cov_mantissa[9];  /* ESKF covariance diagonal (zeros past the state count) */
     int32_t cov_exponent[9];
+    int32_t weights[2];       /* ESKF gravity and heading measurement weights, Q30 (zeros otherwise) */
 };
 struct bench_state bench_state;
 
@@ -93,6 +94,10 @@ void bench_read_state(void)
     for (i = 0; eskf != 0 && i < imu_eskf_state_count(eskf); ++i) {
         imu_eskf_covariance(eskf, i, i, &bench_state.cov_mantissa[i], &bench_state.cov_exponent[i]);
     }
+    bench_state.weights[0] = bench_state.weights[1] = 0;
+    if (eskf != 0) {
+        imu_eskf_get_weights(eskf, &bench_state.weights[0], &bench_state.weights[1]);
+    }
 }
 
 /** SAMPLE and ESTIMATE messages of one sample from bench_raw, bench_out and bench_state
@@ -122,6 +127,8 @@ void bench_fill_messages(uint32_t index, uint32_t timestamp_us, int32_t temperat
         bench_estimate_msg.cov_exponent[k] = (int8_t)bench_state.cov_exponent[k];
     }
     bench_estimate_msg.saturations = bench_state.saturations;
+    bench_estimate_msg.weights[0] = bench_state.weights[0];
+    bench_estimate_msg.weights[1] = bench_state.weights[1];
 }
 
 /** Start a decoder on bench_decoder_buf. */

@@ -40,7 +40,8 @@ from .ring import RingBuffer
 
 SAMPLE_COLUMNS = ("t", "gyr_x", "gyr_y", "gyr_z", "acc_x", "acc_y", "acc_z", "mag_x", "mag_y", "mag_z")
 ESTIMATE_COLUMNS = ("t", "roll", "pitch", "heading", "bias_x", "bias_y", "bias_z", "sigma_att_x", "sigma_att_y",
-                    "sigma_att_z", "sigma_bias_x", "sigma_bias_y", "sigma_bias_z", "fixed_float")
+                    "sigma_att_z", "sigma_bias_x", "sigma_bias_y", "sigma_bias_z", "fixed_float", "gravity_weight",
+                    "heading_weight")
 #: Rows kept per ring buffer: the longest time span (MAX_SPAN_S) at up to 2 kHz.
 MAX_SPAN_S = 60.0
 RING_ROWS = 1 << 17
@@ -61,14 +62,17 @@ def sample_rows(times, gyr, acc, mag, profile: SensorProfile) -> np.ndarray:
                             np.asarray(mag) * profile.mag_scale])
 
 
-def estimate_rows(times, euler, gyro_bias, cov_mantissa, cov_exponent, fixed_float) -> np.ndarray:
-    """Rows of ESTIMATE_COLUMNS from the raw ESTIMATE fields ((N,k) integer arrays)."""
+def estimate_rows(times, filter_id, euler, gyro_bias, cov_mantissa, cov_exponent, weights, fixed_float) -> np.ndarray:
+    """Rows of ESTIMATE_COLUMNS from the raw ESTIMATE fields ((N,k) integer arrays); the
+    weights are NaN where a filter other than the ESKF (which has none) sent them."""
     euler = np.asarray(euler) * (_DEG / 2.0**core.EULER_FRAC_BITS)
     bias = np.asarray(gyro_bias) * (_DEG / 2.0**core.RATE_FRAC_BITS)
     mantissa = np.asarray(cov_mantissa, np.float64)[:, :6]
     variance = mantissa * np.exp2(np.asarray(cov_exponent, np.float64)[:, :6] - 30)
     sigma = np.where(mantissa > 0, np.sqrt(np.maximum(variance, 0.0)) * _DEG, np.nan)  # rad -> deg, rad/s -> deg/s
-    return np.column_stack([times, euler, bias, sigma, fixed_float])
+    eskf = (np.asarray(filter_id) == core.FILTERS["eskf"][0])[:, None]
+    weights = np.where(eskf, np.asarray(weights, np.float64) * 2.0**-30, np.nan)
+    return np.column_stack([times, euler, bias, sigma, fixed_float, weights])
 
 
 @dataclass
@@ -88,17 +92,20 @@ class Health:
 class LiveSource:
     """A board on `url` (any pyserial URL), connected and streaming until :meth:`close`.
 
-    `profile` is the board's sensor profile (the protocol cannot report it). `emulated`:
-    an :class:`imulink.emulator.EmulatedBoard` the source owns and stops on close.
+    The sensor profile is the one the board states in its HELLO; `profile` (None: any) is
+    the one expected: a board that states another is refused (shown, and tried again).
+    `emulated`: an :class:`imulink.emulator.EmulatedBoard` the source owns and stops on close.
     """
 
     live = True
 
-    def __init__(self, url: str, baud: int = DEFAULT_BAUD, profile: SensorProfile = DEFAULT_PROFILE, emulated=None):
-        self.url, self.baud, self.profile, self.emulated = url, baud, profile, emulated
+    def __init__(self, url: str, baud: int = DEFAULT_BAUD, profile: SensorProfile | None = None, emulated=None):
+        self.url, self.baud, self.emulated = url, baud, emulated
+        self.expected_profile = profile
+        self.profile = profile or DEFAULT_PROFILE  # until the board states its own
         self.samples = RingBuffer(RING_ROWS, len(SAMPLE_COLUMNS))
         self.estimates = RingBuffer(RING_ROWS, len(ESTIMATE_COLUMNS))
-        self.check = LiveCheck(profile)
+        self.check = LiveCheck(self.profile)
         self._health = Health("connecting", f"opening {url}")
         self._lock = threading.Lock()
         self._requests: queue.Queue = queue.Queue()
@@ -175,7 +182,7 @@ class LiveSource:
                 try:
                     self._open()
                     failures = 0
-                except (LinkError, protocol.ProtocolError) as exc:
+                except (LinkError, protocol.ProtocolError, hil.HilError) as exc:
                     failures += 1
                     self._set_state("disconnected", f"{exc}; retrying" if failures == 1 else
                                     f"{exc}; retrying ({failures} attempts)")
@@ -206,9 +213,10 @@ class LiveSource:
         """Handshake, the board's state, settings and calibration, its filter restarted at
         sample 0 and the stream started: hil.snapshot, as `imulink record` begins (into
         `writer` when recording). The answers also reach the live check through the stream."""
-        _, filter_id, _, status = hil.snapshot(self._link, writer)
+        hello, filter_id, _, status = hil.snapshot(self._link, writer, profile=self.expected_profile)
+        self.profile = self.check.profile = hil.board_profile(hello)
         if writer is None:  # with a writer the snapshot read it already, for the file
-            hil.read_calibration(self._link, self.profile)
+            hil.read_calibration(self._link)
         # the live check learnt the calibration from the CALIBRATION answers: a run from sample 0 with it
         self.check.expect(self._link.command("SELECT_FILTER", filter_id=filter_id).ack, ("filter", filter_id, 0))
         self._link.command("START_STREAM")
@@ -255,8 +263,8 @@ class LiveSource:
             if name == "SAMPLE":
                 samples.append((item.time - t0, fields["gyr"], fields["acc"], fields["mag"]))
             elif name == "ESTIMATE":
-                estimates.append((item.time - t0, fields["euler"], fields["gyro_bias"], fields["cov_mantissa"],
-                                  fields["cov_exponent"]))
+                estimates.append((item.time - t0, fields["filter_id"], fields["euler"], fields["gyro_bias"],
+                                  fields["cov_mantissa"], fields["cov_exponent"], fields["weights"]))
             elif name == "STATUS":
                 with self._lock:
                     self._health.status = fields
@@ -269,7 +277,7 @@ class LiveSource:
         if samples:
             self.samples.append(sample_rows(*(np.array([s[k] for s in samples]) for k in range(4)), self.profile))
         if estimates:
-            rows = estimate_rows(*(np.array([e[k] for e in estimates]) for k in range(5)), np.array(angles))
+            rows = estimate_rows(*(np.array([e[k] for e in estimates]) for k in range(7)), np.array(angles))
             self.estimates.append(rows)
             self._attitude = tuple(rows[-1, 1:4])
 
@@ -383,8 +391,8 @@ class ReplaySource:
         verified = self.comparison.verified
         angle[verified] = angle_difference(e.quat[verified] / 2.0**core.QUAT_FRAC_BITS,
                                            run.float_quat[self.comparison.sample_row[verified]])
-        self.estimate_rows = estimate_rows(self._estimate_times(), e.euler, e.gyro_bias, e.cov_mantissa,
-                                           e.cov_exponent, angle)
+        self.estimate_rows = estimate_rows(self._estimate_times(), e.filter_id, e.euler, e.gyro_bias, e.cov_mantissa,
+                                           e.cov_exponent, e.weights, angle)
         self.duration = float(max(self.sample_rows[-1, 0], self.estimate_rows[-1, 0] if len(e) else 0.0))
         self.speed = speed
         self.playing = True
@@ -435,7 +443,8 @@ class ReplaySource:
                                different=int((c.verified & ~c.identical & shown).sum()),
                                unverifiable=int((~c.verified & shown).sum()),
                                first_difference=str(c.first_difference) if c.first_difference else None,
-                               fixed_float_max_deg=float(np.nanmax(self.estimate_rows[shown, 13], initial=0.0)))
+                               fixed_float_max_deg=float(np.nanmax(self.estimate_rows[shown, ESTIMATE_COLUMNS.index("fixed_float")],
+                                                                  initial=0.0)))
         return Health("replay", f"{self.path.name}: {self._position:.1f} of {self.duration:.1f} s at "
                                 f"{self.speed:g}x", counters=rec.counters, hello=rec.hello, status=rec.status,
                       check=summary)
@@ -456,14 +465,16 @@ class ReplaySource:
 
 
 def open_source(target: str | None, *, emulate: bool = False, baud: int = DEFAULT_BAUD,
-                profile: SensorProfile = DEFAULT_PROFILE, speed: float = 1.0, emulation: dict | None = None):
+                profile: SensorProfile | None = None, speed: float = 1.0, emulation: dict | None = None):
     """The source `imulink monitor` shows: a recording when `target` is a regular file, an
-    emulated board started here when `emulate` (`emulation`: EmulatedBoard's options),
-    else the board on the port `target`."""
+    emulated board started here when `emulate` (`emulation`: EmulatedBoard's options; with
+    `profile`, default gy86-default), else the board on the port `target` (`profile`: the
+    one it must state, None: any)."""
     if emulate:
         from ..emulator import EmulatedBoard
 
-        board = EmulatedBoard(front="tcp", realtime=True, profile=profile, **(emulation or {})).start()
+        board = EmulatedBoard(front="tcp", realtime=True, profile=profile or DEFAULT_PROFILE,
+                              **(emulation or {})).start()
         return LiveSource(board.address, profile=profile, emulated=board)
     if target is not None and Path(target).is_file():
         return ReplaySource(target, speed)

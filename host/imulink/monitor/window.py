@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import core, protocol
+from .. import core, hil, protocol
 from ..files import FileError, create_beside
 from .decimate import peaks
 from . import board3d
@@ -40,6 +40,7 @@ PLOTS = (
     ("ESKF σ attitude error", "deg", "estimates", ("sigma_att_x", "sigma_att_y", "sigma_att_z")),
     ("fixed vs float twin", "deg", "estimates", ("fixed_float",)),
     ("ESKF σ gyro bias", "deg/s", "estimates", ("sigma_bias_x", "sigma_bias_y", "sigma_bias_z")),
+    ("ESKF measurement weights (0: rejected as disturbed)", "1", "estimates", ("gravity_weight", "heading_weight")),
 )
 _COLUMNS = {"samples": SAMPLE_COLUMNS, "estimates": ESTIMATE_COLUMNS}
 #: Angles that wrap at +-180 deg: the curve is broken there instead of drawn across the plot.
@@ -110,7 +111,9 @@ class MonitorWindow(QtWidgets.QMainWindow):
         for k, (title, unit, table, columns) in enumerate(PLOTS):
             # the curves' names in the title, in their colours: a legend would be redrawn with every frame
             names = " ".join(f"<span style='color:{_COLORS[n]}'>{c}</span>" for n, c in enumerate(columns))
-            plot = self.plots_widget.addPlot(row=k // 2, col=k % 2, title=f"{title} &nbsp; {names}")
+            last_alone = k == len(PLOTS) - 1 and k % 2 == 0  # an odd plot out spans both columns
+            plot = self.plots_widget.addPlot(row=k // 2, col=k % 2, colspan=2 if last_alone else 1,
+                                             title=f"{title} &nbsp; {names}")
             plot.disableAutoRange()  # the y ranges follow the drawn data (_autoscale_y): far cheaper per frame
             plot.vb.sigRangeChangedManually.connect(lambda _, k=k: self.autoscaled.__setitem__(k, False))
             plot.setLabel("left", units=None, text=unit)
@@ -236,8 +239,8 @@ class MonitorWindow(QtWidgets.QMainWindow):
         self.record_button.setCheckable(True)
         self.record_button.clicked.connect(self._on_record)
         grid.addWidget(self.record_button, 1, 3)
-        self.settings_table = QtWidgets.QTableWidget(0, 4)
-        self.settings_table.setHorizontalHeaderLabels(["setting", "value", "unit", "format"])
+        self.settings_table = QtWidgets.QTableWidget(0, 5)
+        self.settings_table.setHorizontalHeaderLabels(["setting", "value", "unit", "range", "format"])
         self.settings_table.horizontalHeader().setStretchLastSection(True)
         self.settings_table.verticalHeader().setVisible(False)
         grid.addWidget(self.settings_table, 2, 0, 1, 4)
@@ -342,8 +345,9 @@ class MonitorWindow(QtWidgets.QMainWindow):
                 continue
             raw = round(value * 2.0**setting["frac_bits"])
             if raw != setting["value"]:
-                if not -(2**31) <= raw < 2**31:
-                    self._log(f"{setting['name']}: {value:g} does not fit Q{setting['frac_bits']}")
+                if not setting["min"] <= raw <= setting["max"]:  # the board's own range (SETTING.min/max)
+                    self._log(f"{setting['name']}: {value:g} is outside the board's range "
+                              f"{hil.setting_range_text(setting)}")
                     continue
                 self.source.request("set_setting", setting["index"], raw)
 
@@ -437,7 +441,7 @@ class MonitorWindow(QtWidgets.QMainWindow):
         for row, s in enumerate(settings):
             fixed = QtCore.Qt.ItemFlag.ItemIsEnabled | QtCore.Qt.ItemFlag.ItemIsSelectable
             for col, text in enumerate((s["name"], f"{s['value'] / 2.0**s['frac_bits']:.6g}", s["unit"],
-                                        f"Q{s['frac_bits']}")):
+                                        hil.setting_range_text(s), f"Q{s['frac_bits']}")):
                 item = QtWidgets.QTableWidgetItem(text)
                 if col != 1:
                     item.setFlags(fixed)
