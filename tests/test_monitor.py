@@ -230,11 +230,13 @@ def test_window_connects_fills_its_plots_and_says_bit_exact(qt):
             acc_z = curve(window, "acc_z")[1]
             assert 9.0 < np.median(acc_z) < 10.6  # the board lies flat in the simulated rests: +1 g, m/s^2
             assert np.isnan(curve(window, "sigma_att_x")[1]).all()  # the EECF has no covariance
+            assert np.isnan(curve(window, "gravity_weight")[1]).all()  # nor measurement weights
             window.redraw()
             window.show_health(window.source.health())
             text = window.health_label.text()
             assert "CONNECTED" in text and "yes so far" in text and f"0x{protocol.SCHEMA_HASH:08X}" in text
             assert "(this host's)" in text and "filter eecf at 1000 Hz" in text
+            assert "sensors gy86-default (16.4 LSB per deg/s, 4096 LSB/g, 1090 LSB/gauss)" in text  # its HELLO
         finally:
             window.close()
 
@@ -250,6 +252,11 @@ def test_recording_from_the_window_is_bit_exact(qt, tmp_path, capsys):
             time.sleep(1.5)
             window.source.request("stop_recording")
             wait_until(qt, lambda: window.source.health().recording is None, what="the end of the recording")
+            window.redraw()
+            for name in ("gravity_weight", "heading_weight"):  # the ESKF sends its measurement weights
+                weights = curve(window, name)[1]
+                assert np.isfinite(weights).all() and (weights >= 0).all() and (weights <= 1).all(), name
+                assert (weights > 0).any(), name
         finally:
             window.close()
     assert main(["compare", str(path)]) == 0

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import core, hil, protocol
+from ..counts import describe_profile
 from ..files import FileError, create_beside
 from .decimate import peaks
 from . import board3d
@@ -40,7 +41,7 @@ PLOTS = (
     ("ESKF σ attitude error", "deg", "estimates", ("sigma_att_x", "sigma_att_y", "sigma_att_z")),
     ("fixed vs float twin", "deg", "estimates", ("fixed_float",)),
     ("ESKF σ gyro bias", "deg/s", "estimates", ("sigma_bias_x", "sigma_bias_y", "sigma_bias_z")),
-    ("ESKF measurement weights (0: rejected as disturbed)", "1", "estimates", ("gravity_weight", "heading_weight")),
+    ("ESKF weights", "1", "estimates", ("gravity_weight", "heading_weight")),
 )
 _COLUMNS = {"samples": SAMPLE_COLUMNS, "estimates": ESTIMATE_COLUMNS}
 #: Angles that wrap at +-180 deg: the curve is broken there instead of drawn across the plot.
@@ -111,9 +112,8 @@ class MonitorWindow(QtWidgets.QMainWindow):
         for k, (title, unit, table, columns) in enumerate(PLOTS):
             # the curves' names in the title, in their colours: a legend would be redrawn with every frame
             names = " ".join(f"<span style='color:{_COLORS[n]}'>{c}</span>" for n, c in enumerate(columns))
-            last_alone = k == len(PLOTS) - 1 and k % 2 == 0  # an odd plot out spans both columns
-            plot = self.plots_widget.addPlot(row=k // 2, col=k % 2, colspan=2 if last_alone else 1,
-                                             title=f"{title} &nbsp; {names}")
+            # one column's width each: linked x axes of other widths would not show the same times
+            plot = self.plots_widget.addPlot(row=k // 2, col=k % 2, title=f"{title} &nbsp; {names}")
             plot.disableAutoRange()  # the y ranges follow the drawn data (_autoscale_y): far cheaper per frame
             plot.vb.sigRangeChangedManually.connect(lambda _, k=k: self.autoscaled.__setitem__(k, False))
             plot.setLabel("left", units=None, text=unit)
@@ -408,6 +408,10 @@ class MonitorWindow(QtWidgets.QMainWindow):
                         f"{h.hello['firmware_patch']}, protocol v{h.hello['protocol_version']} schema "
                         f"0x{h.hello['schema_hash']:08X}"
                         + (" (this host's)" if h.hello["schema_hash"] == protocol.SCHEMA_HASH else " (NOT this host's)"))
+            try:
+                rows.append("sensors " + _escape(describe_profile(hil.board_profile(h.hello))))
+            except hil.HilError as exc:  # a board that states no usable sensitivities
+                rows.append(_escape(str(exc)))
         s = h.status
         if s:
             name = FILTER_NAMES.get(s["active_filter"], str(s["active_filter"]))
