@@ -11,6 +11,7 @@ found and named; every error case ends in one line and exit status 2.
 from __future__ import annotations
 
 import csv
+import io
 import os
 import re
 import signal
@@ -473,14 +474,104 @@ def test_disconnect_mid_stream_keeps_the_recording(tmp_path, capsys, transport):
     board = EmulatedBoard(front=transport, duration_s=60.0, rate_hz=500.0, realtime=True).start()
     stopper = threading.Timer(0.8, board.stop)
     stopper.start()
-    code, _, err = run_cli(capsys, "record", board.address, "-o", path)
+    code, _, err = run_cli(capsys, "record", board.address, "-o", path, "--reconnect", "1")
     stopper.join()
     assert code == 2
-    assert_one_line_error(err, "disconnected", str(path), "complete and readable")
+    assert_one_line_error(err, "disconnected", "the board did not come back within 1 s", str(path),
+                          "complete and readable")
+    assert "waiting up to 1 s for the board to come back" in err
     recording = load_recording(path)
     assert 100 < len(recording.samples) < 30_000
     assert recording.events[-1]["event"] == "stopped" and "disconnected" in recording.events[-1]["reason"]
     assert hil.compare(recording).bit_exact
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _record_in_thread(address: str, path, **options) -> tuple[threading.Thread, dict]:
+    outcome = {}
+
+    def run():
+        try:
+            outcome["result"] = hil.record(address, path, **options)
+        except Exception as exc:  # handed to the test
+            outcome["error"] = exc
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    return thread, outcome
+
+
+def _wait_for_samples(path, count: int, timeout_s: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if path.exists() and len(load_recording(path).samples) >= count:
+            return
+        time.sleep(0.2)
+    raise AssertionError(f"{path} did not get {count} samples in {timeout_s:g} s")
+
+
+def test_a_board_that_goes_away_and_comes_back_is_recorded_on_in_a_new_segment(tmp_path):
+    """The TCP board stops (its port closes) and another one starts on the same port with
+    other settings: record waits, says so, takes the snapshot again and goes on in the same
+    file; each segment is verified with the settings the board ran it with."""
+    path, port = tmp_path / "back.imulog", _free_port()
+    first = EmulatedBoard(front="tcp", port=port, duration_s=60.0, realtime=True, filter_name="kf1d").start()
+    with Link(first.address) as link:
+        link.connect()
+        link.command("SET_SETTING", index=1, value=12345)  # q_angle, an odd raw value: the first board's only
+    progress = io.StringIO()
+    thread, outcome = _record_in_thread(first.address, path, duration_s=8.0, reconnect_s=15.0,
+                                        progress=hil.Progress(stream=progress, interval_s=0.0))
+    try:
+        _wait_for_samples(path, 150)
+        first.stop()
+        time.sleep(1.0)
+        second = EmulatedBoard(front="tcp", port=port, duration_s=60.0, realtime=True, filter_name="kf1d").start()
+        thread.join(timeout=60)
+    finally:
+        first.stop()
+    second.stop()
+    assert "error" not in outcome, outcome.get("error")
+    result = outcome["result"]
+    assert result.reconnects == 1 and result.stop_reason == "8 s recorded"
+    assert "waiting up to 15 s for the board to come back" in progress.getvalue()
+    assert "the recording goes on in a new segment" in progress.getvalue()
+    recording = load_recording(path)
+    events = [e["event"] for e in recording.events]
+    assert events.count("snapshot") == 2 and "disconnected" in events and "reconnected" in events
+    segments = np.unique(recording.samples.segment).tolist()
+    kf1d = core.FILTERS["kf1d"][0]
+    assert recording.filter_settings(kf1d, segments[0])[1]["q_angle"] == 12345
+    default = FirmwareFilter.default_raw_settings("kf1d", 100.0)["q_angle"]
+    assert recording.filter_settings(kf1d, segments[-1])[1]["q_angle"] == default != 12345
+    assert len(recording.samples.index[recording.samples.segment == segments[-1]]) > 100
+    comparison = hil.compare(recording)
+    assert comparison.bit_exact and comparison.verified_count > 0.95 * len(recording.estimates)
+
+
+def test_a_board_that_resets_is_recorded_on_in_a_new_segment(tmp_path):
+    """A RESET the recorder did not send (as a watchdog or the reset button would): the
+    board's start-up HELLO (sequence number 0) makes record take the snapshot again and
+    restart the stream; the file verifies across the reset."""
+    path = tmp_path / "reset.imulog"
+    # a proxy in front of the board (rewriting HELLO's schema hash to the same one), so that the test can
+    # reach the board behind the recorder's back
+    with EmulatedBoard(front="tcp", duration_s=60.0, realtime=True, schema_hash=protocol.SCHEMA_HASH) as board:
+        thread, outcome = _record_in_thread(board.address, path, duration_s=5.0)
+        _wait_for_samples(path, 150)
+        # straight to the board, behind the proxy the recorder talks through
+        board.proxy._board.write(protocol.encode_command(999, "RESET", 999))
+        thread.join(timeout=60)
+    assert "error" not in outcome, outcome.get("error")
+    assert outcome["result"].reconnects == 1
+    recording = load_recording(path)
+    assert [e["event"] for e in recording.events].count("snapshot") == 2
+    assert recording.segments >= 2 and hil.compare(recording).bit_exact
 
 
 def test_ctrl_c_stops_the_recording_cleanly(tmp_path):

@@ -633,6 +633,7 @@ def _in_range(parse, low, high, requirement: str):
 
 _positive_float = _in_range(float, math.ulp(0.0), sys.float_info.max, "must be a positive finite number")
 _non_negative_float = _in_range(float, 0.0, sys.float_info.max, "must be a finite number from 0")
+_reconnect_wait = _in_range(float, 0.0, 86400.0, "must be a number of seconds from 0 to 86400")
 _probability = _in_range(float, 0.0, 1.0, "must be a probability from 0 to 1")
 _seed = _in_range(int, 0, 2**32 - 1, "must be an integer from 0 to 4294967295")
 _tcp_port = _in_range(int, 0, 65535, "must be a TCP port from 0 to 65535 (0: any free port)")
@@ -711,14 +712,15 @@ def _cmd_record(args) -> int:
 
     result = hil.record(args.port, args.output, duration_s=args.duration, baud=args.baud, profile=args.profile,
                         resync=not args.no_resync, silence_timeout_s=args.silence_timeout, force=args.force,
-                        progress=hil.Progress(), settings=_settings_file(args))
+                        progress=hil.Progress(), settings=_settings_file(args), reconnect_s=args.reconnect)
     if args.json:
         _print_json(result.to_json())
         return EXIT_INTERRUPTED if result.interrupted else 0
     print(f"recorded {result.samples} samples and {result.estimates} estimates of {result.filter_name} in "
           f"{result.duration_s:.1f} s to {result.path} ({result.stop_reason}); "
           f"{hil.link_summary(result.counters)}"
-          + (f"; filter restarts after lost samples: {result.filter_restarts}" if result.filter_restarts else ""))
+          + (f"; filter restarts after lost samples: {result.filter_restarts}" if result.filter_restarts else "")
+          + (f"; the board came back {result.reconnects} time(s), each a new segment" if result.reconnects else ""))
     return EXIT_INTERRUPTED if result.interrupted else 0
 
 
@@ -1155,6 +1157,10 @@ def _add_hil_commands(sub) -> None:
                    help=f"refuse a board that states another sensor profile than this one, before a file is "
                         f"written (default: whatever the board states; profiles: {_profile_list()})")
     p.add_argument("--no-resync", action="store_true", help="never restart the filter after a lost sample")
+    p.add_argument("--reconnect", type=_reconnect_wait, default=hil.RECONNECT_S, metavar="S",
+                   help=f"wait up to S seconds for a board that went away (its port failed: a USB re-enumeration) "
+                        f"or started again (a reset) to come back, then go on in a new segment of the same file "
+                        f"(default: {hil.RECONNECT_S:g}; 0: end the recording)")
     _json_argument(p, "the summary")
     settings_argument(p, "the board gets them (its filter made active) before recording")
     p.set_defaults(func=_cmd_record)

@@ -245,6 +245,10 @@ RECORD_COMMAND_ATTEMPTS = 12
 SILENCE_MIN_S = 2.0
 SILENCE_PERIODS = 20
 INTERRUPTED = "interrupted"
+#: Seconds `record` waits by default for a board that went away (a reset, a USB re-enumeration).
+RECONNECT_S = 30.0
+#: Seconds between attempts to open a port that went away.
+REOPEN_INTERVAL_S = 0.5
 
 
 @dataclass
@@ -258,6 +262,7 @@ class RecordResult:
     stop_reason: str
     duration_s: float
     counters: dict
+    reconnects: int = 0  # the board went away (or started again) and came back; each began a new segment
 
     @property
     def interrupted(self) -> bool:
@@ -269,7 +274,8 @@ class RecordResult:
         return {"recording": str(self.path), "board": _board_json(self.hello), "filter": self.filter_name,
                 "samples": self.samples, "estimates": self.estimates, "duration_s": self.duration_s,
                 "stop_reason": self.stop_reason, "interrupted": self.interrupted,
-                "filter_restarts": self.filter_restarts, "link": link_json(self.counters)}
+                "filter_restarts": self.filter_restarts, "reconnects": self.reconnects,
+                "link": link_json(self.counters)}
 
 
 def default_silence_timeout(status: dict) -> float:
@@ -280,7 +286,8 @@ def default_silence_timeout(status: dict) -> float:
 
 def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAULT_BAUD,
            profile: SensorProfile | None = None, resync: bool = True, silence_timeout_s: float | None = None,
-           force: bool = False, progress: Progress | None = None, settings=None) -> RecordResult:
+           force: bool = False, progress: Progress | None = None, settings=None,
+           reconnect_s: float = RECONNECT_S) -> RecordResult:
     """Record a board's stream to `path` until `duration_s` s have passed, the board stops
     streaming (STATUS.streaming = 0), or Ctrl-C (then `interrupted`).
 
@@ -290,8 +297,14 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
     old file with `force`): a wrong port, a peer that is not a board, a failure before
     streaming leave no file behind and the old one untouched.
 
-    The file keeps everything received up to a failure, and is closed cleanly: a
-    disconnect raises Disconnected; a stream silent for `silence_timeout_s` (default
+    A board that goes away (its port fails: a USB re-enumeration, a TCP board that stops)
+    or starts again (a HELLO with sequence number 0: a reset) is waited for up to
+    `reconnect_s` seconds (0: not at all); when it answers again, the snapshot is taken
+    again (with `settings` given again) and the recording goes on in a new segment of the
+    same file.
+
+    The file keeps everything received up to a failure, and is closed cleanly: a board
+    gone for longer raises Disconnected; a stream silent for `silence_timeout_s` (default
     :func:`default_silence_timeout`) raises ReceiveTimeout; a write error (a full disk)
     raises RecordingError at once.
 
@@ -319,8 +332,14 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
         temporary.unlink(missing_ok=True)
         raise
     silence = silence_timeout_s or default_silence_timeout(status)
-    with writer, link:
-        return _StreamRecorder(link, writer, filter_id, resync, progress).run(hello, filter_name, duration_s, silence)
+    recorder = _StreamRecorder(link, writer, filter_id, resync, progress)
+    recorder.reopen = lambda: Link(url, baud, tap=writer.received, attempts=RECORD_COMMAND_ATTEMPTS)
+    recorder.settings, recorder.profile, recorder.reconnect_s = settings, profile, reconnect_s
+    with writer:
+        try:
+            return recorder.run(hello, filter_name, duration_s, silence)
+        finally:
+            recorder.link.close()  # the last one (closing twice is harmless)
 
 
 def snapshot(link: Link, writer: RecordingWriter | None, settings=None,
@@ -351,20 +370,55 @@ def snapshot(link: Link, writer: RecordingWriter | None, settings=None,
     return hello, filter_id, filter_name, status
 
 
+class _BoardRestarted(Exception):
+    """A HELLO with sequence number 0 in the stream: the board started again."""
+
+
+def _sum_counters(first: dict, second: dict) -> dict:
+    """Counters of two links one after the other: the counts add up, the rates are the second's."""
+    out = dict(second)
+    for key in ("frames", "bytes", "crc_errors", "resyncs", "lost_frames", "sequence_restarts"):
+        out[key] = first.get(key, 0) + second.get(key, 0)
+    return out
+
+
 class _StreamRecorder:
     """The streaming part of :func:`record`: follows the stream, restarts the board's
-    filter after a lost SAMPLE (when `resync`), shows progress, stops the stream."""
+    filter after a lost SAMPLE (when `resync`), waits for a board that went away or started
+    again (`reopen`, `settings`, `profile`, `reconnect_s`: see record), shows progress,
+    stops the stream."""
 
     RESTART_TIMEOUT_S = 1.0
 
     def __init__(self, link: Link, writer: RecordingWriter, filter_id: int, resync: bool, progress: Progress | None):
         self.link, self.writer, self.filter_id = link, writer, filter_id
         self.resync, self.progress = resync, progress
-        self.samples = self.estimates = self.restarts = 0
+        self.samples = self.estimates = self.restarts = self.reconnects = 0
+        self.reopen = None  # () -> Link on the same port
+        self.settings = self.profile = None
+        self.reconnect_s = 0.0
+        self._earlier_counters: dict = {}  # the counters of the links closed before
+        self._link_open = True  # self.link's counters are not among the earlier ones yet
         self._expected_index = 0
         self._segment_complete = True
         self._restart: tuple | None = None  # (PendingCommand, time sent) of a filter restart in flight
+        self._start_ack = None  # the START_STREAM ACK: messages before it belong to the snapshot
+        self._streaming = False
+        self._last_heard = 0.0
         self.stop_reason: str | None = None
+
+    def counters(self) -> dict:
+        return _sum_counters(self._earlier_counters, self.link.counters()) if self._link_open else (
+            dict(self._earlier_counters))
+
+    def _close_link(self) -> None:
+        if self._link_open:
+            self._earlier_counters, self._link_open = self.counters(), False
+        self.link.close()
+
+    def _use_link(self, link: Link) -> None:
+        self._close_link()
+        self.link, self._link_open = link, True
 
     def _follow(self, message: protocol.Message) -> None:
         name, fields = message.name, message.fields
@@ -386,6 +440,8 @@ class _StreamRecorder:
             self.stop_reason = "the board stopped streaming"
         elif name == "LOG":
             _board_log(self.progress, fields)
+        elif name == "HELLO" and message.seq == 0:
+            raise _BoardRestarted
 
     def _restart_if_needed(self) -> None:
         if not self.resync or self._segment_complete:
@@ -394,48 +450,104 @@ class _StreamRecorder:
             self._restart = (self.link.send_command("SELECT_FILTER", filter_id=self.filter_id), time.monotonic())
             self.restarts += 1
 
+    def _start_stream(self, filter_name: str) -> None:
+        self._start_ack = self.link.command("START_STREAM").ack
+        self._streaming, self._last_heard = False, time.monotonic()
+        self._expected_index, self._segment_complete, self._restart = 0, True, None
+        self.writer.event("stream_started", filter=filter_name)
+
     def run(self, hello: dict, filter_name: str, duration_s: float | None, silence_s: float) -> RecordResult:
-        link, writer = self.link, self.writer
-        start_ack = link.command("START_STREAM").ack
-        started = last_heard = time.monotonic()
-        writer.event("stream_started", filter=filter_name)
-        streaming = False  # messages before the START_STREAM ACK belong to the snapshot
+        started = time.monotonic()
+        self._start_stream(filter_name)
         try:
             while self.stop_reason is None:
-                received = link.receive(timeout=0.1)
-                now = time.monotonic()
-                if received:
-                    last_heard = now
-                for item in received:
-                    if streaming:
-                        self._follow(item.message)
-                    streaming = streaming or item.message is start_ack
-                if writer.failure is not None:
-                    self._stop_stream()
-                    self._abort(RecordingError, f"{writer.failure}; the recording ends there",
-                                "is readable up to there")
-                if now - last_heard > silence_s:
-                    self._abort(ReceiveTimeout, f"{link.url} sent nothing for {silence_s:g} s: the board stopped "
-                                                "streaming unannounced or hangs (--silence-timeout sets the wait)")
-                self._restart_if_needed()
-                elapsed = now - started
-                if duration_s is not None and elapsed >= duration_s:
-                    self.stop_reason = f"{duration_s:g} s recorded"
-                if self.progress is not None and self.progress.due():
-                    self.progress.update(self._status_line(elapsed, link.counters()))
+                try:
+                    try:
+                        self._follow_stream(started, duration_s, silence_s)
+                    except _BoardRestarted:
+                        if self.reconnect_s > 0:  # else its silence ends the recording, as before
+                            self._resume("the board started again (a HELLO with sequence number 0)")
+                except (Disconnected, CommandTimeout) as exc:  # also while the snapshot is taken again
+                    self._await_board(str(exc))
         except KeyboardInterrupt:
             self.stop_reason = INTERRUPTED
-        except Disconnected as exc:
-            self._abort(Disconnected, str(exc))
         self._stop_stream()
-        counters = link.counters()
-        writer.event("stopped", reason=self.stop_reason, counters=counters)
+        counters = self.counters()
+        self.writer.event("stopped", reason=self.stop_reason, counters=counters)
         elapsed = time.monotonic() - started
         if self.progress is not None:
             self.progress.update(self._status_line(elapsed, counters), force=True)
             self.progress.done()
-        return RecordResult(writer.path, hello, filter_name, self.samples, self.estimates, self.restarts,
-                            self.stop_reason, elapsed, counters)
+        return RecordResult(self.writer.path, hello, filter_name, self.samples, self.estimates, self.restarts,
+                            self.stop_reason, elapsed, counters, self.reconnects)
+
+    def _follow_stream(self, started: float, duration_s: float | None, silence_s: float) -> None:
+        """Follow the stream until a stop reason (or an exception: the board went away or
+        started again)."""
+        link, writer = self.link, self.writer
+        while self.stop_reason is None:
+            received = link.receive(timeout=0.1)
+            now = time.monotonic()
+            if received:
+                self._last_heard = now
+            for item in received:
+                if self._streaming:
+                    self._follow(item.message)
+                self._streaming = self._streaming or item.message is self._start_ack
+            if writer.failure is not None:
+                self._stop_stream()
+                self._abort(RecordingError, f"{writer.failure}; the recording ends there", "is readable up to there")
+            if now - self._last_heard > silence_s:
+                self._abort(ReceiveTimeout, f"{link.url} sent nothing for {silence_s:g} s: the board stopped "
+                                            "streaming unannounced or hangs (--silence-timeout sets the wait)")
+            self._restart_if_needed()
+            elapsed = now - started
+            if duration_s is not None and elapsed >= duration_s:
+                self.stop_reason = f"{duration_s:g} s recorded"
+            if self.progress is not None and self.progress.due():
+                self.progress.update(self._status_line(elapsed, self.counters()))
+
+    def _say(self, text: str) -> None:
+        if self.progress is not None:
+            self.progress.message(text)
+
+    def _await_board(self, reason: str) -> None:
+        """The link failed: wait up to reconnect_s for the port to open and the board to
+        answer, then go on in a new segment; Disconnected (the file closed cleanly) if it
+        does not come back."""
+        if self.reconnect_s <= 0:
+            self._abort(Disconnected, reason)
+        self.writer.event("disconnected", reason=reason)
+        self._close_link()
+        self._say(f"{self.link.url}: {reason}; waiting up to {self.reconnect_s:g} s for the board to come back")
+        lost_at = time.monotonic()
+        while True:
+            try:
+                link = self.reopen()
+            except LinkError as exc:
+                failure = str(exc)
+            else:
+                self.writer.received(b"\0", time.time())  # ends a frame the old link left half received
+                self._use_link(link)
+                try:
+                    self._resume(f"the board is back after {time.monotonic() - lost_at:.1f} s")
+                    return
+                except (LinkError, protocol.ProtocolError) as exc:  # it went away again, or is not answering yet
+                    failure = str(exc)
+                    self._close_link()
+            if time.monotonic() - lost_at > self.reconnect_s:
+                self._abort(Disconnected, f"{reason}; the board did not come back within {self.reconnect_s:g} s "
+                                          f"(--reconnect sets the wait; last attempt: {failure})")
+            time.sleep(REOPEN_INTERVAL_S)
+
+    def _resume(self, why: str) -> None:
+        """Take the snapshot again (the board's settings and calibration go into the file
+        for the new segment) and start the stream again."""
+        self.writer.event("reconnected", reason=why)
+        _, self.filter_id, filter_name, _ = snapshot(self.link, self.writer, self.settings, self.profile)
+        self.reconnects += 1
+        self._start_stream(filter_name)
+        self._say(f"{self.link.url}: {why}: the recording goes on in a new segment")
 
     def _stop_stream(self) -> None:
         try:  # the recording is complete either way, and the board may be gone: no long retries
@@ -445,7 +557,7 @@ class _StreamRecorder:
 
     def _abort(self, error: type[Exception], reason: str, kept: str | None = None) -> NoReturn:
         """End the recording on a failure: a last event, and `error` saying what the file keeps."""
-        counters = self.link.counters()
+        counters = self.counters()
         self.writer.event("stopped", reason=reason, counters=counters)
         if self.progress is not None:
             self.progress.done()
@@ -454,7 +566,8 @@ class _StreamRecorder:
 
     def _status_line(self, elapsed: float, counters: dict) -> str:
         return (f"recording {elapsed:6.1f} s: {self.samples} samples, {link_summary(counters)}"
-                + (f", filter restarts {self.restarts}" if self.restarts else ""))
+                + (f", filter restarts {self.restarts}" if self.restarts else "")
+                + (f", reconnects {self.reconnects}" if self.reconnects else ""))
 
 
 # ---------------------------------------------------------------------------- host run and compare
@@ -487,11 +600,11 @@ def host_run(recording: Recording) -> HostRun:
     fixed = {name: np.zeros((n,) + shape, np.int64) for name, shape in _ESTIMATE_SHAPES.items()}
     float_quat, float_euler, float_bias = np.full((n, 4), np.nan), np.full((n, 3), np.nan), np.full((n, 3), np.nan)
     verifiable = np.zeros(n, bool)
-    for segment in np.unique(samples.segment):
+    for segment in np.unique(samples.segment).tolist():
         rows = np.flatnonzero(samples.segment == segment)
-        name, raw_settings = recording.filter_settings(_segment_filter(recording, segment))
+        name, raw_settings = recording.filter_settings(_segment_filter(recording, segment), segment)
         counts = samples.gyr[rows], samples.acc[rows], samples.mag[rows]
-        calibration = recording.calibration()
+        calibration = recording.calibration(segment)
         for key, values in fixed_outputs(name, raw_settings, recording.profile, *counts, calibration).items():
             fixed[key][rows] = values
         reference = FirmwareFilter(name, raw_settings, recording.profile, calibration)

@@ -327,18 +327,30 @@ class Recording:
     truncated_bytes: int
     segments: int
     calibration_frames: list[dict] = field(default_factory=list)
+    #: per segment, what the board had reported when its first frame arrived: the SETTING
+    #: fields (filter id -> index -> fields) and how many CALIBRATION frames had come
+    segment_settings: dict[int, dict[int, dict[int, dict]]] = field(default_factory=dict)
+    segment_calibration_frames: dict[int, int] = field(default_factory=dict)
 
-    def calibration(self):
+    def calibration(self, segment: int | None = None):
         """The board's calibration (imulink.calibration.Calibration, in this recording's
         profile) as its CALIBRATION frames report it (the recorder reads it before
-        streaming); None when the recording holds none (the board's identity calibration
-        then, as after start-up). RecordingError when only part of it was recorded."""
+        streaming, and again after the board came back); None when the recording holds none
+        (the board's identity calibration then, as after start-up). RecordingError when
+        only part of it was recorded.
+
+        segment: the one in effect for that segment (the last frames before it began; an
+        axis not reported before it, the last one after); None: the last reported."""
         from .calibration import Calibration, CalibrationError, SENSORS, calibration_from_frames
 
         if not self.calibration_frames:
             return None
+        frames = self.calibration_frames
+        if segment is not None and segment in self.segment_calibration_frames:
+            before = self.segment_calibration_frames[segment]
+            frames = frames[before:] + frames[:before]  # the last of each axis counts: those before win
         try:
-            sensors = calibration_from_frames(self.calibration_frames)
+            sensors = calibration_from_frames(frames)
         except CalibrationError as exc:
             raise RecordingError(f"{self.path}: {exc}") from None
         if set(sensors) != set(SENSORS):
@@ -348,13 +360,16 @@ class Recording:
                                  f"{', '.join(sorted(sensors)) or 'no sensor'} only; {why}")
         return Calibration(self.profile, sensors)
 
-    def filter_settings(self, filter_id: int) -> tuple[str, dict[str, int]]:
-        """(filter name, raw settings by name) of a filter, as the board reported them."""
+    def filter_settings(self, filter_id: int, segment: int | None = None) -> tuple[str, dict[str, int]]:
+        """(filter name, raw settings by name) of a filter, as the board reported them: for
+        `segment`, as they stood when it began (a setting not reported by then: its last
+        value); None: the last values reported."""
         names = {fid: name for name, (fid, _) in core.FILTERS.items()}
         if filter_id not in names:
             raise RecordingError(f"{self.path}: unknown filter id {filter_id}")
         name = names[filter_id]
-        reported = self.settings.get(filter_id, {})
+        reported = {**self.settings.get(filter_id, {}),
+                    **self.segment_settings.get(segment, {}).get(filter_id, {})}
         fields = core.settings_fields(name)
         missing = [f.name for i, f in enumerate(fields) if i not in reported]
         if missing:
@@ -424,8 +439,18 @@ def load_recording(path, progress: Callable[[int, int], None] | None = None) -> 
     snapshot_at = next((offset for offset, event in events if event.get("event") == "snapshot"), -1)
     decoder, segmenter = protocol.FrameDecoder(), _Segmenter()
     logs, settings, calibration_frames = [], {}, []
+    segment_settings, segment_calibration_frames = {}, {}
     hello = status = None
     samples, estimates = [], []
+
+    def place(index: int) -> int:
+        """The segment of a SAMPLE or ESTIMATE; a segment's first one notes what the board had reported."""
+        segment = segmenter.place(index)
+        if segment not in segment_settings:
+            segment_settings[segment] = {fid: dict(by_index) for fid, by_index in settings.items()}
+            segment_calibration_frames[segment] = len(calibration_frames)
+        return segment
+
     for record in records[1:]:
         if progress is not None:
             progress(record.offset, total)
@@ -434,9 +459,9 @@ def load_recording(path, progress: Callable[[int, int], None] | None = None) -> 
         for message in decoder.feed(record.body):
             name, fields = message.name, message.fields
             if name == "SAMPLE":
-                samples.append((record.time, segmenter.place(fields["index"]), fields))
+                samples.append((record.time, place(fields["index"]), fields))
             elif name == "ESTIMATE":
-                estimates.append((record.time, segmenter.place(fields["index"]), record.offset < snapshot_at, fields))
+                estimates.append((record.time, place(fields["index"]), record.offset < snapshot_at, fields))
             elif name == "ACK" and fields["command"] in _RESTARTING_IDS:
                 segmenter.restart()
             elif name == "HELLO":
@@ -458,7 +483,7 @@ def load_recording(path, progress: Callable[[int, int], None] | None = None) -> 
     segments = len(set(sample_table.segment.tolist()) | set(estimate_table.segment.tolist()))
     return Recording(path, header, profile, [event for _, event in events], hello, status, settings, sample_table,
                      estimate_table, logs, decoder.counters(), found.damaged, found.truncated_bytes, segments,
-                     calibration_frames)
+                     calibration_frames, segment_settings, segment_calibration_frames)
 
 
 def _json_object(path: Path, record: LogRecord, what: str) -> dict:
