@@ -712,7 +712,8 @@ def _cmd_record(args) -> int:
 
     result = hil.record(args.port, args.output, duration_s=args.duration, baud=args.baud, profile=args.profile,
                         resync=not args.no_resync, silence_timeout_s=args.silence_timeout, force=args.force,
-                        progress=hil.Progress(), settings=_settings_file(args), reconnect_s=args.reconnect)
+                        progress=hil.Progress(), settings=_settings_file(args), reconnect_s=args.reconnect,
+                        listen=args.listen)
     if args.json:
         _print_json(result.to_json())
         return EXIT_INTERRUPTED if result.interrupted else 0
@@ -843,8 +844,10 @@ def _cmd_monitor(args) -> int:
             raise UsageError(f"cannot write {args.screenshot}: its directory does not exist")
     emulation = dict(scenario=args.scenario, duration_s=args.duration, rate_hz=args.rate, seed=args.seed,
                      filter_name=args.filter)
+    if args.listen and (args.emulate or args.port is None or Path(args.port).is_file()):
+        raise UsageError("--listen is for a board's PORT that another client commands")
     source = sources.open_source(args.port, emulate=args.emulate, baud=args.baud, profile=args.profile,
-                                 speed=args.speed, emulation=emulation)
+                                 speed=args.speed, emulation=emulation, listen=args.listen)
     title = "emulated board" if args.emulate else args.port
     exit_after = args.exit_after if args.exit_after or not args.screenshot else 5.0
     return window.run(source, title, screenshot=args.screenshot, exit_after=exit_after, view_3d=not args.no_3d)
@@ -1157,6 +1160,10 @@ def _add_hil_commands(sub) -> None:
                    help=f"refuse a board that states another sensor profile than this one, before a file is "
                         f"written (default: whatever the board states; profiles: {_profile_list()})")
     p.add_argument("--no-resync", action="store_true", help="never restart the filter after a lost sample")
+    p.add_argument("--listen", action="store_true",
+                   help="record a board that another client commands (the TCP front of imulink emulate or imulink "
+                        "proxy takes several clients: the first commands, the others listen) without sending it "
+                        "anything; estimates verify from the next filter run that starts at sample 0")
     p.add_argument("--reconnect", type=_reconnect_wait, default=hil.RECONNECT_S, metavar="S",
                    help=f"wait up to S seconds for a board that went away (its port failed: a USB re-enumeration) "
                         f"or started again (a reset) to come back, then go on in a new segment of the same file "
@@ -1227,6 +1234,9 @@ def _add_hil_commands(sub) -> None:
                    help=f"refuse a board that states another sensor profile than this one (default: whatever "
                         f"the board states; profiles: {_profile_list()})")
     p.add_argument("--emulate", action="store_true", help="start an emulated board (the native firmware) and show it")
+    p.add_argument("--listen", action="store_true",
+                   help="show a board another client commands (the TCP front of imulink emulate or imulink proxy "
+                        "takes several clients) without sending it anything; its controls are then off")
     simulation_arguments(p, 600.0)
     p.add_argument("--speed", type=_positive_float, default=1.0, help="replay speed of a recording (default: 1)")
     p.add_argument("--screenshot", metavar="FILE", help="write the window to FILE (PNG) after --exit-after "

@@ -17,7 +17,8 @@ The feed (docs/firmware.md) is one SAMPLE frame per simulated sample and a LOG f
 at the end. ``realtime=False`` (the default) lets the board take a sample whenever the
 feed has one and the host has read the last ones, so a run goes as fast as the link;
 ``realtime=True`` paces samples by the board's own clock. Faults and another schema
-hash are a :class:`~imulink.proxy.Proxy` in front of either target.
+hash are a :class:`~imulink.proxy.Proxy` in front of either target, and so is every TCP
+front: it takes several clients, one of which commands while the others listen.
 """
 from __future__ import annotations
 
@@ -254,7 +255,8 @@ class EmulatedBoard:
         return self
 
     def _needs_proxy(self) -> bool:
-        return self.faults is not None or self.schema_hash is not None or self.front not in ("pty", "tcp")
+        # a TCP front is always the proxy's: it takes several clients (one commands, the others listen)
+        return self.faults is not None or self.schema_hash is not None or self.front != "pty"
 
     def _start_native(self, frames: list[bytes]) -> None:
         feed = self._dir / "feed.bin"

@@ -287,7 +287,7 @@ def default_silence_timeout(status: dict) -> float:
 def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAULT_BAUD,
            profile: SensorProfile | None = None, resync: bool = True, silence_timeout_s: float | None = None,
            force: bool = False, progress: Progress | None = None, settings=None,
-           reconnect_s: float = RECONNECT_S) -> RecordResult:
+           reconnect_s: float = RECONNECT_S, listen: bool = False) -> RecordResult:
     """Record a board's stream to `path` until `duration_s` s have passed, the board stops
     streaming (STATUS.streaming = 0), or Ctrl-C (then `interrupted`).
 
@@ -303,6 +303,12 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
     again (with `settings` given again) and the recording goes on in a new segment of the
     same file.
 
+    listen: record a board another client commands (a fan-out TCP front, see
+    imulink.proxy.TcpFront) without sending anything: the file starts with the board's last
+    HELLO, STATUS, SETTING and CALIBRATION frames the front passes on, then the stream from
+    wherever it is (estimates verify from the next filter run that starts at sample 0);
+    a silent stream ends the recording normally. `settings` cannot be given then.
+
     The file keeps everything received up to a failure, and is closed cleanly: a board
     gone for longer raises Disconnected; a stream silent for `silence_timeout_s` (default
     :func:`default_silence_timeout`) raises ReceiveTimeout; a write error (a full disk)
@@ -314,6 +320,8 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
     when the board states another.
     """
     path = Path(path)
+    if listen and settings is not None:
+        raise HilError("a listener cannot give the board settings: the client that commands it can")
     check_writable_target(path, replace=force)
     fd, temporary = create_beside(path)
     writer = RecordingWriter(path, url, profile, fd=fd)
@@ -321,7 +329,10 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
         # the file holds every byte from the moment the port opens
         link = Link(url, baud, tap=writer.received, attempts=RECORD_COMMAND_ATTEMPTS)
         try:
-            hello, filter_id, filter_name, status = snapshot(link, writer, settings, profile)
+            if listen:
+                hello, filter_id, filter_name, status = _listen(link, writer, profile), 0, "unknown", None
+            else:
+                hello, filter_id, filter_name, status = snapshot(link, writer, settings, profile)
             writer.check()
             publish(temporary, path, replace=force)
         except BaseException:
@@ -331,8 +342,9 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
         writer.close()
         temporary.unlink(missing_ok=True)
         raise
-    silence = silence_timeout_s or default_silence_timeout(status)
-    recorder = _StreamRecorder(link, writer, filter_id, resync, progress)
+    silence = silence_timeout_s or (default_silence_timeout(status) if status else SILENCE_MIN_S)
+    recorder = _StreamRecorder(link, writer, filter_id, resync and not listen, progress)
+    recorder.listen = listen
     recorder.reopen = lambda: Link(url, baud, tap=writer.received, attempts=RECORD_COMMAND_ATTEMPTS)
     recorder.settings, recorder.profile, recorder.reconnect_s = settings, profile, reconnect_s
     with writer:
@@ -370,6 +382,14 @@ def snapshot(link: Link, writer: RecordingWriter | None, settings=None,
     return hello, filter_id, filter_name, status
 
 
+def _listen(link: Link, writer: RecordingWriter, profile: SensorProfile | None) -> dict:
+    """The start of a listener's recording: the board's HELLO as the front passes it on."""
+    hello = link.listen()
+    check_profile(profile, hello)
+    writer.event("connected", hello=hello, listening=True)
+    return hello
+
+
 class _BoardRestarted(Exception):
     """A HELLO with sequence number 0 in the stream: the board started again."""
 
@@ -397,6 +417,7 @@ class _StreamRecorder:
         self.reopen = None  # () -> Link on the same port
         self.settings = self.profile = None
         self.reconnect_s = 0.0
+        self.listen = False  # record without commanding (see record)
         self._earlier_counters: dict = {}  # the counters of the links closed before
         self._link_open = True  # self.link's counters are not among the earlier ones yet
         self._expected_index = 0
@@ -432,16 +453,18 @@ class _StreamRecorder:
             self._expected_index = index + 1
         elif name == "ESTIMATE":
             self.estimates += 1
+            self.filter_name = name_of_filter(fields["filter_id"])
         elif name in ("ACK", "NACK") and self._restart and fields["command_seq"] == self._restart[0].command_seq:
             self._restart = None
             if name == "ACK":  # every frame of the old run came before this: the next SAMPLE must be index 0
                 self._segment_complete, self._expected_index = True, 0
-        elif name == "STATUS" and not fields["streaming"]:
+        elif name == "STATUS" and not fields["streaming"] and not (self.listen and self.samples == 0):
+            # (a listener's first STATUS may be the front's copy from before the stream started)
             self.stop_reason = "the board stopped streaming"
         elif name == "LOG":
             _board_log(self.progress, fields)
-        elif name == "HELLO" and message.seq == 0:
-            raise _BoardRestarted
+        elif name == "HELLO" and message.seq == 0 and not (self.listen and self.samples == 0):
+            raise _BoardRestarted  # (a listener's first HELLO is the front's copy)
 
     def _restart_if_needed(self) -> None:
         if not self.resync or self._segment_complete:
@@ -451,6 +474,11 @@ class _StreamRecorder:
             self.restarts += 1
 
     def _start_stream(self, filter_name: str) -> None:
+        self.filter_name = filter_name
+        if self.listen:  # the stream is whatever the board sends
+            self._start_ack, self._streaming, self._last_heard = None, True, time.monotonic()
+            self.writer.event("listening")
+            return
         self._start_ack = self.link.command("START_STREAM").ack
         self._streaming, self._last_heard = False, time.monotonic()
         self._expected_index, self._segment_complete, self._restart = 0, True, None
@@ -478,7 +506,7 @@ class _StreamRecorder:
         if self.progress is not None:
             self.progress.update(self._status_line(elapsed, counters), force=True)
             self.progress.done()
-        return RecordResult(self.writer.path, hello, filter_name, self.samples, self.estimates, self.restarts,
+        return RecordResult(self.writer.path, hello, self.filter_name, self.samples, self.estimates, self.restarts,
                             self.stop_reason, elapsed, counters, self.reconnects)
 
     def _follow_stream(self, started: float, duration_s: float | None, silence_s: float) -> None:
@@ -497,7 +525,9 @@ class _StreamRecorder:
             if writer.failure is not None:
                 self._stop_stream()
                 self._abort(RecordingError, f"{writer.failure}; the recording ends there", "is readable up to there")
-            if now - self._last_heard > silence_s:
+            if now - self._last_heard > silence_s and self.listen:
+                self.stop_reason = f"nothing received for {silence_s:g} s: the stream stopped"
+            elif now - self._last_heard > silence_s:
                 self._abort(ReceiveTimeout, f"{link.url} sent nothing for {silence_s:g} s: the board stopped "
                                             "streaming unannounced or hangs (--silence-timeout sets the wait)")
             self._restart_if_needed()
@@ -544,12 +574,18 @@ class _StreamRecorder:
         """Take the snapshot again (the board's settings and calibration go into the file
         for the new segment) and start the stream again."""
         self.writer.event("reconnected", reason=why)
-        _, self.filter_id, filter_name, _ = snapshot(self.link, self.writer, self.settings, self.profile)
+        if self.listen:
+            _listen(self.link, self.writer, self.profile)
+            filter_name = self.filter_name
+        else:
+            _, self.filter_id, filter_name, _ = snapshot(self.link, self.writer, self.settings, self.profile)
         self.reconnects += 1
         self._start_stream(filter_name)
         self._say(f"{self.link.url}: {why}: the recording goes on in a new segment")
 
     def _stop_stream(self) -> None:
+        if self.listen:
+            return  # not this client's to stop
         try:  # the recording is complete either way, and the board may be gone: no long retries
             self.link.command("STOP_STREAM", attempts=COMMAND_ATTEMPTS)
         except (LinkError, protocol.ProtocolError):

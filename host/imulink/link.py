@@ -75,6 +75,10 @@ class NotABoard(LinkError):
     """The peer does not answer like an imulink board (no HELLO in time)."""
 
 
+class Busy(LinkError):
+    """Another client commands the board (a TCP front with fan-out): this one may only listen."""
+
+
 class Disconnected(LinkError):
     """The port closed or failed while in use (cable pulled, board gone, socket closed)."""
 
@@ -422,6 +426,21 @@ class Link:
         raise CommandTimeout(f"no answer to {pending.describe()} from {self.url} after {tries} attempt(s) "
                              f"in {waited:.3g} s")
 
+    def listen(self, timeout: float = COMMAND_TIMEOUT_S) -> dict:
+        """Wait for the board's HELLO without sending anything (a listener of a fan-out
+        front gets the last one on connecting), check its schema hash, return its fields.
+        NotABoard when none comes within `timeout` s."""
+        deadline = time.monotonic() + timeout
+        while self.hello is None and time.monotonic() < deadline:
+            if self._failure is not None:
+                raise Disconnected(self._failure)
+            time.sleep(0.01)
+        if self.hello is None:
+            raise NotABoard(f"no HELLO from {self.url} within {timeout:g} s: listening needs a board that has "
+                            "greeted (a fan-out front passes on the board's last HELLO)")
+        protocol.check_hello(self.hello)
+        return self.hello
+
     def connect(self, timeout: float = COMMAND_TIMEOUT_S, attempts: int | None = None) -> dict:
         """The handshake: GET_VERSION, wait for HELLO, check its schema hash.
 
@@ -436,6 +455,11 @@ class Link:
         try:
             try:
                 reply = self.command("GET_VERSION", timeout=timeout, attempts=first)
+            except protocol.CommandError as exc:
+                if exc.reason != "BUSY":  # a board answers GET_VERSION; only a fan-out front refuses it
+                    raise
+                raise Busy(f"busy: another client is connected to {self.url} and commands the board; this "
+                           "connection may only listen (imulink record --listen)") from None
             except CommandTimeout:
                 if attempts == first or not self.counters()["bytes"]:
                     raise

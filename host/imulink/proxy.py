@@ -11,8 +11,9 @@ and serves the host on a pseudo-terminal, a TCP port on 127.0.0.1 or a serial po
 - `schema_hash` rewrites every HELLO to report another schema hash (a board built from
   another protocol definition), with a valid CRC.
 
-While no host is connected to a TCP front, what the board sends is dropped, as on a
-UART with nothing attached. The proxy reads the board only while less than
+A TCP front takes several clients (fan-out, see :class:`TcpFront`): the first commands
+the board, the others listen. While no host is connected to it, what the board sends is
+dropped, as on a UART with nothing attached. The proxy reads the board only while less than
 BACKLOG_BYTES wait for the host, so a board that waits for its link (QEMU) waits for
 the host, and a real-time board drops samples itself, as it would on a slow host.
 """
@@ -28,6 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import serial
+from cobs import cobs
 
 from . import protocol
 from .link import PortError
@@ -149,6 +151,12 @@ class PtyFront:
     def poll(self, timeout: float) -> None:
         """Nothing to accept: a pty is always 'connected'."""
 
+    def write_fds(self) -> list[int]:
+        return []  # what waits for the host is the proxy's
+
+    def pending_bytes(self) -> int:
+        return 0
+
     def read(self) -> bytes:
         try:
             return os.read(self._master, 65536)
@@ -173,70 +181,193 @@ class PtyFront:
                 pass
 
 
+class _Client:
+    """One TCP client of a TcpFront: its socket and the bytes waiting for it."""
+
+    def __init__(self, sock: socket.socket):
+        self.sock = sock
+        self.pending = bytearray()   # frames on their way to it
+        self.received = bytearray()  # a listener's bytes after its last delimiter
+        self.dropped_bytes = 0       # a listener's frames dropped because it did not keep up
+
+
+#: Messages a TcpFront keeps the last of (per key) and gives a listener when it connects, so
+#: that it knows the board: HELLO, STATUS, SETTING (per filter and index), CALIBRATION (per
+#: sensor and axis).
+_KEPT_IDS = {protocol.MESSAGE_IDS[name] for name in ("HELLO", "STATUS", "SETTING", "CALIBRATION")}
+_BUSY = protocol.REASONS["BUSY"]
+
+
 class TcpFront:
     """A TCP server on `host`:`port` (0: a free port); `address` is the pyserial URL.
-    One client at a time; ``connections`` counts the clients accepted so far."""
+
+    Several clients at once (fan-out): the first connected, the *commander*, talks with
+    the board; every other one *listens*. Every client gets first the board's last HELLO,
+    STATUS, SETTING and CALIBRATION frames seen, renumbered to run into the stream, so that
+    it knows the board (a greeting, as the native board gives each client of its own TCP
+    port), then every frame the board sends (from a frame boundary on);
+    the proxy answers a COMMAND of a listener itself with NACK BUSY (a duplicate of the
+    stream's last sequence number), and the board never sees it. A listener that does not
+    keep up loses frames (its sequence numbers show the gap); the commander never does: the
+    proxy stops reading the board instead. When the commander leaves, the listener
+    connected longest takes its place. ``connections`` counts the clients accepted so far.
+    """
 
     def __init__(self, host: str = "127.0.0.1", port: int = 0):
         self._server = socket.create_server((host, port))
         self._server.setblocking(False)
         self.address = f"socket://{host}:{self._server.getsockname()[1]}"
-        self._client: socket.socket | None = None
+        self._clients: list[_Client] = []  # the commander first
+        self._partial = bytearray()        # board bytes after the last delimiter
+        self._kept: dict[tuple, bytes] = {}  # key -> the last frame of a kept message
+        self._last_seq = 0                 # of the board's last frame
         self.connections = 0
 
     def fileno(self) -> int | None:
-        return self._client.fileno() if self._client is not None else None
+        return self._clients[0].sock.fileno() if self._clients else None
+
+    def write_fds(self) -> list[int]:
+        return [c.sock.fileno() for c in self._clients if c.pending]
+
+    def pending_bytes(self) -> int:
+        """Bytes waiting for the commander (the proxy reads the board only while few do)."""
+        return len(self._clients[0].pending) if self._clients else 0
+
+    def listeners(self) -> int:
+        return max(0, len(self._clients) - 1)
 
     def poll(self, timeout: float) -> None:
-        """Accept a client when none is connected (waiting up to `timeout` s)."""
-        if self._client is not None:
-            return
-        if select.select([self._server], [], [], timeout)[0]:
+        """Accept clients (waiting up to `timeout` s while there is none), answer the
+        listeners' commands, send what waits."""
+        ready = select.select([self._server], [], [], 0.0 if self._clients else timeout)[0]
+        if ready:
             try:
-                client, _ = self._server.accept()
+                sock, _ = self._server.accept()
             except BlockingIOError:
-                return
-            client.setblocking(False)
-            client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            self._client = client
-            self.connections += 1
+                sock = None
+            if sock is not None:
+                sock.setblocking(False)
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                client = _Client(sock)
+                # first what is known of the board: a greeting, as the native board gives every client
+                kept = list(self._kept.values())
+                first = (self._last_seq - len(kept) + 1) & 0xFFFF
+                client.pending += b"".join(_renumber(frame, (first + k) & 0xFFFF) for k, frame in enumerate(kept))
+                self._clients.append(client)
+                self.connections += 1
+        for client in self._clients[1:]:
+            self._serve_listener(client)
+        self._flush()
+
+    def _serve_listener(self, client: _Client) -> None:
+        try:
+            data = client.sock.recv(65536)
+        except BlockingIOError:
+            return
+        except OSError:
+            data = b""
+        if not data:
+            self._drop(client)
+            return
+        client.received += data
+        *frames, rest = bytes(client.received).split(b"\0")
+        client.received[:] = rest
+        for frame in frames:
+            try:
+                message = protocol.decode(frame + b"\0")
+            except protocol.FrameError:
+                continue
+            if message.name == "COMMAND":
+                client.pending += protocol.encode("NACK", self._last_seq, command_seq=message.fields["command_seq"],
+                                                  command=message.fields["command"], reason=_BUSY)
 
     @property
     def connected(self) -> bool:
-        return self._client is not None
+        return bool(self._clients)
 
-    def _drop_client(self) -> None:
-        self._client.close()
-        self._client = None
+    def _drop(self, client: _Client) -> None:
+        client.sock.close()
+        self._clients.remove(client)  # the commander's successor: the listener connected longest
 
     def read(self) -> bytes:
-        if self._client is None:
+        """What the commander sent (for the board)."""
+        if not self._clients:
             return b""
+        commander = self._clients[0]
         try:
-            data = self._client.recv(65536)
+            data = commander.sock.recv(65536)
         except BlockingIOError:
             return b""
         except OSError:
             data = b""
         if not data:
-            self._drop_client()
+            self._drop(commander)
         return data
 
     def write(self, data: bytes) -> int:
-        if self._client is None:
-            return len(data)  # nobody listening: the bytes are gone
-        try:
-            return self._client.send(data)
-        except BlockingIOError:
-            return 0
-        except OSError:
-            self._drop_client()
+        """Take board bytes: every complete frame goes to every client (nobody connected:
+        they are gone, as on a UART with nothing attached). Returns len(data)."""
+        self._partial += data
+        end = self._partial.rfind(0)
+        if end < 0:
             return len(data)
+        complete = bytes(self._partial[:end + 1])
+        del self._partial[:end + 1]
+        self._note(complete)
+        for k, client in enumerate(self._clients):
+            if k > 0 and len(client.pending) > BACKLOG_BYTES:
+                client.dropped_bytes += len(complete)
+            else:
+                client.pending += complete
+        self._flush()
+        return len(data)
+
+    def _note(self, frames: bytes) -> None:
+        """The last sequence number, and the last frame of each kept message."""
+        spans = frames.split(b"\0")[:-1]
+        for span in spans:
+            if len(span) > 1 and span[1] in _KEPT_IDS:  # COBS leaves a non-zero first byte (the id) in place
+                try:
+                    message = protocol.decode(span + b"\0")
+                except protocol.FrameError:
+                    continue
+                f = message.fields
+                key = {"SETTING": (f.get("filter_id"), f.get("index")),
+                       "CALIBRATION": (f.get("sensor"), f.get("axis"))}.get(message.name, ())
+                self._kept.pop((message.name, *key), None)  # re-inserted last: the order they came in
+                self._kept[(message.name, *key)] = span + b"\0"
+        for span in reversed(spans):
+            try:
+                raw = cobs.decode(span)
+            except cobs.DecodeError:
+                continue
+            if len(raw) >= 3:
+                self._last_seq = raw[1] | raw[2] << 8
+                break
+
+    def _flush(self) -> None:
+        for client in list(self._clients):
+            if not client.pending:
+                continue
+            try:
+                sent = client.sock.send(client.pending)
+            except BlockingIOError:
+                continue
+            except OSError:
+                self._drop(client)
+                continue
+            del client.pending[:sent]
 
     def close(self) -> None:
-        if self._client is not None:
-            self._drop_client()
+        for client in list(self._clients):
+            self._drop(client)
         self._server.close()
+
+
+def _renumber(frame: bytes, seq: int) -> bytes:
+    """A frame (delimiter included) with another sequence number."""
+    message = protocol.decode(frame)
+    return protocol.encode(message.name, seq, **message.fields)
 
 
 class SerialFront:
@@ -259,6 +390,12 @@ class SerialFront:
 
     def poll(self, timeout: float) -> None:
         pass
+
+    def write_fds(self) -> list[int]:
+        return []  # what waits for the host is the proxy's
+
+    def pending_bytes(self) -> int:
+        return 0
 
     @property
     def connected(self) -> bool:
@@ -345,6 +482,11 @@ class Proxy:
         if self._thread is not None:
             self._thread.join(timeout=5.0)
         self.front.close()
+        if self.board_url.startswith("socket://") and self._board.is_open:
+            # pyserial's socket close sleeps 0.3 s "in case of quick reconnects"; the proxy
+            # never reconnects: close the socket itself and mark the port closed
+            self._board._socket.close()
+            self._board.is_open = False
         self._board.close()
 
     def __enter__(self) -> "Proxy":
@@ -371,12 +513,12 @@ class Proxy:
             self._stop.wait(min(_POLL_S, self._stall_until - time.monotonic()))
             return
         readable = []
-        fds = [fd for fd in (self._board_fd if len(self._to_host) < BACKLOG_BYTES else None, front.fileno())
-               if fd is not None]
-        writable = [front.fileno()] if self._to_host and front.fileno() is not None else []
+        room = len(self._to_host) + front.pending_bytes() < BACKLOG_BYTES
+        fds = [fd for fd in (self._board_fd if room else None, front.fileno()) if fd is not None]
+        writable = front.write_fds() + ([front.fileno()] if self._to_host and front.fileno() is not None else [])
         if fds or writable:
             readable, _, _ = select.select(fds, writable, [], _POLL_S)
-        if self._board_fd is None and len(self._to_host) < BACKLOG_BYTES:
+        if self._board_fd is None and room:
             readable.append(None)  # a port without a file descriptor: polled
         if self._board_fd in readable or None in readable:
             data = self._board.read(65536) if self._board_fd is not None else self._board.read(

@@ -29,6 +29,7 @@ from ..counts import SensorProfile
 from ..reference import FirmwareFilter
 
 _RESTARTING_IDS = {protocol.COMMAND_IDS[name] for name in protocol.RESTARTING_COMMANDS}
+_SET_SETTING = protocol.COMMAND_IDS["SET_SETTING"]
 _FILTER_NAMES = {filter_id: name for name, (filter_id, _) in core.FILTERS.items()}
 #: Host results kept for estimates that have not arrived yet (an ESTIMATE follows its SAMPLE at once).
 _KEEP_RESULTS = 4096
@@ -123,7 +124,11 @@ class LiveCheck:
             elif name == "CALIBRATION":
                 self.calibration_frames[fields["sensor"], fields["axis"]] = fields
             elif name == "ACK" and fields["command"] in _RESTARTING_IDS:
-                self._restart(self._expected.pop(fields["command_seq"], None))
+                change = self._expected.pop(fields["command_seq"], None)
+                if change is None and fields["command"] == _SET_SETTING:
+                    self._run = None  # another client changed a setting: its value is not known here
+                else:
+                    self._restart(change)
             elif name == "HELLO" and message.seq == 0:  # the board started again: default settings, unknown to
                 self.settings.clear()                       # us, and the identity calibration
                 self.calibration_frames.clear()

@@ -95,12 +95,16 @@ class LiveSource:
     The sensor profile is the one the board states in its HELLO; `profile` (None: any) is
     the one expected: a board that states another is refused (shown, and tried again).
     `emulated`: an :class:`imulink.emulator.EmulatedBoard` the source owns and stops on close.
+    `listen`: show a board another client commands (a fan-out TCP front) without sending
+    it anything: its settings and calibration are the frames that pass, the window's board
+    controls are refused.
     """
 
     live = True
 
-    def __init__(self, url: str, baud: int = DEFAULT_BAUD, profile: SensorProfile | None = None, emulated=None):
-        self.url, self.baud, self.emulated = url, baud, emulated
+    def __init__(self, url: str, baud: int = DEFAULT_BAUD, profile: SensorProfile | None = None, emulated=None,
+                 listen: bool = False):
+        self.url, self.baud, self.emulated, self.listen = url, baud, emulated, listen
         self.expected_profile = profile
         self.profile = profile or DEFAULT_PROFILE  # until the board states its own
         self.samples = RingBuffer(RING_ROWS, len(SAMPLE_COLUMNS))
@@ -205,14 +209,20 @@ class LiveSource:
         self._restart_stream()
         with self._lock:
             reconnects = self._health.reconnects
-        self._set_state("connected", f"{self.url}", hello=self._link.hello)
+        self._set_state("connected", f"{self.url}" + (" (listening)" if self.listen else ""), hello=self._link.hello)
         self._events.append(f"connected to {self._link.hello['board']} on {self.url}"
                             + (f" (reconnected, {reconnects} time(s) so far)" if reconnects else ""))
 
     def _restart_stream(self, writer: RecordingWriter | None = None) -> None:
         """Handshake, the board's state, settings and calibration, its filter restarted at
         sample 0 and the stream started: hil.snapshot, as `imulink record` begins (into
-        `writer` when recording). The answers also reach the live check through the stream."""
+        `writer` when recording). The answers also reach the live check through the stream.
+        A listener only waits for the board's HELLO (the front passes on its last one)."""
+        if self.listen:
+            hello = self._link.listen()
+            self.profile = self.check.profile = hil.check_profile(self.expected_profile, hello)
+            self._greeted = time.time()
+            return
         hello, filter_id, _, status = hil.snapshot(self._link, writer, profile=self.expected_profile)
         self.profile = self.check.profile = hil.board_profile(hello)
         if writer is None:  # with a writer the snapshot read it already, for the file
@@ -247,7 +257,7 @@ class LiveSource:
             self._link = None
 
     def _poll_status(self) -> None:
-        if time.monotonic() >= self._status_due:
+        if not self.listen and time.monotonic() >= self._status_due:
             self._status_due = time.monotonic() + STATUS_INTERVAL_S
             self._link.command("GET_STATUS")  # the STATUS itself is taken from the stream
 
@@ -268,12 +278,15 @@ class LiveSource:
             elif name == "STATUS":
                 with self._lock:
                     self._health.status = fields
+            elif name == "SETTING" and self.listen:  # a listener's settings table: what passes
+                self._note_setting(fields)
             elif name == "LOG":
                 level = {v: k for k, v in protocol.LOG_LEVELS.items()}.get(fields["level"], str(fields["level"]))
                 self._events.append(f"board: {level} {fields['text']}")
             elif name == "HELLO" and item.message.seq == 0 and item.time > self._greeted:
                 self._events.append("the board started again (HELLO with sequence number 0)")
-                self.request("resume")
+                if not self.listen:
+                    self.request("resume")
         if samples:
             self.samples.append(sample_rows(*(np.array([s[k] for s in samples]) for k in range(4)), self.profile))
         if estimates:
@@ -283,12 +296,21 @@ class LiveSource:
 
     # ------------------------------------------------------------------ commands from the window
 
+    def _note_setting(self, fields: dict) -> None:
+        with self._lock:
+            others = [s for s in self._settings if s["filter_id"] == fields["filter_id"] and s["index"] != fields["index"]]
+            self._settings = sorted(others + [fields], key=lambda s: s["index"])
+
     def _serve_requests(self) -> None:
         while True:
             try:
                 action, args = self._requests.get_nowait()
             except queue.Empty:
                 return
+            if self.listen and action != "stop_recording":
+                self._events.append(f"{action.replace('_', ' ')}: refused, this monitor only listens (another client "
+                                    "commands the board)")
+                continue
             try:
                 getattr(self, f"_do_{action}")(*args)
             except protocol.CommandError as exc:
@@ -465,7 +487,8 @@ class ReplaySource:
 
 
 def open_source(target: str | None, *, emulate: bool = False, baud: int = DEFAULT_BAUD,
-                profile: SensorProfile | None = None, speed: float = 1.0, emulation: dict | None = None):
+                profile: SensorProfile | None = None, speed: float = 1.0, emulation: dict | None = None,
+                listen: bool = False):
     """The source `imulink monitor` shows: a recording when `target` is a regular file, an
     emulated board started here when `emulate` (`emulation`: EmulatedBoard's options; with
     `profile`, default gy86-default), else the board on the port `target` (`profile`: the
@@ -478,4 +501,4 @@ def open_source(target: str | None, *, emulate: bool = False, baud: int = DEFAUL
         return LiveSource(board.address, profile=profile, emulated=board)
     if target is not None and Path(target).is_file():
         return ReplaySource(target, speed)
-    return LiveSource(target, baud, profile)
+    return LiveSource(target, baud, profile, listen=listen)

@@ -247,7 +247,7 @@ class MonitorWindow(QtWidgets.QMainWindow):
         apply = QtWidgets.QPushButton("apply settings")
         apply.clicked.connect(self.apply_settings)
         grid.addWidget(apply, 3, 0, 1, 4)
-        box.setEnabled(self.source.live)
+        box.setEnabled(self.source.live and not getattr(self.source, "listen", False))  # a listener may not command
         return box
 
     # ------------------------------------------------------------------ state kept between runs
