@@ -343,10 +343,9 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
         temporary.unlink(missing_ok=True)
         raise
     silence = silence_timeout_s or (default_silence_timeout(status) if status else SILENCE_MIN_S)
-    recorder = _StreamRecorder(link, writer, filter_id, resync and not listen, progress)
-    recorder.listen = listen
-    recorder.reopen = lambda: Link(url, baud, tap=writer.received, attempts=RECORD_COMMAND_ATTEMPTS)
-    recorder.settings, recorder.profile, recorder.reconnect_s = settings, profile, reconnect_s
+    recorder = _StreamRecorder(link, writer, filter_id, resync and not listen, progress, listen=listen,
+                               reopen=lambda: Link(url, baud, tap=writer.received, attempts=RECORD_COMMAND_ATTEMPTS),
+                               settings=settings, profile=profile, reconnect_s=reconnect_s)
     with writer:
         try:
             return recorder.run(hello, filter_name, duration_s, silence)
@@ -410,14 +409,14 @@ class _StreamRecorder:
 
     RESTART_TIMEOUT_S = 1.0
 
-    def __init__(self, link: Link, writer: RecordingWriter, filter_id: int, resync: bool, progress: Progress | None):
+    def __init__(self, link: Link, writer: RecordingWriter, filter_id: int, resync: bool, progress: Progress | None,
+                 *, listen: bool, reopen, settings, profile: SensorProfile | None, reconnect_s: float):
         self.link, self.writer, self.filter_id = link, writer, filter_id
         self.resync, self.progress = resync, progress
         self.samples = self.estimates = self.restarts = self.reconnects = 0
-        self.reopen = None  # () -> Link on the same port
-        self.settings = self.profile = None
-        self.reconnect_s = 0.0
-        self.listen = False  # record without commanding (see record)
+        self.listen = listen  # record without commanding (see record)
+        self.reopen = reopen  # () -> a new Link on the same port
+        self.settings, self.profile, self.reconnect_s = settings, profile, reconnect_s
         self._earlier_counters: dict = {}  # the counters of the links closed before
         self._link_open = True  # self.link's counters are not among the earlier ones yet
         self._expected_index = 0
