@@ -24,6 +24,10 @@ static chip_text_t chip_text(sensor_chip_t chip)
         t.name = "HMC5883L";
         t.expected_identity = "H43"; /* identification registers A, B, C */
         break;
+    case SENSOR_CHIP_MS5611:
+        t.name = "MS5611";
+        t.expected_identity = "a PROM with a valid CRC-4"; /* it has no identification register */
+        break;
     }
     return t;
 }
@@ -80,6 +84,22 @@ sensor_status_t sensor_status_config(sensor_chip_t chip, uint8_t reg)
 {
     sensor_status_t s = blank(chip, SENSOR_ERR_CONFIG);
     s.reg = reg;
+    return s;
+}
+
+sensor_status_t sensor_status_prom_crc(sensor_chip_t chip, uint8_t computed, uint8_t stored)
+{
+    sensor_status_t s = blank(chip, SENSOR_ERR_PROM_CRC);
+    s.count = 2;
+    s.got[0] = computed;
+    s.got[1] = stored;
+    return s;
+}
+
+sensor_status_t sensor_status_adc(sensor_chip_t chip, uint8_t command)
+{
+    sensor_status_t s = blank(chip, SENSOR_ERR_ADC);
+    s.reg = command;
     return s;
 }
 
@@ -183,6 +203,21 @@ const char *sensor_status_text(const sensor_status_t *status, char *buf, size_t 
         put(&t, "configuration not supported (register ");
         put_hex8(&t, status->reg);
         put(&t, ")");
+        break;
+    case SENSOR_ERR_PROM_CRC:
+        if (status->got[0] == status->got[1]) {
+            put(&t, "PROM holds no calibration (coefficients all zero)");
+            break;
+        }
+        put(&t, "PROM CRC-4 is ");
+        put_hex8(&t, status->got[1]);
+        put(&t, ", its contents give ");
+        put_hex8(&t, status->got[0]);
+        break;
+    case SENSOR_ERR_ADC:
+        put(&t, "ADC read 0 after command ");
+        put_hex8(&t, status->reg);
+        put(&t, " (no conversion result)");
         break;
     default:
         put(&t, "unknown status");

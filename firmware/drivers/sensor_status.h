@@ -23,6 +23,7 @@
 typedef enum {
     SENSOR_CHIP_MPU6050 = 1,  /**< InvenSense MPU-6050 gyroscope + accelerometer */
     SENSOR_CHIP_HMC5883L = 2, /**< Honeywell HMC5883L magnetometer */
+    SENSOR_CHIP_MS5611 = 3,   /**< MEAS MS5611-01BA barometer */
 } sensor_chip_t;
 
 /** What a driver call did. Negative: it failed (no sample, configuration incomplete). */
@@ -36,6 +37,10 @@ typedef enum {
     SENSOR_ERR_READBACK = -3, /**< register `reg` reads `got[0]` after writing `wrote` (defined bits compared) */
     SENSOR_ERR_RESET = -4,    /**< the reset bit did not clear in time; `got[0]` is the last value read, if `count` */
     SENSOR_ERR_CONFIG = -5,   /**< the configuration asks for a value register `reg` cannot hold */
+    SENSOR_ERR_PROM_CRC = -6, /**< no usable calibration: the PROM's CRC-4 is `got[1]`, its contents give `got[0]`
+                                   (equal when the coefficients are all zero) */
+    SENSOR_ERR_ADC = -7,      /**< the ADC read 0: no conversion result (the chip reset, or the read came early);
+                                   `reg` is the conversion command that was waited for */
 } sensor_result_t;
 
 /** Bits of sensor_status_t.channels, in the magnetometer's own axes. */
@@ -78,6 +83,12 @@ sensor_status_t sensor_status_readback(sensor_chip_t chip, uint8_t reg, uint8_t 
 
 /** @brief Status "the configuration asks for a value register `reg` of `chip` cannot hold". */
 sensor_status_t sensor_status_config(sensor_chip_t chip, uint8_t reg);
+
+/** @brief Status "the PROM's CRC-4 `stored` differs from the `computed` one". */
+sensor_status_t sensor_status_prom_crc(sensor_chip_t chip, uint8_t computed, uint8_t stored);
+
+/** @brief Status "the ADC read 0 after conversion command `command`". */
+sensor_status_t sensor_status_adc(sensor_chip_t chip, uint8_t command);
 
 /**
  * @brief One sentence for a LOG line, "<chip>: <what happened>", written to `buf`.

@@ -12,11 +12,15 @@ The GY-86 module is built like this::
     mpu = bus.attach(0x68, MPU6050())
     mag = mpu.aux_bus.attach(0x1E, HMC5883L())   # reachable once the bypass is on
 
+The GY-86's barometer, an MS5611 at 0x77 on the main bus, is :class:`MS5611` (command
+level: it has no registers).
+
 Each model's module docstring says what is modelled and what is not.
 """
 from .hmc5883l import HMC5883L
 from .i2c import FAILURES, STATUS_CODES, I2CBus, I2CDevice, RegisterDevice
 from .mpu6050 import MPU6050
+from .ms5611 import MS5611
 from .stm32_bootloader import BootloaderPort, Stm32Bootloader  # noqa: F401  (AN3155 bootloader model)
 
-__all__ = ["FAILURES", "HMC5883L", "I2CBus", "I2CDevice", "MPU6050", "RegisterDevice", "STATUS_CODES"]
+__all__ = ["FAILURES", "HMC5883L", "I2CBus", "I2CDevice", "MPU6050", "MS5611", "RegisterDevice", "STATUS_CODES"]
