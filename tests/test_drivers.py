@@ -13,7 +13,6 @@ Sections:
 """
 from __future__ import annotations
 
-import importlib.util
 import platform
 import re
 import shutil
@@ -21,6 +20,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
+from cffi_module import build
 
 from imulink.chips import FAILURES, HMC5883L, MPU6050, STATUS_CODES, I2CBus
 from imulink.chips import hmc5883l as hmc_model
@@ -133,23 +133,9 @@ CDEF = """
 @pytest.fixture(scope="session")
 def drv(tmp_path_factory):
     """The drivers (and the core's sensor conversion) compiled into a cffi module."""
-    from cffi import FFI
-
-    ffi = FFI()
-    ffi.cdef(CDEF)
-    name = "_imulink_gy86_drivers"
-    ffi.set_source(
-        name,
-        '#include "gy86.h"\n#include "imu_sensor.h"\n',
-        sources=[str(p) for p in DRIVER_SOURCES] + [str(CORE / "imu_sensor.c")],
-        include_dirs=[str(DRIVERS), str(CORE)],
-        define_macros=[("IMU_FIXED", "1")],
-        extra_compile_args=["-std=c99", "-O1", "-Wall", "-Wextra"],
-    )
-    path = ffi.compile(tmpdir=str(tmp_path_factory.mktemp("drivers")))
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = build("_imulink_gy86_drivers", CDEF, '#include "gy86.h"\n#include "imu_sensor.h"\n',
+                   [*DRIVER_SOURCES, CORE / "imu_sensor.c"], [DRIVERS, CORE], tmp_path_factory.mktemp("drivers"),
+                   define_macros=[("IMU_FIXED", "1")])
     mffi = module.ffi
 
     @mffi.def_extern()

@@ -12,11 +12,11 @@ tests/test_drivers.py.
 """
 from __future__ import annotations
 
-import importlib.util
 import random
 from pathlib import Path
 
 import pytest
+from cffi_module import build
 
 from imulink.chips import STATUS_CODES, I2CBus
 from imulink.chips import ms5611 as model
@@ -59,18 +59,9 @@ CDEF = """
 
 @pytest.fixture(scope="module")
 def drv(tmp_path_factory):
-    from cffi import FFI
-
-    ffi = FFI()
-    ffi.cdef(CDEF)
-    name = "_imulink_ms5611_driver"
-    ffi.set_source(name, '#include "ms5611.h"\n',
-                   sources=[str(DRIVERS / f) for f in ("ms5611.c", "sensor_status.c", "i2c.c")],
-                   include_dirs=[str(DRIVERS)], extra_compile_args=["-std=c99", "-O1", "-Wall", "-Wextra"])
-    path = ffi.compile(tmpdir=str(tmp_path_factory.mktemp("ms5611")))
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    module = build("_imulink_ms5611_driver", CDEF, '#include "ms5611.h"\n',
+                   [DRIVERS / f for f in ("ms5611.c", "sensor_status.c", "i2c.c")], [DRIVERS],
+                   tmp_path_factory.mktemp("ms5611"))
     mffi = module.ffi
 
     @mffi.def_extern()

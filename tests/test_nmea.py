@@ -2,13 +2,13 @@
 sentences, random sentences against an exact reference conversion, and damage."""
 from __future__ import annotations
 
-import importlib.util
 import random
 from fractions import Fraction
 from functools import reduce
 from pathlib import Path
 
 import pytest
+from cffi_module import build
 
 ROOT = Path(__file__).resolve().parents[1]
 DRIVERS = ROOT / "firmware" / "drivers"
@@ -35,18 +35,8 @@ CDEF = """
 
 @pytest.fixture(scope="module")
 def nmea(tmp_path_factory):
-    from cffi import FFI
-
-    ffi = FFI()
-    ffi.cdef(CDEF)
-    name = "_imulink_nmea"
-    ffi.set_source(name, '#include "nmea.h"\n', sources=[str(DRIVERS / "nmea.c")], include_dirs=[str(DRIVERS)],
-                   extra_compile_args=["-std=c99", "-O1", "-Wall", "-Wextra"])
-    path = ffi.compile(tmpdir=str(tmp_path_factory.mktemp("nmea")))
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return build("_imulink_nmea", CDEF, '#include "nmea.h"\n', [DRIVERS / "nmea.c"], [DRIVERS],
+                 tmp_path_factory.mktemp("nmea"))
 
 
 def sentence(body: str) -> bytes:

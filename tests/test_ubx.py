@@ -3,12 +3,12 @@ specification: frames written by the test from the spec's layout, in any chunkin
 NMEA sentences, noise and damaged frames between them."""
 from __future__ import annotations
 
-import importlib.util
 import random
 import struct
 from pathlib import Path
 
 import pytest
+from cffi_module import build
 
 ROOT = Path(__file__).resolve().parents[1]
 DRIVERS = ROOT / "firmware" / "drivers"
@@ -46,18 +46,8 @@ NAV_PVT = struct.Struct("<" + "".join(f for _, f in NAV_PVT_LAYOUT))
 
 @pytest.fixture(scope="module")
 def ubx(tmp_path_factory):
-    from cffi import FFI
-
-    ffi = FFI()
-    ffi.cdef(CDEF)
-    name = "_imulink_ubx"
-    ffi.set_source(name, '#include "ubx.h"\n', sources=[str(DRIVERS / "ubx.c")], include_dirs=[str(DRIVERS)],
-                   extra_compile_args=["-std=c99", "-O1", "-Wall", "-Wextra"])
-    path = ffi.compile(tmpdir=str(tmp_path_factory.mktemp("ubx")))
-    spec = importlib.util.spec_from_file_location(name, path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return build("_imulink_ubx", CDEF, '#include "ubx.h"\n', [DRIVERS / "ubx.c"], [DRIVERS],
+                 tmp_path_factory.mktemp("ubx"))
 
 
 def frame(msg_class: int, msg_id: int, payload: bytes) -> bytes:
