@@ -22,6 +22,14 @@ static void checksum_add(ubx_parser_t *p, uint8_t byte)
     p->ck_b = (uint8_t)(p->ck_b + p->ck_a);
 }
 
+/** A checksum byte that does not match: the frame is dropped, and `byte` may begin the next. */
+static int checksum_failed(ubx_parser_t *p, uint8_t byte)
+{
+    ++p->checksum_errors;
+    p->state = byte == UBX_SYNC_1 ? WAIT_SYNC_2 : WAIT_SYNC_1;
+    return 0;
+}
+
 int ubx_parser_push(ubx_parser_t *p, uint8_t byte)
 {
     switch (p->state) {
@@ -77,19 +85,15 @@ int ubx_parser_push(ubx_parser_t *p, uint8_t byte)
         return 0;
     case GET_CK_A:
         if (byte != p->ck_a) {
-            ++p->checksum_errors;
-            p->state = byte == UBX_SYNC_1 ? WAIT_SYNC_2 : WAIT_SYNC_1;
-            return 0;
+            return checksum_failed(p, byte);
         }
         p->state = GET_CK_B;
         return 0;
     default: /* GET_CK_B */
-        p->state = WAIT_SYNC_1;
         if (byte != p->ck_b) {
-            ++p->checksum_errors;
-            p->state = byte == UBX_SYNC_1 ? WAIT_SYNC_2 : WAIT_SYNC_1;
-            return 0;
+            return checksum_failed(p, byte);
         }
+        p->state = WAIT_SYNC_1;
         ++p->frames;
         return 1;
     }
