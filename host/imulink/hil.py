@@ -484,8 +484,9 @@ class _StreamRecorder:
         self.writer.event("stream_started", filter=filter_name)
 
     def run(self, hello: dict, filter_name: str, duration_s: float | None, silence_s: float) -> RecordResult:
-        started = time.monotonic()
         self._start_stream(filter_name)
+        # the duration counts from the board's ACK: on a lossy link START_STREAM's retries may take seconds
+        started = time.monotonic()
         try:
             while self.stop_reason is None:
                 try:
