@@ -771,6 +771,7 @@ class CodecCost:
     frames: int
     stack_encode: int
     stack_decode: int
+    payload_bytes: dict[str, int]  # SAMPLE and ESTIMATE payload lengths, as encoded
     stack_encode_static: int | None = None
     stack_decode_static: int | None = None
 
@@ -856,7 +857,8 @@ def measure_codec(emu: Emulator, data, n: int, decode_samples: int | None = None
         encode_per_sample=Stat.of(enc_sample + enc_estimate), wire_bytes_per_sample=len(stream) / n,
         decode_bytes=end, decode_per_byte=Stat.of(per_byte), decode_data_byte=Stat.of(per_byte[~delimiters]),
         decode_delimiter=Stat.of(per_byte[delimiters]), decode_per_pair=Stat.of(per_pair),
-        frames=len(decoded), stack_encode=stack_encode, stack_decode=stack_decode)
+        frames=len(decoded), stack_encode=stack_encode, stack_decode=stack_decode,
+        payload_bytes={"SAMPLE": len(frames[0][2]), "ESTIMATE": len(frames[1][2])})
 
 
 def add_codec_static_stack(build: ArmBuild, cost: CodecCost) -> None:
@@ -982,8 +984,8 @@ def markdown_table(r: Results) -> str:
         row(f"**codec** SAMPLE + ESTIMATE encode, per sample ({c.wire_bytes_per_sample:g} wire bytes)",
             c.encode_per_sample, _stack(c.stack_encode, c.stack_encode_static), f"{flash} ({objects})", ram,
             f"{_n(r.target_sizes['decoder'])} + {_n(r.target_sizes['decoder_buf'])} (decoder + buffer)")
-        row("codec SAMPLE encode (28-byte payload)", c.encode_sample)
-        row("codec ESTIMATE encode (94-byte payload)", c.encode_estimate)
+        row(f"codec SAMPLE encode ({c.payload_bytes['SAMPLE']}-byte payload)", c.encode_sample)
+        row(f"codec ESTIMATE encode ({c.payload_bytes['ESTIMATE']}-byte payload)", c.encode_estimate)
         row("codec decoder_push, per byte", c.decode_per_byte, _stack(c.stack_decode, c.stack_decode_static),
             decimals=1)
         row("codec decoder_push, data byte", c.decode_data_byte, decimals=1)

@@ -8,15 +8,25 @@
  */
 #include "imu_cov.h"
 
-/** Index of (i, j), i <= j, in the upper-triangle storage. */
+/** Index of (i, j), i <= j, in the upper-triangle storage (row by row). */
+#define CELL_UPPER(i, j) ((i) * IMU_COV_MAX - (i) * ((i) - 1) / 2 + ((j) - (i)))
+#define CELL_OF(i, j) ((i) <= (j) ? CELL_UPPER(i, j) : CELL_UPPER(j, i))
+#define CELL_ROW(i) \
+    { CELL_OF(i, 0), CELL_OF(i, 1), CELL_OF(i, 2), CELL_OF(i, 3), CELL_OF(i, 4), \
+      CELL_OF(i, 5), CELL_OF(i, 6), CELL_OF(i, 7), CELL_OF(i, 8) }
+
+/* The table below is written out for nine states. */
+typedef char cell_table_fits_the_state_count[IMU_COV_MAX == 9 ? 1 : -1];
+
+/** Storage index of (i, j) for any i, j: a table, as the covariance loops look it up
+ *  for every product (the arithmetic and the swap cost a dozen instructions). */
+static const unsigned char CELL_INDEX[IMU_COV_MAX][IMU_COV_MAX] = {
+    CELL_ROW(0), CELL_ROW(1), CELL_ROW(2), CELL_ROW(3), CELL_ROW(4),
+    CELL_ROW(5), CELL_ROW(6), CELL_ROW(7), CELL_ROW(8)};
+
 static int cell(int i, int j)
 {
-    if (i > j) {
-        const int t = i;
-        i = j;
-        j = t;
-    }
-    return i * IMU_COV_MAX - i * (i - 1) / 2 + (j - i);
+    return CELL_INDEX[i][j];
 }
 
 static void load_wide(const imu_cov_t *c, imu_wide_t w[IMU_COV_CELLS])
@@ -27,6 +37,8 @@ static void load_wide(const imu_cov_t *c, imu_wide_t w[IMU_COV_CELLS])
     }
 }
 
+static void renormalize(imu_cov_t *c, imu_wide_t w[IMU_COV_CELLS], uint32_t *sat);
+
 #ifdef IMU_FIXED
 
 #define WIDE_LIMIT ((int64_t)1 << 62)
@@ -34,8 +46,13 @@ static void load_wide(const imu_cov_t *c, imu_wide_t w[IMU_COV_CELLS])
 /** v * 2^n: rounded for n < 0, saturated to +-2^62 for n > 0. */
 static inline imu_wide_t wide_ldexp(imu_wide_t v, int n, uint32_t *sat)
 {
+    if (n == 0) {
+        return v; /* the common case of unmoved exponents */
+    }
     if (n < 0) {
-        return n < -62 ? 0 : imu_rshift_round64(v, -n);
+        /* imu_rshift_round64(v, -n) as ((v >> (-n - 1)) + 1) >> 1: the same integer with
+         * one variable 64-bit shift instead of two (n varies here) */
+        return n < -62 ? 0 : ((v >> (-n - 1)) + 1) >> 1;
     }
     if (n > 62 || v > (WIDE_LIMIT >> n) || v < -(WIDE_LIMIT >> n)) {
         if (v == 0) {
@@ -67,53 +84,96 @@ static imu_real_t headroom_int32(imu_wide_t v)
 }
 
 /**
- * Choose new exponents so that every diagonal mantissa lies in [2^28, 2^30), and
- * store the rescaled wide matrix `w` (Q30 in the old exponents) as int32.
+ * The exponent change of each state that brings its diagonal mantissa d_i (Q30 in the
+ * old exponents) into [2^28, 2^30): d_i 2^(-2 shift_i). A diagonal that rounding drove
+ * to zero or below restarts at the smallest normalised value (counted). Returns
+ * non-zero when an exponent moves.
  */
-static void renormalize(imu_cov_t *c, imu_wide_t w[IMU_COV_CELLS], uint32_t *sat)
+static int diagonal_shifts(const imu_cov_t *c, imu_wide_t d[IMU_COV_MAX], int shift[IMU_COV_MAX], uint32_t *sat)
 {
-    int shift[IMU_COV_MAX];
-    int i, j;
+    int i, moved = 0;
     for (i = 0; i < c->n; ++i) {
-        imu_wide_t *d = &w[cell(i, i)];
-        if (*d <= 0) {
+        if (d[i] <= 0) {
             ++*sat; /* rounding destroyed this variance: restart it at the smallest normalised value */
-            *d = (int64_t)1 << 28;
+            d[i] = (int64_t)1 << 28;
         }
         /* s = ceil((bits - 30) / 2): d * 2^(-2s) in [2^28, 2^30). */
         {
-            const int excess = imu_bit_length64((uint64_t)*d) - 30;
+            const int excess = imu_bit_length64((uint64_t)d[i]) - 30;
             shift[i] = excess >= 0 ? (excess + 1) / 2 : -((-excess) / 2);
+            moved |= shift[i];
         }
     }
-    for (i = 0; i < c->n; ++i) {
-        for (j = i; j < c->n; ++j) {
-            const int k = cell(i, j);
-            const int down = shift[i] + shift[j]; /* mostly 0: the exponents rarely move */
-            c->p[k] = imu_sat32(down == 0 ? w[k] : wide_ldexp(w[k], -down, sat), sat);
-        }
-        c->e[i] += shift[i];
-    }
+    return moved;
 }
 
-/** Q30 measurement row scaled by 2^(e_j - E), with E chosen so the largest entry is in [2^29, 2^30]. */
+/** A wide value (Q30 in the old exponents) as an int32 mantissa of exponents that
+ *  moved by `down` in all: v 2^-down, rounded and saturated. */
+static imu_real_t rescaled(imu_wide_t v, int down, uint32_t *sat)
+{
+    return imu_sat32(down == 0 ? v : wide_ldexp(v, -down, sat), sat);
+}
+
+/** Bits to add to a sum of `count` terms: 2^bits >= count. */
+static int count_bits(int count)
+{
+    int bits = 0;
+    while ((1 << bits) < count) {
+        ++bits;
+    }
+    return bits;
+}
+
+/** Q30 measurement row scaled by 2^(e_j - E), with E chosen so the largest entry is in
+ *  [2^(29 - x), 2^(30 - x)], 2^x at least the number of non-zero entries: a sum of the
+ *  products with P~'s entries (below 2^30) stays below 2^60. */
 static int scale_row(const imu_cov_t *c, const imu_q30_t h[], imu_q30_t hs[], uint32_t *sat)
 {
     int big = INT32_MIN;
+    int count = 0;
     int j;
     for (j = 0; j < c->n; ++j) {
         if (h[j] != 0) {
             const int mag = c->e[j] + imu_bit_length64((uint64_t)(h[j] < 0 ? -(int64_t)h[j] : h[j])) - 30;
             big = mag > big ? mag : big;
+            ++count;
         }
     }
     if (big == INT32_MIN) {
         big = 0;
     }
+    big += count_bits(count);
     for (j = 0; j < c->n; ++j) {
-        hs[j] = (imu_q30_t)wide_ldexp(h[j], c->e[j] - big, sat);
+        hs[j] = h[j] != 0 ? (imu_q30_t)wide_ldexp(h[j], c->e[j] - big, sat) : 0;
     }
     return big;
+}
+
+/**
+ * Row i of phi in the scaled coordinates, phi~_ik = phi_ik 2^(e_k - e_i), as multipliers
+ * phi[i][t] of the columns cols[t] (the row is overwritten, its first `count` entries
+ * used) and a row exponent f: phi~_{i,cols[t]} = phi[i][t] 2^-f, |phi[i][t]| <= 2^(31 - x),
+ * 2^x >= count. A sum of `count` products of those with P~'s entries (below 2^30) then
+ * stays within 2^61 and one with int32 values within 2^62, so the products accumulate
+ * without a shift per term. Returns f.
+ */
+static int scaled_row(const imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], int i, int count,
+                      const unsigned char cols[], uint32_t *sat)
+{
+    int biggest = INT32_MIN; /* |phi~_ik| < 2^(biggest - 30) */
+    int f, t;
+    for (t = 0; t < count; ++t) {
+        const int k = cols[t];
+        const int64_t magnitude = phi[i][k] < 0 ? -(int64_t)phi[i][k] : phi[i][k];
+        const int bits = imu_bit_length64((uint64_t)magnitude) + c->e[k] - c->e[i];
+        biggest = bits > biggest ? bits : biggest;
+    }
+    f = 61 - count_bits(count) - biggest;
+    for (t = 0; t < count; ++t) { /* cols[t] >= t: each entry is read before it is written */
+        const int k = cols[t];
+        phi[i][t] = (imu_q30_t)wide_ldexp(phi[i][k], c->e[k] - c->e[i] - 30 + f, sat);
+    }
+    return f;
 }
 
 /** v = mant * 2^exp with |mant| in [2^29, 2^30) (mant = 0 for v = 0). */
@@ -124,18 +184,46 @@ static int32_t normalize_wide(imu_wide_t v, int *exp)
     return (int32_t)(bits > 30 ? imu_rshift_round64(v, bits - 30) : v * ((int64_t)1 << (30 - bits)));
 }
 
+/** a * b / 2^31, rounded: one 32-bit multiply. */
+static inline int32_t mul_q31(int32_t a, int32_t b)
+{
+    return (int32_t)(((int64_t)a * b + ((int64_t)1 << 30)) >> 31);
+}
+
+/** v 2^-e as an int32, |v| < 2^(31 + e): a 32-bit shift when e <= 0 (the values of a
+ *  measurement's P h are below 2^30), a rounded one otherwise. */
+static inline int32_t mantissa31(imu_wide_t v, int e, uint32_t *sat)
+{
+    if (e <= 0) {
+        return (int32_t)v * ((int32_t)1 << -e); /* e >= -30: bit_length(v) >= 1 */
+    }
+    return headroom_int32(wide_ldexp(v, -e, sat));
+}
+
+/** The change of P~_ij (Q30) a measurement makes: kc_i cm_j - ko_i om_j, each 2^-31
+ *  (ko and om are zero unless `mapped`). */
+static inline imu_wide_t change(const int32_t kc[], const int32_t cm[], const int32_t ko[], const int32_t om[],
+                                int32_t mapped, int i, int j)
+{
+    return mapped == 0 ? mul_q31(kc[i], cm[j]) : (imu_wide_t)mul_q31(kc[i], cm[j]) - mul_q31(ko[i], om[j]);
+}
+
 /**
- * P~ -= (w / sh) ch ch^T and dx_i = (w z / sh) ch_i 2^(e_i - E) (Q30), with every
- * int64 product below 2^62: ch is normalised to 30-bit mantissas, the two
- * scalars w/sh and w z/sh to mantissa and exponent.
+ * P~ -= (w / sh) (ch ch^T - oh oh^T) and dx_i = (w z / sh) (ch_i - oh_i) 2^(e_i - E) (Q30).
+ * ch and oh become 31-bit mantissas cm, om of one exponent ce; kc = (w / sh) cm 2^(2 ce + 1)
+ * makes each cell's change kc_i cm_j 2^-31, a 32-bit product: |kc_i| < 2^31, as the
+ * change of a variance, (w / sh) ch_i^2 2^-30 <= P~_ii, is below 2^30 (Cauchy-Schwarz).
  */
-static void apply_update(imu_cov_t *c, const imu_wide_t ch[], const imu_wide_t oh[], imu_wide_t sh, imu_q30_t w,
+static void apply_update(imu_cov_t *c, const imu_real_t ch[], const imu_wide_t oh[], imu_wide_t sh, imu_q30_t w,
                          imu_q30_t z, int big, imu_q30_t dx[], uint32_t *sat)
 {
-    int32_t cm[IMU_COV_MAX], om[IMU_COV_MAX];
-    imu_wide_t wm[IMU_COV_CELLS];
+    int32_t cm[IMU_COV_MAX], om[IMU_COV_MAX]; /* ch and oh as mantissas of 2^ce, below 2^31 */
+    int32_t kc[IMU_COV_MAX], ko[IMU_COV_MAX]; /* (w / sh) cm 2^(2 ce + 1), the same for om */
+    imu_wide_t d[IMU_COV_MAX]; /* the new diagonal, Q30 in the old exponents */
+    int shift[IMU_COV_MAX];
     imu_wide_t cmax = 0;
-    int ce, ke, ve, i, j;
+    int32_t mapped = 0; /* non-zero when a gain map left a part out */
+    int ce, ke, ve, i, j, k;
     int32_t k_mant, v_mant;
     for (i = 0; i < c->n; ++i) {
         const imu_wide_t a = wide_abs(ch[i]), b = wide_abs(oh[i]);
@@ -145,32 +233,62 @@ static void apply_update(imu_cov_t *c, const imu_wide_t ch[], const imu_wide_t o
     if (cmax == 0) {
         return;
     }
-    normalize_wide(cmax, &ce); /* ch_i = cm_i 2^ce, |cm_i| < 2^30; the same for oh */
+    ce = imu_bit_length64((uint64_t)cmax) - 31; /* cmax 2^-ce in [2^30, 2^31) */
     for (i = 0; i < c->n; ++i) {
-        cm[i] = (int32_t)wide_ldexp(ch[i], -ce, sat);
-        om[i] = (int32_t)wide_ldexp(oh[i], -ce, sat);
+        cm[i] = mantissa31(ch[i], ce, sat);
+        om[i] = mantissa31(oh[i], ce, sat);
+        mapped |= om[i];
     }
-    /* w / sh: Q30 / Q30 as (w 2^32) / sh = k 2^(-32); normalised. */
-    k_mant = normalize_wide(((imu_wide_t)w * ((int64_t)1 << 32)) / sh, &ke);
-    ke -= 32;
-    /* w z / sh: (w z (Q60)) >> 30 -> Q30, then the same division. */
-    v_mant = normalize_wide((imu_rshift_round64((imu_wide_t)w * z, 30) * ((int64_t)1 << 31)) / sh, &ve);
-    ve -= 31;
-    load_wide(c, wm);
+    {
+        /* sh = sn 2^es with sn in [2^30, 2^31) (truncated), so that both quotients are
+         * 64-by-32-bit divisions (imu_udiv64_32) of numerators below sn 2^32. */
+        const int es = imu_bit_length64((uint64_t)sh) - 31;
+        const uint32_t sn = (uint32_t)(es > 0 ? sh >> es : sh * ((int64_t)1 << -es));
+        /* w z / sh: (w z (Q60)) >> 30 -> Q30 (|wz| <= 2^31), then (|wz| 2^30) / sn. */
+        const imu_wide_t wz = imu_rshift_round64((imu_wide_t)w * z, 30);
+        const int64_t v = (int64_t)imu_udiv64_32(imu_abs64(wz) << 30, sn);
+        /* w / sh: (w 2^31) / sn = k 2^(-31 + es); w <= 2^30 */
+        k_mant = normalize_wide((int64_t)imu_udiv64_32((uint64_t)w << 31, sn), &ke);
+        ke -= 31 + es;
+        v_mant = normalize_wide(wz < 0 ? -v : v, &ve);
+        ve -= 30 + es;
+    }
     for (i = 0; i < c->n; ++i) {
-        /* dx_i = v (cm_i - om_i) 2^(ve + ce + e_i - E) in Q30: v_mant * (cm_i - om_i) < 2^61. */
-        dx[i] = imu_sat32(wide_ldexp((imu_wide_t)v_mant * (cm[i] - om[i]), ve + ce + c->e[i] - big, sat), sat);
-        for (j = i; j < c->n; ++j) {
-            /* ((cm_i cm_j - om_i om_j) >> 30) * k_mant < 2^61; value 2^(2 ce + ke + 30) in Q30 units. */
-            const imu_wide_t cc = imu_rshift_round64((imu_wide_t)cm[i] * cm[j] - (imu_wide_t)om[i] * om[j], 30);
-            wm[cell(i, j)] -= wide_ldexp(cc * k_mant, 2 * ce + ke, sat);
+        /* |cm_i k_mant| < 2^61, scaled by 2^(2 ce + ke + 1): below 2^31 */
+        kc[i] = imu_sat32(wide_ldexp((imu_wide_t)cm[i] * k_mant, 2 * ce + ke + 1, sat), sat);
+        ko[i] = mapped != 0 ? imu_sat32(wide_ldexp((imu_wide_t)om[i] * k_mant, 2 * ce + ke + 1, sat), sat) : 0;
+    }
+    for (i = 0; i < c->n; ++i) {
+        /* dx_i = v (cm_i - om_i) 2^(ve + ce + e_i - E) in Q30: v_mant * (cm_i - om_i) < 2^62. */
+        const imu_wide_t vc = mapped == 0 ? IMU_WMUL(v_mant, cm[i]) : (imu_wide_t)v_mant * ((imu_wide_t)cm[i] - om[i]);
+        dx[i] = imu_sat32(wide_ldexp(vc, ve + ce + c->e[i] - big, sat), sat);
+        d[i] = (imu_wide_t)c->p[cell(i, i)] - change(kc, cm, ko, om, mapped, i, i);
+    }
+    if (diagonal_shifts(c, d, shift, sat) == 0 && mapped == 0) {
+        /* the usual case, the same arithmetic in a loop of its own: no exponent moves, no map */
+        for (i = 0; i < c->n; ++i) {
+            k = cell(i, i);
+            c->p[k] = (int32_t)d[i]; /* in [2^28, 2^30) */
+            for (j = i + 1, ++k; j < c->n; ++j, ++k) {
+                c->p[k] = imu_sat32((imu_wide_t)c->p[k] - mul_q31(kc[i], cm[j]), sat);
+            }
+        }
+        return;
+    }
+    for (i = 0; i < c->n; ++i) {
+        k = cell(i, i);
+        c->p[k] = rescaled(d[i], 2 * shift[i], sat);
+        for (j = i + 1, ++k; j < c->n; ++j, ++k) {
+            c->p[k] = rescaled((imu_wide_t)c->p[k] - change(kc, cm, ko, om, mapped, i, j), shift[i] + shift[j], sat);
         }
     }
-    renormalize(c, wm, sat);
+    for (i = 0; i < c->n; ++i) {
+        c->e[i] += shift[i];
+    }
 }
 
-/** Wide Q58 value back to Q30. */
-#define Q58_TO_Q30(v) imu_rshift_round64((v), 28)
+/** Wide Q60 value back to Q30. */
+#define Q60_TO_Q30(v) imu_rshift_round64((v), 30)
 
 /** Exponent that gives a variance (wide, Q`q`, > 0) a mantissa of 29 to 31 bits, so that
  *  the renormalisation keeps all of its bits whatever its size. */
@@ -231,18 +349,24 @@ static imu_real_t headroom_int32(imu_wide_t v)
     return v;
 }
 
-static void renormalize(imu_cov_t *c, imu_wide_t w[IMU_COV_CELLS], uint32_t *sat)
+static int diagonal_shifts(const imu_cov_t *c, imu_wide_t d[IMU_COV_MAX], int shift[IMU_COV_MAX], uint32_t *sat)
 {
-    int i, j;
+    int i;
     for (i = 0; i < c->n; ++i) {
-        if (w[cell(i, i)] <= 0.0) {
+        if (d[i] <= 0.0) {
             ++*sat;
-            w[cell(i, i)] = 1e-30;
+            d[i] = 1e-30;
         }
-        for (j = i; j < c->n; ++j) {
-            c->p[cell(i, j)] = w[cell(i, j)];
-        }
+        shift[i] = 0;
     }
+    return 0;
+}
+
+static imu_real_t rescaled(imu_wide_t v, int down, uint32_t *sat)
+{
+    (void)down;
+    (void)sat;
+    return v;
 }
 
 static int scale_row(const imu_cov_t *c, const imu_q30_t h[], imu_q30_t hs[], uint32_t *sat)
@@ -255,7 +379,19 @@ static int scale_row(const imu_cov_t *c, const imu_q30_t h[], imu_q30_t hs[], ui
     return 0;
 }
 
-static void apply_update(imu_cov_t *c, const imu_wide_t ch[], const imu_wide_t oh[], imu_wide_t sh, imu_q30_t w,
+static int scaled_row(const imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], int i, int count,
+                      const unsigned char cols[], uint32_t *sat)
+{
+    int t;
+    (void)c;
+    (void)sat;
+    for (t = 0; t < count; ++t) {
+        phi[i][t] = phi[i][cols[t]];
+    }
+    return 0;
+}
+
+static void apply_update(imu_cov_t *c, const imu_real_t ch[], const imu_wide_t oh[], imu_wide_t sh, imu_q30_t w,
                          imu_q30_t z, int big, imu_q30_t dx[], uint32_t *sat)
 {
     imu_wide_t wm[IMU_COV_CELLS];
@@ -271,7 +407,7 @@ static void apply_update(imu_cov_t *c, const imu_wide_t ch[], const imu_wide_t o
     renormalize(c, wm, sat);
 }
 
-#define Q58_TO_Q30(v) (v)
+#define Q60_TO_Q30(v) (v)
 
 static int32_t exponent_for(imu_wide_t var, int q)
 {
@@ -306,6 +442,29 @@ static imu_wide_t wide_mul_q30(imu_wide_t v, imu_q30_t w)
 #endif
 
 /* ---- Shared algorithms. ---- */
+
+/** Store the wide matrix `w` (Q30 in the old exponents) as mantissas of new exponents
+ *  that bring every diagonal mantissa into [2^28, 2^30) (diagonal_shifts). */
+static void renormalize(imu_cov_t *c, imu_wide_t w[IMU_COV_CELLS], uint32_t *sat)
+{
+    imu_wide_t d[IMU_COV_MAX];
+    int shift[IMU_COV_MAX];
+    int i, j, k;
+    for (i = 0; i < c->n; ++i) {
+        d[i] = w[cell(i, i)];
+    }
+    diagonal_shifts(c, d, shift, sat);
+    for (i = 0; i < c->n; ++i) {
+        k = cell(i, i);
+        c->p[k] = rescaled(d[i], 2 * shift[i], sat);
+        for (j = i + 1, ++k; j < c->n; ++j, ++k) {
+            c->p[k] = rescaled(w[k], shift[i] + shift[j], sat);
+        }
+    }
+    for (i = 0; i < c->n; ++i) {
+        c->e[i] += shift[i];
+    }
+}
 
 /** Wide variance in Q`q` as a Q30 mantissa of state i's scale: var * 2^(30 - q - 2 e_i). */
 static imu_wide_t variance_mantissa(const imu_cov_t *c, int i, imu_wide_t var, int q, uint32_t *sat)
@@ -344,86 +503,115 @@ void imu_cov_reset_state(imu_cov_t *c, int i, imu_wide_t var, int var_q, uint32_
     renormalize(c, w, sat);
 }
 
-/** The columns where row i of phi is non-zero (ascending; their count returned), and
- *  the largest e_k - e_i over them (how far a term can grow). */
-static int row_support(const imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], int i, unsigned char cols[IMU_COV_MAX],
-                       int *growth)
+/** The columns where row i of phi is non-zero (ascending); their count returned. */
+static int row_support(const imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], int i, unsigned char cols[IMU_COV_MAX])
 {
     int k, count = 0;
-    *growth = 0;
     for (k = 0; k < c->n; ++k) {
         if (phi[i][k] != 0) {
             cols[count++] = (unsigned char)k;
-            if (c->e[k] - c->e[i] > *growth) {
-                *growth = c->e[k] - c->e[i];
-            }
         }
     }
     return count;
 }
 
+/** phi~ P~ phi~^T in parts (imu_cov_predict): phi~'s rows as int32 multipliers, and
+ *  m = phi~ P~ as int32 rows with an exponent each. */
+typedef struct {
+    imu_real_t m[IMU_COV_MAX][IMU_COV_MAX]; /* m_ij (P~ units) = m[i][j] 2^m_exp[i], |m[i][j]| < 2^31 */
+    int m_exp[IMU_COV_MAX];
+    const imu_q30_t (*a)[IMU_COV_MAX]; /* phi~_{i,cols[i][t]} = a[i][t] 2^-f[i]: phi itself (scaled_row) */
+    int f[IMU_COV_MAX];
+    unsigned char cols[IMU_COV_MAX][IMU_COV_MAX]; /* the columns where row i of phi is not zero */
+    int count[IMU_COV_MAX];
+    int identity[IMU_COV_MAX]; /* row i of phi is the identity's: m's row is P~'s */
+} transition_t;
+
+/** (phi~ P~ phi~^T)_ij, Q30 in the old exponents (wide). */
+static imu_wide_t transformed(const transition_t *tr, int i, int j, uint32_t *sat)
+{
+    imu_wide_t sum = 0; /* below 2^62 (scaled_row) */
+    int t;
+    if (tr->identity[j]) {
+        return wide_ldexp(tr->m[i][j], tr->m_exp[i], sat);
+    }
+    for (t = 0; t < tr->count[j]; ++t) {
+        sum += IMU_WMUL(tr->m[i][tr->cols[j][t]], tr->a[j][t]);
+    }
+    return wide_ldexp(sum, tr->m_exp[i] - tr->f[j], sat);
+}
+
 void imu_cov_predict(imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], const imu_wide_t qvar[], int qvar_q,
                      uint32_t *sat)
 {
-    /* Scaled coordinates: phi~_ik = phi_ik 2^(e_k - e_i); P~' = phi~ P~ phi~^T.
-     * Mixed states may have very different exponents (a large heading variance
-     * rotated into a small tilt one), so both products accumulate in a format
-     * lowered by the row's largest exponent difference (every term is then shifted
-     * right only), and each row of m = phi~ P~ is brought below 2^31 by row_shift,
-     * with the row's total scale kept in row_scale: no int64 product or sum
-     * overflows, and only a truly out-of-range result saturates. Only the non-zero
-     * entries of phi take part (a filter's transition is mostly identity). */
-    imu_real_t m[IMU_COV_MAX][IMU_COV_MAX]; /* m_ij (Q30) = m[i][j] * 2^row_scale[i], |m[i][j]| < 2^31 */
-    imu_wide_t row[IMU_COV_MAX];            /* a row of m before its shift */
-    int row_scale[IMU_COV_MAX];
-    unsigned char cols[IMU_COV_MAX][IMU_COV_MAX];
-    int count[IMU_COV_MAX], growth[IMU_COV_MAX];
-    imu_wide_t w[IMU_COV_CELLS];
+    /* Scaled coordinates: phi~_ik = phi_ik 2^(e_k - e_i); P~' = phi~ P~ phi~^T. Each row
+     * of phi~ is a row of int32 multipliers with an exponent of its own (scaled_row), so
+     * both products accumulate without a shift per term; each row of m = phi~ P~ is
+     * brought below 2^31 with an exponent of its own. Only the non-zero entries of phi
+     * take part, and a row of the identity (a filter's transition is mostly identity)
+     * copies P~'s row: no int64 product or sum overflows, and only a truly out-of-range
+     * result saturates. The new diagonal comes first: it sets the new exponents, in
+     * which every other element is then stored at once. */
+    transition_t tr;
+    imu_wide_t d[IMU_COV_MAX];
+    int shift[IMU_COV_MAX];
     const int n = c->n;
     int i, j, k, t;
+    tr.a = (const imu_q30_t(*)[IMU_COV_MAX])phi;
     for (i = 0; i < n; ++i) {
-        count[i] = row_support(c, phi, i, cols[i], &growth[i]);
-    }
-    for (i = 0; i < n; ++i) {
-        imu_wide_t biggest = 0;
-        int row_shift;
-        for (j = 0; j < n; ++j) {
-            imu_wide_t sum = 0;
-            for (t = 0; t < count[i]; ++t) {
-                k = cols[i][t];
-                /* Q30 * Q30 -> Q60 (below 2^61), to Q56 - growth: 9 terms below 2^61. */
-                sum += wide_ldexp(IMU_WMUL(phi[i][k], c->p[cell(k, j)]), c->e[k] - c->e[i] - growth[i] - 4, sat);
+        tr.count[i] = row_support(c, phi, i, tr.cols[i]);
+        tr.identity[i] = tr.count[i] == 1 && tr.cols[i][0] == i && phi[i][i] == IMU_ONE_Q30;
+        tr.m_exp[i] = 0;
+        tr.f[i] = 0;
+        if (tr.identity[i]) {
+            for (j = 0; j < n; ++j) {
+                tr.m[i][j] = c->p[cell(i, j)];
             }
-            row[j] = sum;
-            biggest = wide_abs(sum) > biggest ? wide_abs(sum) : biggest;
+            continue;
         }
-        row_shift = headroom(biggest, 31);
-        for (j = 0; j < n; ++j) {
-            m[i][j] = headroom_int32(wide_ldexp(row[j], -row_shift, sat));
+        tr.f[i] = scaled_row(c, phi, i, tr.count[i], tr.cols[i], sat);
+        {
+            imu_wide_t row[IMU_COV_MAX]; /* a row of m, value row[j] 2^-f[i] (below 2^61) */
+            imu_wide_t biggest = 0;
+            int row_shift;
+            for (j = 0; j < n; ++j) {
+                imu_wide_t sum = 0;
+                for (t = 0; t < tr.count[i]; ++t) {
+                    sum += IMU_WMUL(tr.a[i][t], c->p[cell(tr.cols[i][t], j)]);
+                }
+                row[j] = sum;
+                biggest = wide_abs(sum) > biggest ? wide_abs(sum) : biggest;
+            }
+            row_shift = headroom(biggest, 31);
+            for (j = 0; j < n; ++j) {
+                tr.m[i][j] = headroom_int32(wide_ldexp(row[j], -row_shift, sat));
+            }
+            tr.m_exp[i] = row_shift - tr.f[i];
         }
-        row_scale[i] = growth[i] - 26 + row_shift; /* Q56 -> Q30 is 2^-26 */
     }
     for (i = 0; i < n; ++i) {
-        for (j = i; j < n; ++j) {
-            imu_wide_t sum = 0;
-            for (t = 0; t < count[j]; ++t) {
-                k = cols[j][t];
-                /* (|m| < 2^31) * Q30 -> below 2^62, to Q-4 - growth: 9 terms below 2^62. */
-                sum += wide_ldexp(IMU_WMUL(m[i][k], phi[j][k]), c->e[k] - c->e[j] - growth[j] - 4, sat);
-            }
-            /* sum * 2^(growth + 4 - 30) is in units of m; times 2^row_scale -> Q30. */
-            w[cell(i, j)] = wide_ldexp(sum, growth[j] - 26 + row_scale[i], sat);
-        }
-        w[cell(i, i)] += variance_mantissa(c, i, qvar[i], qvar_q, sat); /* both below 2^62 */
+        d[i] = transformed(&tr, i, i, sat) + variance_mantissa(c, i, qvar[i], qvar_q, sat); /* both below 2^62 */
     }
-    renormalize(c, w, sat);
+    diagonal_shifts(c, d, shift, sat);
+    for (i = 0; i < n; ++i) {
+        k = cell(i, i);
+        c->p[k] = rescaled(d[i], 2 * shift[i], sat);
+        for (j = i + 1, ++k; j < n; ++j, ++k) {
+            if (!(tr.identity[i] && tr.identity[j] && shift[i] + shift[j] == 0)) { /* else P~_ij stays */
+                c->p[k] = rescaled(transformed(&tr, i, j, sat), shift[i] + shift[j], sat);
+            }
+        }
+    }
+    for (i = 0; i < n; ++i) {
+        c->e[i] += shift[i];
+    }
 }
 
 /**
  * The part of P h that a gain map leaves out, in scaled coordinates: with u_i = ch_i 2^(e_i + E),
  * o = u - G u gives oh_i = ch_i - sum_j G_ij 2^(e_j - e_i) ch_j (zero without a map).
  */
-static void left_out(const imu_cov_t *c, const imu_wide_t ch[], const imu_q30_t (*gain_map)[IMU_COV_MAX],
+static void left_out(const imu_cov_t *c, const imu_real_t ch[], const imu_q30_t (*gain_map)[IMU_COV_MAX],
                      imu_wide_t oh[], uint32_t *sat)
 {
     int i, j;
@@ -433,7 +621,8 @@ static void left_out(const imu_cov_t *c, const imu_wide_t ch[], const imu_q30_t 
             oh[i] = ch[i];
             for (j = 0; j < c->n; ++j) {
                 if (gain_map[i][j] != 0) {
-                    oh[i] -= wide_ldexp(wide_mul_q30(ch[j], gain_map[i][j]), c->e[j] - c->e[i], sat);
+                    /* |ch_j| <= 2^30, |G_ij| <= 2^30: the product is below 2^30 again */
+                    oh[i] -= wide_ldexp(IMU_MUL(ch[j], gain_map[i][j], 30), c->e[j] - c->e[i], sat);
                 }
             }
         }
@@ -449,34 +638,37 @@ int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu
      * With a gain map G (K' = G K), Joseph's form for that gain, (I - K'h) P (I - K'h)^T
      * + K' r K'^T, is P - (u u^T - o o^T) / s with u = P h^T and o = u - G u. */
     imu_q30_t hs[IMU_COV_MAX];
-    imu_wide_t ch[IMU_COV_MAX]; /* P~ hs, Q30; |ch| < 9 * 2^30 */
+    imu_real_t ch[IMU_COV_MAX]; /* P~ hs, Q30; |ch| <= 2^30 */
     imu_wide_t oh[IMU_COV_MAX]; /* the part of ch the gain map leaves out, Q30 */
     imu_wide_t q = 0;           /* hs P~ hs, Q30 */
     imu_wide_t sh;              /* Q30 */
+    int used[IMU_COV_MAX];      /* the states hs is not zero at */
     const int n = c->n;
-    int big, i, j;
+    int big, i, j, t, count = 0;
     if (w <= 0) {
         return 0;
     }
     big = scale_row(c, h, hs, sat);
-    for (i = 0; i < n; ++i) {
-        imu_wide_t sum = 0;
-        for (j = 0; j < n; ++j) {
-            if (hs[j] != 0) {
-                /* Q30 * Q30 -> Q60 -> Q58: 9 terms below 2^58 each. */
-                sum += wide_ldexp(IMU_WMUL(c->p[cell(i, j)], hs[j]), -2, sat);
-            }
+    for (j = 0; j < n; ++j) {
+        if (hs[j] != 0) {
+            used[count++] = j;
         }
-        ch[i] = Q58_TO_Q30(sum);
     }
     for (i = 0; i < n; ++i) {
-        /* Q28 * Q30 -> Q58 (below 2^62) -> Q30. */
-        q += wide_ldexp(wide_ldexp(ch[i], -2, sat) * hs[i], -28, sat);
+        imu_wide_t sum = 0; /* Q60, below 2^60 (scale_row) */
+        for (t = 0; t < count; ++t) {
+            sum += IMU_WMUL(c->p[cell(i, used[t])], hs[used[t]]);
+        }
+        ch[i] = (imu_real_t)Q60_TO_Q30(sum);
     }
+    for (t = 0; t < count; ++t) {
+        q += IMU_WMUL(ch[used[t]], hs[used[t]]); /* Q60, below 2^60 */
+    }
+    q = Q60_TO_Q30(q);
     if (noise_dwarfs_row(r, 30 - r_q - 2 * big)) {
         return 0; /* no information (not a saturation: the gain would round to zero) */
     }
-    /* sh = w q + r 2^-2E (Q30); q is below 81 * 2^30. */
+    /* sh = w q + r 2^-2E (Q30); q is at most 2^30. */
     sh = wide_mul_q30(q, w) + wide_ldexp(r, 30 - r_q - 2 * big, sat);
     if (sh <= 0) {
         ++*sat;

@@ -43,7 +43,8 @@ void imu_cov_init(imu_cov_t *c, int n, const imu_wide_t var[], int var_q, uint32
 
 /**
  * @brief Time update P <- Phi P Phi^T + diag(qvar).
- * @param phi  n x n transition matrix in real units, Q30 (|phi_ij| < 2), row stride IMU_COV_MAX.
+ * @param phi  n x n transition matrix in real units, Q30 (|phi_ij| < 2), row stride IMU_COV_MAX;
+ *             used as scratch: its contents are undefined afterwards.
  * @param qvar n process-noise variances, wide values in Q`qvar_q` (fixed build).
  */
 void imu_cov_predict(imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], const imu_wide_t qvar[], int qvar_q,

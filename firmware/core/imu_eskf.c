@@ -420,7 +420,9 @@ static void scalar_update(imu_eskf_t *f, const imu_q30_t h[9], imu_q30_t z, imu_
     const int n = imu_eskf_state_count(f);
     int i;
     for (i = 0; i < n; ++i) {
-        z = IMU_SUB_SAT(z, IMU_MUL_SAT(h[i], dx_total[i], 30, &f->saturations), &f->saturations);
+        if (h[i] != 0 && dx_total[i] != 0) { /* (most of a row is zero) */
+            z = IMU_SUB_SAT(z, IMU_MUL_SAT(h[i], dx_total[i], 30, &f->saturations), &f->saturations);
+        }
     }
     if (imu_cov_update(&f->cov, h, r, r_q, z, w, (const imu_q30_t(*)[IMU_COV_MAX])gain_map, dx, &f->saturations)) {
         for (i = 0; i < n; ++i) {
