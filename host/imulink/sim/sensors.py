@@ -268,8 +268,11 @@ def simulate(traj: Trajectory, suite: SensorSuite | None = None, seed: int = 0,
     white, bias = suite.gyro.sample(n, dt, rng_gyr)
     gyr = traj.gyr + bias + white
 
-    # Accelerometer: specific force f = R^T (a_lin + g ez).
-    f_earth = traj.acc_lin + np.array([0.0, 0.0, STANDARD_GRAVITY])
+    # Accelerometer: specific force f = R^T (a_lin + g ez); g the trajectory's own where it
+    # has one (navigation.NavTrajectory: normal gravity along the path), else standard gravity.
+    gravity = getattr(traj, "gravity", None)
+    f_earth = traj.acc_lin.copy()
+    f_earth[:, 2] += STANDARD_GRAVITY if gravity is None else gravity
     for start, end in free_fall:
         f_earth[(t >= start) & (t < end)] = 0.0
     acc = Q.rotate_inverse(q, f_earth)

@@ -1,0 +1,376 @@
+"""Truth and sensors for navigation: a vehicle's position, velocity and attitude on the
+WGS-84 ellipsoid, a GNSS receiver's fixes and a barometer's pressure along it.
+
+Frames and conventions as in the rest of the simulator: quaternions w-first,
+sensor-to-earth; the earth frame is the local east-north-up (ENU) frame at an origin
+(:class:`Origin`); the sensor's y axis points forward (the board lies flat with its y axis
+along the vehicle), x to the right, z up. The ENU frame is taken as inertial: the
+earth's rotation (15 deg/h) and the transport rate are left out of the truth, as they are
+far below an MPU6050's noise and turn-on bias. Gravity is the WGS-84 normal gravity at
+the origin's latitude and the vehicle's height (:func:`normal_gravity`).
+
+Everything is deterministic for a given seed.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import quat as Q
+from .trajectories import Trajectory, _lowpass_noise, _n_samples, integrate_gyro
+
+# WGS-84 (NIMA TR8350.2): semi-major axis, flattening, first eccentricity squared.
+WGS84_A = 6_378_137.0
+WGS84_F = 1.0 / 298.257223563
+WGS84_E2 = WGS84_F * (2.0 - WGS84_F)
+WGS84_B = WGS84_A * (1.0 - WGS84_F)
+#: Normal gravity at the equator and the pole (m/s^2) and GM * omega^2 a^2 b / GM, TR8350.2.
+GAMMA_E, GAMMA_P = 9.7803253359, 9.8321849378
+WGS84_M = 0.00344978650684
+
+
+@dataclass(frozen=True)
+class Origin:
+    """The ENU frame's origin: latitude and longitude (deg), height above the ellipsoid (m)."""
+    lat_deg: float = 47.3769
+    lon_deg: float = 8.5417
+    height_m: float = 450.0
+
+
+def geodetic_to_ecef(lat_deg, lon_deg, height_m) -> np.ndarray:
+    """(..., 3) earth-centred earth-fixed coordinates, m."""
+    lat, lon = np.deg2rad(lat_deg), np.deg2rad(lon_deg)
+    h = np.asarray(height_m, dtype=np.float64)
+    n = WGS84_A / np.sqrt(1.0 - WGS84_E2 * np.sin(lat) ** 2)
+    return np.stack([(n + h) * np.cos(lat) * np.cos(lon), (n + h) * np.cos(lat) * np.sin(lon),
+                     (n * (1.0 - WGS84_E2) + h) * np.sin(lat)], axis=-1)
+
+
+def ecef_to_geodetic(xyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Latitude and longitude (deg) and ellipsoidal height (m) of ECEF points: Bowring's
+    start and Newton's iteration on the latitude (below 1e-12 rad after four steps
+    anywhere outside the earth's centre)."""
+    xyz = np.asarray(xyz, dtype=np.float64)
+    x, y, z = xyz[..., 0], xyz[..., 1], xyz[..., 2]
+    p = np.hypot(x, y)
+    lon = np.arctan2(y, x)
+    lat = np.arctan2(z, p * (1.0 - WGS84_E2))
+    for _ in range(5):
+        n = WGS84_A / np.sqrt(1.0 - WGS84_E2 * np.sin(lat) ** 2)
+        h = p / np.cos(lat) - n
+        lat = np.arctan2(z, p * (1.0 - WGS84_E2 * n / (n + h)))
+    n = WGS84_A / np.sqrt(1.0 - WGS84_E2 * np.sin(lat) ** 2)
+    h = p / np.cos(lat) - n
+    return np.rad2deg(lat), np.rad2deg(lon), h
+
+
+def _enu_rotation(origin: Origin) -> np.ndarray:
+    """Rows: east, north and up at the origin, in ECEF."""
+    lat, lon = math.radians(origin.lat_deg), math.radians(origin.lon_deg)
+    return np.array([[-math.sin(lon), math.cos(lon), 0.0],
+                     [-math.sin(lat) * math.cos(lon), -math.sin(lat) * math.sin(lon), math.cos(lat)],
+                     [math.cos(lat) * math.cos(lon), math.cos(lat) * math.sin(lon), math.sin(lat)]])
+
+
+def geodetic_to_enu(lat_deg, lon_deg, height_m, origin: Origin) -> np.ndarray:
+    """(..., 3) east, north, up (m) of geodetic points in the origin's ENU frame."""
+    d = geodetic_to_ecef(lat_deg, lon_deg, height_m) - geodetic_to_ecef(origin.lat_deg, origin.lon_deg,
+                                                                         origin.height_m)
+    return d @ _enu_rotation(origin).T
+
+
+def enu_to_geodetic(enu, origin: Origin) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Latitude, longitude (deg) and height (m) of ENU points."""
+    xyz = np.asarray(enu, dtype=np.float64) @ _enu_rotation(origin) + geodetic_to_ecef(
+        origin.lat_deg, origin.lon_deg, origin.height_m)
+    return ecef_to_geodetic(xyz)
+
+
+def normal_gravity(lat_deg, height_m) -> np.ndarray:
+    """WGS-84 normal gravity (m/s^2): Somigliana's formula on the ellipsoid and the
+    second-order free-air correction for the height (TR8350.2, eq. 4-1 and 4-3)."""
+    s2 = np.sin(np.deg2rad(lat_deg)) ** 2
+    k = WGS84_B * GAMMA_P / (WGS84_A * GAMMA_E) - 1.0
+    gamma = GAMMA_E * (1.0 + k * s2) / np.sqrt(1.0 - WGS84_E2 * s2)
+    h = np.asarray(height_m, dtype=np.float64)
+    return gamma * (1.0 - 2.0 / WGS84_A * (1.0 + WGS84_F + WGS84_M - 2.0 * WGS84_F * s2) * h
+                    + 3.0 / WGS84_A**2 * h**2)
+
+
+@dataclass
+class NavTrajectory(Trajectory):
+    """A :class:`Trajectory` with the vehicle's path: ``pos_enu`` (N,3) m and ``vel_enu``
+    (N,3) m/s in the origin's ENU frame, ``gravity`` (N,) m/s^2 along -up. Position and
+    velocity are consistent with ``acc_lin`` (constant over each sample interval:
+    ``vel[k] = vel[k-1] + acc_lin[k] dt``, ``pos[k] = pos[k-1] + (vel[k-1] + vel[k]) dt / 2``)."""
+
+    pos_enu: np.ndarray = field(default=None)
+    vel_enu: np.ndarray = field(default=None)
+    gravity: np.ndarray = field(default=None)
+    origin: Origin = field(default_factory=Origin)
+
+    def geodetic(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Latitude, longitude (deg) and ellipsoidal height (m) along the path."""
+        return enu_to_geodetic(self.pos_enu, self.origin)
+
+
+def _body_rates(quat: np.ndarray, dt: float) -> np.ndarray:
+    """The piecewise-constant body rates that turn quat[k-1] into quat[k] (rate k; rate 0 zero)."""
+    d = Q.multiply(Q.conjugate(quat[:-1]), quat[1:])
+    d *= np.where(d[:, :1] < 0, -1.0, 1.0)  # the short way
+    norm = np.linalg.norm(d[:, 1:], axis=1)
+    angle = 2.0 * np.arctan2(norm, d[:, 0])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        axis = np.where(norm[:, None] > 0, d[:, 1:] / norm[:, None], 0.0)
+    rates = np.zeros((len(quat), 3))
+    rates[1:] = axis * (angle / dt)[:, None]
+    return rates
+
+
+def _path(rate_hz: float, speed: np.ndarray, yaw: np.ndarray, grade: np.ndarray, bank: np.ndarray,
+          origin: Origin, stopped: np.ndarray) -> NavTrajectory:
+    """A vehicle moving forward (its y axis) at `speed` (m/s) with heading `yaw` (rad, CCW
+    from north), nose up by `grade` (rad, about its x axis) and banked by `bank` (rad, about
+    its y axis); `stopped` marks the rest."""
+    n = len(speed)
+    dt = 1.0 / rate_hz
+    target = Q.multiply(Q.from_axis_angle([0.0, 0.0, 1.0], yaw),
+                        Q.multiply(Q.from_axis_angle([1.0, 0.0, 0.0], grade), Q.from_axis_angle([0.0, 1.0, 0.0], bank)))
+    gyr = _body_rates(target, dt)
+    gyr[np.linalg.norm(gyr, axis=1) < 1e-9] = 0.0  # rounding of equal attitudes' product, not motion
+    quat = integrate_gyro(target[0], gyr, dt)
+    forward = np.zeros((n, 3))
+    forward[:, 1] = speed
+    vel = Q.rotate(quat, forward)
+    acc = np.zeros((n, 3))
+    acc[1:] = np.diff(vel, axis=0) / dt
+    pos = np.zeros((n, 3))
+    pos[1:] = np.cumsum((vel[:-1] + vel[1:]) * (dt / 2.0), axis=0)
+    rest = stopped & (np.linalg.norm(gyr, axis=1) == 0.0) & (np.linalg.norm(acc, axis=1) < 1e-12)
+    return NavTrajectory(rate_hz=rate_hz, t=np.arange(n) / rate_hz, quat=quat, gyr=gyr, acc_lin=acc, rest=rest,
+                         pos_enu=pos, vel_enu=vel, gravity=normal_gravity(origin.lat_deg, origin.height_m + pos[:, 2]),
+                         origin=origin)
+
+
+def _smooth(x: np.ndarray, rate_hz: float, seconds: float) -> np.ndarray:
+    """A moving average over `seconds`, twice (a smooth ramp for steps)."""
+    width = max(1, int(round(seconds * rate_hz)))
+    kernel = np.ones(width) / width
+    for _ in range(2):
+        padded = np.concatenate([np.full(width, x[0]), x, np.full(width, x[-1])])
+        x = np.convolve(padded, kernel, mode="same")[width:-width]
+    return x
+
+
+def car_drive(duration_s: float, rate_hz: float, seed: int = 0, origin: Origin = Origin()) -> NavTrajectory:
+    """A car: drives at 8-25 m/s in stretches of 20-90 s, about one in three ending in a
+    stop of 5-20 s; turns of 45-120 deg at 10-25 deg/s, slowing down for them so that the
+    lateral acceleration stays within 3 m/s^2; hills of up to 6 % grade with a few hundred
+    metres between them; a bank of 0.5 deg per m/s^2 of lateral acceleration (the body roll
+    of a soft suspension). Speed changes take 16 s ramps (3.1 m/s^2 at most). Starts at rest
+    for 10 s, heading north-east."""
+    n = _n_samples(duration_s, rate_hz)
+    dt = 1.0 / rate_hz
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * dt
+    ramp = 8.0  # half of a speed change's ramp, s (_smooth twice over 8 s)
+    # Speed schedule: rest, then stretches at random speeds, some ending in a stop (the
+    # target is zero a ramp longer on each side, so that the car stands still all the stop).
+    target = np.zeros(n)
+    time = 10.0 + ramp
+    while time < duration_s:
+        length = rng.uniform(20.0, 90.0)
+        target[(t >= time) & (t < time + length)] = rng.uniform(8.0, 25.0)
+        time += length
+        if rng.random() < 0.35:
+            time += rng.uniform(5.0, 20.0) + 2.0 * ramp
+    stopped = target == 0.0
+    # Turns: yaw-rate pulses at random times, the speed capped around them.
+    yaw_rate = np.zeros(n)
+    time = 15.0
+    while time < duration_s:
+        time += rng.uniform(15.0, 60.0)
+        angle = math.radians(rng.uniform(45.0, 120.0)) * rng.choice([-1.0, 1.0])
+        rate = math.radians(rng.uniform(10.0, 25.0))
+        length = abs(angle) / rate
+        yaw_rate[(t >= time) & (t < time + length)] = math.copysign(rate, angle)
+        around = (t >= time - 2.0 * ramp) & (t < time + length + 2.0 * ramp)
+        target[around] = np.minimum(target[around], 3.0 / rate)
+        time += length
+    speed = _smooth(target, rate_hz, ramp)
+    speed[speed < 1e-9] = 0.0
+    yaw_rate = _smooth(yaw_rate, rate_hz, 1.0) * np.clip(speed / 5.0, 0.0, 1.0)  # no turning on the spot
+    yaw = math.radians(-45.0) + np.cumsum(yaw_rate) * dt
+    # Hills: a smooth grade along the distance driven.
+    distance = np.cumsum(speed) * dt
+    hills = _lowpass_noise(rng, 4096, 25.0, 1.0 / 600.0, 0.03)[:, 0]  # a sample per 25 m of road
+    slope = np.interp(distance / 25.0, np.arange(4096), hills, period=4096)
+    grade = np.arctan(0.06 * np.tanh(slope / 0.06))  # a soft limit at 6 %; constant while standing
+    bank = np.deg2rad(0.5) * _smooth(speed * yaw_rate, rate_hz, 0.5)
+    return _path(rate_hz, speed, yaw, grade, bank, origin, stopped)
+
+
+@dataclass
+class GnssModel:
+    """A receiver's errors. White errors: horizontal (`h_sigma_m`, the 2-D RMS: each of east
+    and north gets h_sigma / sqrt 2), vertical and velocity (each axis); time-correlated
+    errors: first-order Gauss-Markov with time constant `tau_s` and the given standard
+    deviations; `latency_s`: a fix reaches the board that much after the time it is valid
+    for; `outages`: (start, end) s without fixes; `multipath`: (start, end, east, north, up)
+    m added to the position while it lasts. The reported accuracies (hAcc, vAcc, sAcc) are
+    the white and correlated sigmas together, as a receiver's own estimate would be, and
+    grow by the multipath jump's size only if `reported_multipath` is set (a receiver often
+    does not see it)."""
+    rate_hz: float = 1.0
+    h_sigma_m: float = 2.5
+    v_sigma_m: float = 5.0
+    vel_sigma_m_s: float = 0.1
+    correlated_h_m: float = 0.0
+    correlated_v_m: float = 0.0
+    tau_s: float = 100.0
+    latency_s: float = 0.0
+    outages: tuple = ()
+    multipath: tuple = ()
+    reported_multipath: bool = False
+
+
+@dataclass
+class GnssFixes:
+    """Fixes in time order: `index` is the IMU sample the fix is valid at (its measurement
+    time), `t_valid` that sample's time, `t_arrival` when it reaches the board; position
+    as latitude, longitude (deg) and ellipsoidal height (m) and as ENU (m), velocity ENU
+    (m/s), the receiver's reported accuracies (m, m/s, 1 sigma), and the truth at
+    `index`."""
+    index: np.ndarray
+    t_valid: np.ndarray
+    t_arrival: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    height_m: np.ndarray
+    pos_enu: np.ndarray
+    vel_enu: np.ndarray
+    h_acc_m: np.ndarray
+    v_acc_m: np.ndarray
+    s_acc_m_s: np.ndarray
+    truth_pos_enu: np.ndarray
+    truth_vel_enu: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+
+def _gauss_markov(rng: np.random.Generator, n: int, dt: float, tau_s: float, sigma: float) -> np.ndarray:
+    """(n,) first-order Gauss-Markov process, stationary with standard deviation `sigma`."""
+    if sigma == 0.0:
+        return np.zeros(n)
+    phi = math.exp(-dt / tau_s)
+    drive = rng.standard_normal(n) * sigma * math.sqrt(1.0 - phi * phi)
+    out = np.empty(n)
+    out[0] = rng.standard_normal() * sigma
+    for k in range(1, n):
+        out[k] = phi * out[k - 1] + drive[k]
+    return out
+
+
+def gnss_fixes(traj: NavTrajectory, model: GnssModel | None = None, seed: int = 0) -> GnssFixes:
+    """The fixes a receiver makes along `traj`, at `model.rate_hz` from t = 0 (default: GnssModel())."""
+    model = GnssModel() if model is None else model
+    rng = np.random.default_rng(seed)
+    step = max(1, int(round(traj.rate_hz / model.rate_hz)))
+    index = np.arange(0, len(traj), step)
+    t = traj.t[index]
+    keep = np.ones(len(index), bool)
+    for start, end in model.outages:
+        keep &= ~((t >= start) & (t < end))
+    m = len(index)
+    dt = step / traj.rate_hz
+    horizontal = model.h_sigma_m / math.sqrt(2.0)
+    error = rng.standard_normal((m, 3)) * np.array([horizontal, horizontal, model.v_sigma_m])
+    corr_h = model.correlated_h_m / math.sqrt(2.0)
+    error += np.stack([_gauss_markov(rng, m, dt, model.tau_s, corr_h), _gauss_markov(rng, m, dt, model.tau_s, corr_h),
+                       _gauss_markov(rng, m, dt, model.tau_s, model.correlated_v_m)], axis=1)
+    extra = np.zeros((m, 3))
+    for start, end, east, north, up in model.multipath:
+        extra[(t >= start) & (t < end)] += (east, north, up)
+    pos = traj.pos_enu[index] + error + extra
+    vel = traj.vel_enu[index] + rng.standard_normal((m, 3)) * model.vel_sigma_m_s
+    h_acc = np.full(m, math.hypot(model.h_sigma_m, model.correlated_h_m))
+    v_acc = np.full(m, math.hypot(model.v_sigma_m, model.correlated_v_m))
+    if model.reported_multipath:
+        h_acc = np.hypot(h_acc, np.hypot(extra[:, 0], extra[:, 1]))
+        v_acc = np.hypot(v_acc, extra[:, 2])
+    lat, lon, h = enu_to_geodetic(pos, traj.origin)
+    return GnssFixes(index=index[keep], t_valid=t[keep], t_arrival=t[keep] + model.latency_s, lat_deg=lat[keep],
+                     lon_deg=lon[keep], height_m=h[keep], pos_enu=pos[keep], vel_enu=vel[keep], h_acc_m=h_acc[keep],
+                     v_acc_m=v_acc[keep], s_acc_m_s=np.full(int(keep.sum()), model.vel_sigma_m_s),
+                     truth_pos_enu=traj.pos_enu[index[keep]], truth_vel_enu=traj.vel_enu[index[keep]])
+
+
+#: The International Standard Atmosphere's troposphere: sea-level pressure (Pa) and
+#: temperature (K), lapse rate (K/m), g0 M / (R L).
+ISA_P0, ISA_T0, ISA_LAPSE = 101_325.0, 288.15, 0.0065
+ISA_EXPONENT = 9.80665 * 0.0289644 / (8.3144598 * 0.0065)
+
+
+def pressure_at(height_m, sea_level_pa=ISA_P0) -> np.ndarray:
+    """ISA pressure (Pa) at a height (m, taken as geopotential height above mean sea level)."""
+    return sea_level_pa * (1.0 - ISA_LAPSE * np.asarray(height_m, dtype=np.float64) / ISA_T0) ** ISA_EXPONENT
+
+
+def height_at(pressure_pa, sea_level_pa=ISA_P0) -> np.ndarray:
+    """The inverse of :func:`pressure_at`."""
+    return ISA_T0 / ISA_LAPSE * (1.0 - (np.asarray(pressure_pa, dtype=np.float64) / sea_level_pa)
+                                 ** (1.0 / ISA_EXPONENT))
+
+
+@dataclass
+class BaroModel:
+    """A barometer (defaults: the MS5611 at OSR 4096). White pressure noise (Pa; the data
+    sheet's 0.012 mbar resolution), a pressure error per kelvin of the sensor's temperature
+    change (its second-order compensation leaves some), the sensor's temperature (a slow
+    drift from `temperature_c` by `temperature_drift_c` over the run, a cosine), and the
+    weather: the sea-level pressure a random walk of `weather_pa_per_sqrt_h`."""
+    rate_hz: float = 50.0
+    noise_pa: float = 1.2
+    temperature_c: float = 25.0
+    temperature_drift_c: float = 5.0
+    pa_per_kelvin: float = 0.5
+    weather_pa_per_sqrt_h: float = 30.0
+    geoid_sep_m: float = 47.0
+
+
+@dataclass
+class BaroSamples:
+    """Samples in time order: `index` the IMU sample each is taken at, pressure (Pa),
+    temperature (degC), and the truth height above the ellipsoid at `index` (m)."""
+    index: np.ndarray
+    t: np.ndarray
+    pressure_pa: np.ndarray
+    temperature_c: np.ndarray
+    truth_height_m: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+
+def baro_samples(traj: NavTrajectory, model: BaroModel | None = None, seed: int = 0) -> BaroSamples:
+    """A barometer along `traj`: ISA pressure at the vehicle's height above mean sea level
+    (ellipsoidal height minus the geoid separation), plus the model's errors (default:
+    BaroModel())."""
+    model = BaroModel() if model is None else model
+    rng = np.random.default_rng(seed)
+    step = max(1, int(round(traj.rate_hz / model.rate_hz)))
+    index = np.arange(0, len(traj), step)
+    t = traj.t[index]
+    height = traj.origin.height_m + traj.pos_enu[index, 2]
+    duration_h = max(traj.duration_s, 1e-9) / 3600.0
+    weather = np.cumsum(rng.standard_normal(len(index))) * model.weather_pa_per_sqrt_h * math.sqrt(
+        duration_h / len(index))
+    temperature = model.temperature_c + model.temperature_drift_c * 0.5 * (1.0 - np.cos(
+        math.pi * t / max(traj.duration_s, 1e-9)))
+    pressure = (pressure_at(height - model.geoid_sep_m, ISA_P0 + weather)
+                + model.pa_per_kelvin * (temperature - model.temperature_c)
+                + rng.standard_normal(len(index)) * model.noise_pa)
+    return BaroSamples(index=index, t=t, pressure_pa=pressure, temperature_c=temperature, truth_height_m=height)

@@ -1,0 +1,146 @@
+"""The navigation simulator (imulink.sim.navigation): WGS-84 geometry and gravity against
+published values, a car drive's kinematics against themselves and its limits, the GNSS
+and barometer error models against their settings."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from imulink.sim import navigation as nv
+from imulink.sim import quat as Q
+from imulink.sim import simulate
+from imulink.sim.sensors import AccModel, GyroModel, SensorSuite
+
+
+def test_ecef_of_the_equator_and_the_pole_are_the_axes():
+    np.testing.assert_allclose(nv.geodetic_to_ecef(0.0, 0.0, 0.0), [nv.WGS84_A, 0.0, 0.0])
+    np.testing.assert_allclose(nv.geodetic_to_ecef(90.0, 0.0, 100.0), [0.0, 0.0, 6_356_752.314245 + 100.0],
+                               atol=1e-6)
+    np.testing.assert_allclose(nv.geodetic_to_ecef(0.0, 90.0, 10.0), [0.0, nv.WGS84_A + 10.0, 0.0], atol=1e-6)
+
+
+def test_enu_and_geodetic_are_each_others_inverse_within_100_km():
+    rng = np.random.default_rng(5)
+    origin = nv.Origin(-33.9, 151.2, 40.0)
+    enu = rng.uniform(-100e3, 100e3, (1000, 3)) * [1, 1, 0.02]
+    lat, lon, h = nv.enu_to_geodetic(enu, origin)
+    np.testing.assert_allclose(nv.geodetic_to_enu(lat, lon, h, origin), enu, atol=1e-6)
+    # 1 km north is about 1/111.3 deg of latitude; 1 km up is 1 km of height
+    lat, lon, h = nv.enu_to_geodetic([[0.0, 1000.0, 0.0], [0.0, 0.0, 1000.0]], origin)
+    assert abs((lat[0] - origin.lat_deg) * 111_300 - 1000) < 5 and abs(h[1] - origin.height_m - 1000) < 1e-6
+
+
+def test_normal_gravity_matches_wgs84():
+    assert nv.normal_gravity(0.0, 0.0) == pytest.approx(9.7803253359, abs=1e-10)
+    assert nv.normal_gravity(90.0, 0.0) == pytest.approx(9.8321849378, abs=1e-10)
+    # TR8350.2's closed form with its published constants k and e^2
+    for lat in (10.0, 45.0, 63.0):
+        s2 = math.sin(math.radians(lat)) ** 2
+        published = 9.7803253359 * (1 + 0.00193185265241 * s2) / math.sqrt(1 - 0.00669437999013 * s2)
+        assert nv.normal_gravity(lat, 0.0) == pytest.approx(published, abs=1e-9)
+    gradient = (nv.normal_gravity(45.0, 1000.0) - nv.normal_gravity(45.0, 0.0)) / 1000.0
+    assert gradient == pytest.approx(-3.086e-6, rel=2e-3)  # the free-air gradient
+
+
+@pytest.fixture(scope="module")
+def drive():
+    return nv.car_drive(1200.0, 100.0, seed=2)
+
+
+def test_the_car_drives_forward_within_a_cars_limits(drive):
+    speed = np.linalg.norm(drive.vel_enu, axis=1)
+    forward = Q.rotate(drive.quat, [0.0, 1.0, 0.0])
+    moving = speed > 0.1
+    # the velocity is along the body's y axis
+    np.testing.assert_allclose(drive.vel_enu[moving] / speed[moving, None], forward[moving], atol=1e-9)
+    assert speed.max() <= 25.0 and np.linalg.norm(drive.acc_lin, axis=1).max() <= 3.2
+    lateral = np.linalg.norm(np.cross(drive.acc_lin, forward), axis=1)
+    assert lateral.max() <= 3.2
+    assert np.degrees(np.linalg.norm(drive.gyr, axis=1)).max() <= 26.0
+    assert 8_000 < np.sum(speed) * drive.dt < 20_000  # metres driven in 20 min
+    grade = np.degrees(np.arcsin(forward[:, 2]))
+    assert 1.0 < np.abs(grade).max() <= math.degrees(math.atan(0.06)) + 0.01
+
+
+def test_the_car_kinematics_are_consistent(drive):
+    dt = drive.dt
+    np.testing.assert_allclose(np.diff(drive.vel_enu, axis=0), drive.acc_lin[1:] * dt, atol=1e-9)
+    np.testing.assert_allclose(np.diff(drive.pos_enu, axis=0), (drive.vel_enu[:-1] + drive.vel_enu[1:]) * dt / 2,
+                               atol=1e-9)
+    np.testing.assert_allclose(drive.quat, Q.normalize(drive.quat), atol=1e-12)
+    np.testing.assert_array_equal(drive.pos_enu[0], [0.0, 0.0, 0.0])
+    # at rest: still, and the first 10 s are rest
+    assert drive.rest[: int(9.9 * drive.rate_hz)].all()
+    assert np.all(drive.vel_enu[drive.rest] == 0.0) and np.all(drive.gyr[drive.rest] == 0.0)
+    assert 0.01 < drive.rest.mean() < 0.2
+    # the same seed gives the same drive
+    again = nv.car_drive(1200.0, 100.0, seed=2)
+    np.testing.assert_array_equal(again.pos_enu, drive.pos_enu)
+
+
+def test_the_accelerometer_reads_normal_gravity_at_rest():
+    equator = nv.car_drive(60.0, 100.0, seed=1, origin=nv.Origin(0.0, 0.0, 0.0))
+    suite = SensorSuite(gyro=GyroModel.ideal(), acc=AccModel(bias=(0.0, 0.0, 0.0), noise_std=0.0),
+                        mag=SensorSuite.default().mag)
+    result = simulate(equator, suite, seed=1)
+    norm = np.linalg.norm(result.acc[equator.rest], axis=1)
+    # 9.78033 m/s^2, 26 mm/s^2 below standard gravity; within the quantisation (2.4 mm/s^2)
+    assert abs(norm.mean() - nv.normal_gravity(0.0, 0.0)) < 0.003
+
+
+def test_gnss_white_errors_have_the_settings_sizes(drive):
+    fixes = nv.gnss_fixes(drive, nv.GnssModel(rate_hz=5.0), seed=3)
+    error = fixes.pos_enu - fixes.truth_pos_enu
+    assert len(fixes) == 6000
+    assert math.sqrt(np.mean(np.sum(error[:, :2] ** 2, axis=1))) == pytest.approx(2.5, rel=0.04)
+    assert np.std(error[:, 2]) == pytest.approx(5.0, rel=0.04)
+    assert np.std(fixes.vel_enu - fixes.truth_vel_enu) == pytest.approx(0.1, rel=0.04)
+    np.testing.assert_array_equal(fixes.h_acc_m, 2.5)
+    lat, lon, h = fixes.lat_deg, fixes.lon_deg, fixes.height_m
+    np.testing.assert_allclose(nv.geodetic_to_enu(lat, lon, h, drive.origin), fixes.pos_enu, atol=1e-6)
+
+
+def test_gnss_outages_latency_multipath_and_correlated_errors(drive):
+    model = nv.GnssModel(h_sigma_m=0.0, v_sigma_m=0.0, vel_sigma_m_s=0.0, correlated_h_m=3.0, correlated_v_m=4.0,
+                         tau_s=60.0, latency_s=0.12, outages=((300.0, 330.0), (700.0, 730.0)),
+                         multipath=((500.0, 510.0, 15.0, -10.0, 5.0),))
+    fixes = nv.gnss_fixes(drive, model, seed=4)
+    t = fixes.t_valid
+    assert len(fixes) == 1200 - 60
+    assert not np.any((t >= 300) & (t < 330)) and not np.any((t >= 700) & (t < 730))
+    np.testing.assert_allclose(fixes.t_arrival - t, 0.12)
+    error = fixes.pos_enu - fixes.truth_pos_enu
+    jump = (t >= 500) & (t < 510)
+    without = nv.gnss_fixes(drive, nv.GnssModel(**{**model.__dict__, "multipath": ()}), seed=4)
+    assert jump.sum() == 10
+    np.testing.assert_allclose(fixes.pos_enu[jump] - without.pos_enu[jump], np.tile([15.0, -10.0, 5.0], (10, 1)),
+                               atol=1e-6)
+    np.testing.assert_array_equal(fixes.pos_enu[~jump], without.pos_enu[~jump])
+    clean = ~jump
+    east = error[clean, 0]
+    lag1 = np.corrcoef(east[:-1], east[1:])[0, 1]
+    assert lag1 == pytest.approx(math.exp(-1.0 / 60.0), abs=0.02)
+    np.testing.assert_allclose(fixes.h_acc_m, 3.0)
+    np.testing.assert_allclose(fixes.v_acc_m, 4.0)
+
+
+def test_isa_pressure_and_height_are_inverse_and_standard():
+    assert nv.pressure_at(0.0) == pytest.approx(101_325.0)
+    assert nv.pressure_at(1000.0) == pytest.approx(89_874.6, abs=1.0)  # the ISA table
+    heights = np.linspace(-400.0, 9000.0, 50)
+    np.testing.assert_allclose(nv.height_at(nv.pressure_at(heights)), heights, atol=1e-6)
+
+
+def test_barometer_noise_and_drifts(drive):
+    quiet = nv.baro_samples(drive, nv.BaroModel(noise_pa=0.0, temperature_drift_c=0.0, weather_pa_per_sqrt_h=0.0))
+    msl = quiet.truth_height_m - 47.0
+    np.testing.assert_allclose(nv.height_at(quiet.pressure_pa), msl, atol=1e-6)
+    assert len(quiet) == 1200 * 50
+    noisy = nv.baro_samples(drive, nv.BaroModel(temperature_drift_c=0.0, weather_pa_per_sqrt_h=0.0), seed=2)
+    height_noise = np.std(nv.height_at(noisy.pressure_pa) - msl)
+    assert 0.08 < height_noise < 0.14  # 1.2 Pa at about 11 Pa/m near the ground
+    warm = nv.baro_samples(drive, nv.BaroModel(noise_pa=0.0, weather_pa_per_sqrt_h=0.0))
+    assert warm.temperature_c[-1] == pytest.approx(30.0)
+    assert warm.pressure_pa[-1] - quiet.pressure_pa[-1] == pytest.approx(2.5)  # 0.5 Pa/K over 5 K
