@@ -1,0 +1,267 @@
+#!/usr/bin/env python3
+"""Design study for the `nav` filter (issue 16): a loosely coupled 15-state error-state
+Kalman filter in float64 numpy, run on the simulator's car drive (imulink.sim.navigation).
+
+Not the product: the filter of issue 16 is to be C (fixed point and float twin from one
+source). This script fixes the design the C code follows and measures what it reaches:
+
+- nominal state: ENU position and velocity, the attitude quaternion (sensor to ENU),
+  gyro and accelerometer biases; strapdown at the IMU rate (attitude by the exact
+  rotation of each gyro sample, velocity with the specific force rotated at the middle
+  of the sample, position by the trapezoid), normal gravity at the height;
+- error state [dp, dv, dtheta (sensor frame), dbg, dba], covariance propagated every
+  sample with the first-order transition;
+- updates: GNSS position and velocity together (their accuracies as the receiver
+  reports them), gated by the innovation's chi-square (6 degrees of freedom, 99.9 %:
+  22.46), accepted again after 5 s of rejections; at rest (the last fix's speed below
+  0.3 m/s, the bias-corrected gyroscope below 1.5 deg/s and the specific force without
+  a trend over 0.5 s: the means of its halves within 0.03 m/s^2) zero velocity and the
+  magnetometer's heading (the field's east component in the estimated ENU frame);
+- start: at the first fix, at rest: tilt from the accelerometer, heading from the
+  magnetometer, position and velocity from the fix.
+
+    .venv/bin/python tools/nav_prototype.py [--minutes 20] [--seed 0] [--outages] [--correlated]
+
+Prints RMSEs of horizontal and vertical position, velocity and heading after the first
+60 s, the drift at the end of each outage, and the fixes rejected.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+
+import numpy as np
+
+from imulink.sim import navigation as nv
+from imulink.sim import quat as Q
+from imulink.sim import simulate
+from imulink.sim.sensors import AccModel, GyroModel, MagModel, SensorSuite
+
+DEG = math.pi / 180.0
+#: MPU6050 data sheet: gyro rate noise 0.005 deg/s/sqrt(Hz), accelerometer 400 ug/sqrt(Hz).
+GYRO_ARW = 0.005 * DEG                 # rad/s/sqrt(Hz) = rad/sqrt(s)
+ACC_VRW = 400e-6 * 9.80665             # m/s^2/sqrt(Hz)
+#: Turn-on biases (after the factory trim; the data sheet allows more).
+GYRO_BIAS = np.array([0.8, -0.5, 0.6]) * DEG
+ACC_BIAS = np.array([0.25, -0.3, 0.2])
+CHI2_6_999 = 22.46
+
+
+def skew(v):
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def rotvec_quat(v):
+    return Q.from_rotvec(np.asarray(v))
+
+
+class Nav:
+    """The 15-state loosely coupled filter (float64)."""
+
+    def __init__(self, dt: float, gravity_at):
+        self.dt = dt
+        self.gravity_at = gravity_at
+        self.p = np.zeros(3)
+        self.v = np.zeros(3)
+        self.q = Q.IDENTITY.copy()
+        self.bg = np.zeros(3)
+        self.ba = np.zeros(3)
+        self.P = np.diag(np.r_[[25.0] * 3, [1.0] * 3, [(2 * DEG) ** 2] * 2, [(10 * DEG) ** 2],
+                               [(1.5 * DEG) ** 2] * 3, [0.5 ** 2] * 3])
+        # continuous noise densities (squared): velocity (acc white), angle (gyro white), bias random walks;
+        # twice the data sheet's white noise, room for quantisation and what the first-order model leaves out
+        self.q_acc = (ACC_VRW * 2.0) ** 2
+        self.q_gyro = (GYRO_ARW * 2.0) ** 2
+        self.q_bg = (1e-5) ** 2
+        self.q_ba = (1e-4) ** 2
+        self.rejected = 0
+        self.rejecting_since = None
+        self.field_ref = None
+
+    def propagate(self, gyr, acc):
+        dt = self.dt
+        w = gyr - self.bg
+        f = acc - self.ba
+        r0 = Q.to_rotmat(self.q)
+        dq = rotvec_quat(w * dt)
+        q_mid = Q.multiply(self.q, rotvec_quat(w * dt / 2))
+        self.q = Q.normalize(Q.multiply(self.q, dq))
+        a = Q.to_rotmat(q_mid) @ f - np.array([0.0, 0.0, self.gravity_at(self.p[2])])
+        v_new = self.v + a * dt
+        self.p = self.p + (self.v + v_new) * dt / 2
+        self.v = v_new
+        F = np.zeros((15, 15))
+        F[0:3, 3:6] = np.eye(3)
+        F[3:6, 6:9] = -r0 @ skew(f)
+        F[3:6, 12:15] = -r0
+        F[6:9, 6:9] = -skew(w)
+        F[6:9, 9:12] = -np.eye(3)
+        Phi = np.eye(15) + F * dt
+        Qd = np.zeros((15, 15))
+        Qd[3:6, 3:6] = np.eye(3) * self.q_acc * dt
+        Qd[6:9, 6:9] = np.eye(3) * self.q_gyro * dt
+        Qd[9:12, 9:12] = np.eye(3) * self.q_bg * dt
+        Qd[12:15, 12:15] = np.eye(3) * self.q_ba * dt
+        self.P = Phi @ self.P @ Phi.T + Qd
+
+    def _update(self, y, H, R, gate=None, now=0.0):
+        S = H @ self.P @ H.T + R
+        nis = float(y @ np.linalg.solve(S, y))
+        if gate is not None and nis > gate:
+            if self.rejecting_since is None:
+                self.rejecting_since = now
+            if now - self.rejecting_since < 5.0:
+                self.rejected += 1
+                return False
+        self.rejecting_since = None
+        K = self.P @ H.T @ np.linalg.inv(S)
+        dx = K @ y
+        A = np.eye(15) - K @ H
+        self.P = A @ self.P @ A.T + K @ R @ K.T
+        self.p += dx[0:3]
+        self.v += dx[3:6]
+        self.q = Q.normalize(Q.multiply(self.q, rotvec_quat(dx[6:9])))
+        self.bg += dx[9:12]
+        self.ba += dx[12:15]
+        return True
+
+    def gnss(self, pos, vel, h_acc, v_acc, s_acc, now):
+        H = np.zeros((6, 15))
+        H[0:3, 0:3] = np.eye(3)
+        H[3:6, 3:6] = np.eye(3)
+        R = np.diag([h_acc ** 2 / 2, h_acc ** 2 / 2, v_acc ** 2, s_acc ** 2, s_acc ** 2, s_acc ** 2])
+        return self._update(np.r_[pos - self.p, vel - self.v], H, R, CHI2_6_999, now)
+
+    def zero_velocity(self):
+        H = np.zeros((3, 15))
+        H[:, 3:6] = np.eye(3)
+        self._update(-self.v, H, np.eye(3) * 0.02 ** 2)
+
+    def heading_from_field(self, mag):
+        """The field's east component in the estimated ENU frame against the reference's (0)."""
+        r = Q.to_rotmat(self.q)
+        m_e = r @ mag
+        north, up = self.field_ref
+        # east of (I - [phi x]) m with phi = R dtheta: phi_z north - phi_y up
+        H = np.zeros((1, 15))
+        H[0, 6:9] = -(north * r[2, :] - up * r[1, :])
+        self._update(np.array([0.0 - m_e[0]]), H, np.array([[1.0 ** 2]]))
+
+    def start(self, acc, mag, pos, vel):
+        up = acc / np.linalg.norm(acc)  # the sensor's up at rest (specific force)
+        east = np.cross(mag, up)        # the field points north and down: field x up is east
+        east /= np.linalg.norm(east)
+        north = np.cross(up, east)
+        rot = np.stack([east, north, up])  # rows: the earth axes in the sensor frame, i.e. R (sensor to ENU)
+        self.q = _quat_from_rotmat(rot)
+        self.p, self.v = pos.copy(), vel.copy()
+        m_e = rot @ mag
+        self.field_ref = (m_e[1], m_e[2])
+
+
+def _quat_from_rotmat(m):
+    tr = np.trace(m)
+    if tr > 0:
+        s = math.sqrt(tr + 1.0) * 2
+        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
+    else:
+        i = int(np.argmax(np.diag(m)))
+        j, k = (i + 1) % 3, (i + 2) % 3
+        s = math.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k]) * 2
+        q = [0.0, 0.0, 0.0, 0.0]
+        q[0] = (m[k, j] - m[j, k]) / s
+        q[1 + i] = 0.25 * s
+        q[1 + j] = (m[j, i] + m[i, j]) / s
+        q[1 + k] = (m[k, i] + m[i, k]) / s
+    return Q.normalize(np.array(q))
+
+
+def run(minutes: float, seed: int, outages: bool, correlated: bool) -> dict:
+    rate = 100.0
+    traj = nv.car_drive(minutes * 60.0, rate, seed=seed)
+    suite = SensorSuite(gyro=GyroModel(arw=GYRO_ARW, bias_instability=0.0, rrw=0.0, bias=GYRO_BIAS),
+                        acc=AccModel(noise_std=ACC_VRW * math.sqrt(rate / 2), bias=ACC_BIAS), mag=MagModel())
+    imu = simulate(traj, suite, seed=seed)
+    spans = ((300.0, 330.0), (700.0, 730.0)) if outages else ()
+    model = nv.GnssModel(outages=spans, correlated_h_m=2.0 if correlated else 0.0,
+                         correlated_v_m=3.0 if correlated else 0.0,
+                         multipath=((420.0, 430.0, 15.0, -10.0, 5.0),) if correlated else ())
+    fixes = nv.gnss_fixes(traj, model, seed=seed)
+    fix_at = {int(k): j for j, k in enumerate(fixes.index)}
+    nav = Nav(1.0 / rate, lambda up: float(nv.normal_gravity(traj.origin.lat_deg, traj.origin.height_m + up)))
+    n = len(traj)
+    est_p, est_v, est_q = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 4))
+    window = int(0.5 * rate)
+    started = False
+    last_fix_speed, last_fix_time = math.inf, -math.inf
+    for k in range(n):
+        gyr, acc, mag = imu.gyr[k], imu.acc[k], imu.mag[k]
+        if not started:
+            if k in fix_at:
+                j = fix_at[k]
+                nav.start(acc, mag, fixes.pos_enu[j], fixes.vel_enu[j])
+                started = True
+            est_q[k] = nav.q
+            continue
+        nav.propagate(gyr, acc)
+        if k in fix_at:
+            j = fix_at[k]
+            nav.gnss(fixes.pos_enu[j], fixes.vel_enu[j], fixes.h_acc_m[j], fixes.v_acc_m[j], fixes.s_acc_m_s[j],
+                     traj.t[k])
+        if k in fix_at:
+            last_fix_speed, last_fix_time = np.linalg.norm(fixes.vel_enu[fix_at[k]]), traj.t[k]
+        if k >= window and k % 10 == 0 and traj.t[k] - last_fix_time < 1.5 and last_fix_speed < 0.3:
+            # a car at rest: the receiver says it stands, and the gyroscope and the specific
+            # force are still (the force's norm alone cannot see a gentle straight start)
+            w = imu.gyr[k - window:k + 1] - nav.bg
+            f = imu.acc[k - window:k + 1]
+            half = len(f) // 2
+            trend = np.linalg.norm(f[half:].mean(axis=0) - f[:half].mean(axis=0))  # a start's rising force
+            if np.max(np.linalg.norm(w, axis=1)) < 1.5 * DEG and trend < 0.03:
+                nav.zero_velocity()
+                nav.heading_from_field(mag)
+        est_p[k], est_v[k], est_q[k] = nav.p, nav.v, nav.q
+    t = traj.t
+    settled = t >= 60.0
+    herr = np.linalg.norm((est_p - traj.pos_enu)[:, :2], axis=1)
+    verr = np.abs(est_p[:, 2] - traj.pos_enu[:, 2])
+    velerr = np.linalg.norm(est_v - traj.vel_enu, axis=1)
+    fwd_true = Q.rotate(traj.quat, [0.0, 1.0, 0.0])
+    fwd_est = Q.rotate(est_q, [0.0, 1.0, 0.0])
+    heading_err = np.degrees(np.angle(np.exp(1j * (np.arctan2(fwd_est[:, 0], fwd_est[:, 1])
+                                                   - np.arctan2(fwd_true[:, 0], fwd_true[:, 1])))))
+    result = {
+        "horizontal_rmse_m": float(np.sqrt(np.mean(herr[settled] ** 2))),
+        "vertical_rmse_m": float(np.sqrt(np.mean(verr[settled] ** 2))),
+        "velocity_rmse_m_s": float(np.sqrt(np.mean(velerr[settled] ** 2))),
+        "heading_rmse_deg": float(np.sqrt(np.mean(heading_err[settled] ** 2))),
+        "rejected_fixes": nav.rejected,
+        "gyro_bias_error_deg_s": (np.degrees(nav.bg - GYRO_BIAS)).round(3).tolist(),
+        "acc_bias_error_m_s2": (nav.ba - ACC_BIAS).round(3).tolist(),
+    }
+    for start, end in spans:
+        k = int(round(end * rate)) - 1
+        result[f"drift_after_outage_{start:g}_s_m"] = float(herr[k])
+    return result
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--minutes", type=float, default=20.0)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--outages", action="store_true", help="two 30 s GNSS outages (at 300 s and 700 s)")
+    parser.add_argument("--correlated", action="store_true",
+                        help="time-correlated GNSS errors (2 m horizontal, 3 m vertical, 100 s) and a 15 m jump")
+    args = parser.parse_args()
+    started = time.monotonic()
+    result = run(args.minutes, args.seed, args.outages, args.correlated)
+    for key, value in result.items():
+        print(f"{key}: {value if not isinstance(value, float) else round(value, 3)}")
+    print(f"({time.monotonic() - started:.1f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
