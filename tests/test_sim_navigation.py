@@ -75,6 +75,12 @@ def test_the_car_kinematics_are_consistent(drive):
     assert drive.rest[: int(9.9 * drive.rate_hz)].all()
     assert np.all(drive.vel_enu[drive.rest] == 0.0) and np.all(drive.gyr[drive.rest] == 0.0)
     assert 0.01 < drive.rest.mean() < 0.2
+    # the geodetic path moves as the velocity says, over the ellipsoid
+    step = nv.local_offsets(drive.lat_deg[1:], drive.lon_deg[1:], drive.height_m[1:], drive.lat_deg[:-1],
+                            drive.lon_deg[:-1], drive.height_m[:-1])
+    np.testing.assert_allclose(step, (drive.vel_enu[:-1] + drive.vel_enu[1:]) * dt / 2, atol=1e-8)  # deg rounding
+    np.testing.assert_allclose(drive.height_m, drive.origin.height_m + drive.pos_enu[:, 2], atol=1e-9)
+    np.testing.assert_allclose(drive.gravity, nv.normal_gravity(drive.lat_deg, drive.height_m))
     # the same seed gives the same drive
     again = nv.car_drive(1200.0, 100.0, seed=2)
     np.testing.assert_array_equal(again.pos_enu, drive.pos_enu)
@@ -98,8 +104,11 @@ def test_gnss_white_errors_have_the_settings_sizes(drive):
     assert np.std(error[:, 2]) == pytest.approx(5.0, rel=0.04)
     assert np.std(fixes.vel_enu - fixes.truth_vel_enu) == pytest.approx(0.1, rel=0.04)
     np.testing.assert_array_equal(fixes.h_acc_m, 2.5)
-    lat, lon, h = fixes.lat_deg, fixes.lon_deg, fixes.height_m
-    np.testing.assert_allclose(nv.geodetic_to_enu(lat, lon, h, drive.origin), fixes.pos_enu, atol=1e-6)
+    # the geodetic fix is the truth's geodetic position moved by the error (metres, local)
+    k = fixes.index
+    offsets = nv.local_offsets(fixes.lat_deg, fixes.lon_deg, fixes.height_m, drive.lat_deg[k], drive.lon_deg[k],
+                               drive.height_m[k])
+    np.testing.assert_allclose(offsets, error, atol=1e-6)
 
 
 def test_gnss_outages_latency_multipath_and_correlated_errors(drive):

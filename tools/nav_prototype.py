@@ -5,14 +5,16 @@ Kalman filter in float64 numpy, run on the simulator's car drive (imulink.sim.na
 Not the product: the filter of issue 16 is to be C (fixed point and float twin from one
 source). This script fixes the design the C code follows and measures what it reaches:
 
-- nominal state: ENU position and velocity, the attitude quaternion (sensor to ENU),
-  gyro and accelerometer biases; strapdown at the IMU rate (attitude by the exact
-  rotation of each gyro sample, velocity with the specific force rotated at the middle
-  of the sample, position by the trapezoid), normal gravity at the height;
-- error state [dp, dv, dtheta (sensor frame), dbg, dba], covariance propagated every
-  sample with the first-order transition;
-- updates: GNSS position and velocity together (their accuracies as the receiver
-  reports them), gated by the innovation's chi-square (6 degrees of freedom, 99.9 %:
+- nominal state: geodetic position (latitude, longitude, height), velocity in the local
+  east-north-up frame, the attitude quaternion (sensor to that frame), gyro and
+  accelerometer biases; strapdown at the IMU rate (attitude by the exact rotation of
+  each gyro sample, velocity with the specific force rotated at the middle of the
+  sample, position by the trapezoid over the rates of latitude, longitude and height),
+  normal gravity where the vehicle is;
+- error state [dp (metres east, north, up), dv, dtheta (sensor frame), dbg, dba],
+  covariance propagated every sample with the first-order transition;
+- updates: GNSS position (the fix's latitude, longitude and height as metres from the
+  estimate) and velocity together (their accuracies as the receiver reports them), gated by the innovation's chi-square (6 degrees of freedom, 99.9 %:
   22.46), accepted again after 5 s of rejections; at rest (the last fix's speed below
   0.3 m/s, the bias-corrected gyroscope below 1.5 deg/s and the specific force without
   a trend over 0.5 s: the means of its halves within 0.03 m/s^2) zero velocity and the
@@ -60,10 +62,9 @@ def rotvec_quat(v):
 class Nav:
     """The 15-state loosely coupled filter (float64)."""
 
-    def __init__(self, dt: float, gravity_at):
+    def __init__(self, dt: float):
         self.dt = dt
-        self.gravity_at = gravity_at
-        self.p = np.zeros(3)
+        self.geo = np.zeros(3)  # latitude, longitude (rad), height (m)
         self.v = np.zeros(3)
         self.q = Q.IDENTITY.copy()
         self.bg = np.zeros(3)
@@ -88,9 +89,9 @@ class Nav:
         dq = rotvec_quat(w * dt)
         q_mid = Q.multiply(self.q, rotvec_quat(w * dt / 2))
         self.q = Q.normalize(Q.multiply(self.q, dq))
-        a = Q.to_rotmat(q_mid) @ f - np.array([0.0, 0.0, self.gravity_at(self.p[2])])
+        a = Q.to_rotmat(q_mid) @ f - np.array([0.0, 0.0, self.gravity()])
         v_new = self.v + a * dt
-        self.p = self.p + (self.v + v_new) * dt / 2
+        self.move((self.v + v_new) * dt / 2)
         self.v = v_new
         F = np.zeros((15, 15))
         F[0:3, 3:6] = np.eye(3)
@@ -106,6 +107,19 @@ class Nav:
         Qd[12:15, 12:15] = np.eye(3) * self.q_ba * dt
         self.P = Phi @ self.P @ Phi.T + Qd
 
+    def gravity(self) -> float:
+        return float(nv.normal_gravity(math.degrees(self.geo[0]), self.geo[2]))
+
+    def move(self, enu):
+        """The position moved by metres east, north and up."""
+        m, n = nv.radii(math.degrees(self.geo[0]))
+        self.geo += [enu[1] / (m + self.geo[2]), enu[0] / ((n + self.geo[2]) * math.cos(self.geo[0])), enu[2]]
+
+    def offsets(self, lat_deg, lon_deg, height_m):
+        """Metres east, north, up of a geodetic point from the estimate."""
+        return nv.local_offsets(lat_deg, lon_deg, height_m, math.degrees(self.geo[0]), math.degrees(self.geo[1]),
+                                self.geo[2])
+
     def _update(self, y, H, R, gate=None, now=0.0):
         S = H @ self.P @ H.T + R
         nis = float(y @ np.linalg.solve(S, y))
@@ -120,19 +134,20 @@ class Nav:
         dx = K @ y
         A = np.eye(15) - K @ H
         self.P = A @ self.P @ A.T + K @ R @ K.T
-        self.p += dx[0:3]
+        self.move(dx[0:3])
         self.v += dx[3:6]
         self.q = Q.normalize(Q.multiply(self.q, rotvec_quat(dx[6:9])))
         self.bg += dx[9:12]
         self.ba += dx[12:15]
         return True
 
-    def gnss(self, pos, vel, h_acc, v_acc, s_acc, now):
+    def gnss(self, lat_deg, lon_deg, height_m, vel, h_acc, v_acc, s_acc, now):
         H = np.zeros((6, 15))
         H[0:3, 0:3] = np.eye(3)
         H[3:6, 3:6] = np.eye(3)
         R = np.diag([h_acc ** 2 / 2, h_acc ** 2 / 2, v_acc ** 2, s_acc ** 2, s_acc ** 2, s_acc ** 2])
-        return self._update(np.r_[pos - self.p, vel - self.v], H, R, CHI2_6_999, now)
+        y = np.r_[self.offsets(lat_deg, lon_deg, height_m), vel - self.v]
+        return self._update(y, H, R, CHI2_6_999, now)
 
     def zero_velocity(self):
         H = np.zeros((3, 15))
@@ -149,14 +164,15 @@ class Nav:
         H[0, 6:9] = -(north * r[2, :] - up * r[1, :])
         self._update(np.array([0.0 - m_e[0]]), H, np.array([[1.0 ** 2]]))
 
-    def start(self, acc, mag, pos, vel):
+    def start(self, acc, mag, lat_deg, lon_deg, height_m, vel):
         up = acc / np.linalg.norm(acc)  # the sensor's up at rest (specific force)
         east = np.cross(mag, up)        # the field points north and down: field x up is east
         east /= np.linalg.norm(east)
         north = np.cross(up, east)
         rot = np.stack([east, north, up])  # rows: the earth axes in the sensor frame, i.e. R (sensor to ENU)
         self.q = _quat_from_rotmat(rot)
-        self.p, self.v = pos.copy(), vel.copy()
+        self.geo = np.array([math.radians(lat_deg), math.radians(lon_deg), height_m])
+        self.v = vel.copy()
         m_e = rot @ mag
         self.field_ref = (m_e[1], m_e[2])
 
@@ -190,9 +206,9 @@ def run(minutes: float, seed: int, outages: bool, correlated: bool) -> dict:
                          multipath=((420.0, 430.0, 15.0, -10.0, 5.0),) if correlated else ())
     fixes = nv.gnss_fixes(traj, model, seed=seed)
     fix_at = {int(k): j for j, k in enumerate(fixes.index)}
-    nav = Nav(1.0 / rate, lambda up: float(nv.normal_gravity(traj.origin.lat_deg, traj.origin.height_m + up)))
+    nav = Nav(1.0 / rate)
     n = len(traj)
-    est_p, est_v, est_q = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 4))
+    est_geo, est_v, est_q = np.zeros((n, 3)), np.zeros((n, 3)), np.zeros((n, 4))
     window = int(0.5 * rate)
     started = False
     last_fix_speed, last_fix_time = math.inf, -math.inf
@@ -201,15 +217,15 @@ def run(minutes: float, seed: int, outages: bool, correlated: bool) -> dict:
         if not started:
             if k in fix_at:
                 j = fix_at[k]
-                nav.start(acc, mag, fixes.pos_enu[j], fixes.vel_enu[j])
+                nav.start(acc, mag, fixes.lat_deg[j], fixes.lon_deg[j], fixes.height_m[j], fixes.vel_enu[j])
                 started = True
-            est_q[k] = nav.q
+            est_geo[k], est_q[k] = nav.geo, nav.q
             continue
         nav.propagate(gyr, acc)
         if k in fix_at:
             j = fix_at[k]
-            nav.gnss(fixes.pos_enu[j], fixes.vel_enu[j], fixes.h_acc_m[j], fixes.v_acc_m[j], fixes.s_acc_m_s[j],
-                     traj.t[k])
+            nav.gnss(fixes.lat_deg[j], fixes.lon_deg[j], fixes.height_m[j], fixes.vel_enu[j], fixes.h_acc_m[j],
+                     fixes.v_acc_m[j], fixes.s_acc_m_s[j], traj.t[k])
         if k in fix_at:
             last_fix_speed, last_fix_time = np.linalg.norm(fixes.vel_enu[fix_at[k]]), traj.t[k]
         if k >= window and k % 10 == 0 and traj.t[k] - last_fix_time < 1.5 and last_fix_speed < 0.3:
@@ -222,11 +238,13 @@ def run(minutes: float, seed: int, outages: bool, correlated: bool) -> dict:
             if np.max(np.linalg.norm(w, axis=1)) < 1.5 * DEG and trend < 0.03:
                 nav.zero_velocity()
                 nav.heading_from_field(mag)
-        est_p[k], est_v[k], est_q[k] = nav.p, nav.v, nav.q
+        est_geo[k], est_v[k], est_q[k] = nav.geo, nav.v, nav.q
     t = traj.t
     settled = t >= 60.0
-    herr = np.linalg.norm((est_p - traj.pos_enu)[:, :2], axis=1)
-    verr = np.abs(est_p[:, 2] - traj.pos_enu[:, 2])
+    error = nv.local_offsets(np.degrees(est_geo[:, 0]), np.degrees(est_geo[:, 1]), est_geo[:, 2], traj.lat_deg,
+                             traj.lon_deg, traj.height_m)
+    herr = np.linalg.norm(error[:, :2], axis=1)
+    verr = np.abs(error[:, 2])
     velerr = np.linalg.norm(est_v - traj.vel_enu, axis=1)
     fwd_true = Q.rotate(traj.quat, [0.0, 1.0, 0.0])
     fwd_est = Q.rotate(est_q, [0.0, 1.0, 0.0])

@@ -2,12 +2,18 @@
 WGS-84 ellipsoid, a GNSS receiver's fixes and a barometer's pressure along it.
 
 Frames and conventions as in the rest of the simulator: quaternions w-first,
-sensor-to-earth; the earth frame is the local east-north-up (ENU) frame at an origin
-(:class:`Origin`); the sensor's y axis points forward (the board lies flat with its y axis
-along the vehicle), x to the right, z up. The ENU frame is taken as inertial: the
-earth's rotation (15 deg/h) and the transport rate are left out of the truth, as they are
-far below an MPU6050's noise and turn-on bias. Gravity is the WGS-84 normal gravity at
-the origin's latitude and the vehicle's height (:func:`normal_gravity`).
+sensor-to-earth; the sensor's y axis points forward (the board lies flat with its y axis
+along the vehicle), x to the right, z up. The earth frame is the local-level
+east-north-up frame where the vehicle is: attitude, velocity and gravity are in it, and
+gravity is the WGS-84 normal gravity there (:func:`normal_gravity`), along its up. The
+vehicle's geodetic position is the integral of its velocity over the ellipsoid:
+d(lat)/dt = v_n / (M + h), d(lon)/dt = v_e / ((N + h) cos lat), dh/dt = v_u (M and N the
+meridian and prime-vertical radii). A tangent plane at the origin would not do beyond a
+few km: 10 km away its up is 0.09 deg off the local one and 8 m above the ellipsoid.
+The local-level frame is taken as inertial: the earth's rotation (15 deg/h) and the
+transport rate (v / R: 0.8 deg/h at 25 m/s) are left out of the truth, far below an
+MPU6050's noise and turn-on bias. ``pos_enu`` holds the integral of the velocity
+(distances travelled east, north and up), for errors in metres.
 
 Everything is deterministic for a given seed.
 """
@@ -88,6 +94,23 @@ def enu_to_geodetic(enu, origin: Origin) -> tuple[np.ndarray, np.ndarray, np.nda
     return ecef_to_geodetic(xyz)
 
 
+def radii(lat_deg) -> tuple[np.ndarray, np.ndarray]:
+    """Meridian (M) and prime-vertical (N) radii of curvature, m."""
+    s2 = np.sin(np.deg2rad(lat_deg)) ** 2
+    w = np.sqrt(1.0 - WGS84_E2 * s2)
+    return WGS84_A * (1.0 - WGS84_E2) / w**3, WGS84_A / w
+
+
+def local_offsets(lat_deg, lon_deg, height_m, ref_lat_deg, ref_lon_deg, ref_height_m) -> np.ndarray:
+    """(..., 3) east, north, up (m) of geodetic points from nearby reference points, to first
+    order in the difference (within a few km of each other: fixes against the truth)."""
+    m, n = radii(ref_lat_deg)
+    return np.stack([np.deg2rad(np.asarray(lon_deg) - ref_lon_deg) * (n + ref_height_m)
+                     * np.cos(np.deg2rad(ref_lat_deg)),
+                     np.deg2rad(np.asarray(lat_deg) - ref_lat_deg) * (m + ref_height_m),
+                     np.asarray(height_m) - ref_height_m], axis=-1)
+
+
 def normal_gravity(lat_deg, height_m) -> np.ndarray:
     """WGS-84 normal gravity (m/s^2): Somigliana's formula on the ellipsoid and the
     second-order free-air correction for the height (TR8350.2, eq. 4-1 and 4-3)."""
@@ -101,19 +124,36 @@ def normal_gravity(lat_deg, height_m) -> np.ndarray:
 
 @dataclass
 class NavTrajectory(Trajectory):
-    """A :class:`Trajectory` with the vehicle's path: ``pos_enu`` (N,3) m and ``vel_enu``
-    (N,3) m/s in the origin's ENU frame, ``gravity`` (N,) m/s^2 along -up. Position and
-    velocity are consistent with ``acc_lin`` (constant over each sample interval:
-    ``vel[k] = vel[k-1] + acc_lin[k] dt``, ``pos[k] = pos[k-1] + (vel[k-1] + vel[k]) dt / 2``)."""
+    """A :class:`Trajectory` with the vehicle's path: ``vel_enu`` (N,3) m/s in the local
+    level frame, ``pos_enu`` (N,3) m its integral, ``lat_deg``, ``lon_deg``, ``height_m``
+    (N,) the geodetic position, ``gravity`` (N,) m/s^2 along -up. Consistent with
+    ``acc_lin`` (constant over each sample interval): ``vel[k] = vel[k-1] + acc_lin[k] dt``,
+    ``pos[k] = pos[k-1] + (vel[k-1] + vel[k]) dt / 2``, and the geodetic position the same
+    trapezoid over the rates of latitude, longitude and height."""
 
     pos_enu: np.ndarray = field(default=None)
     vel_enu: np.ndarray = field(default=None)
+    lat_deg: np.ndarray = field(default=None)
+    lon_deg: np.ndarray = field(default=None)
+    height_m: np.ndarray = field(default=None)
     gravity: np.ndarray = field(default=None)
     origin: Origin = field(default_factory=Origin)
 
-    def geodetic(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Latitude, longitude (deg) and ellipsoidal height (m) along the path."""
-        return enu_to_geodetic(self.pos_enu, self.origin)
+
+def _geodetic_path(vel: np.ndarray, dt: float, origin: Origin) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Latitude, longitude (deg) and height (m) from the local-level velocity, integrated by
+    the trapezoid with the radii at each interval's start (they change by less than 1e-9
+    of themselves over an interval)."""
+    n = len(vel)
+    lat, lon, h = np.empty(n), np.empty(n), np.empty(n)
+    lat[0], lon[0], h[0] = math.radians(origin.lat_deg), math.radians(origin.lon_deg), origin.height_m
+    mid = (vel[:-1] + vel[1:]) * (dt / 2.0)  # metres east, north, up per interval
+    for k in range(1, n):
+        m, nn = radii(math.degrees(lat[k - 1]))
+        h[k] = h[k - 1] + mid[k - 1, 2]
+        lat[k] = lat[k - 1] + mid[k - 1, 1] / (m + h[k - 1])
+        lon[k] = lon[k - 1] + mid[k - 1, 0] / ((nn + h[k - 1]) * math.cos(lat[k - 1]))
+    return np.degrees(lat), np.degrees(lon), h
 
 
 def _body_rates(quat: np.ndarray, dt: float) -> np.ndarray:
@@ -149,9 +189,10 @@ def _path(rate_hz: float, speed: np.ndarray, yaw: np.ndarray, grade: np.ndarray,
     pos = np.zeros((n, 3))
     pos[1:] = np.cumsum((vel[:-1] + vel[1:]) * (dt / 2.0), axis=0)
     rest = stopped & (np.linalg.norm(gyr, axis=1) == 0.0) & (np.linalg.norm(acc, axis=1) < 1e-12)
+    lat, lon, height = _geodetic_path(vel, dt, origin)
     return NavTrajectory(rate_hz=rate_hz, t=np.arange(n) / rate_hz, quat=quat, gyr=gyr, acc_lin=acc, rest=rest,
-                         pos_enu=pos, vel_enu=vel, gravity=normal_gravity(origin.lat_deg, origin.height_m + pos[:, 2]),
-                         origin=origin)
+                         pos_enu=pos, vel_enu=vel, lat_deg=lat, lon_deg=lon, height_m=height,
+                         gravity=normal_gravity(lat, height), origin=origin)
 
 
 def _smooth(x: np.ndarray, rate_hz: float, seconds: float) -> np.ndarray:
@@ -240,9 +281,9 @@ class GnssModel:
 class GnssFixes:
     """Fixes in time order: `index` is the IMU sample the fix is valid at (its measurement
     time), `t_valid` that sample's time, `t_arrival` when it reaches the board; position
-    as latitude, longitude (deg) and ellipsoidal height (m) and as ENU (m), velocity ENU
-    (m/s), the receiver's reported accuracies (m, m/s, 1 sigma), and the truth at
-    `index`."""
+    as latitude, longitude (deg) and ellipsoidal height (m), and as the truth's `pos_enu`
+    plus the error (m); velocity ENU (m/s), the receiver's reported accuracies (m, m/s,
+    1 sigma), and the truth at `index`."""
     index: np.ndarray
     t_valid: np.ndarray
     t_arrival: np.ndarray
@@ -294,14 +335,19 @@ def gnss_fixes(traj: NavTrajectory, model: GnssModel | None = None, seed: int = 
     extra = np.zeros((m, 3))
     for start, end, east, north, up in model.multipath:
         extra[(t >= start) & (t < end)] += (east, north, up)
-    pos = traj.pos_enu[index] + error + extra
+    offset = error + extra  # metres east, north, up at the truth point
     vel = traj.vel_enu[index] + rng.standard_normal((m, 3)) * model.vel_sigma_m_s
     h_acc = np.full(m, math.hypot(model.h_sigma_m, model.correlated_h_m))
     v_acc = np.full(m, math.hypot(model.v_sigma_m, model.correlated_v_m))
     if model.reported_multipath:
         h_acc = np.hypot(h_acc, np.hypot(extra[:, 0], extra[:, 1]))
         v_acc = np.hypot(v_acc, extra[:, 2])
-    lat, lon, h = enu_to_geodetic(pos, traj.origin)
+    lat0, lon0, h0 = traj.lat_deg[index], traj.lon_deg[index], traj.height_m[index]
+    m, n = radii(lat0)
+    lat = lat0 + np.degrees(offset[:, 1] / (m + h0))
+    lon = lon0 + np.degrees(offset[:, 0] / ((n + h0) * np.cos(np.deg2rad(lat0))))
+    h = h0 + offset[:, 2]
+    pos = traj.pos_enu[index] + offset
     return GnssFixes(index=index[keep], t_valid=t[keep], t_arrival=t[keep] + model.latency_s, lat_deg=lat[keep],
                      lon_deg=lon[keep], height_m=h[keep], pos_enu=pos[keep], vel_enu=vel[keep], h_acc_m=h_acc[keep],
                      v_acc_m=v_acc[keep], s_acc_m_s=np.full(int(keep.sum()), model.vel_sigma_m_s),
@@ -364,7 +410,7 @@ def baro_samples(traj: NavTrajectory, model: BaroModel | None = None, seed: int 
     step = max(1, int(round(traj.rate_hz / model.rate_hz)))
     index = np.arange(0, len(traj), step)
     t = traj.t[index]
-    height = traj.origin.height_m + traj.pos_enu[index, 2]
+    height = traj.height_m[index]
     duration_h = max(traj.duration_s, 1e-9) / 3600.0
     weather = np.cumsum(rng.standard_normal(len(index))) * model.weather_pa_per_sqrt_h * math.sqrt(
         duration_h / len(index))
