@@ -153,3 +153,70 @@ def test_barometer_noise_and_drifts(drive):
     warm = nv.baro_samples(drive, nv.BaroModel(noise_pa=0.0, weather_pa_per_sqrt_h=0.0))
     assert warm.temperature_c[-1] == pytest.approx(30.0)
     assert warm.pressure_pa[-1] - quiet.pressure_pa[-1] == pytest.approx(2.5)  # 0.5 Pa/K over 5 K
+
+
+def test_a_foot_mounted_walk_stands_still_in_every_stance_and_stays_in_the_sensors_ranges():
+    walk = nv.foot_walk(300.0, 100.0, seed=1)
+    speed = np.linalg.norm(walk.vel_enu, axis=1)
+    assert 0.5 < walk.rest.mean() < 0.62  # 10 s standing, then 55 % of each stride
+    assert np.all(speed[walk.rest] == 0.0) and np.all(walk.gyr[walk.rest] == 0.0)
+    # strides: runs of motion of 0.45-0.54 s, each about 1.4 m
+    moving = ~walk.rest
+    edges = np.flatnonzero(np.diff(moving.astype(int)))
+    starts, ends = edges[::2] + 1, edges[1::2] + 1
+    horizontal = np.linalg.norm(walk.vel_enu[:, :2], axis=1)
+    lengths = [np.sum(horizontal[a:b]) * walk.dt for a, b in zip(starts, ends)]
+    assert len(lengths) > 200
+    np.testing.assert_allclose(lengths, 1.4, rtol=1e-2)  # along the ground (a turning stride's chord is shorter)
+    assert np.degrees(np.linalg.norm(walk.gyr, axis=1)).max() < 2000.0  # the MPU6050's range
+    assert np.linalg.norm(walk.acc_lin, axis=1).max() < 6 * 9.81        # and within +-8 g with gravity
+    assert speed.max() < 7.0 and walk.pos_enu[:, 2].max() < 0.13 and walk.pos_enu[:, 2].min() > -1e-3
+    assert abs(walk.pos_enu[-1, 2]) < 1e-9  # back on the floor
+    # laps of the rectangle: the same path each time, back at the start after each
+    extent = walk.pos_enu.max(axis=0) - walk.pos_enu.min(axis=0)
+    assert 8.0 < extent[0] < 12.0 and 18.0 < extent[1] < 22.0
+    stride_ends = walk.pos_enu[ends]
+    laps = len(nv._rectangle_headings((20.0, 10.0), 1.4))
+    np.testing.assert_allclose(stride_ends[laps - 1], 0.0, atol=1e-4)  # a turn sampled differently: um
+    np.testing.assert_allclose(stride_ends[2 * laps - 1], 0.0, atol=1e-4)
+
+
+def test_a_handheld_walk_bobs_and_sways_and_pauses():
+    walk = nv.handheld_walk(300.0, 100.0, seed=1)
+    speed = np.linalg.norm(walk.vel_enu[:, :2], axis=1)
+    assert speed.max() < 1.6 and 0.05 < walk.rest.mean() < 0.3
+    assert np.all(walk.vel_enu[walk.rest] == 0.0) and np.all(walk.gyr[walk.rest] == 0.0)
+    walking = speed > 1.0
+    assert 0.015 < np.std(walk.pos_enu[walking, 2]) < 0.03  # the bob, 2 cm
+    tilt = np.degrees(np.arccos(np.clip(Q.rotate(walk.quat, [0.0, 0.0, 1.0])[:, 2], -1, 1)))
+    assert 1.0 < tilt[walking].max() < 5.0
+    extent = walk.pos_enu.max(axis=0) - walk.pos_enu.min(axis=0)
+    assert 14.0 < extent[0] < 16.5 and 29.0 < extent[1] < 31.5  # the 30 m x 15 m loop
+
+
+def test_the_accelerometer_sample_is_the_specific_force_averaged_over_the_turning_interval():
+    """Strapdown undoing the interval's mean rotation (exact for a constant rate) gets each
+    interval's acceleration of a foot swinging at 400 deg/s back from error-free samples,
+    to the accelerometer's quantisation; the end attitude alone (the attitude scenarios'
+    sampling) would be off by up to metres per second squared."""
+    walk = nv.foot_walk(60.0, 100.0, seed=3)
+    suite = SensorSuite(gyro=GyroModel.ideal(), acc=AccModel(noise_std=0.0), mag=SensorSuite.default().mag,
+                        saturate=False)
+    imu = simulate(walk, suite, seed=1)
+    r = Q.to_rotmat(walk.quat)
+    phi = walk.gyr * walk.dt
+    theta = np.maximum(np.linalg.norm(phi, axis=1), 1e-12)
+    u = phi / theta[:, None]
+    skew = np.zeros((len(u), 3, 3))
+    skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -u[:, 2], u[:, 1], -u[:, 0]
+    skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = u[:, 2], -u[:, 1], u[:, 0]
+    mean = (np.eye(3) + ((1 - np.cos(theta)) / theta)[:, None, None] * skew
+            + (1 - np.sin(theta) / theta)[:, None, None] * skew @ skew)
+    gravity = np.zeros((len(walk), 3))
+    gravity[:, 2] = walk.gravity
+    # the sample is M^T R_{k-1}^T f: f = R_{k-1} (M^T)^-1 sample
+    body = np.linalg.solve(np.transpose(mean[1:], (0, 2, 1)), imu.acc[1:, :, None])[:, :, 0]
+    acc = np.einsum("kij,kj->ki", r[:-1], body) - gravity[1:]
+    assert np.abs(acc - walk.acc_lin[1:]).max() < 0.003  # half a count (1.2 mm/s^2) on each axis
+    end_only = np.einsum("kij,kj->ki", r[1:], imu.acc[1:]) - gravity[1:]
+    assert np.abs(end_only - walk.acc_lin[1:]).max() > 0.3

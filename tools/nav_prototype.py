@@ -8,24 +8,32 @@ source). This script fixes the design the C code follows and measures what it re
 - nominal state: geodetic position (latitude, longitude, height), velocity in the local
   east-north-up frame, the attitude quaternion (sensor to that frame), gyro and
   accelerometer biases; strapdown at the IMU rate (attitude by the exact rotation of
-  each gyro sample, velocity with the specific force rotated at the middle of the
-  sample, position by the trapezoid over the rates of latitude, longitude and height),
-  normal gravity where the vehicle is;
+  each gyro sample, velocity with the specific force as the interval's mean in the
+  turning body, position by the trapezoid over the rates of latitude, longitude and
+  height), normal gravity where the vehicle is;
 - error state [dp (metres east, north, up), dv, dtheta (sensor frame), dbg, dba],
-  covariance propagated every sample with the first-order transition;
+  covariance propagated every sample with the first-order transition except for the
+  attitude error's, which is the exact rotation back over the sample's turn (the first
+  order misplaces P's correlations at a foot's 400 deg/s, and zero-velocity updates then
+  turned the heading);
 - updates: GNSS position (the fix's latitude, longitude and height as metres from the
-  estimate) and velocity together (their accuracies as the receiver reports them), gated by the innovation's chi-square (6 degrees of freedom, 99.9 %:
-  22.46), accepted again after 5 s of rejections; at rest (the last fix's speed below
-  0.3 m/s, the bias-corrected gyroscope below 1.5 deg/s and the specific force without
-  a trend over 0.5 s: the means of its halves within 0.03 m/s^2) zero velocity and the
+  estimate) and velocity together (their accuracies as the receiver reports them),
+  gated by the innovation's chi-square (6 degrees of freedom, 99.9 %: 22.46), accepted
+  again after 5 s of rejections; at rest (the last fix's speed below 0.3 m/s, the
+  bias-corrected gyroscope below 1.5 deg/s and the specific force without a trend over
+  0.5 s: the means of its halves within 0.03 m/s^2) zero velocity and the
   magnetometer's heading (the field's east component in the estimated ENU frame);
+  `--foot`: no GNSS, zero velocity and zero rate (the gyroscope reads its bias) in every
+  stance;
 - start: at the first fix, at rest: tilt from the accelerometer, heading from the
   magnetometer, position and velocity from the fix.
 
     .venv/bin/python tools/nav_prototype.py [--minutes 20] [--seed 0] [--outages] [--correlated]
+    .venv/bin/python tools/nav_prototype.py --foot [--minutes 5] [--seed 0]
 
 Prints RMSEs of horizontal and vertical position, velocity and heading after the first
-60 s, the drift at the end of each outage, and the fixes rejected.
+60 s, the drift at the end of each outage, and the fixes rejected; with --foot, the
+position error at the end as a share of the distance walked.
 """
 from __future__ import annotations
 
@@ -59,6 +67,15 @@ def rotvec_quat(v):
     return Q.from_rotvec(np.asarray(v))
 
 
+def mean_rotation(phi):
+    """(1/theta) int_0^theta Exp(s u) ds for phi = theta u."""
+    theta = float(np.linalg.norm(phi))
+    if theta < 1e-8:
+        return np.eye(3) + skew(phi) / 2.0
+    u = skew(phi / theta)
+    return np.eye(3) + (1.0 - math.cos(theta)) / theta * u + (1.0 - math.sin(theta) / theta) * u @ u
+
+
 class Nav:
     """The 15-state loosely coupled filter (float64)."""
 
@@ -86,10 +103,11 @@ class Nav:
         w = gyr - self.bg
         f = acc - self.ba
         r0 = Q.to_rotmat(self.q)
-        dq = rotvec_quat(w * dt)
-        q_mid = Q.multiply(self.q, rotvec_quat(w * dt / 2))
-        self.q = Q.normalize(Q.multiply(self.q, dq))
-        a = Q.to_rotmat(q_mid) @ f - np.array([0.0, 0.0, self.gravity()])
+        self.q = Q.normalize(Q.multiply(self.q, rotvec_quat(w * dt)))
+        # the sample is the specific force's mean in the turning body, M^T R0^T f with M the
+        # mean rotation over the interval: f = R0 (M^T)^-1 sample, exact for a constant rate
+        # (to first order R0 (I + [phi x] / 2) sample: the middle of the turn)
+        a = r0 @ np.linalg.solve(mean_rotation(w * dt).T, f) - np.array([0.0, 0.0, self.gravity()])
         v_new = self.v + a * dt
         self.move((self.v + v_new) * dt / 2)
         self.v = v_new
@@ -100,6 +118,9 @@ class Nav:
         F[6:9, 6:9] = -skew(w)
         F[6:9, 9:12] = -np.eye(3)
         Phi = np.eye(15) + F * dt
+        # the attitude error's exact transition over the turn (the first order I - [w x] dt
+        # misplaces P's correlations at a foot's 400 deg/s)
+        Phi[6:9, 6:9] = Q.to_rotmat(rotvec_quat(w * dt)).T
         Qd = np.zeros((15, 15))
         Qd[3:6, 3:6] = np.eye(3) * self.q_acc * dt
         Qd[6:9, 6:9] = np.eye(3) * self.q_gyro * dt
@@ -154,6 +175,12 @@ class Nav:
         H[:, 3:6] = np.eye(3)
         self._update(-self.v, H, np.eye(3) * 0.02 ** 2)
 
+    def zero_rate(self, gyr):
+        """At rest the gyroscope reads its bias: the bias-corrected rate should be zero."""
+        H = np.zeros((3, 15))
+        H[:, 9:12] = np.eye(3)
+        self._update(gyr - self.bg, H, np.eye(3) * (GYRO_ARW * math.sqrt(1.0 / self.dt) * 2.0) ** 2)
+
     def heading_from_field(self, mag):
         """The field's east component in the estimated ENU frame against the reference's (0)."""
         r = Q.to_rotmat(self.q)
@@ -194,12 +221,44 @@ def _quat_from_rotmat(m):
     return Q.normalize(np.array(q))
 
 
+def sensors(rate: float) -> SensorSuite:
+    """The MPU6050 data sheet's white noise and the turn-on biases above."""
+    return SensorSuite(gyro=GyroModel(arw=GYRO_ARW, bias_instability=0.0, rrw=0.0, bias=GYRO_BIAS),
+                       acc=AccModel(noise_std=ACC_VRW * math.sqrt(rate / 2), bias=ACC_BIAS), mag=MagModel())
+
+
+def run_foot(minutes: float, seed: int) -> dict:
+    """A foot-mounted walk without GNSS: zero velocity and zero rate in every stance (a
+    detector on the gyroscope and the specific force over 50 ms)."""
+    rate = 100.0
+    traj = nv.foot_walk(minutes * 60.0, rate, seed=seed)
+    imu = simulate(traj, sensors(rate), seed=seed)
+    nav = Nav(1.0 / rate)
+    o = traj.origin
+    nav.start(imu.acc[0], imu.mag[0], o.lat_deg, o.lon_deg, o.height_m, np.zeros(3))
+    window = 5
+    stances = 0
+    for k in range(1, len(traj)):
+        nav.propagate(imu.gyr[k], imu.acc[k])
+        if k >= window:
+            w = np.linalg.norm(imu.gyr[k - window:k + 1] - nav.bg, axis=1)
+            f = np.linalg.norm(imu.acc[k - window:k + 1] - nav.ba, axis=1)
+            if w.max() < 0.05 and np.abs(f - nav.gravity()).max() < 0.3:
+                nav.zero_velocity()
+                nav.zero_rate(imu.gyr[k])
+                stances += 1
+    end = nv.local_offsets(math.degrees(nav.geo[0]), math.degrees(nav.geo[1]), nav.geo[2], traj.lat_deg[-1],
+                           traj.lon_deg[-1], traj.height_m[-1])
+    walked = float(np.sum(np.linalg.norm(traj.vel_enu[:, :2], axis=1)) * traj.dt)
+    return {"walked_m": walked, "end_error_m": float(np.linalg.norm(end[:2])),
+            "end_error_percent_of_distance": 100.0 * float(np.linalg.norm(end[:2])) / walked,
+            "end_height_error_m": float(end[2]), "samples_with_zero_velocity": stances}
+
+
 def run(minutes: float, seed: int, outages: bool, correlated: bool) -> dict:
     rate = 100.0
     traj = nv.car_drive(minutes * 60.0, rate, seed=seed)
-    suite = SensorSuite(gyro=GyroModel(arw=GYRO_ARW, bias_instability=0.0, rrw=0.0, bias=GYRO_BIAS),
-                        acc=AccModel(noise_std=ACC_VRW * math.sqrt(rate / 2), bias=ACC_BIAS), mag=MagModel())
-    imu = simulate(traj, suite, seed=seed)
+    imu = simulate(traj, sensors(rate), seed=seed)
     spans = ((300.0, 330.0), (700.0, 730.0)) if outages else ()
     model = nv.GnssModel(outages=spans, correlated_h_m=2.0 if correlated else 0.0,
                          correlated_v_m=3.0 if correlated else 0.0,
@@ -272,9 +331,12 @@ def main() -> int:
     parser.add_argument("--outages", action="store_true", help="two 30 s GNSS outages (at 300 s and 700 s)")
     parser.add_argument("--correlated", action="store_true",
                         help="time-correlated GNSS errors (2 m horizontal, 3 m vertical, 100 s) and a 15 m jump")
+    parser.add_argument("--foot", action="store_true",
+                        help="instead: a foot-mounted walk (laps of 20 m x 10 m) without GNSS, zero-velocity updates")
     args = parser.parse_args()
     started = time.monotonic()
-    result = run(args.minutes, args.seed, args.outages, args.correlated)
+    result = run_foot(args.minutes, args.seed) if args.foot else run(args.minutes, args.seed, args.outages,
+                                                                     args.correlated)
     for key, value in result.items():
         print(f"{key}: {value if not isinstance(value, float) else round(value, 3)}")
     print(f"({time.monotonic() - started:.1f} s)")

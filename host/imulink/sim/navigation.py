@@ -169,21 +169,17 @@ def _body_rates(quat: np.ndarray, dt: float) -> np.ndarray:
     return rates
 
 
-def _path(rate_hz: float, speed: np.ndarray, yaw: np.ndarray, grade: np.ndarray, bank: np.ndarray,
-          origin: Origin, stopped: np.ndarray) -> NavTrajectory:
-    """A vehicle moving forward (its y axis) at `speed` (m/s) with heading `yaw` (rad, CCW
-    from north), nose up by `grade` (rad, about its x axis) and banked by `bank` (rad, about
-    its y axis); `stopped` marks the rest."""
-    n = len(speed)
+def _trajectory(rate_hz: float, target: np.ndarray, velocity, origin: Origin, stopped: np.ndarray) -> NavTrajectory:
+    """The trajectory through the attitudes `target` (the body rates that turn each into the
+    next, integrated) with the velocity `velocity(quat)` gives for the integrated attitude
+    (m/s, local level); `stopped` marks where the body should be at rest (it is where it
+    also has no rate and no acceleration)."""
+    n = len(target)
     dt = 1.0 / rate_hz
-    target = Q.multiply(Q.from_axis_angle([0.0, 0.0, 1.0], yaw),
-                        Q.multiply(Q.from_axis_angle([1.0, 0.0, 0.0], grade), Q.from_axis_angle([0.0, 1.0, 0.0], bank)))
     gyr = _body_rates(target, dt)
     gyr[np.linalg.norm(gyr, axis=1) < 1e-9] = 0.0  # rounding of equal attitudes' product, not motion
     quat = integrate_gyro(target[0], gyr, dt)
-    forward = np.zeros((n, 3))
-    forward[:, 1] = speed
-    vel = Q.rotate(quat, forward)
+    vel = velocity(quat)
     acc = np.zeros((n, 3))
     acc[1:] = np.diff(vel, axis=0) / dt
     pos = np.zeros((n, 3))
@@ -193,6 +189,24 @@ def _path(rate_hz: float, speed: np.ndarray, yaw: np.ndarray, grade: np.ndarray,
     return NavTrajectory(rate_hz=rate_hz, t=np.arange(n) / rate_hz, quat=quat, gyr=gyr, acc_lin=acc, rest=rest,
                          pos_enu=pos, vel_enu=vel, lat_deg=lat, lon_deg=lon, height_m=height,
                          gravity=normal_gravity(lat, height), origin=origin)
+
+
+def _attitude(yaw: np.ndarray, nose_up: np.ndarray, bank: np.ndarray) -> np.ndarray:
+    """Heading `yaw` (rad, CCW from north), then nose up by `nose_up` (about the body x axis),
+    then banked by `bank` (about the body y axis, the forward one)."""
+    return Q.multiply(Q.from_axis_angle([0.0, 0.0, 1.0], yaw),
+                      Q.multiply(Q.from_axis_angle([1.0, 0.0, 0.0], nose_up), Q.from_axis_angle([0.0, 1.0, 0.0], bank)))
+
+
+def _path(rate_hz: float, speed: np.ndarray, yaw: np.ndarray, grade: np.ndarray, bank: np.ndarray,
+          origin: Origin, stopped: np.ndarray) -> NavTrajectory:
+    """A vehicle moving forward (its y axis) at `speed` (m/s) with heading `yaw`, nose up
+    by `grade` and banked by `bank` (rad, see _attitude); `stopped` marks the rest."""
+    def forward(quat):
+        along = np.zeros((len(speed), 3))
+        along[:, 1] = speed
+        return Q.rotate(quat, along)
+    return _trajectory(rate_hz, _attitude(yaw, grade, bank), forward, origin, stopped)
 
 
 def _smooth(x: np.ndarray, rate_hz: float, seconds: float) -> np.ndarray:
@@ -251,6 +265,110 @@ def car_drive(duration_s: float, rate_hz: float, seed: int = 0, origin: Origin =
     grade = np.arctan(0.06 * np.tanh(slope / 0.06))  # a soft limit at 6 %; constant while standing
     bank = np.deg2rad(0.5) * _smooth(speed * yaw_rate, rate_hz, 0.5)
     return _path(rate_hz, speed, yaw, grade, bank, origin, stopped)
+
+
+def _minimum_jerk(tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The minimum-jerk profile from 0 to 1 over tau in [0, 1] and its derivative."""
+    return tau**3 * (10.0 - 15.0 * tau + 6.0 * tau**2), 30.0 * tau**2 * (1.0 - tau) ** 2
+
+
+def _rectangle_headings(lengths_m: tuple[float, float], stride_m: float) -> list[float]:
+    """Changes of heading, one per stride, that walk a rectangle anticlockwise (rad): the
+    sides in whole strides, each 90 deg corner over two strides."""
+    changes = []
+    for side in lengths_m * 2:
+        changes += [0.0] * max(1, int(round(side / stride_m)) - 2) + [math.pi / 4] * 2
+    return changes
+
+
+def foot_walk(duration_s: float, rate_hz: float, seed: int = 0, origin: Origin = Origin(),
+              rectangle_m: tuple[float, float] = (20.0, 10.0)) -> NavTrajectory:
+    """A foot-mounted sensor (on the instep: y forward, z up while the foot is flat) walking
+    laps of a rectangle, anticlockwise, from a corner: strides of 1.4 m in 1.0-1.2 s,
+    of which the foot stands flat and still for 55 % (the stance, where a zero-velocity
+    update applies) and swings for the rest: forward by the minimum-jerk profile, lifted by
+    up to 12 cm, toe down by up to 35 deg after the push-off and toe up by 15 deg before the
+    heel strikes, turning a corner's half per stride. Starts with 10 s standing."""
+    n = _n_samples(duration_s, rate_hz)
+    dt = 1.0 / rate_hz
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * dt
+    vel = np.zeros((n, 3))
+    yaw = np.zeros(n)
+    nose_up = np.zeros(n)
+    stopped = np.ones(n, bool)
+    changes = _rectangle_headings(rectangle_m, 1.4)
+    heading, time, k = 0.0, 10.0, 0
+    while True:
+        period = rng.uniform(1.0, 1.2)
+        stride = 1.4  # the same every stride, so that each lap of the rectangle closes
+        swing = 0.45 * period
+        start = time + 0.55 * period
+        if start + swing > duration_s:
+            break
+        span = (t >= start) & (t < start + swing)
+        tau = (t[span] - start) / swing
+        shape, rate = _minimum_jerk(tau)
+        turn = changes[k % len(changes)]
+        direction = heading + turn * shape
+        speed = rate * (stride / (np.sum(rate) * dt))  # exactly `stride` over the sampled swing
+        vel[span, 0] = -np.sin(direction) * speed  # yaw CCW from north: forward is (-sin, cos)
+        vel[span, 1] = np.cos(direction) * speed
+        lift = 0.12 * math.pi / swing * np.sin(2.0 * math.pi * tau)  # up and down again
+        vel[span, 2] = lift - lift.mean()  # back on the floor exactly, whatever the sampling
+        yaw[span] = direction
+        yaw[t >= start + swing] = heading + turn
+        nose_up[span] = np.radians(-25.0) * np.sin(2.0 * math.pi * tau) * np.sin(math.pi * tau) - np.radians(
+            10.0) * np.sin(math.pi * tau) ** 2 * (1.0 - 2.0 * tau)
+        stopped[span] = False
+        heading += turn
+        time += period
+        k += 1
+    return _trajectory(rate_hz, _attitude(yaw, nose_up, np.zeros(n)), lambda quat: vel, origin, stopped)
+
+
+def handheld_walk(duration_s: float, rate_hz: float, seed: int = 0, origin: Origin = Origin(),
+                  rectangle_m: tuple[float, float] = (30.0, 15.0)) -> NavTrajectory:
+    """A phone held in front, screen up (y forward), carried around a rectangular corridor
+    loop at 1.2-1.5 m/s: each step (about 1.9 a second) bobs it up and down by 2 cm and
+    sways it 1.5 cm sideways at half that rate, rolling and pitching it by 2-3 deg; corners
+    turned at 45 deg/s; a pause of 3-8 s now and then (reading a marker). Starts with 10 s
+    standing."""
+    n = _n_samples(duration_s, rate_hz)
+    dt = 1.0 / rate_hz
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * dt
+    # forward speed: walking stretches with pauses
+    target = np.zeros(n)
+    time = 10.0 + 1.0
+    while time < duration_s:
+        length = rng.uniform(20.0, 60.0)
+        target[(t >= time) & (t < time + length)] = rng.uniform(1.2, 1.5)
+        time += length + rng.uniform(3.0, 8.0) + 2.0
+    stopped = target == 0.0
+    speed = _smooth(target, rate_hz, 1.0)
+    speed[speed < 1e-9] = 0.0
+    # heading: the corners of the loop, reached by distance
+    distance = np.cumsum(speed) * dt
+    perimeter = 2.0 * sum(rectangle_m)
+    corners = np.cumsum([rectangle_m[0], rectangle_m[1], rectangle_m[0], rectangle_m[1]])
+    turns = np.floor(distance / perimeter) * 4 + np.searchsorted(corners, np.mod(distance, perimeter), side="right")
+    yaw = _smooth(turns * (math.pi / 2.0), rate_hz, 1.0)  # 90 deg over about 2 s
+    step_hz = 1.9 * np.clip(speed / 1.3, 0.0, 1.2)
+    phase = 2.0 * math.pi * np.cumsum(step_hz) * dt
+    walking = np.clip(speed / 1.2, 0.0, 1.0)
+    bob_v = 0.02 * walking * 2.0 * math.pi * step_hz * np.cos(phase)  # d/dt of 0.02 sin(phase)
+    sway_v = 0.015 * walking * math.pi * step_hz * np.cos(phase / 2.0)
+    roll = np.radians(3.0) * walking * np.sin(phase / 2.0)
+    pitch = np.radians(2.0) * walking * np.sin(phase + 0.5)
+
+    def velocity(quat):
+        v = np.zeros((n, 3))
+        v[:, 0] = -np.sin(yaw) * speed + np.cos(yaw) * sway_v
+        v[:, 1] = np.cos(yaw) * speed + np.sin(yaw) * sway_v
+        v[:, 2] = bob_v
+        return v
+    return _trajectory(rate_hz, _attitude(yaw, pitch, roll), velocity, origin, stopped)
 
 
 @dataclass

@@ -232,6 +232,27 @@ class SimResult:
         return len(self.t)
 
 
+def _interval_mean_in_body(q: np.ndarray, gyr: np.ndarray, dt: float, f_earth: np.ndarray) -> np.ndarray:
+    """(N,3) the mean over each sample interval of R(t)^T f_earth[k], the body turning at
+    gyr[k] from q[k-1] to q[k]: M^T R_{k-1}^T f with M = (1/theta) int_0^theta Exp(s u) ds =
+    I + (1 - cos theta)/theta [u x] + (1 - sin theta/theta) [u x]^2 (theta = |gyr| dt, u its
+    axis); sample 0 at q[0]."""
+    out = np.empty_like(f_earth)
+    out[0] = Q.rotate_inverse(q[0], f_earth[0])
+    f_start = Q.rotate_inverse(q[:-1], f_earth[1:])  # in the body at each interval's start
+    phi = gyr[1:] * dt
+    theta = np.linalg.norm(phi, axis=1)
+    small = theta < 1e-8
+    safe = np.where(small, 1.0, theta)
+    u = phi / safe[:, None]
+    a = np.where(small, theta / 2.0, (1.0 - np.cos(theta)) / safe)   # [u x] coefficient
+    b = np.where(small, theta**2 / 6.0, 1.0 - np.sin(safe) / safe)    # [u x]^2 coefficient
+    # M^T f = f - a (u x f) + b (u x (u x f))  ([u x]^T = -[u x], ([u x]^2)^T = [u x]^2)
+    uxf = np.cross(u, f_start)
+    out[1:] = f_start - a[:, None] * uxf + b[:, None] * np.cross(u, uxf)
+    return out
+
+
 def _quantise(x: np.ndarray, counts: np.ndarray, scale: float, clip: bool) -> np.ndarray:
     return counts.astype(np.float64) * scale if clip else np.rint(x / scale) * scale
 
@@ -268,14 +289,18 @@ def simulate(traj: Trajectory, suite: SensorSuite | None = None, seed: int = 0,
     white, bias = suite.gyro.sample(n, dt, rng_gyr)
     gyr = traj.gyr + bias + white
 
-    # Accelerometer: specific force f = R^T (a_lin + g ez); g the trajectory's own where it
-    # has one (navigation.NavTrajectory: normal gravity along the path), else standard gravity.
+    # Accelerometer: specific force f = R^T (a_lin + g ez). A navigation trajectory
+    # (navigation.NavTrajectory) brings its own gravity (normal gravity along the path), and
+    # its sample is the specific force's mean over the sample interval, in which the body
+    # turns (an integrating output path: what strapdown navigation needs in fast motion, a
+    # foot's 400 deg/s); the attitude scenarios sample it at the interval's end attitude,
+    # as their golden vectors were made.
     gravity = getattr(traj, "gravity", None)
     f_earth = traj.acc_lin.copy()
     f_earth[:, 2] += STANDARD_GRAVITY if gravity is None else gravity
     for start, end in free_fall:
         f_earth[(t >= start) & (t < end)] = 0.0
-    acc = Q.rotate_inverse(q, f_earth)
+    acc = Q.rotate_inverse(q, f_earth) if gravity is None else _interval_mean_in_body(q, traj.gyr, dt, f_earth)
     for time_s, magnitude in acc_spikes:
         direction = rng_tap.standard_normal(3)
         direction /= np.linalg.norm(direction)
