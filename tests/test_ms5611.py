@@ -255,3 +255,18 @@ def test_an_absent_chip_and_an_unknown_oversampling_ratio(drv):
     status = rig.init()
     assert status.result == drv.lib.SENSOR_ERR_I2C and rig.text(status) == "MS5611: address not acknowledged"
     assert Rig(drv).init(5).result == drv.lib.SENSOR_ERR_CONFIG
+
+
+def test_raw_for_inverts_the_compensation_across_the_chips_range():
+    c = model.EXAMPLE_C
+    d1, d2 = model.raw_for(c, model.EXAMPLE_P, model.EXAMPLE_TEMP)
+    assert model.compensate(c, d1, d2) == (model.EXAMPLE_P, model.EXAMPLE_TEMP)
+    # near the data sheet's example: one Pa spans 53 counts of D1, a hundredth of a degree
+    # 3 counts of D2 with these coefficients (any of them gives the same values)
+    assert abs(d1 - model.EXAMPLE_D1) <= 2 * 53 and abs(d2 - model.EXAMPLE_D2) <= 2 * 3
+    for pressure in (30_000, 70_000, 101_325, 110_000):      # within the data sheet's 10-1200 mbar
+        for temp in (-3500, -1600, 1500, 2500, 8000):         # below -15 degC and below 20 degC: second order
+            p, t = model.compensate(c, *model.raw_for(c, pressure, temp))
+            assert abs(p - pressure) <= 1 and abs(t - temp) <= 1
+    with pytest.raises(ValueError):
+        model.raw_for(c, 101_325, 40_000)  # 400 degC: beyond D2's 24 bits

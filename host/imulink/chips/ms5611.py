@@ -77,6 +77,28 @@ def compensate(c, d1: int, d2: int) -> tuple[int, int]:
     return _div(_div(d1 * sens, 2**21) - off, 2**15), temp
 
 
+def raw_for(c, pressure_pa: float, temp_centi_c: float) -> tuple[int, int]:
+    """The conversions D1, D2 (24-bit) a chip with coefficients `c` gives at that pressure
+    (Pa) and temperature (0.01 degC): the inverse of :func:`compensate`, by bisection (TEMP
+    rises with D2 and P with D1, the second-order terms included), so that compensating
+    them gives the values back to the data sheet's resolution (1 Pa, 0.01 degC).
+
+    Raises ValueError for a pressure or temperature the chip cannot report (outside what
+    D1 and D2's 24 bits give with these coefficients)."""
+    def bisect(f, target: float) -> int:
+        lo, hi = 0, (1 << 24) - 1
+        if not f(lo) <= target <= f(hi):
+            raise ValueError(f"{target:g} is outside {f(lo)}..{f(hi)} for these coefficients")
+        while hi - lo > 1:
+            mid = (lo + hi) // 2
+            lo, hi = (mid, hi) if f(mid) <= target else (lo, mid)
+        return lo if abs(f(lo) - target) <= abs(f(hi) - target) else hi
+
+    d2 = bisect(lambda d: compensate(c, 0, d)[1], temp_centi_c)
+    d1 = bisect(lambda d: compensate(c, d, d2)[0], pressure_pa)
+    return d1, d2
+
+
 class MS5611(I2CDevice):
     """The chip (see the module docstring). `prom`: its eight words (default: the data
     sheet's example coefficients with a valid CRC)."""
