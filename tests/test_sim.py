@@ -340,3 +340,14 @@ def test_make_scenario_unknown_name():
 def test_impossible_scenarios_are_refused(name, duration, rate, seed, message):
     with pytest.raises(sim.ScenarioError, match=message):
         sim.make_scenario(name, duration, rate, seed)
+
+
+def test_from_rotmat_inverts_to_rotmat_for_any_rotation():
+    rng = np.random.default_rng(8)
+    q = Q.normalize(rng.standard_normal((2000, 4)))
+    # and the hard ones: half turns about each axis, the identity
+    q = np.vstack([q, [[0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1], [1, 0, 0, 0]]])
+    back = Q.from_rotmat(Q.to_rotmat(q))
+    np.testing.assert_allclose(np.abs(np.sum(back * q, axis=1)), 1.0, atol=1e-12)  # the same rotation
+    assert np.all(back[:, 0] >= 0.0)
+    np.testing.assert_allclose(Q.to_rotmat(back), Q.to_rotmat(q), atol=1e-12)

@@ -220,3 +220,18 @@ def test_the_accelerometer_sample_is_the_specific_force_averaged_over_the_turnin
     assert np.abs(acc - walk.acc_lin[1:]).max() < 0.003  # half a count (1.2 mm/s^2) on each axis
     end_only = np.einsum("kij,kj->ki", r[1:], imu.acc[1:]) - gravity[1:]
     assert np.abs(end_only - walk.acc_lin[1:]).max() > 0.3
+
+
+def test_a_drone_tilts_into_its_acceleration_so_its_accelerometer_reads_along_z():
+    flight = nv.drone_flight(300.0, 100.0, seed=2)
+    speed = np.linalg.norm(flight.vel_enu, axis=1)
+    assert speed.max() <= 12.01 and np.linalg.norm(flight.acc_lin, axis=1).max() <= 4.01
+    assert 15.0 < flight.pos_enu[:, 2].max() < 41.0 and flight.pos_enu[:, 2].min() > -1e-6
+    assert np.abs(flight.pos_enu[:, :2]).max() < 300.0
+    suite = SensorSuite(gyro=GyroModel.ideal(), acc=AccModel(noise_std=0.0), mag=SensorSuite.default().mag,
+                        saturate=False)
+    imu = simulate(flight, suite, seed=1)
+    # a multirotor's thrust (all its specific force, air drag aside) is along its z axis
+    assert np.abs(imu.acc[:, :2]).max() < 0.01
+    tilt = np.degrees(np.arccos(np.clip(Q.rotate(flight.quat, [0.0, 0.0, 1.0])[:, 2], -1.0, 1.0)))
+    assert 10.0 < tilt.max() < 30.0

@@ -197,28 +197,11 @@ class Nav:
         east /= np.linalg.norm(east)
         north = np.cross(up, east)
         rot = np.stack([east, north, up])  # rows: the earth axes in the sensor frame, i.e. R (sensor to ENU)
-        self.q = _quat_from_rotmat(rot)
+        self.q = Q.from_rotmat(rot)
         self.geo = np.array([math.radians(lat_deg), math.radians(lon_deg), height_m])
         self.v = vel.copy()
         m_e = rot @ mag
         self.field_ref = (m_e[1], m_e[2])
-
-
-def _quat_from_rotmat(m):
-    tr = np.trace(m)
-    if tr > 0:
-        s = math.sqrt(tr + 1.0) * 2
-        q = [0.25 * s, (m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s]
-    else:
-        i = int(np.argmax(np.diag(m)))
-        j, k = (i + 1) % 3, (i + 2) % 3
-        s = math.sqrt(1.0 + m[i, i] - m[j, j] - m[k, k]) * 2
-        q = [0.0, 0.0, 0.0, 0.0]
-        q[0] = (m[k, j] - m[j, k]) / s
-        q[1 + i] = 0.25 * s
-        q[1 + j] = (m[j, i] + m[i, j]) / s
-        q[1 + k] = (m[k, i] + m[i, k]) / s
-    return Q.normalize(np.array(q))
 
 
 def sensors(rate: float) -> SensorSuite:

@@ -371,6 +371,65 @@ def handheld_walk(duration_s: float, rate_hz: float, seed: int = 0, origin: Orig
     return _trajectory(rate_hz, _attitude(yaw, pitch, roll), velocity, origin, stopped)
 
 
+def drone_flight(duration_s: float, rate_hz: float, seed: int = 0, origin: Origin = Origin()) -> NavTrajectory:
+    """A quadcopter (the board flat in its frame, y forward): 10 s on the ground, a climb
+    at up to 2 m/s to 20-40 m, then legs to random waypoints within 300 m of the start at
+    up to 12 m/s and 4 m/s^2 (minimum-jerk legs), climbing and descending between them,
+    each followed by a hover of 5-15 s (still: marked rest); the nose turns to each leg's
+    direction in its first quarter. A multirotor's thrust is along its z axis: the frame
+    tilts into its acceleration, up to about 25 deg."""
+    n = _n_samples(duration_s, rate_hz)
+    dt = 1.0 / rate_hz
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * dt
+    pos = np.zeros((n, 3))
+    vel = np.zeros((n, 3))
+    acc = np.zeros((n, 3))
+    heading = np.zeros(n)
+    here, yaw, time = np.zeros(3), 0.0, 10.0
+    first = True
+    while time < duration_s:
+        if first:
+            target = np.array([0.0, 0.0, rng.uniform(20.0, 40.0)])
+            length = target[2] / 1.2  # at most about 2 m/s
+        else:
+            angle, radius = rng.uniform(0.0, 2.0 * math.pi), rng.uniform(50.0, 300.0)
+            target = np.array([radius * math.cos(angle), radius * math.sin(angle), rng.uniform(20.0, 40.0)])
+            distance = float(np.linalg.norm(target - here))
+            # a minimum-jerk leg peaks at 1.875 d / T and 5.77 d / T^2: at most 12 m/s and 4 m/s^2
+            length = max(distance / 6.4, math.sqrt(5.77 * distance / 4.0), 4.0)
+        span = (t >= time) & (t < time + length)
+        tau = (t[span] - time) / length
+        shape, rate = _minimum_jerk(tau)
+        jerk_acc = 60.0 * tau * (1.0 - tau) * (1.0 - 2.0 * tau)  # d(rate)/dtau
+        step = target - here
+        pos[span] = here + shape[:, None] * step
+        vel[span] = rate[:, None] * step / length
+        acc[span] = jerk_acc[:, None] * step / length**2
+        new_yaw = yaw if first else math.atan2(-step[0], step[1])  # the nose along the leg
+        new_yaw = yaw + math.remainder(new_yaw - yaw, 2.0 * math.pi)
+        heading[span] = yaw + (new_yaw - yaw) * np.clip(tau * 4.0, 0.0, 1.0) ** 2 * (3.0 - 2.0 * np.clip(
+            tau * 4.0, 0.0, 1.0))  # turned in the leg's first quarter
+        time += length
+        hover = rng.uniform(5.0, 15.0)
+        after = (t >= time) & (t < time + hover)
+        pos[after] = target
+        heading[after] = new_yaw
+        time += hover
+        here, yaw, first = target, new_yaw, False
+    on_ground = (t < 10.0)
+    # thrust along body z: z_b along a + g up; the nose (body y) along the heading, levelled
+    gravity = normal_gravity(origin.lat_deg, origin.height_m)
+    thrust = acc + np.array([0.0, 0.0, gravity])
+    z_b = thrust / np.linalg.norm(thrust, axis=1, keepdims=True)
+    nose = np.stack([-np.sin(heading), np.cos(heading), np.zeros(n)], axis=1)
+    y_b = nose - np.sum(nose * z_b, axis=1, keepdims=True) * z_b
+    y_b /= np.linalg.norm(y_b, axis=1, keepdims=True)
+    x_b = np.cross(y_b, z_b)
+    target_quat = Q.from_rotmat(np.stack([x_b, y_b, z_b], axis=-1))  # columns: body axes in ENU
+    return _trajectory(rate_hz, target_quat, lambda quat: vel, origin, on_ground | (np.linalg.norm(vel, axis=1) == 0))
+
+
 @dataclass
 class GnssModel:
     """A receiver's errors. White errors: horizontal (`h_sigma_m`, the 2-D RMS: each of east

@@ -18,6 +18,7 @@ __all__ = [
     "from_axis_angle",
     "from_euler",
     "to_rotmat",
+    "from_rotmat",
     "angle_between",
     "cumulative_product",
     "IDENTITY",
@@ -117,6 +118,31 @@ def to_rotmat(q) -> np.ndarray:
         ],
         axis=-2,
     )
+
+
+def from_rotmat(m) -> np.ndarray:
+    """Unit quaternions (w >= 0) of (..., 3, 3) rotation matrices (the inverse of
+    :func:`to_rotmat`): Shepperd's method, from the largest of w, x, y, z, well-conditioned
+    for any rotation."""
+    m = np.asarray(m, dtype=np.float64)
+    trace = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
+    # 4 w^2 = 1 + trace, 4 x^2 = 1 + m00 - m11 - m22, ...: take the largest
+    squares = np.stack([1.0 + trace, 1.0 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
+                        1.0 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2],
+                        1.0 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2]], axis=-1)
+    big = np.argmax(squares, axis=-1)
+    s = 2.0 * np.sqrt(np.take_along_axis(squares, big[..., None], axis=-1)[..., 0])  # 4 |largest|
+    diff = np.stack([m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1)
+    summ = np.stack([m[..., 1, 0] + m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0], m[..., 2, 1] + m[..., 1, 2]], -1)
+    # rows: the quaternion from w, from x, from y, from z (each times 4 |largest| / s)
+    cand = np.stack([
+        np.stack([s / 4, diff[..., 0] / s, diff[..., 1] / s, diff[..., 2] / s], -1),
+        np.stack([diff[..., 0] / s, s / 4, summ[..., 0] / s, summ[..., 1] / s], -1),
+        np.stack([diff[..., 1] / s, summ[..., 0] / s, s / 4, summ[..., 2] / s], -1),
+        np.stack([diff[..., 2] / s, summ[..., 1] / s, summ[..., 2] / s, s / 4], -1),
+    ], axis=-2)
+    q = np.take_along_axis(cand, big[..., None, None], axis=-2)[..., 0, :]
+    return normalize(np.where(q[..., :1] < 0, -q, q))
 
 
 def angle_between(q1, q2) -> np.ndarray:
