@@ -235,3 +235,13 @@ def test_a_drone_tilts_into_its_acceleration_so_its_accelerometer_reads_along_z(
     assert np.abs(imu.acc[:, :2]).max() < 0.01
     tilt = np.degrees(np.arccos(np.clip(Q.rotate(flight.quat, [0.0, 0.0, 1.0])[:, 2], -1.0, 1.0)))
     assert 10.0 < tilt.max() < 30.0
+
+
+def test_marker_fixes_are_where_the_body_is_within_their_accuracy():
+    walk = nv.handheld_walk(600.0, 100.0, seed=4)
+    markers = nv.marker_fixes(walk, every_s=60.0, accuracy_m=0.1, seed=2)
+    np.testing.assert_array_equal(markers.index, np.arange(1, 10) * 6000)
+    k = markers.index
+    error = nv.local_offsets(markers.lat_deg, markers.lon_deg, markers.height_m, walk.lat_deg[k], walk.lon_deg[k],
+                             walk.height_m[k])
+    assert 0.02 < np.std(error) < 0.2 and np.abs(error).max() < 0.5

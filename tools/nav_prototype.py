@@ -30,10 +30,12 @@ source). This script fixes the design the C code follows and measures what it re
 
     .venv/bin/python tools/nav_prototype.py [--minutes 20] [--seed 0] [--outages] [--correlated]
     .venv/bin/python tools/nav_prototype.py --foot [--minutes 5] [--seed 0]
+    .venv/bin/python tools/nav_prototype.py --handheld [--minutes 10] [--seed 0]
 
 Prints RMSEs of horizontal and vertical position, velocity and heading after the first
 60 s, the drift at the end of each outage, and the fixes rejected; with --foot, the
-position error at the end as a share of the distance walked.
+position error at the end as a share of the distance walked; with --handheld, the
+horizontal error just before each marker's fix.
 """
 from __future__ import annotations
 
@@ -238,6 +240,40 @@ def run_foot(minutes: float, seed: int) -> dict:
             "end_height_error_m": float(end[2]), "samples_with_zero_velocity": stances}
 
 
+def run_handheld(minutes: float, seed: int) -> dict:
+    """A handheld walk indoors without GNSS: a marker's position fix each minute, zero
+    velocity and zero rate while the walker pauses (the foot's detector over 0.5 s)."""
+    rate = 100.0
+    traj = nv.handheld_walk(minutes * 60.0, rate, seed=seed)
+    imu = simulate(traj, sensors(rate), seed=seed)
+    markers = nv.marker_fixes(traj, 60.0, 0.1, seed=seed)
+    at = {int(k): j for j, k in enumerate(markers.index)}
+    nav = Nav(1.0 / rate)
+    o = traj.origin
+    nav.start(imu.acc[0], imu.mag[0], o.lat_deg, o.lon_deg, o.height_m, np.zeros(3))  # at a marker
+    window = 50
+    before = []
+    for k in range(1, len(traj)):
+        nav.propagate(imu.gyr[k], imu.acc[k])
+        if k in at:
+            j = at[k]
+            off = nv.local_offsets(math.degrees(nav.geo[0]), math.degrees(nav.geo[1]), nav.geo[2], traj.lat_deg[k],
+                                   traj.lon_deg[k], traj.height_m[k])
+            before.append(float(np.linalg.norm(off[:2])))
+            H = np.zeros((3, 15))
+            H[:, 0:3] = np.eye(3)
+            nav._update(nav.offsets(markers.lat_deg[j], markers.lon_deg[j], markers.height_m[j]), H,
+                        np.eye(3) * markers.accuracy_m ** 2)
+        if k >= window:
+            w = np.linalg.norm(imu.gyr[k - window:k + 1] - nav.bg, axis=1)
+            f = np.linalg.norm(imu.acc[k - window:k + 1] - nav.ba, axis=1)
+            if w.max() < 0.05 and np.abs(f - nav.gravity()).max() < 0.3:
+                nav.zero_velocity()
+                nav.zero_rate(imu.gyr[k])
+    return {"horizontal_error_before_each_marker_m": [round(e, 1) for e in before],
+            "mean_before_marker_m": float(np.mean(before)), "max_before_marker_m": float(np.max(before))}
+
+
 def run(minutes: float, seed: int, outages: bool, correlated: bool) -> dict:
     rate = 100.0
     traj = nv.car_drive(minutes * 60.0, rate, seed=seed)
@@ -316,10 +352,16 @@ def main() -> int:
                         help="time-correlated GNSS errors (2 m horizontal, 3 m vertical, 100 s) and a 15 m jump")
     parser.add_argument("--foot", action="store_true",
                         help="instead: a foot-mounted walk (laps of 20 m x 10 m) without GNSS, zero-velocity updates")
+    parser.add_argument("--handheld", action="store_true",
+                        help="instead: a handheld walk indoors, a marker's position fix each minute, no GNSS")
     args = parser.parse_args()
     started = time.monotonic()
-    result = run_foot(args.minutes, args.seed) if args.foot else run(args.minutes, args.seed, args.outages,
-                                                                     args.correlated)
+    if args.foot:
+        result = run_foot(args.minutes, args.seed)
+    elif args.handheld:
+        result = run_handheld(args.minutes, args.seed)
+    else:
+        result = run(args.minutes, args.seed, args.outages, args.correlated)
     for key, value in result.items():
         print(f"{key}: {value if not isinstance(value, float) else round(value, 3)}")
     print(f"({time.monotonic() - started:.1f} s)")

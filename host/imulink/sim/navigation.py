@@ -531,6 +531,36 @@ def gnss_fixes(traj: NavTrajectory, model: GnssModel | None = None, seed: int = 
                      truth_pos_enu=traj.pos_enu[index[keep]], truth_vel_enu=traj.vel_enu[index[keep]])
 
 
+@dataclass
+class MarkerFixes:
+    """Position fixes from markers at known places (seed 003's QR codes): `index` the IMU
+    sample each is taken at, the geodetic position (deg, m) with its error, the accuracy
+    given with it (m, 1 sigma, each axis), and the truth at `index`."""
+    index: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    height_m: np.ndarray
+    accuracy_m: float
+    truth_pos_enu: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+
+def marker_fixes(traj: NavTrajectory, every_s: float = 60.0, accuracy_m: float = 0.1, seed: int = 0) -> MarkerFixes:
+    """A position fix every `every_s` seconds (from the first one at `every_s`), each where
+    the body is then, off by white errors of `accuracy_m` on each axis: a marker read as
+    one passes it. Position only: no velocity."""
+    rng = np.random.default_rng(seed)
+    index = np.arange(int(round(every_s * traj.rate_hz)), len(traj), int(round(every_s * traj.rate_hz)))
+    error = rng.standard_normal((len(index), 3)) * accuracy_m
+    lat0, lon0, h0 = traj.lat_deg[index], traj.lon_deg[index], traj.height_m[index]
+    m, n = radii(lat0)
+    return MarkerFixes(index=index, lat_deg=lat0 + np.degrees(error[:, 1] / (m + h0)),
+                       lon_deg=lon0 + np.degrees(error[:, 0] / ((n + h0) * np.cos(np.deg2rad(lat0)))),
+                       height_m=h0 + error[:, 2], accuracy_m=accuracy_m, truth_pos_enu=traj.pos_enu[index])
+
+
 #: The International Standard Atmosphere's troposphere: sea-level pressure (Pa) and
 #: temperature (K), lapse rate (K/m), g0 M / (R L).
 ISA_P0, ISA_T0, ISA_LAPSE = 101_325.0, 288.15, 0.0065
