@@ -31,14 +31,28 @@ def drivers(tmp_path_factory):
     return out
 
 
+NONE, ALL, ALONG = 0, 1, 2  # imu_cov_block_t
+
+
+def gain_matrix(n, gain_map):
+    """The n x n matrix G of a gain map (blocks, unit vector) as imu_cov_map_t describes it."""
+    blocks, v = gain_map
+    g = np.zeros((n, n))
+    for b, kind in enumerate(blocks):
+        part = {NONE: np.zeros((3, 3)), ALL: np.eye(3), ALONG: np.outer(v, v)}[kind]
+        size = min(3, n - 3 * b)
+        g[3 * b:3 * b + size, 3 * b:3 * b + size] = part[:size, :size]
+    return g
+
+
 def run_driver(exe, variances, updates):
-    """updates: (h, r, z, w, G or None); returns [(dx, P)] after each."""
+    """updates: (h, r, z, w, gain map (blocks, unit vector) or None); returns [(dx, P)] after each."""
     n = len(variances)
     words = [str(n), *(repr(float(v)) for v in variances)]
     for h, r, z, w, g in updates:
         words += [repr(float(v)) for v in (*h, r, z, w)] + ["0" if g is None else "1"]
         if g is not None:
-            words += [repr(float(v)) for v in np.ravel(g)]
+            words += [str(kind) for kind in g[0]] + [repr(float(v)) for v in g[1]]
     proc = subprocess.run([str(exe)], input=" ".join(words), capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
     lines = proc.stdout.split("\n")
@@ -61,7 +75,7 @@ def reference(p0, updates):
         h = np.asarray(h, dtype=float)
         s = h @ p @ h + r / w
         k = p @ h / s
-        gk = k if g is None else np.asarray(g) @ k
+        gk = k if g is None else gain_matrix(len(p0), g) @ k
         a = np.eye(len(p0)) - np.outer(gk, h)
         p = a @ p @ a.T + np.outer(gk, gk) * (r / w)
         out.append((gk * z, p))
@@ -76,9 +90,7 @@ def _case(seed):
     p0 = [1e-2, 2e-2, 5e-3, 1e-6, 3e-7, 2e-6]
     up = rng.standard_normal(3)
     up /= np.linalg.norm(up)
-    g = np.zeros((6, 6))
-    g[:3, :3] = np.outer(up, up)
-    g[3:, 3:] = np.outer(up, up)
+    g = ((ALONG, ALONG), up)
     updates = [
         (rng.uniform(-1, 1, 6) * [1, 1, 1, 0, 0, 0] + [0, 0, 0, 1, 0, 0], 1e-4, 0.01, 1.0, None),
         (rng.uniform(-1, 1, 6), 4e-4, -0.02, 0.75, None),
@@ -106,7 +118,7 @@ def test_gain_map_keeps_the_uncertainty_of_what_it_does_not_correct(drivers):
     """A map that corrects only state 0 leaves every other variance and covariance as it
     was (Schmidt), while the optimal update would have shrunk them."""
     p0 = [1e-2, 1e-2, 1e-4]
-    g = np.diag([1.0, 0.0, 0.0])
+    g = ((ALONG,), (1.0, 0.0, 0.0))  # G = diag(1, 0, 0)
     h = [1.0, 1.0, 0.5]
     (dx_opt, p_opt), = run_driver(drivers["fixed"], p0, [(h, 1e-3, 0.01, 1.0, None)])
     (dx_map, p_map), = run_driver(drivers["fixed"], p0, [(h, 1e-3, 0.01, 1.0, g)])
@@ -115,3 +127,22 @@ def test_gain_map_keeps_the_uncertainty_of_what_it_does_not_correct(drivers):
     assert abs(p_map[1, 2]) < 1e-12
     assert dx_map[1] == 0 and dx_map[2] == 0 and dx_map[0] == pytest.approx(dx_opt[0], rel=1e-6)
     assert p_map[0, 0] < p0[0]
+
+
+def test_every_kind_of_block_in_one_map_is_josephs_form(drivers):
+    """Nine states: a map that corrects the first block in full, the second not at all and
+    the third along a unit vector (the ESKF's at-rest and heading maps together)."""
+    rng = np.random.default_rng(11)
+    p0 = [1e-2, 2e-2, 5e-3, 1e-6, 3e-7, 2e-6, 1e-3, 4e-4, 2e-3]
+    v = rng.standard_normal(3)
+    v /= np.linalg.norm(v)
+    updates = [(rng.uniform(-1, 1, 9), 2e-4, 0.01, 1.0, None),
+               (rng.uniform(-1, 1, 9) * 0.7, 1e-4, -0.02, 0.8, ((ALL, NONE, ALONG), v)),
+               (rng.uniform(-1, 1, 9) * 0.5, 3e-4, 0.005, 1.0, ((NONE, ALL, ALONG), v))]
+    expected = reference(p0, updates)
+    for build, rtol in (("float", 1e-12), ("fixed", 2e-6)):
+        for (dx, p), (dx_ref, p_ref) in zip(run_driver(drivers[build], p0, updates), expected):
+            scale = np.sqrt(np.outer(np.diag(p_ref), np.diag(p_ref)))
+            np.testing.assert_allclose(p / scale, p_ref / scale, rtol=0, atol=rtol * 10, err_msg=build)
+            np.testing.assert_allclose(dx, dx_ref, rtol=rtol * 10, atol=1e-9 if build == "fixed" else 1e-15,
+                                       err_msg=build)

@@ -609,28 +609,36 @@ void imu_cov_predict(imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], const imu_wide_
 
 /**
  * The part of P h that a gain map leaves out, in scaled coordinates: with u_i = ch_i 2^(e_i + E),
- * o = u - G u gives oh_i = ch_i - sum_j G_ij 2^(e_j - e_i) ch_j (zero without a map).
+ * o = u - G u gives oh_i = ch_i - sum_j G_ij 2^(e_j - e_i) ch_j (zero without a map), G_ij
+ * the block's: 0, 1 on the diagonal (oh_i = 0), or v_i v_j.
  */
-static void left_out(const imu_cov_t *c, const imu_real_t ch[], const imu_q30_t (*gain_map)[IMU_COV_MAX],
-                     imu_wide_t oh[], uint32_t *sat)
+static void left_out(const imu_cov_t *c, const imu_real_t ch[], const imu_cov_map_t *gain_map, imu_wide_t oh[],
+                     uint32_t *sat)
 {
     int i, j;
     for (i = 0; i < c->n; ++i) {
+        const int first = i - i % 3;
+        const imu_q30_t *v = gain_map != 0 ? gain_map->along : 0;
         oh[i] = 0;
-        if (gain_map != 0) {
-            oh[i] = ch[i];
-            for (j = 0; j < c->n; ++j) {
-                if (gain_map[i][j] != 0) {
-                    /* |ch_j| <= 2^30, |G_ij| <= 2^30: the product is below 2^30 again */
-                    oh[i] -= wide_ldexp(IMU_MUL(ch[j], gain_map[i][j], 30), c->e[j] - c->e[i], sat);
-                }
+        if (gain_map == 0 || gain_map->block[i / 3] == IMU_COV_BLOCK_ALL) {
+            continue; /* nothing left out (with G = I: ch_i - ch_i) */
+        }
+        oh[i] = ch[i];
+        if (gain_map->block[i / 3] != IMU_COV_BLOCK_ALONG) {
+            continue; /* all left out */
+        }
+        for (j = first; j < first + 3 && j < c->n; ++j) {
+            /* |ch_j| <= 2^30, |G_ij| <= 2^30: the product is below 2^30 again */
+            const imu_q30_t g = IMU_MUL(v[i - first], v[j - first], 30);
+            if (g != 0) {
+                oh[i] -= wide_ldexp(IMU_MUL(ch[j], g, 30), c->e[j] - c->e[i], sat);
             }
         }
     }
 }
 
 int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu_q30_t z, imu_q30_t w,
-                   const imu_q30_t (*gain_map)[IMU_COV_MAX], imu_q30_t dx[], uint32_t *sat)
+                   const imu_cov_map_t *gain_map, imu_q30_t dx[], uint32_t *sat)
 {
     /* Scaled coordinates: h~_j = h_j 2^e_j = hs_j 2^E. Then c~ = P~ h~ = 2^E (P~ hs),
      * s = h~ P~ h~ + r = 2^2E (hs P~ hs + r 2^-2E), and P~' = P~ - w c~ c~^T / s

@@ -50,6 +50,22 @@ void imu_cov_init(imu_cov_t *c, int n, const imu_wide_t var[], int var_q, uint32
 void imu_cov_predict(imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], const imu_wide_t qvar[], int qvar_q,
                      uint32_t *sat);
 
+/** What a gain map lets a measurement correct in a block of three states. */
+typedef enum {
+    IMU_COV_BLOCK_NONE = 0,  /**< nothing (G = 0) */
+    IMU_COV_BLOCK_ALL = 1,   /**< everything (G = I) */
+    IMU_COV_BLOCK_ALONG = 2, /**< the part along the map's unit vector (G = v v^T) */
+} imu_cov_block_t;
+
+/**
+ * @brief A block-diagonal gain map G (imu_cov_update): states 0-2, 3-5 and 6-8 each
+ *        corrected in full, not at all, or along one unit vector.
+ */
+typedef struct {
+    uint8_t block[IMU_COV_MAX / 3]; /**< imu_cov_block_t of each block of three states */
+    imu_q30_t along[3];             /**< the unit vector of the IMU_COV_BLOCK_ALONG blocks, Q30 */
+} imu_cov_map_t;
+
 /**
  * @brief Scalar measurement update, z = h x + v, var(v) = r / w.
  *
@@ -65,12 +81,12 @@ void imu_cov_predict(imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], const imu_wide_
  * @param r        measurement variance, wide value in Q`r_q` (fixed build), > 0
  * @param z        innovation (measured minus predicted), Q30
  * @param w        weight, Q30, [0, 1]
- * @param gain_map NULL, or n x n, Q30, |G_ij| <= 1, row stride IMU_COV_MAX, in the states' units
+ * @param gain_map NULL, or the map (in the states' units)
  * @param dx       output: n state corrections G K z, Q30 in the states' units
  * @return 1 when updated, 0 when skipped (w = 0)
  */
 int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu_q30_t z, imu_q30_t w,
-                   const imu_q30_t (*gain_map)[IMU_COV_MAX], imu_q30_t dx[], uint32_t *sat);
+                   const imu_cov_map_t *gain_map, imu_q30_t dx[], uint32_t *sat);
 
 /** @brief Zero row and column i and set P_ii = var (a wide value in Q`var_q`): the state is reset. */
 void imu_cov_reset_state(imu_cov_t *c, int i, imu_wide_t var, int var_q, uint32_t *sat);

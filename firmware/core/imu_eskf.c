@@ -387,24 +387,17 @@ static void predict_covariance(imu_eskf_t *f, const imu_q30_t dq[4])
 /**
  * Gain map (imu_cov_update) of a measurement that may correct the attitude, the gyro
  * bias and the accelerometer bias as the flags say; with `vertical`, the attitude and
- * the gyro bias only along that unit vector (Q30). Entries Q30.
+ * the gyro bias only along that unit vector (Q30).
  */
-static void set_gain_map(imu_q30_t map[IMU_COV_MAX][IMU_COV_MAX], int attitude, int gyro_bias, int acc_bias,
-                         const imu_q30_t *vertical)
+static void set_gain_map(imu_cov_map_t *map, int attitude, int gyro_bias, int acc_bias, const imu_q30_t *vertical)
 {
-    int i, j;
-    for (i = 0; i < IMU_COV_MAX; ++i) {
-        for (j = 0; j < IMU_COV_MAX; ++j) {
-            map[i][j] = 0;
-        }
-    }
+    const uint8_t some = vertical != 0 ? IMU_COV_BLOCK_ALONG : IMU_COV_BLOCK_ALL;
+    int i;
+    map->block[ATT / 3] = attitude ? some : IMU_COV_BLOCK_NONE;
+    map->block[GYRO_BIAS / 3] = gyro_bias ? some : IMU_COV_BLOCK_NONE;
+    map->block[ACC_BIAS / 3] = acc_bias ? IMU_COV_BLOCK_ALL : IMU_COV_BLOCK_NONE;
     for (i = 0; i < 3; ++i) {
-        for (j = 0; j < 3; ++j) {
-            const imu_q30_t along = vertical != 0 ? IMU_MUL(vertical[i], vertical[j], 30) : (i == j ? IMU_ONE_Q30 : 0);
-            map[ATT + i][ATT + j] = attitude ? along : 0;
-            map[GYRO_BIAS + i][GYRO_BIAS + j] = gyro_bias ? along : 0;
-            map[ACC_BIAS + i][ACC_BIAS + j] = acc_bias && i == j ? IMU_ONE_Q30 : 0;
-        }
+        map->along[i] = vertical != 0 ? vertical[i] : 0;
     }
 }
 
@@ -414,7 +407,7 @@ static void set_gain_map(imu_q30_t map[IMU_COV_MAX][IMU_COV_MAX], int attitude, 
  * uncertainty of what was not corrected (imu_cov_update).
  */
 static void scalar_update(imu_eskf_t *f, const imu_q30_t h[9], imu_q30_t z, imu_wide_t r, int r_q, imu_q30_t w,
-                          imu_q30_t (*gain_map)[IMU_COV_MAX], imu_q30_t dx_total[9])
+                          const imu_cov_map_t *gain_map, imu_q30_t dx_total[9])
 {
     imu_q30_t dx[9];
     const int n = imu_eskf_state_count(f);
@@ -424,7 +417,7 @@ static void scalar_update(imu_eskf_t *f, const imu_q30_t h[9], imu_q30_t z, imu_
             z = IMU_SUB_SAT(z, IMU_MUL_SAT(h[i], dx_total[i], 30, &f->saturations), &f->saturations);
         }
     }
-    if (imu_cov_update(&f->cov, h, r, r_q, z, w, (const imu_q30_t(*)[IMU_COV_MAX])gain_map, dx, &f->saturations)) {
+    if (imu_cov_update(&f->cov, h, r, r_q, z, w, gain_map, dx, &f->saturations)) {
         for (i = 0; i < n; ++i) {
             dx_total[i] = IMU_ADD_SAT(dx_total[i], dx[i], &f->saturations);
         }
@@ -486,8 +479,8 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q30_
     imu_q30_t h[9];
     imu_real_t noise_g; /* specific-force noise in g, Q26 (up to 100 m/s^2 over 9 m/s^2: 11 g) */
     imu_wide_t r;       /* its square, Q52 g^2 */
-    imu_q30_t gain_map[IMU_COV_MAX][IMU_COV_MAX]; /* Q30 */
-    imu_q30_t (*map)[IMU_COV_MAX] = NULL;
+    imu_cov_map_t gain_map;
+    const imu_cov_map_t *map = NULL;
     int k, i;
     if (!imu_vec3_normalize(acc, unit, &norm)) {
         f->acc_weight = 0;
@@ -506,8 +499,8 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q30_
     noise_g = IMU_MUL(st->acc_noise, f->inv_gravity, 28); /* Q24 * Q30 >> 28 -> Q26 (g) */
     r = IMU_WMUL(noise_g, noise_g);
     if (f->at_rest) {
-        set_gain_map(gain_map, 1, 0, 1, NULL); /* the gyro bias is the rest measurement's */
-        map = gain_map;
+        set_gain_map(&gain_map, 1, 0, 1, NULL); /* the gyro bias is the rest measurement's */
+        map = &gain_map;
     }
     for (k = 0; k < 3; ++k) {
         /* Q16 * Q30 >> 16 -> Q30 (g): below 16 acc_tolerance of 1 g, at most 17 g, saturated
@@ -627,7 +620,7 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_q30_
     imu_q16_t norm;
     imu_angle_t dip;
     imu_q30_t h[9], z, sigma, w_norm;
-    imu_q30_t gain_map[IMU_COV_MAX][IMU_COV_MAX]; /* Q30 */
+    imu_cov_map_t gain_map;
     int i;
     f->mag_weight = 0;
     if (f->ref.norm <= 0) {
@@ -680,9 +673,9 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_q30_
     for (i = 0; i < 3; ++i) {
         h[ATT + i] = IMU_SUB(IMU_MUL(earth[1], up[i], 30), IMU_MUL(earth[2], north[i], 30)); /* |h| <= |m| = 1 */
     }
-    set_gain_map(gain_map, 1, !f->at_rest, 0, up);
+    set_gain_map(&gain_map, 1, !f->at_rest, 0, up);
     z = earth[0];
-    scalar_update(f, h, z, IMU_WMUL(sigma, sigma), 48, f->mag_weight, gain_map, dx);
+    scalar_update(f, h, z, IMU_WMUL(sigma, sigma), 48, f->mag_weight, &gain_map, dx);
 }
 
 /** Component k of the low-passed specific force, m/s^2, Q16. */
@@ -761,9 +754,9 @@ static void rest_update(imu_eskf_t *f, imu_q30_t dx[9])
 {
     const imu_rate_t *rate = imu_rest_rate(&f->rest);
     imu_q30_t h[9];
-    imu_q30_t gain_map[IMU_COV_MAX][IMU_COV_MAX]; /* Q30 */
+    imu_cov_map_t gain_map;
     int k, i;
-    set_gain_map(gain_map, 0, 1, 0, NULL);
+    set_gain_map(&gain_map, 0, 1, 0, NULL);
     for (k = 0; k < 3; ++k) {
         /* Q24 -> Q30 (below 2 rad/s: at rest) minus the bias, Q30. */
         const imu_q30_t z =
@@ -772,7 +765,7 @@ static void rest_update(imu_eskf_t *f, imu_q30_t dx[9])
             h[i] = 0;
         }
         h[GYRO_BIAS + k] = IMU_ONE_Q30;
-        scalar_update(f, h, z, f->rest_var, 48, IMU_ONE_Q30, gain_map, dx);
+        scalar_update(f, h, z, f->rest_var, 48, IMU_ONE_Q30, &gain_map, dx);
     }
 }
 

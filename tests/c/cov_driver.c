@@ -1,6 +1,7 @@
 /* Drives imu_cov.c for tests/test_cov.py: reads from stdin
  *   n, then n initial variances, then updates until EOF, each
- *   h[n] r z w has_map [G[n][n]]
+ *   h[n] r z w has_map [block[(n + 2) / 3] v[3]]
+ * (a gain map: each block of three states 0 none, 1 all, 2 along the unit vector v)
  * (real values) and prints after each update "dx" and the n x n covariance as reals.
  * Built twice, with -DIMU_FIXED and -DIMU_FLOAT. */
 #include <math.h>
@@ -9,7 +10,7 @@
 #include "imu_cov.h"
 
 #ifdef IMU_FIXED
-/* Q formats of the inputs: variances and r in Q60 (below 8), h, z, w and G in Q30. */
+/* Q formats of the inputs: variances and r in Q60 (below 8), h, z, w and v in Q30. */
 #define TO_WIDE(x) ((imu_wide_t)llround((x) * 1152921504606846976.0))
 #define TO_Q30(x) ((imu_q30_t)lround((x) * 1073741824.0))
 #define FROM_Q30(x) ((double)(x) / 1073741824.0)
@@ -39,9 +40,10 @@ int main(void)
     }
     imu_cov_init(&cov, n, var, 60, &sat);
     for (;;) {
-        imu_q30_t h[IMU_COV_MAX], g[IMU_COV_MAX][IMU_COV_MAX], dx[IMU_COV_MAX];
+        imu_q30_t h[IMU_COV_MAX], dx[IMU_COV_MAX];
+        imu_cov_map_t map;
         double r, z, w;
-        int has_map;
+        int has_map, kind;
         for (i = 0; i < n; ++i) {
             if (scanf("%lf", &v) != 1) {
                 printf("saturations %u\n", (unsigned)sat);
@@ -52,14 +54,19 @@ int main(void)
         if (scanf("%lf %lf %lf %d", &r, &z, &w, &has_map) != 4) {
             return 2;
         }
-        for (i = 0; i < n * n && has_map; ++i) {
+        for (i = 0; i < (n + 2) / 3 && has_map; ++i) {
+            if (scanf("%d", &kind) != 1 || kind < 0 || kind > 2) {
+                return 2;
+            }
+            map.block[i] = (uint8_t)kind;
+        }
+        for (i = 0; i < 3 && has_map; ++i) {
             if (scanf("%lf", &v) != 1) {
                 return 2;
             }
-            g[i / n][i % n] = TO_Q30(v);
+            map.along[i] = TO_Q30(v);
         }
-        if (!imu_cov_update(&cov, h, TO_WIDE(r), 60, TO_Q30(z), TO_Q30(w),
-                            has_map ? (const imu_q30_t(*)[IMU_COV_MAX])g : NULL, dx, &sat)) {
+        if (!imu_cov_update(&cov, h, TO_WIDE(r), 60, TO_Q30(z), TO_Q30(w), has_map ? &map : NULL, dx, &sat)) {
             for (i = 0; i < n; ++i) {
                 dx[i] = 0;
             }
