@@ -177,6 +177,20 @@ class Nav:
         H[:, 3:6] = np.eye(3)
         self._update(-self.v, H, np.eye(3) * 0.02 ** 2)
 
+    def still(self, gyr, acc) -> bool:
+        """Whether windows of gyroscope and accelerometer samples look like a body at rest:
+        the bias-corrected rate below 0.05 rad/s and the specific force within 0.3 m/s^2 of
+        gravity throughout (a foot's stance, a walker's pause)."""
+        w = np.linalg.norm(gyr - self.bg, axis=1)
+        f = np.linalg.norm(acc - self.ba, axis=1)
+        return bool(w.max() < 0.05 and np.abs(f - self.gravity()).max() < 0.3)
+
+    def position(self, lat_deg, lon_deg, height_m, accuracy_m):
+        """A position-only fix (a marker), its accuracy on each axis."""
+        H = np.zeros((3, 15))
+        H[:, 0:3] = np.eye(3)
+        self._update(self.offsets(lat_deg, lon_deg, height_m), H, np.eye(3) * accuracy_m ** 2)
+
     def zero_rate(self, gyr):
         """At rest the gyroscope reads its bias: the bias-corrected rate should be zero."""
         H = np.zeros((3, 15))
@@ -225,15 +239,11 @@ def run_foot(minutes: float, seed: int) -> dict:
     stances = 0
     for k in range(1, len(traj)):
         nav.propagate(imu.gyr[k], imu.acc[k])
-        if k >= window:
-            w = np.linalg.norm(imu.gyr[k - window:k + 1] - nav.bg, axis=1)
-            f = np.linalg.norm(imu.acc[k - window:k + 1] - nav.ba, axis=1)
-            if w.max() < 0.05 and np.abs(f - nav.gravity()).max() < 0.3:
-                nav.zero_velocity()
-                nav.zero_rate(imu.gyr[k])
-                stances += 1
-    end = nv.local_offsets(math.degrees(nav.geo[0]), math.degrees(nav.geo[1]), nav.geo[2], traj.lat_deg[-1],
-                           traj.lon_deg[-1], traj.height_m[-1])
+        if k >= window and nav.still(imu.gyr[k - window:k + 1], imu.acc[k - window:k + 1]):
+            nav.zero_velocity()
+            nav.zero_rate(imu.gyr[k])
+            stances += 1
+    end = -nav.offsets(traj.lat_deg[-1], traj.lon_deg[-1], traj.height_m[-1])  # the estimate minus the truth
     walked = float(np.sum(np.linalg.norm(traj.vel_enu[:, :2], axis=1)) * traj.dt)
     return {"walked_m": walked, "end_error_m": float(np.linalg.norm(end[:2])),
             "end_error_percent_of_distance": 100.0 * float(np.linalg.norm(end[:2])) / walked,
@@ -257,19 +267,11 @@ def run_handheld(minutes: float, seed: int) -> dict:
         nav.propagate(imu.gyr[k], imu.acc[k])
         if k in at:
             j = at[k]
-            off = nv.local_offsets(math.degrees(nav.geo[0]), math.degrees(nav.geo[1]), nav.geo[2], traj.lat_deg[k],
-                                   traj.lon_deg[k], traj.height_m[k])
-            before.append(float(np.linalg.norm(off[:2])))
-            H = np.zeros((3, 15))
-            H[:, 0:3] = np.eye(3)
-            nav._update(nav.offsets(markers.lat_deg[j], markers.lon_deg[j], markers.height_m[j]), H,
-                        np.eye(3) * markers.accuracy_m ** 2)
-        if k >= window:
-            w = np.linalg.norm(imu.gyr[k - window:k + 1] - nav.bg, axis=1)
-            f = np.linalg.norm(imu.acc[k - window:k + 1] - nav.ba, axis=1)
-            if w.max() < 0.05 and np.abs(f - nav.gravity()).max() < 0.3:
-                nav.zero_velocity()
-                nav.zero_rate(imu.gyr[k])
+            before.append(float(np.linalg.norm(nav.offsets(traj.lat_deg[k], traj.lon_deg[k], traj.height_m[k])[:2])))
+            nav.position(markers.lat_deg[j], markers.lon_deg[j], markers.height_m[j], markers.accuracy_m)
+        if k >= window and nav.still(imu.gyr[k - window:k + 1], imu.acc[k - window:k + 1]):
+            nav.zero_velocity()
+            nav.zero_rate(imu.gyr[k])
     return {"horizontal_error_before_each_marker_m": [round(e, 1) for e in before],
             "mean_before_marker_m": float(np.mean(before)), "max_before_marker_m": float(np.max(before))}
 

@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .files import FileError, check_regular_file, write_replacing
-from .sensor_input import CSV_COLUMNS, MAX_CSV_BYTES, InputError
+from .files import write_replacing
+from .sensor_input import CSV_COLUMNS, InputError, open_csv
 
 REQUIRED = ("timestamp_us", *CSV_COLUMNS["gyr"], *CSV_COLUMNS["acc"])
 MAG = CSV_COLUMNS["mag"]
@@ -90,14 +90,7 @@ def _group(path: Path, line: int, row: list[str], columns: dict[str, int], names
 def read_nav_csv(path) -> NavInput:
     """Read a navigation CSV (see the module's description); InputError names what is wrong."""
     path = Path(path)
-    try:
-        check_regular_file(path, MAX_CSV_BYTES)
-        f = open(path, newline="", encoding="utf-8", errors="replace")
-    except FileError as exc:
-        raise InputError(str(exc)) from None
-    except OSError as exc:
-        raise InputError(f"cannot read {path}: {exc.strerror or exc}") from None
-    with f:
+    with open_csv(path) as f:
         rows = csv.reader(f)
         header = [name.strip() for name in next(rows, [])]
         columns = {name: k for k, name in enumerate(header)}

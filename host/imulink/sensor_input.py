@@ -121,17 +121,24 @@ def _from_recording(path: Path, progress: Progress | None) -> SensorRecord:
                         s.index, declared)
 
 
-def _from_csv(path: Path) -> SensorRecord:
+def open_csv(path: Path):
+    """A CSV input opened as text (UTF-8, undecodable bytes replaced, newlines as csv wants
+    them); InputError for a file that is missing, not a regular file, too large or
+    unreadable."""
     from .files import FileError, check_regular_file
 
     try:
         check_regular_file(path, MAX_CSV_BYTES)
-        with open(path, encoding="utf-8", errors="replace") as f:
-            header = [name.strip() for name in f.readline().strip().split(",")]
+        return open(path, newline="", encoding="utf-8", errors="replace")
     except FileError as exc:
         raise InputError(str(exc)) from None
     except OSError as exc:
         raise InputError(f"cannot read {path}: {exc.strerror or exc}") from None
+
+
+def _from_csv(path: Path) -> SensorRecord:
+    with open_csv(path) as f:
+        header = [name.strip() for name in f.readline().strip().split(",")]
     time_column = next((c for c in ("timestamp_us", "time_s") if c in header), None)
     sensors = [k for k, names in CSV_COLUMNS.items() if all(c in header for c in names)]
     if time_column is None or not sensors:
