@@ -14,22 +14,49 @@ from imulink.sim import simulate
 from imulink.sim.sensors import AccModel, GyroModel, SensorSuite
 
 
-def test_ecef_of_the_equator_and_the_pole_are_the_axes():
-    np.testing.assert_allclose(nv.geodetic_to_ecef(0.0, 0.0, 0.0), [nv.WGS84_A, 0.0, 0.0])
-    np.testing.assert_allclose(nv.geodetic_to_ecef(90.0, 0.0, 100.0), [0.0, 0.0, 6_356_752.314245 + 100.0],
-                               atol=1e-6)
-    np.testing.assert_allclose(nv.geodetic_to_ecef(0.0, 90.0, 10.0), [0.0, nv.WGS84_A + 10.0, 0.0], atol=1e-6)
+def ecef(lat_deg, lon_deg, height_m):
+    """The test's own exact reference: earth-centred earth-fixed coordinates of geodetic
+    points (m)."""
+    lat, lon = np.deg2rad(lat_deg), np.deg2rad(lon_deg)
+    n = nv.WGS84_A / np.sqrt(1.0 - nv.WGS84_E2 * np.sin(lat) ** 2)
+    return np.stack([(n + height_m) * np.cos(lat) * np.cos(lon), (n + height_m) * np.cos(lat) * np.sin(lon),
+                     (n * (1.0 - nv.WGS84_E2) + height_m) * np.sin(lat)], axis=-1)
 
 
-def test_enu_and_geodetic_are_each_others_inverse_within_100_km():
+def exact_offsets(lat_deg, lon_deg, height_m, ref_lat_deg, ref_lon_deg, ref_height_m):
+    """East, north, up of points in the tangent frame at each reference point, through ECEF."""
+    d = ecef(lat_deg, lon_deg, height_m) - ecef(ref_lat_deg, ref_lon_deg, ref_height_m)
+    lat, lon = np.deg2rad(ref_lat_deg), np.deg2rad(ref_lon_deg)
+    east = np.stack([-np.sin(lon), np.cos(lon), np.zeros_like(lon)], axis=-1)
+    north = np.stack([-np.sin(lat) * np.cos(lon), -np.sin(lat) * np.sin(lon), np.cos(lat)], axis=-1)
+    up = np.stack([np.cos(lat) * np.cos(lon), np.cos(lat) * np.sin(lon), np.sin(lat)], axis=-1)
+    return np.stack([np.sum(d * east, -1), np.sum(d * north, -1), np.sum(d * up, -1)], axis=-1)
+
+
+def test_radii_of_curvature_match_wgs84():
+    m, n = nv.radii(np.array([0.0, 90.0]))
+    np.testing.assert_allclose(m, [6_335_439.327, 6_399_593.626], atol=1e-3)  # a (1 - e^2) and a^2 / b
+    np.testing.assert_allclose(n, [6_378_137.0, 6_399_593.626], atol=1e-3)    # a and a^2 / b
+
+
+def test_local_offsets_are_the_exact_geometry_to_first_order():
+    """Within 1 km the first-order offsets are the tangent-plane ones but for terms of order
+    d / R: the earth's curvature under the plane (d^2 / 2R up, 8 cm at 1 km) and, across,
+    the longitude's scale taken at the reference latitude and the local vertical's tilt
+    under a height difference u (below (d^2 + 2 |u| d) / R)."""
     rng = np.random.default_rng(5)
-    origin = nv.Origin(-33.9, 151.2, 40.0)
-    enu = rng.uniform(-100e3, 100e3, (1000, 3)) * [1, 1, 0.02]
-    lat, lon, h = nv.enu_to_geodetic(enu, origin)
-    np.testing.assert_allclose(nv.geodetic_to_enu(lat, lon, h, origin), enu, atol=1e-6)
-    # 1 km north is about 1/111.3 deg of latitude; 1 km up is 1 km of height
-    lat, lon, h = nv.enu_to_geodetic([[0.0, 1000.0, 0.0], [0.0, 0.0, 1000.0]], origin)
-    assert abs((lat[0] - origin.lat_deg) * 111_300 - 1000) < 5 and abs(h[1] - origin.height_m - 1000) < 1e-6
+    ref = (-33.9, 151.2, 40.0)
+    m, n = nv.radii(ref[0])
+    enu = rng.uniform(-700.0, 700.0, (1000, 3)) * [1, 1, 0.05]
+    lat = ref[0] + np.degrees(enu[:, 1] / (m + ref[2]))
+    lon = ref[1] + np.degrees(enu[:, 0] / ((n + ref[2]) * np.cos(np.radians(ref[0]))))
+    np.testing.assert_allclose(nv.local_offsets(lat, lon, ref[2] + enu[:, 2], *ref), enu, atol=1e-8)
+    exact = exact_offsets(lat, lon, ref[2] + enu[:, 2], *ref)
+    curvature = np.sum(enu[:, :2] ** 2, axis=1) / (2.0 * 6_371_000.0)
+    across = np.linalg.norm(exact[:, :2] - enu[:, :2], axis=1)
+    d = np.linalg.norm(enu[:, :2], axis=1)
+    assert np.all(across <= (d**2 + 2.0 * np.abs(enu[:, 2]) * d) / 6_371_000.0) and across.max() > 0.01
+    np.testing.assert_allclose(enu[:, 2] - exact[:, 2], curvature, rtol=0.01, atol=1e-4)
 
 
 def test_normal_gravity_matches_wgs84():
@@ -76,9 +103,9 @@ def test_the_car_kinematics_are_consistent(drive):
     assert np.all(drive.vel_enu[drive.rest] == 0.0) and np.all(drive.gyr[drive.rest] == 0.0)
     assert 0.01 < drive.rest.mean() < 0.2
     # the geodetic path moves as the velocity says, over the ellipsoid
-    step = nv.local_offsets(drive.lat_deg[1:], drive.lon_deg[1:], drive.height_m[1:], drive.lat_deg[:-1],
-                            drive.lon_deg[:-1], drive.height_m[:-1])
-    np.testing.assert_allclose(step, (drive.vel_enu[:-1] + drive.vel_enu[1:]) * dt / 2, atol=1e-8)  # deg rounding
+    step = exact_offsets(drive.lat_deg[1:], drive.lon_deg[1:], drive.height_m[1:], drive.lat_deg[:-1],
+                         drive.lon_deg[:-1], drive.height_m[:-1])
+    np.testing.assert_allclose(step, (drive.vel_enu[:-1] + drive.vel_enu[1:]) * dt / 2, atol=1e-6)  # ECEF rounding
     np.testing.assert_allclose(drive.height_m, drive.origin.height_m + drive.pos_enu[:, 2], atol=1e-9)
     np.testing.assert_allclose(drive.gravity, nv.normal_gravity(drive.lat_deg, drive.height_m))
     # the same seed gives the same drive

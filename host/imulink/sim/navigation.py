@@ -45,55 +45,6 @@ class Origin:
     height_m: float = 450.0
 
 
-def geodetic_to_ecef(lat_deg, lon_deg, height_m) -> np.ndarray:
-    """(..., 3) earth-centred earth-fixed coordinates, m."""
-    lat, lon = np.deg2rad(lat_deg), np.deg2rad(lon_deg)
-    h = np.asarray(height_m, dtype=np.float64)
-    n = WGS84_A / np.sqrt(1.0 - WGS84_E2 * np.sin(lat) ** 2)
-    return np.stack([(n + h) * np.cos(lat) * np.cos(lon), (n + h) * np.cos(lat) * np.sin(lon),
-                     (n * (1.0 - WGS84_E2) + h) * np.sin(lat)], axis=-1)
-
-
-def ecef_to_geodetic(xyz) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Latitude and longitude (deg) and ellipsoidal height (m) of ECEF points: Bowring's
-    start and Newton's iteration on the latitude (below 1e-12 rad after four steps
-    anywhere outside the earth's centre)."""
-    xyz = np.asarray(xyz, dtype=np.float64)
-    x, y, z = xyz[..., 0], xyz[..., 1], xyz[..., 2]
-    p = np.hypot(x, y)
-    lon = np.arctan2(y, x)
-    lat = np.arctan2(z, p * (1.0 - WGS84_E2))
-    for _ in range(5):
-        n = WGS84_A / np.sqrt(1.0 - WGS84_E2 * np.sin(lat) ** 2)
-        h = p / np.cos(lat) - n
-        lat = np.arctan2(z, p * (1.0 - WGS84_E2 * n / (n + h)))
-    n = WGS84_A / np.sqrt(1.0 - WGS84_E2 * np.sin(lat) ** 2)
-    h = p / np.cos(lat) - n
-    return np.rad2deg(lat), np.rad2deg(lon), h
-
-
-def _enu_rotation(origin: Origin) -> np.ndarray:
-    """Rows: east, north and up at the origin, in ECEF."""
-    lat, lon = math.radians(origin.lat_deg), math.radians(origin.lon_deg)
-    return np.array([[-math.sin(lon), math.cos(lon), 0.0],
-                     [-math.sin(lat) * math.cos(lon), -math.sin(lat) * math.sin(lon), math.cos(lat)],
-                     [math.cos(lat) * math.cos(lon), math.cos(lat) * math.sin(lon), math.sin(lat)]])
-
-
-def geodetic_to_enu(lat_deg, lon_deg, height_m, origin: Origin) -> np.ndarray:
-    """(..., 3) east, north, up (m) of geodetic points in the origin's ENU frame."""
-    d = geodetic_to_ecef(lat_deg, lon_deg, height_m) - geodetic_to_ecef(origin.lat_deg, origin.lon_deg,
-                                                                         origin.height_m)
-    return d @ _enu_rotation(origin).T
-
-
-def enu_to_geodetic(enu, origin: Origin) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Latitude, longitude (deg) and height (m) of ENU points."""
-    xyz = np.asarray(enu, dtype=np.float64) @ _enu_rotation(origin) + geodetic_to_ecef(
-        origin.lat_deg, origin.lon_deg, origin.height_m)
-    return ecef_to_geodetic(xyz)
-
-
 def radii(lat_deg) -> tuple[np.ndarray, np.ndarray]:
     """Meridian (M) and prime-vertical (N) radii of curvature, m."""
     s2 = np.sin(np.deg2rad(lat_deg)) ** 2
