@@ -1,11 +1,12 @@
 """The block-floating covariance (firmware/core/imu_cov.c) against numpy: the scalar
-update, optimal and with a gain map (Schmidt / "consider" update in Joseph's form), in
-both builds (tests/c/cov_driver.c)."""
+update, optimal and with a gain map (Schmidt / "consider" update in Joseph's form), and the
+time update with a transition that moves a few rows, in both builds (tests/c/cov_driver.c)."""
 from __future__ import annotations
 
 import shutil
 import subprocess
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -45,12 +46,25 @@ def gain_matrix(n, gain_map):
     return g
 
 
+class Predict(NamedTuple):
+    """A time update: Phi is the identity but for rows[t] at row moving[t]; process noise qvar."""
+    moving: list
+    rows: np.ndarray
+    qvar: list
+
+
 def run_driver(exe, variances, updates):
-    """updates: (h, r, z, w, gain map (blocks, unit vector) or None); returns [(dx, P)] after each."""
+    """updates: (h, r, z, w, gain map (blocks, unit vector) or None) or Predict; returns
+    [(dx, P)] after each."""
     n = len(variances)
     words = [str(n), *(repr(float(v)) for v in variances)]
-    for h, r, z, w, g in updates:
-        words += [repr(float(v)) for v in (*h, r, z, w)] + ["0" if g is None else "1"]
+    for step in updates:
+        if isinstance(step, Predict):
+            words += ["p", str(len(step.moving)), *(str(i) for i in step.moving)]
+            words += [repr(float(v)) for v in (*np.ravel(step.rows), *step.qvar)]
+            continue
+        h, r, z, w, g = step
+        words += ["u"] + [repr(float(v)) for v in (*h, r, z, w)] + ["0" if g is None else "1"]
         if g is not None:
             words += [str(kind) for kind in g[0]] + [repr(float(v)) for v in g[1]]
     proc = subprocess.run([str(exe)], input=" ".join(words), capture_output=True, text=True, timeout=60)
@@ -71,7 +85,14 @@ def reference(p0, updates):
     """numpy: K = P h / (h P h + r / w); the correction G K z and P in Joseph's form for G K."""
     p = np.diag(p0).astype(float)
     out = []
-    for h, r, z, w, g in updates:
+    for step in updates:
+        if isinstance(step, Predict):
+            phi = np.eye(len(p0))
+            phi[step.moving] = step.rows
+            p = phi @ p @ phi.T + np.diag(step.qvar)
+            out.append((np.zeros(len(p0)), p))
+            continue
+        h, r, z, w, g = step
         h = np.asarray(h, dtype=float)
         s = h @ p @ h + r / w
         k = p @ h / s
@@ -146,3 +167,38 @@ def test_every_kind_of_block_in_one_map_is_josephs_form(drivers):
             np.testing.assert_allclose(p / scale, p_ref / scale, rtol=0, atol=rtol * 10, err_msg=build)
             np.testing.assert_allclose(dx, dx_ref, rtol=rtol * 10, atol=1e-9 if build == "fixed" else 1e-15,
                                        err_msg=build)
+
+
+def _rotation(rng, angle):
+    axis = rng.standard_normal(3)
+    axis /= np.linalg.norm(axis)
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
+
+
+@pytest.mark.parametrize("seed", [4, 5])
+def test_time_update_moves_only_the_given_rows(drivers, seed):
+    """Nine states over eight decades. The ESKF's transition (attitude rows: a rotation and
+    -T I on the gyro bias), an update that correlates everything, then a transition with a
+    dense row and a row given that is the identity's after all (the prediction takes it as
+    one), with process noise on every state."""
+    rng = np.random.default_rng(seed)
+    p0 = [1e-2, 2e-2, 5e-3, 1e-6, 3e-7, 2e-6, 1e-3, 4e-4, 2e-3]
+    attitude = np.zeros((3, 9))
+    attitude[:, 0:3] = _rotation(rng, 0.3).T
+    attitude[:, 3:6] = -0.03 * np.eye(3)
+    dense = np.zeros((2, 9))
+    dense[0] = rng.uniform(-0.5, 0.5, 9)
+    dense[0, 1] = 1.0
+    dense[1, 4] = 1.0
+    steps = [Predict([0, 1, 2], attitude, [1e-6] * 3 + [1e-10] * 3 + [1e-8] * 3),
+             (rng.uniform(-1, 1, 9), 2e-4, 0.01, 1.0, None),
+             Predict([1, 4], dense, list(rng.uniform(1e-9, 1e-6, 9)))]
+    expected = reference(p0, steps)
+    for build, tol in (("float", 1e-12), ("fixed", 2e-6)):
+        got = run_driver(drivers[build], p0, steps)
+        assert len(got) == len(steps)
+        for (dx, p), (dx_ref, p_ref) in zip(got, expected):
+            scale = np.sqrt(np.outer(np.diag(p_ref), np.diag(p_ref)))
+            np.testing.assert_allclose(p / scale, p_ref / scale, rtol=0, atol=tol * 10, err_msg=build)
+            np.testing.assert_array_equal(p, p.T)

@@ -29,15 +29,7 @@ static int cell(int i, int j)
     return CELL_INDEX[i][j];
 }
 
-static void load_wide(const imu_cov_t *c, imu_wide_t w[IMU_COV_CELLS])
-{
-    int k;
-    for (k = 0; k < IMU_COV_CELLS; ++k) {
-        w[k] = c->p[k];
-    }
-}
-
-static void renormalize(imu_cov_t *c, imu_wide_t w[IMU_COV_CELLS], uint32_t *sat);
+static void store_diagonal(imu_cov_t *c, imu_wide_t d[IMU_COV_MAX], uint32_t *sat);
 
 #ifdef IMU_FIXED
 
@@ -89,7 +81,8 @@ static imu_real_t headroom_int32(imu_wide_t v)
  * to zero or below restarts at the smallest normalised value (counted). Returns
  * non-zero when an exponent moves.
  */
-static int diagonal_shifts(const imu_cov_t *c, imu_wide_t d[IMU_COV_MAX], int shift[IMU_COV_MAX], uint32_t *sat)
+static int diagonal_shifts(const imu_cov_t *c, imu_wide_t d[IMU_COV_MAX], signed char shift[IMU_COV_MAX],
+                           uint32_t *sat)
 {
     int i, moved = 0;
     for (i = 0; i < c->n; ++i) {
@@ -100,7 +93,7 @@ static int diagonal_shifts(const imu_cov_t *c, imu_wide_t d[IMU_COV_MAX], int sh
         /* s = ceil((bits - 30) / 2): d * 2^(-2s) in [2^28, 2^30). */
         {
             const int excess = imu_bit_length64((uint64_t)d[i]) - 30;
-            shift[i] = excess >= 0 ? (excess + 1) / 2 : -((-excess) / 2);
+            shift[i] = (signed char)(excess >= 0 ? (excess + 1) / 2 : -((-excess) / 2));
             moved |= shift[i];
         }
     }
@@ -151,27 +144,27 @@ static int scale_row(const imu_cov_t *c, const imu_q30_t h[], imu_q30_t hs[], ui
 
 /**
  * Row i of phi in the scaled coordinates, phi~_ik = phi_ik 2^(e_k - e_i), as multipliers
- * phi[i][t] of the columns cols[t] (the row is overwritten, its first `count` entries
+ * row[t] of the columns cols[t] (the row is overwritten, its first `count` entries
  * used) and a row exponent f: phi~_{i,cols[t]} = phi[i][t] 2^-f, |phi[i][t]| <= 2^(31 - x),
  * 2^x >= count. A sum of `count` products of those with P~'s entries (below 2^30) then
  * stays within 2^61 and one with int32 values within 2^62, so the products accumulate
  * without a shift per term. Returns f.
  */
-static int scaled_row(const imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], int i, int count,
+static int scaled_row(const imu_cov_t *c, imu_q30_t row[IMU_COV_MAX], int i, int count,
                       const unsigned char cols[], uint32_t *sat)
 {
     int biggest = INT32_MIN; /* |phi~_ik| < 2^(biggest - 30) */
     int f, t;
     for (t = 0; t < count; ++t) {
         const int k = cols[t];
-        const int64_t magnitude = phi[i][k] < 0 ? -(int64_t)phi[i][k] : phi[i][k];
+        const int64_t magnitude = row[k] < 0 ? -(int64_t)row[k] : row[k];
         const int bits = imu_bit_length64((uint64_t)magnitude) + c->e[k] - c->e[i];
         biggest = bits > biggest ? bits : biggest;
     }
     f = 61 - count_bits(count) - biggest;
     for (t = 0; t < count; ++t) { /* cols[t] >= t: each entry is read before it is written */
         const int k = cols[t];
-        phi[i][t] = (imu_q30_t)wide_ldexp(phi[i][k], c->e[k] - c->e[i] - 30 + f, sat);
+        row[t] = (imu_q30_t)wide_ldexp(row[k], c->e[k] - c->e[i] - 30 + f, sat);
     }
     return f;
 }
@@ -200,27 +193,35 @@ static inline int32_t mantissa31(imu_wide_t v, int e, uint32_t *sat)
     return headroom_int32(wide_ldexp(v, -e, sat));
 }
 
-/** The change of P~_ij (Q30) a measurement makes: kc_i cm_j - ko_i om_j, each 2^-31
- *  (ko and om are zero unless `mapped`). */
-static inline imu_wide_t change(const int32_t kc[], const int32_t cm[], const int32_t ko[], const int32_t om[],
-                                int32_t mapped, int i, int j)
+/** (w / sh) m 2^(2 ce + 1) of a mantissa m (cm_i or om_i) from k_mant 2^scale = w / sh:
+ *  |m k_mant| < 2^61 and the result is below 2^31 (apply_update). */
+static inline int32_t gain_of(int32_t m, int32_t k_mant, int scale, uint32_t *sat)
 {
-    return mapped == 0 ? mul_q31(kc[i], cm[j]) : (imu_wide_t)mul_q31(kc[i], cm[j]) - mul_q31(ko[i], om[j]);
+    return imu_sat32(wide_ldexp((imu_wide_t)m * k_mant, scale, sat), sat);
+}
+
+/** The change of P~_ij (Q30) a measurement makes: kc_i cm_j - ko_i om_j, each 2^-31
+ *  (ko_i and om are zero unless `mapped`). */
+static inline imu_wide_t change(int32_t kc_i, int32_t ko_i, const int32_t cm[], const int32_t om[], int32_t mapped,
+                                int j)
+{
+    return mapped == 0 ? mul_q31(kc_i, cm[j]) : (imu_wide_t)mul_q31(kc_i, cm[j]) - mul_q31(ko_i, om[j]);
 }
 
 /**
- * P~ -= (w / sh) (ch ch^T - oh oh^T) and dx_i = (w z / sh) (ch_i - oh_i) 2^(e_i - E) (Q30).
- * ch and oh become 31-bit mantissas cm, om of one exponent ce; kc = (w / sh) cm 2^(2 ce + 1)
+ * P~ -= (w / sh) (ch ch^T - oh oh^T) and dx_i += (w z / sh) (ch_i - oh_i) 2^(e_i - E) (Q30).
+ * ch and oh become 31-bit mantissas cm (in place of ch), om of one exponent ce; kc = (w / sh) cm 2^(2 ce + 1)
  * makes each cell's change kc_i cm_j 2^-31, a 32-bit product: |kc_i| < 2^31, as the
  * change of a variance, (w / sh) ch_i^2 2^-30 <= P~_ii, is below 2^30 (Cauchy-Schwarz).
  */
-static void apply_update(imu_cov_t *c, const imu_real_t ch[], const imu_wide_t oh[], imu_wide_t sh, imu_q30_t w,
-                         imu_q30_t z, int big, imu_q30_t dx[], uint32_t *sat)
+static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], imu_wide_t sh, imu_q30_t w, imu_q30_t z,
+                         int big, imu_q30_t dx[], uint32_t *sat)
 {
-    int32_t cm[IMU_COV_MAX], om[IMU_COV_MAX]; /* ch and oh as mantissas of 2^ce, below 2^31 */
-    int32_t kc[IMU_COV_MAX], ko[IMU_COV_MAX]; /* (w / sh) cm 2^(2 ce + 1), the same for om */
-    imu_wide_t d[IMU_COV_MAX]; /* the new diagonal, Q30 in the old exponents */
-    int shift[IMU_COV_MAX];
+    int32_t *const cm = ch;      /* ch as mantissas of 2^ce, below 2^31: in place of ch */
+    int32_t om[IMU_COV_MAX];     /* the same for oh */
+    int32_t kc[IMU_COV_MAX];     /* (w / sh) cm 2^(2 ce + 1) (gain_of) */
+    imu_wide_t *const d = oh;    /* the new diagonal, Q30 in the old exponents: in place of oh */
+    signed char shift[IMU_COV_MAX]; /* exponent changes, |shift| <= 17 */
     imu_wide_t cmax = 0;
     int32_t mapped = 0; /* non-zero when a gain map left a part out */
     int ce, ke, ve, i, j, k;
@@ -254,15 +255,12 @@ static void apply_update(imu_cov_t *c, const imu_real_t ch[], const imu_wide_t o
         ve -= 30 + es;
     }
     for (i = 0; i < c->n; ++i) {
-        /* |cm_i k_mant| < 2^61, scaled by 2^(2 ce + ke + 1): below 2^31 */
-        kc[i] = imu_sat32(wide_ldexp((imu_wide_t)cm[i] * k_mant, 2 * ce + ke + 1, sat), sat);
-        ko[i] = mapped != 0 ? imu_sat32(wide_ldexp((imu_wide_t)om[i] * k_mant, 2 * ce + ke + 1, sat), sat) : 0;
-    }
-    for (i = 0; i < c->n; ++i) {
         /* dx_i = v (cm_i - om_i) 2^(ve + ce + e_i - E) in Q30: v_mant * (cm_i - om_i) < 2^62. */
         const imu_wide_t vc = mapped == 0 ? IMU_WMUL(v_mant, cm[i]) : (imu_wide_t)v_mant * ((imu_wide_t)cm[i] - om[i]);
-        dx[i] = imu_sat32(wide_ldexp(vc, ve + ce + c->e[i] - big, sat), sat);
-        d[i] = (imu_wide_t)c->p[cell(i, i)] - change(kc, cm, ko, om, mapped, i, i);
+        const int32_t ko_i = mapped != 0 ? gain_of(om[i], k_mant, 2 * ce + ke + 1, sat) : 0;
+        kc[i] = gain_of(cm[i], k_mant, 2 * ce + ke + 1, sat);
+        dx[i] = IMU_ADD_SAT(dx[i], imu_sat32(wide_ldexp(vc, ve + ce + c->e[i] - big, sat), sat), sat);
+        d[i] = (imu_wide_t)c->p[cell(i, i)] - change(kc[i], ko_i, cm, om, mapped, i);
     }
     if (diagonal_shifts(c, d, shift, sat) == 0 && mapped == 0) {
         /* the usual case, the same arithmetic in a loop of its own: no exponent moves, no map */
@@ -276,10 +274,13 @@ static void apply_update(imu_cov_t *c, const imu_real_t ch[], const imu_wide_t o
         return;
     }
     for (i = 0; i < c->n; ++i) {
+        /* ko_i once more (kept in no array: stack); its saturations were counted the first time */
+        uint32_t counted_before = 0;
+        const int32_t ko_i = mapped != 0 ? gain_of(om[i], k_mant, 2 * ce + ke + 1, &counted_before) : 0;
         k = cell(i, i);
         c->p[k] = rescaled(d[i], 2 * shift[i], sat);
         for (j = i + 1, ++k; j < c->n; ++j, ++k) {
-            c->p[k] = rescaled((imu_wide_t)c->p[k] - change(kc, cm, ko, om, mapped, i, j), shift[i] + shift[j], sat);
+            c->p[k] = rescaled((imu_wide_t)c->p[k] - change(kc[i], ko_i, cm, om, mapped, j), shift[i] + shift[j], sat);
         }
     }
     for (i = 0; i < c->n; ++i) {
@@ -349,7 +350,8 @@ static imu_real_t headroom_int32(imu_wide_t v)
     return v;
 }
 
-static int diagonal_shifts(const imu_cov_t *c, imu_wide_t d[IMU_COV_MAX], int shift[IMU_COV_MAX], uint32_t *sat)
+static int diagonal_shifts(const imu_cov_t *c, imu_wide_t d[IMU_COV_MAX], signed char shift[IMU_COV_MAX],
+                           uint32_t *sat)
 {
     int i;
     for (i = 0; i < c->n; ++i) {
@@ -379,32 +381,33 @@ static int scale_row(const imu_cov_t *c, const imu_q30_t h[], imu_q30_t hs[], ui
     return 0;
 }
 
-static int scaled_row(const imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], int i, int count,
+static int scaled_row(const imu_cov_t *c, imu_q30_t row[IMU_COV_MAX], int i, int count,
                       const unsigned char cols[], uint32_t *sat)
 {
     int t;
     (void)c;
+    (void)i;
     (void)sat;
     for (t = 0; t < count; ++t) {
-        phi[i][t] = phi[i][cols[t]];
+        row[t] = row[cols[t]];
     }
     return 0;
 }
 
-static void apply_update(imu_cov_t *c, const imu_real_t ch[], const imu_wide_t oh[], imu_wide_t sh, imu_q30_t w,
-                         imu_q30_t z, int big, imu_q30_t dx[], uint32_t *sat)
+static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], imu_wide_t sh, imu_q30_t w, imu_q30_t z,
+                         int big, imu_q30_t dx[], uint32_t *sat)
 {
-    imu_wide_t wm[IMU_COV_CELLS];
+    imu_wide_t d[IMU_COV_MAX];
     int i, j;
     (void)big;
-    load_wide(c, wm);
     for (i = 0; i < c->n; ++i) {
-        dx[i] = w * z / sh * (ch[i] - oh[i]);
+        dx[i] += w * z / sh * (ch[i] - oh[i]);
         for (j = i; j < c->n; ++j) {
-            wm[cell(i, j)] -= w / sh * (ch[i] * ch[j] - oh[i] * oh[j]);
+            c->p[cell(i, j)] -= w / sh * (ch[i] * ch[j] - oh[i] * oh[j]);
         }
+        d[i] = c->p[cell(i, i)];
     }
-    renormalize(c, wm, sat);
+    store_diagonal(c, d, sat);
 }
 
 #define Q60_TO_Q30(v) (v)
@@ -443,22 +446,19 @@ static imu_wide_t wide_mul_q30(imu_wide_t v, imu_q30_t w)
 
 /* ---- Shared algorithms. ---- */
 
-/** Store the wide matrix `w` (Q30 in the old exponents) as mantissas of new exponents
- *  that bring every diagonal mantissa into [2^28, 2^30) (diagonal_shifts). */
-static void renormalize(imu_cov_t *c, imu_wide_t w[IMU_COV_CELLS], uint32_t *sat)
+/** Store P~ with the wide diagonal d (Q30 in the old exponents; every other element is
+ *  c->p's) in new exponents that bring every diagonal mantissa into [2^28, 2^30)
+ *  (diagonal_shifts). */
+static void store_diagonal(imu_cov_t *c, imu_wide_t d[IMU_COV_MAX], uint32_t *sat)
 {
-    imu_wide_t d[IMU_COV_MAX];
-    int shift[IMU_COV_MAX];
+    signed char shift[IMU_COV_MAX]; /* exponent changes, |shift| <= 17 */
     int i, j, k;
-    for (i = 0; i < c->n; ++i) {
-        d[i] = w[cell(i, i)];
-    }
     diagonal_shifts(c, d, shift, sat);
     for (i = 0; i < c->n; ++i) {
         k = cell(i, i);
         c->p[k] = rescaled(d[i], 2 * shift[i], sat);
         for (j = i + 1, ++k; j < c->n; ++j, ++k) {
-            c->p[k] = rescaled(w[k], shift[i] + shift[j], sat);
+            c->p[k] = rescaled(c->p[k], shift[i] + shift[j], sat);
         }
     }
     for (i = 0; i < c->n; ++i) {
@@ -474,131 +474,139 @@ static imu_wide_t variance_mantissa(const imu_cov_t *c, int i, imu_wide_t var, i
 
 void imu_cov_init(imu_cov_t *c, int n, const imu_wide_t var[], int var_q, uint32_t *sat)
 {
-    imu_wide_t w[IMU_COV_CELLS];
+    imu_wide_t d[IMU_COV_MAX];
     int i;
     c->n = n;
     for (i = 0; i < IMU_COV_CELLS; ++i) {
-        w[i] = 0;
+        c->p[i] = 0;
     }
     for (i = 0; i < IMU_COV_MAX; ++i) {
         c->e[i] = 0;
     }
     for (i = 0; i < n; ++i) {
         c->e[i] = exponent_for(var[i], var_q);
-        w[cell(i, i)] = variance_mantissa(c, i, var[i], var_q, sat);
+        d[i] = variance_mantissa(c, i, var[i], var_q, sat);
     }
-    renormalize(c, w, sat);
+    store_diagonal(c, d, sat);
 }
 
 void imu_cov_reset_state(imu_cov_t *c, int i, imu_wide_t var, int var_q, uint32_t *sat)
 {
-    imu_wide_t w[IMU_COV_CELLS];
+    imu_wide_t d[IMU_COV_MAX];
     int j;
-    load_wide(c, w);
     for (j = 0; j < c->n; ++j) {
-        w[cell(i, j)] = 0;
+        c->p[cell(i, j)] = 0;
+        d[j] = c->p[cell(j, j)];
     }
     c->e[i] = exponent_for(var, var_q);
-    w[cell(i, i)] = variance_mantissa(c, i, var, var_q, sat);
-    renormalize(c, w, sat);
+    d[i] = variance_mantissa(c, i, var, var_q, sat);
+    store_diagonal(c, d, sat);
 }
 
-/** The columns where row i of phi is non-zero (ascending); their count returned. */
-static int row_support(const imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], int i, unsigned char cols[IMU_COV_MAX])
+/** The columns where `row` (of phi) is non-zero (ascending); their count returned. */
+static int row_support(const imu_cov_t *c, const imu_q30_t row[IMU_COV_MAX], unsigned char cols[IMU_COV_MAX])
 {
     int k, count = 0;
     for (k = 0; k < c->n; ++k) {
-        if (phi[i][k] != 0) {
+        if (row[k] != 0) {
             cols[count++] = (unsigned char)k;
         }
     }
     return count;
 }
 
-/** phi~ P~ phi~^T in parts (imu_cov_predict): phi~'s rows as int32 multipliers, and
- *  m = phi~ P~ as int32 rows with an exponent each. */
+/** phi~ P~ phi~^T in parts (imu_cov_predict): the moving rows of phi~ as int32 multipliers,
+ *  and their rows of m = phi~ P~ as int32 rows with an exponent each (every other row of m
+ *  is P~'s own). */
 typedef struct {
-    imu_real_t m[IMU_COV_MAX][IMU_COV_MAX]; /* m_ij (P~ units) = m[i][j] 2^m_exp[i], |m[i][j]| < 2^31 */
-    int m_exp[IMU_COV_MAX];
-    const imu_q30_t (*a)[IMU_COV_MAX]; /* phi~_{i,cols[i][t]} = a[i][t] 2^-f[i]: phi itself (scaled_row) */
-    int f[IMU_COV_MAX];
-    unsigned char cols[IMU_COV_MAX][IMU_COV_MAX]; /* the columns where row i of phi is not zero */
-    int count[IMU_COV_MAX];
-    int identity[IMU_COV_MAX]; /* row i of phi is the identity's: m's row is P~'s */
+    imu_real_t m[IMU_COV_MOVING_MAX][IMU_COV_MAX]; /* m_ij (P~ units) = m[s][j] 2^m_exp[s], s = slot[i] */
+    int m_exp[IMU_COV_MOVING_MAX];
+    const imu_q30_t (*a)[IMU_COV_MAX]; /* phi~_{i,cols[s][t]} = a[s][t] 2^-f[s]: the rows themselves (scaled_row) */
+    int f[IMU_COV_MOVING_MAX];
+    unsigned char cols[IMU_COV_MOVING_MAX][IMU_COV_MAX]; /* the columns where the row is not zero */
+    int count[IMU_COV_MOVING_MAX];
+    signed char slot[IMU_COV_MAX]; /* state i's row among the moving ones; -1: the identity's */
 } transition_t;
 
-/** (phi~ P~ phi~^T)_ij, Q30 in the old exponents (wide). */
-static imu_wide_t transformed(const transition_t *tr, int i, int j, uint32_t *sat)
+/** (phi~ P~ phi~^T)_ij, Q30 in the old exponents (wide). P~ is read only at (i, j) itself
+ *  (both rows the identity's), so the prediction may store each element as it goes. */
+static imu_wide_t transformed(const imu_cov_t *c, const transition_t *tr, int i, int j, uint32_t *sat)
 {
+    const int si = tr->slot[i], sj = tr->slot[j];
     imu_wide_t sum = 0; /* below 2^62 (scaled_row) */
     int t;
-    if (tr->identity[j]) {
-        return wide_ldexp(tr->m[i][j], tr->m_exp[i], sat);
+    if (si < 0 && sj < 0) {
+        return c->p[cell(i, j)];
     }
-    for (t = 0; t < tr->count[j]; ++t) {
-        sum += IMU_WMUL(tr->m[i][tr->cols[j][t]], tr->a[j][t]);
+    if (sj < 0) {
+        return wide_ldexp(tr->m[si][j], tr->m_exp[si], sat);
     }
-    return wide_ldexp(sum, tr->m_exp[i] - tr->f[j], sat);
+    if (si < 0) {
+        return wide_ldexp(tr->m[sj][i], tr->m_exp[sj], sat); /* (P~ phi~^T)_ij = (phi~ P~)_ji: P~ is symmetric */
+    }
+    for (t = 0; t < tr->count[sj]; ++t) {
+        sum += IMU_WMUL(tr->m[si][tr->cols[sj][t]], tr->a[sj][t]);
+    }
+    return wide_ldexp(sum, tr->m_exp[si] - tr->f[sj], sat);
 }
 
-void imu_cov_predict(imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], const imu_wide_t qvar[], int qvar_q,
-                     uint32_t *sat)
+void imu_cov_predict(imu_cov_t *c, imu_q30_t rows[][IMU_COV_MAX], const int moving[], int count,
+                     const imu_wide_t qvar[], int qvar_q, uint32_t *sat)
 {
-    /* Scaled coordinates: phi~_ik = phi_ik 2^(e_k - e_i); P~' = phi~ P~ phi~^T. Each row
-     * of phi~ is a row of int32 multipliers with an exponent of its own (scaled_row), so
-     * both products accumulate without a shift per term; each row of m = phi~ P~ is
-     * brought below 2^31 with an exponent of its own. Only the non-zero entries of phi
-     * take part, and a row of the identity (a filter's transition is mostly identity)
-     * copies P~'s row: no int64 product or sum overflows, and only a truly out-of-range
-     * result saturates. The new diagonal comes first: it sets the new exponents, in
-     * which every other element is then stored at once. */
+    /* Scaled coordinates: phi~_ik = phi_ik 2^(e_k - e_i); P~' = phi~ P~ phi~^T. Each moving
+     * row of phi~ is a row of int32 multipliers with an exponent of its own (scaled_row), so
+     * both products accumulate without a shift per term; each of their rows of m = phi~ P~
+     * is brought below 2^31 with an exponent of its own. Only the non-zero entries of phi
+     * take part, and a row of the identity (most of a filter's transition) leaves P~'s row
+     * as it is: no int64 product or sum overflows, and only a truly out-of-range result
+     * saturates. The new diagonal comes first: it sets the new exponents, in which every
+     * other element is then stored at once. */
     transition_t tr;
     imu_wide_t d[IMU_COV_MAX];
-    int shift[IMU_COV_MAX];
+    signed char shift[IMU_COV_MAX]; /* exponent changes, |shift| <= 17 */
     const int n = c->n;
-    int i, j, k, t;
-    tr.a = (const imu_q30_t(*)[IMU_COV_MAX])phi;
+    int i, j, k, s, t;
+    tr.a = (const imu_q30_t(*)[IMU_COV_MAX])rows;
     for (i = 0; i < n; ++i) {
-        tr.count[i] = row_support(c, phi, i, tr.cols[i]);
-        tr.identity[i] = tr.count[i] == 1 && tr.cols[i][0] == i && phi[i][i] == IMU_ONE_Q30;
-        tr.m_exp[i] = 0;
-        tr.f[i] = 0;
-        if (tr.identity[i]) {
-            for (j = 0; j < n; ++j) {
-                tr.m[i][j] = c->p[cell(i, j)];
-            }
-            continue;
+        tr.slot[i] = -1;
+    }
+    for (s = 0; s < count; ++s) {
+        const int r = moving[s];
+        tr.count[s] = row_support(c, rows[s], tr.cols[s]);
+        if (tr.count[s] == 1 && tr.cols[s][0] == r && rows[s][r] == IMU_ONE_Q30) {
+            continue; /* a row of the identity after all */
         }
-        tr.f[i] = scaled_row(c, phi, i, tr.count[i], tr.cols[i], sat);
+        tr.slot[r] = (signed char)s;
+        tr.f[s] = scaled_row(c, rows[s], r, tr.count[s], tr.cols[s], sat);
         {
-            imu_wide_t row[IMU_COV_MAX]; /* a row of m, value row[j] 2^-f[i] (below 2^61) */
+            imu_wide_t *row = d; /* the row of m, value row[j] 2^-f[s] (below 2^61); d is free until later */
             imu_wide_t biggest = 0;
             int row_shift;
             for (j = 0; j < n; ++j) {
                 imu_wide_t sum = 0;
-                for (t = 0; t < tr.count[i]; ++t) {
-                    sum += IMU_WMUL(tr.a[i][t], c->p[cell(tr.cols[i][t], j)]);
+                for (t = 0; t < tr.count[s]; ++t) {
+                    sum += IMU_WMUL(tr.a[s][t], c->p[cell(tr.cols[s][t], j)]);
                 }
                 row[j] = sum;
                 biggest = wide_abs(sum) > biggest ? wide_abs(sum) : biggest;
             }
             row_shift = headroom(biggest, 31);
             for (j = 0; j < n; ++j) {
-                tr.m[i][j] = headroom_int32(wide_ldexp(row[j], -row_shift, sat));
+                tr.m[s][j] = headroom_int32(wide_ldexp(row[j], -row_shift, sat));
             }
-            tr.m_exp[i] = row_shift - tr.f[i];
+            tr.m_exp[s] = row_shift - tr.f[s];
         }
     }
     for (i = 0; i < n; ++i) {
-        d[i] = transformed(&tr, i, i, sat) + variance_mantissa(c, i, qvar[i], qvar_q, sat); /* both below 2^62 */
+        d[i] = transformed(c, &tr, i, i, sat) + variance_mantissa(c, i, qvar[i], qvar_q, sat); /* below 2^62 each */
     }
     diagonal_shifts(c, d, shift, sat);
     for (i = 0; i < n; ++i) {
         k = cell(i, i);
         c->p[k] = rescaled(d[i], 2 * shift[i], sat);
         for (j = i + 1, ++k; j < n; ++j, ++k) {
-            if (!(tr.identity[i] && tr.identity[j] && shift[i] + shift[j] == 0)) { /* else P~_ij stays */
-                c->p[k] = rescaled(transformed(&tr, i, j, sat), shift[i] + shift[j], sat);
+            if (!(tr.slot[i] < 0 && tr.slot[j] < 0 && shift[i] + shift[j] == 0)) { /* else P~_ij stays */
+                c->p[k] = rescaled(transformed(c, &tr, i, j, sat), shift[i] + shift[j], sat);
             }
         }
     }
@@ -650,7 +658,7 @@ int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu
     imu_wide_t oh[IMU_COV_MAX]; /* the part of ch the gain map leaves out, Q30 */
     imu_wide_t q = 0;           /* hs P~ hs, Q30 */
     imu_wide_t sh;              /* Q30 */
-    int used[IMU_COV_MAX];      /* the states hs is not zero at */
+    unsigned char used[IMU_COV_MAX]; /* the states hs is not zero at */
     const int n = c->n;
     int big, i, j, t, count = 0;
     if (w <= 0) {
@@ -659,7 +667,7 @@ int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu
     big = scale_row(c, h, hs, sat);
     for (j = 0; j < n; ++j) {
         if (hs[j] != 0) {
-            used[count++] = j;
+            used[count++] = (unsigned char)j;
         }
     }
     for (i = 0; i < n; ++i) {

@@ -41,14 +41,20 @@ typedef struct {
  */
 void imu_cov_init(imu_cov_t *c, int n, const imu_wide_t var[], int var_q, uint32_t *sat);
 
+/** Most rows of a transition that differ from the identity's (imu_cov_predict): a filter's
+ *  transition is mostly identity, and each moving row costs stack. */
+#define IMU_COV_MOVING_MAX 3
+
 /**
- * @brief Time update P <- Phi P Phi^T + diag(qvar).
- * @param phi  n x n transition matrix in real units, Q30 (|phi_ij| < 2), row stride IMU_COV_MAX;
- *             used as scratch: its contents are undefined afterwards.
- * @param qvar n process-noise variances, wide values in Q`qvar_q` (fixed build).
+ * @brief Time update P <- Phi P Phi^T + diag(qvar), for a Phi that is the identity but for
+ *        `count` rows (at most IMU_COV_MOVING_MAX).
+ * @param rows   those rows of Phi in real units, Q30 (|phi_ij| < 2), row stride IMU_COV_MAX:
+ *               rows[t] is row moving[t]; used as scratch: their contents are undefined afterwards.
+ * @param moving the states whose rows are given, each once
+ * @param qvar   n process-noise variances, wide values in Q`qvar_q` (fixed build).
  */
-void imu_cov_predict(imu_cov_t *c, imu_q30_t phi[][IMU_COV_MAX], const imu_wide_t qvar[], int qvar_q,
-                     uint32_t *sat);
+void imu_cov_predict(imu_cov_t *c, imu_q30_t rows[][IMU_COV_MAX], const int moving[], int count,
+                     const imu_wide_t qvar[], int qvar_q, uint32_t *sat);
 
 /** What a gain map lets a measurement correct in a block of three states. */
 typedef enum {
@@ -82,7 +88,7 @@ typedef struct {
  * @param z        innovation (measured minus predicted), Q30
  * @param w        weight, Q30, [0, 1]
  * @param gain_map NULL, or the map (in the states' units)
- * @param dx       output: n state corrections G K z, Q30 in the states' units
+ * @param dx       n state corrections, Q30 in the states' units: G K z is added (saturated)
  * @return 1 when updated, 0 when skipped (w = 0)
  */
 int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu_q30_t z, imu_q30_t w,

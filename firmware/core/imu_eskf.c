@@ -113,10 +113,12 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
     for (k = 0; k < 3; ++k) {
         f->process_var[ATT + k] = IMU_WMUL(t, s->gyro_arw);
     }
-    /* rrw Q40 * T Q30 >> 30 -> Q40, * rrw Q40 -> Q80. */
+    /* rrw Q40 * T Q30 >> 30 -> Q40, * rrw Q40 -> Q80, >> 16 -> Q64: the angle variances are
+     * Q64 and the bias variances Q80, and bringing the angle ones to Q80 would overflow, so
+     * all are Q64 (seed 000's rrw still keeps 2^28 of resolution). */
     t = IMU_MUL(s->gyro_rrw, f->period, 30);
     for (k = 0; k < 3; ++k) {
-        f->process_var[GYRO_BIAS + k] = IMU_WMUL(t, s->gyro_rrw);
+        f->process_var[GYRO_BIAS + k] = IMU_WSHR(IMU_WMUL(t, s->gyro_rrw), 16);
     }
     /* In g units: rw Q32 / g (Q32 * Q30 >> 30 -> Q32), then as the angle: Q64. */
     {
@@ -350,35 +352,24 @@ static void limit_to_one_radian(imu_q30_t v[3])
  */
 static void predict_covariance(imu_eskf_t *f, const imu_q30_t dq[4])
 {
-    imu_q30_t m[IMU_COV_MAX][IMU_COV_MAX];
+    static const int attitude_rows[3] = {ATT, ATT + 1, ATT + 2}; /* the biases' rows are the identity's */
+    imu_q30_t m[3][IMU_COV_MAX];
     imu_q30_t row[3];
     const int n = imu_eskf_state_count(f);
     int i, j;
-    for (i = 0; i < n; ++i) {
+    for (i = 0; i < 3; ++i) {
         for (j = 0; j < n; ++j) {
-            m[i][j] = i == j ? IMU_ONE_Q30 : 0;
+            m[i][j] = 0;
         }
     }
     for (i = 0; i < 3; ++i) {
         imu_quat_matrix_row(dq, i, row);
         for (j = 0; j < 3; ++j) {
-            m[ATT + j][ATT + i] = row[j]; /* transpose */
+            m[j][ATT + i] = row[j]; /* transpose */
         }
-        m[ATT + i][GYRO_BIAS + i] = -f->period;
+        m[i][GYRO_BIAS + i] = -f->period;
     }
-    /* The angle variances are Q64 and the bias variances Q80: bringing the angle
-     * ones to Q80 would overflow, so the whole vector is passed as Q64 with the bias
-     * terms shifted down by 16 (seed 000's rrw still keeps 2^28 of resolution). */
-    {
-        imu_wide_t qvar[9];
-        for (i = 0; i < 9; ++i) {
-            qvar[i] = f->process_var[i];
-        }
-        for (i = 0; i < 3; ++i) {
-            qvar[GYRO_BIAS + i] = IMU_WSHR(f->process_var[GYRO_BIAS + i], 16);
-        }
-        imu_cov_predict(&f->cov, m, qvar, 64, &f->saturations);
-    }
+    imu_cov_predict(&f->cov, m, attitude_rows, 3, f->process_var, 64, &f->saturations);
     for (i = 0; i < 3; ++i) {
         imu_cov_cap_unit_variance(&f->cov, ATT + i);
     }
@@ -409,7 +400,6 @@ static void set_gain_map(imu_cov_map_t *map, int attitude, int gyro_bias, int ac
 static void scalar_update(imu_eskf_t *f, const imu_q30_t h[9], imu_q30_t z, imu_wide_t r, int r_q, imu_q30_t w,
                           const imu_cov_map_t *gain_map, imu_q30_t dx_total[9])
 {
-    imu_q30_t dx[9];
     const int n = imu_eskf_state_count(f);
     int i;
     for (i = 0; i < n; ++i) {
@@ -417,11 +407,7 @@ static void scalar_update(imu_eskf_t *f, const imu_q30_t h[9], imu_q30_t z, imu_
             z = IMU_SUB_SAT(z, IMU_MUL_SAT(h[i], dx_total[i], 30, &f->saturations), &f->saturations);
         }
     }
-    if (imu_cov_update(&f->cov, h, r, r_q, z, w, gain_map, dx, &f->saturations)) {
-        for (i = 0; i < n; ++i) {
-            dx_total[i] = IMU_ADD_SAT(dx_total[i], dx[i], &f->saturations);
-        }
-    }
+    (void)imu_cov_update(&f->cov, h, r, r_q, z, w, gain_map, dx_total, &f->saturations);
 }
 
 /**
@@ -801,39 +787,44 @@ static imu_real_t mean_of_three(imu_real_t sum)
 /** One filter step at the end of a group of three samples. */
 static void filter_step(imu_eskf_t *f)
 {
-    imu_wide_t phi[3];
-    imu_q30_t dq[4], q_prev[4], turn[4], up[3], dx[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+    imu_q30_t up[3], dx[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
     imu_q16_t acc[3], mag[3];
-    imu_rate_t gyr[3], bias[3];
     int k;
-    rotation_vector(f->increments, phi);
-    rotation_quaternion(phi, dq);
-    for (k = 0; k < 4; ++k) {
-        q_prev[k] = f->q[k];
+    { /* (block scopes: their arrays share stack with the updates') */
+        imu_wide_t phi[3];
+        imu_q30_t dq[4], q_prev[4], turn[4];
+        rotation_vector(f->increments, phi);
+        rotation_quaternion(phi, dq);
+        for (k = 0; k < 4; ++k) {
+            q_prev[k] = f->q[k];
+        }
+        imu_quat_mul(q_prev, dq, f->q);
+        imu_quat_normalize(f->q);
+        /* The error state lives in the estimate's frame, which turned by the last correction
+         * and by this step's rotation: P turns with both. (Turned by the step alone, P's
+         * unobservable heading direction lags the estimated vertical after every tilt
+         * correction, and the gravity updates then shrink the heading variance although
+         * they carry no heading information: without a magnetometer the filter became
+         * overconfident in heading. The first-order reset I - [dtheta/2 x] halves that.) */
+        imu_quat_mul(f->injected, dq, turn);
+        predict_covariance(f, turn);
+        f->turning = longer_than(phi, IMU_MUL(NEW_FIELD_MIN_RATE, f->period, 30));
     }
-    imu_quat_mul(q_prev, dq, f->q);
-    imu_quat_normalize(f->q);
-    /* The error state lives in the estimate's frame, which turned by the last correction
-     * and by this step's rotation: P turns with both. (Turned by the step alone, P's
-     * unobservable heading direction lags the estimated vertical after every tilt
-     * correction, and the gravity updates then shrink the heading variance although
-     * they carry no heading information: without a magnetometer the filter became
-     * overconfident in heading. The first-order reset I - [dtheta/2 x] halves that.) */
-    imu_quat_mul(f->injected, dq, turn);
-    predict_covariance(f, turn);
-    f->turning = longer_than(phi, IMU_MUL(NEW_FIELD_MIN_RATE, f->period, 30));
-    for (k = 0; k < 3; ++k) {
-        acc[k] = mean_of_three(f->acc_sum[k]);
-        mag[k] = mean_of_three(f->mag_sum[k]);
-        f->acc_sum[k] = 0;
-        f->mag_sum[k] = 0;
-        gyr[k] = IMU_SHL_SAT(mean_of_three(f->gyr_sum[k]), 2, &f->saturations); /* Q22 -> Q24 */
-        f->gyr_sum[k] = 0;
-        bias[k] = IMU_SHR(f->gyro_bias[k], 6);
+    {
+        imu_rate_t gyr[3], bias[3];
+        for (k = 0; k < 3; ++k) {
+            acc[k] = mean_of_three(f->acc_sum[k]);
+            mag[k] = mean_of_three(f->mag_sum[k]);
+            f->acc_sum[k] = 0;
+            f->mag_sum[k] = 0;
+            gyr[k] = IMU_SHL_SAT(mean_of_three(f->gyr_sum[k]), 2, &f->saturations); /* Q22 -> Q24 */
+            f->gyr_sum[k] = 0;
+            bias[k] = IMU_SHR(f->gyro_bias[k], 6);
+        }
+        /* Rest: still, and the specific force is gravity (not free fall). */
+        f->at_rest = imu_rest_update(&f->rest, gyr, bias, acc, &f->saturations) &&
+                     (f->clipped & (IMU_CLIPPED_GYR | IMU_CLIPPED_ACC)) == 0 && near_gravity(f, acc);
     }
-    /* Rest: still, and the specific force is gravity (not free fall). */
-    f->at_rest = imu_rest_update(&f->rest, gyr, bias, acc, &f->saturations) &&
-                 (f->clipped & (IMU_CLIPPED_GYR | IMU_CLIPPED_ACC)) == 0 && near_gravity(f, acc);
     if ((f->clipped & IMU_CLIPPED_GYR) != 0) {
         /* A clipped gyroscope lost an unknown part of the rotation (any angle): the
          * attitude restarts from gravity and the field at the first calm step. */

@@ -121,7 +121,7 @@ typedef struct {
     imu_q30_t dt;                 /**< sensor period, s, Q30 */
     imu_q30_t period;             /**< filter period T = 3 dt, s, Q30 */
     imu_q30_t inv_gravity;        /**< 1 / gravity, 1/(m/s^2), Q30 */
-    imu_wide_t process_var[9];    /**< per-step process noise: Q64 (angle), Q80 (gyro bias), Q64 (acc bias, g^2) */
+    imu_wide_t process_var[9];    /**< per-step process noise, Q64: rad^2, (rad/s)^2, g^2 */
     int initialised;              /**< 0 until the first sample set the attitude */
     int in_group;                 /**< gyro increments buffered in the current group, 0..2 */
     unsigned clipped;             /**< IMU_CLIPPED_* bits seen in the current group */

@@ -1,16 +1,20 @@
 /* Drives imu_cov.c for tests/test_cov.py: reads from stdin
- *   n, then n initial variances, then updates until EOF, each
- *   h[n] r z w has_map [block[(n + 2) / 3] v[3]]
- * (a gain map: each block of three states 0 none, 1 all, 2 along the unit vector v)
- * (real values) and prints after each update "dx" and the n x n covariance as reals.
- * Built twice, with -DIMU_FIXED and -DIMU_FLOAT. */
+ *   n, then n initial variances, then steps until EOF, each either
+ *   u h[n] r z w has_map [block[(n + 2) / 3] v[3]]
+ * a measurement update (a gain map: each block of three states 0 none, 1 all, 2 along the
+ * unit vector v), or
+ *   p count moving[count] rows[count][n] qvar[n]
+ * a time update whose transition is the identity but for the given rows,
+ * (real values) and prints after each step "dx" (zero for a time update) and the n x n
+ * covariance as reals. Built twice, with -DIMU_FIXED and -DIMU_FLOAT. */
 #include <math.h>
 #include <stdio.h>
 
 #include "imu_cov.h"
 
 #ifdef IMU_FIXED
-/* Q formats of the inputs: variances and r in Q60 (below 8), h, z, w and v in Q30. */
+/* Q formats of the inputs: variances, process noise and r in Q60 (below 8); h, z, w, v and
+ * the rows of phi in Q30. */
 #define TO_WIDE(x) ((imu_wide_t)llround((x) * 1152921504606846976.0))
 #define TO_Q30(x) ((imu_q30_t)lround((x) * 1073741824.0))
 #define FROM_Q30(x) ((double)(x) / 1073741824.0)
@@ -21,6 +25,25 @@
 #define FROM_Q30(x) (x)
 #define MANT_Q 0
 #endif
+
+static void print_step(const imu_cov_t *cov, int n, const imu_q30_t dx[])
+{
+    int i, j;
+    printf("dx");
+    for (i = 0; i < n; ++i) {
+        printf(" %.17g", FROM_Q30(dx[i]));
+    }
+    printf("\nP");
+    for (i = 0; i < n; ++i) {
+        for (j = 0; j < n; ++j) {
+            imu_real_t mant;
+            int32_t e;
+            imu_cov_get(cov, i, j, &mant, &e);
+            printf(" %.17g", (double)mant * ldexp(1.0, (int)e - MANT_Q));
+        }
+    }
+    printf("\n");
+}
 
 int main(void)
 {
@@ -44,10 +67,49 @@ int main(void)
         imu_cov_map_t map;
         double r, z, w;
         int has_map, kind;
+        char step[2];
+        if (scanf("%1s", step) != 1) {
+            printf("saturations %u\n", (unsigned)sat);
+            return 0;
+        }
+        for (i = 0; i < n; ++i) {
+            dx[i] = 0;
+        }
+        if (step[0] == 'p') {
+            imu_q30_t rows[IMU_COV_MOVING_MAX][IMU_COV_MAX];
+            int moving[IMU_COV_MOVING_MAX], count, t;
+            if (scanf("%d", &count) != 1 || count < 0 || count > IMU_COV_MOVING_MAX) {
+                return 2;
+            }
+            for (t = 0; t < count; ++t) {
+                if (scanf("%d", &moving[t]) != 1 || moving[t] < 0 || moving[t] >= n) {
+                    return 2;
+                }
+            }
+            for (t = 0; t < count; ++t) {
+                for (j = 0; j < n; ++j) {
+                    if (scanf("%lf", &v) != 1) {
+                        return 2;
+                    }
+                    rows[t][j] = TO_Q30(v);
+                }
+            }
+            for (i = 0; i < n; ++i) {
+                if (scanf("%lf", &v) != 1) {
+                    return 2;
+                }
+                var[i] = TO_WIDE(v);
+            }
+            imu_cov_predict(&cov, rows, moving, count, var, 60, &sat);
+            print_step(&cov, n, dx);
+            continue;
+        }
+        if (step[0] != 'u') {
+            return 2;
+        }
         for (i = 0; i < n; ++i) {
             if (scanf("%lf", &v) != 1) {
-                printf("saturations %u\n", (unsigned)sat);
-                return 0;
+                return 2;
             }
             h[i] = TO_Q30(v);
         }
@@ -66,24 +128,7 @@ int main(void)
             }
             map.along[i] = TO_Q30(v);
         }
-        if (!imu_cov_update(&cov, h, TO_WIDE(r), 60, TO_Q30(z), TO_Q30(w), has_map ? &map : NULL, dx, &sat)) {
-            for (i = 0; i < n; ++i) {
-                dx[i] = 0;
-            }
-        }
-        printf("dx");
-        for (i = 0; i < n; ++i) {
-            printf(" %.17g", FROM_Q30(dx[i]));
-        }
-        printf("\nP");
-        for (i = 0; i < n; ++i) {
-            for (j = 0; j < n; ++j) {
-                imu_real_t mant;
-                int32_t e;
-                imu_cov_get(&cov, i, j, &mant, &e);
-                printf(" %.17g", (double)mant * ldexp(1.0, (int)e - MANT_Q));
-            }
-        }
-        printf("\n");
+        (void)imu_cov_update(&cov, h, TO_WIDE(r), 60, TO_Q30(z), TO_Q30(w), has_map ? &map : NULL, dx, &sat);
+        print_step(&cov, n, dx);
     }
 }
