@@ -78,6 +78,9 @@ typedef int64_t imu_wide_t;  /**< products and sums of products before rounding 
 /** int32 saturation of an int64 value; increments *sat when clamping. */
 static inline int32_t imu_sat32(int64_t v, uint32_t *sat)
 {
+    if ((int32_t)(v >> 32) == ((int32_t)v >> 31)) {
+        return (int32_t)v; /* fits: the high word is the low word's sign (one compare on 32-bit cores) */
+    }
     if (v > INT32_MAX) {
         ++*sat;
         return INT32_MAX;

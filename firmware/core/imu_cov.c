@@ -43,8 +43,17 @@ static inline imu_wide_t wide_ldexp(imu_wide_t v, int n, uint32_t *sat)
     }
     if (n < 0) {
         /* imu_rshift_round64(v, -n) as ((v >> (-n - 1)) + 1) >> 1: the same integer with
-         * one variable 64-bit shift instead of two (n varies here) */
-        return n < -62 ? 0 : ((v >> (-n - 1)) + 1) >> 1;
+         * one variable 64-bit shift instead of two (n varies here); from 32 bits on, that
+         * shift is one of the high word ((x + 1) >> 1 written (x >> 1) + (x & 1), which
+         * cannot overflow) */
+        if (n < -62) {
+            return 0;
+        }
+        if (n <= -33) {
+            const int32_t x = (int32_t)(v >> 32) >> (-n - 33);
+            return (x >> 1) + (x & 1);
+        }
+        return ((v >> (-n - 1)) + 1) >> 1;
     }
     if (n > 62 || v > (WIDE_LIMIT >> n) || v < -(WIDE_LIMIT >> n)) {
         if (v == 0) {
@@ -90,8 +99,10 @@ static int diagonal_shifts(const imu_cov_t *c, imu_wide_t d[IMU_COV_MAX], signed
             ++*sat; /* rounding destroyed this variance: restart it at the smallest normalised value */
             d[i] = (int64_t)1 << 28;
         }
-        /* s = ceil((bits - 30) / 2): d * 2^(-2s) in [2^28, 2^30). */
-        {
+        /* s = ceil((bits - 30) / 2): d * 2^(-2s) in [2^28, 2^30); 0 for the usual d already there */
+        if (d[i] >= ((int64_t)1 << 28) && d[i] < ((int64_t)1 << 30)) {
+            shift[i] = 0;
+        } else {
             const int excess = imu_bit_length64((uint64_t)d[i]) - 30;
             shift[i] = (signed char)(excess >= 0 ? (excess + 1) / 2 : -((-excess) / 2));
             moved |= shift[i];
