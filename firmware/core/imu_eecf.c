@@ -55,9 +55,6 @@ const imu_setting_desc_t imu_eecf_setting_descs[] = {
 #undef DESC
 const int imu_eecf_setting_count = (int)(sizeof imu_eecf_setting_descs / sizeof imu_eecf_setting_descs[0]);
 
-/** Below this horizontal share of the unit field (Q30) the heading is not observable. */
-#define MIN_HORIZONTAL_FIELD IMU_QCONST(0.05, 30)
-
 /** | |acc| - g | beyond 32 m/s^2 (16 of the largest acc_tolerance) has weight 0 anyway:
  *  clamped there, in Q16, so that it fits Q24. */
 #define GRAVITY_DEVIATION_CLAMP IMU_QCONST(32.0, 16)
@@ -403,6 +400,67 @@ static void align_step(imu_eecf_t *f, const imu_sample_t *s)
 
 /* ---- Filtering --------------------------------------------------------------------- */
 
+/** 1 when every axis of a step (rad, Q30) is below 2^-2 rad: small enough for the
+ *  first-order prediction of imu_eecf_update. */
+static int step_is_small(const imu_q30_t theta[3])
+{
+    const imu_q30_t small = IMU_QCONST(0.25, 30);
+    return theta[0] < small && theta[0] > -small && theta[1] < small && theta[1] > -small && theta[2] < small &&
+           theta[2] > -small;
+}
+
+/**
+ * The heading error mapped to the sensor frame, e = sin(error) up, from the field m (uT,
+ * Q16, zero without a magnetometer) measured at the end of the step theta (rad, Q30,
+ * each axis below 2^-2 rad), against the attitude before the step turned by it (to first
+ * order, as for up). The field in the estimated earth frame has
+ * east share h_e and north share h_n; h_e / |h| is the sine of the heading error
+ * (eq. 29 with d = (0, |h|, h_z)), scale-free, so the field is not normalised (its Q16
+ * keeps 20 bits at 20 uT). Below 1/16 of the field in the horizontal the heading is
+ * not observable: e stays zero.
+ */
+static void heading_error(imu_eecf_t *f, const imu_q16_t mag[3], const imu_q30_t theta[3], const imu_q30_t up[3],
+                          imu_q30_t e[3])
+{
+    imu_q16_t m[3];           /* the field in the frame before the step, Q16 (or Q13, see below) */
+    imu_q30_t east[3], north[3];
+    imu_q16_t h_e, h_n, h_len; /* in m's format */
+    imu_wide_t m2;             /* |m|^2 */
+    int k;
+    /* Components below 2^28 keep |m| below 2^29 and the turned field below 2^30 (an
+     * HMC5883L reads at most 2^26 in Q16); a calibration may scale beyond: then Q13, as
+     * only the field's direction counts. */
+    const int down = (mag[0] >= (1 << 28) || mag[0] <= -(1 << 28) || mag[1] >= (1 << 28) || mag[1] <= -(1 << 28) ||
+                      mag[2] >= (1 << 28) || mag[2] <= -(1 << 28)) ? 3 : 0;
+    for (k = 0; k < 3; ++k) {
+        m[k] = down != 0 ? IMU_SHR(mag[k], 3) : mag[k];
+    }
+    {
+        const imu_q30_t back[3] = {IMU_NEG_SAT(theta[0], &f->saturations), IMU_NEG_SAT(theta[1], &f->saturations),
+                                   IMU_NEG_SAT(theta[2], &f->saturations)};
+        imu_vec3_turn_back(m, back); /* exp([theta x]) m: the field in the frame before the step */
+    }
+    m2 = IMU_WMUL(m[0], m[0]) + IMU_WMUL(m[1], m[1]) + IMU_WMUL(m[2], m[2]); /* below 3 * 2^60 */
+    if (m2 == 0) {
+        return;
+    }
+    imu_quat_matrix_row(f->q, 0, east);
+    imu_quat_matrix_row(f->q, 1, north);
+    /* Rows of R (|row| = 1, Q30) times m >> 30 -> m's format, each below |m| < 2^31. */
+    h_e = IMU_ADD(IMU_ADD(IMU_MUL(east[0], m[0], 30), IMU_MUL(east[1], m[1], 30)), IMU_MUL(east[2], m[2], 30));
+    h_n = IMU_ADD(IMU_ADD(IMU_MUL(north[0], m[0], 30), IMU_MUL(north[1], m[1], 30)), IMU_MUL(north[2], m[2], 30));
+    h_len = imu_hypot(h_e, h_n);
+    /* h_len > |m| / 16: h_len^2 > |m|^2 / 256 (a real division in both builds: a shift would be a
+     * change of Q format, which the float build leaves out) */
+    if (IMU_WMUL(h_len, h_len) > m2 / 256) {
+        /* |h_e| <= h_len: quotient within [-1, 1]. */
+        const imu_q30_t sin_err = IMU_DIV_SAT(h_e, h_len, 30, &f->saturations);
+        for (k = 0; k < 3; ++k) {
+            e[k] = IMU_MUL(sin_err, up[k], 30);
+        }
+    }
+}
+
 void imu_eecf_update(imu_eecf_t *f, const imu_sample_t *s)
 {
     imu_q30_t up[3];          /* estimated up direction in the sensor frame, Q30 */
@@ -449,15 +507,23 @@ void imu_eecf_update(imu_eecf_t *f, const imu_sample_t *s)
         kp_mag = f->settings.kp_mag;
     }
 
-    /* Propagate with the gyroscope first: sample k covers the interval ending at
-     * t_k, so the attitude then matches the accelerometer and magnetometer of the
-     * same sample. Rate (Q24) times dt (Q30) >> 24 -> rad (Q30). */
+    /* The gyroscope's step: rate (Q24) times dt (Q30) >> 24 -> rad (Q30). Sample k
+     * covers the interval ending at t_k, so the errors are measured against the
+     * attitude the step reaches: R_k = R_{k-1} exp([theta x]), to first order up_k =
+     * up - theta x up and the field in the earth frame R_k m = R_{k-1} (m + theta x m).
+     * One integration then advances by the step and the correction together. The
+     * neglected second order, theta^2 / 2 of the errors (5e-5 rad at 1 rad/s and
+     * 100 Hz), reaches the attitude scaled by the gains' kp dt. A step beyond 2^-2 rad
+     * on an axis is integrated first instead, and the errors measured after it. */
     for (k = 0; k < 3; ++k) {
         theta[k] = IMU_MUL_SAT(s->gyr[k], f->dt, 24, &f->saturations);
     }
-    imu_quat_integrate(f->q, theta);
-
+    if (!step_is_small(theta)) {
+        imu_quat_integrate(f->q, theta);
+        theta[0] = theta[1] = theta[2] = 0;
+    }
     imu_quat_matrix_row(f->q, 2, up); /* R^T e_z */
+    imu_vec3_turn_back(up, theta);    /* |up| <= 1: below 1.5 after */
     if (imu_vec3_normalize(s->acc, unit, &acc_norm)) {
         /* | |acc| - g |, Q16, clamped to 32 m/s^2 (< 2^22), then Q24 (< 2^30). */
         imu_q16_t deviation = IMU_SUB_SAT(acc_norm, f->gravity, &f->saturations);
@@ -470,20 +536,7 @@ void imu_eecf_update(imu_eecf_t *f, const imu_sample_t *s)
         acc_weight = imu_deviation_weight(IMU_SHL_SAT(deviation, 8, &f->saturations), f->settings.acc_tolerance,
                                           &f->saturations);
     }
-    if (imu_vec3_normalize(s->mag, unit, 0)) {
-        /* Field in the estimated earth frame; its east share over its horizontal
-         * length is the sine of the heading error (eq. 29 with d = (0, |h|, h_z)). */
-        imu_q30_t earth[3], h_len;
-        imu_quat_rotate(f->q, unit, earth);
-        h_len = imu_hypot(earth[0], earth[1]);
-        if (h_len > MIN_HORIZONTAL_FIELD) {
-            /* |h_east| <= h_len: quotient within [-1, 1]. */
-            const imu_q30_t sin_err = IMU_DIV_SAT(earth[0], h_len, 30, &f->saturations);
-            for (k = 0; k < 3; ++k) {
-                e_mag[k] = IMU_MUL(sin_err, up[k], 30);
-            }
-        }
-    }
+    heading_error(f, s->mag, theta, up, e_mag);
 
     for (k = 0; k < 3; ++k) {
         /* Integral, Q54: the errors weighted by the accelerometer's agreement with
@@ -499,8 +552,8 @@ void imu_eecf_update(imu_eecf_t *f, const imu_sample_t *s)
         rate = IMU_ADD_SAT(rate, IMU_MUL_SAT(kp_mag, e_mag[k], 22, &f->saturations), &f->saturations);
         /* I (Q54, |I| <= 2^54) >> 30 -> Q24, at most 2^24: it fits int32. */
         rate = IMU_ADD_SAT(rate, IMU_NARROW(IMU_WSHR(f->integral[k], 30)), &f->saturations);
-        /* rad/s Q24 * s Q30 >> 24 -> rad Q30 (below 2 for |rate| dt < 2). */
-        theta[k] = IMU_MUL_SAT(rate, f->dt, 24, &f->saturations);
+        /* rad/s Q24 * s Q30 >> 24 -> rad Q30 (below 2 for |rate| dt < 2), after the gyro's step. */
+        theta[k] = IMU_ADD_SAT(theta[k], IMU_MUL_SAT(rate, f->dt, 24, &f->saturations), &f->saturations);
     }
     imu_quat_integrate(f->q, theta);
 }

@@ -876,18 +876,6 @@ static void filter_step(imu_eskf_t *f)
     }
 }
 
-/** v <- v - theta x v: a sensor-frame vector (Q16, below 2^29) seen from the frame turned by
- *  theta (Q30 rad, at most 1 rad): the result stays below 2^30. */
-static void rotate_back(imu_q16_t v[3], const imu_q30_t theta[3])
-{
-    const imu_q16_t c0 = IMU_SUB(IMU_MUL(theta[1], v[2], 30), IMU_MUL(theta[2], v[1], 30));
-    const imu_q16_t c1 = IMU_SUB(IMU_MUL(theta[2], v[0], 30), IMU_MUL(theta[0], v[2], 30));
-    const imu_q16_t c2 = IMU_SUB(IMU_MUL(theta[0], v[1], 30), IMU_MUL(theta[1], v[0], 30));
-    v[0] = IMU_SUB(v[0], c0);
-    v[1] = IMU_SUB(v[1], c1);
-    v[2] = IMU_SUB(v[2], c2);
-}
-
 /** A specific force or field clamped to +-INPUT_LIMIT; `bit` is set in *clipped when it was beyond. */
 static void clamp_input(const imu_q16_t in[3], imu_q16_t out[3], unsigned bit, unsigned *clipped)
 {
@@ -941,8 +929,8 @@ void imu_eskf_update(imu_eskf_t *f, const imu_sample_t *s)
     /* The group's sums are kept in the frame of the latest sample: rotate them by
      * this sample's increment (v <- v - theta x v) before adding the new values, so
      * the measurement matches the attitude at the end of the group. */
-    rotate_back(f->acc_sum, theta);
-    rotate_back(f->mag_sum, theta);
+    imu_vec3_turn_back(f->acc_sum, theta); /* Q16, below 2^29; theta at most 1 rad */
+    imu_vec3_turn_back(f->mag_sum, theta);
     for (k = 0; k < 3; ++k) {
         f->acc_sum[k] = IMU_ADD_SAT(f->acc_sum[k], acc[k], &f->saturations);
         f->mag_sum[k] = IMU_ADD_SAT(f->mag_sum[k], mag[k], &f->saturations);

@@ -84,14 +84,73 @@ static void predict(imu_kf1d_t *f, imu_kf1d_axis_t *a, imu_angle_t predicted, im
     a->p11 = IMU_ADD_SAT(a->p11, bias_noise, sat);
 }
 
+/** A Kalman gain num / s as a mantissa and an exponent, num / s = mant 2^-exp: computed
+ *  once per measurement and multiplied into each quantity it corrects (one 32 x 32-bit
+ *  product and a rounding shift each instead of a 64-by-32-bit division). It keeps 30
+ *  significant bits whatever its size: the bias gain rounded to a fixed Q30 would keep
+ *  some 15 at 1 kHz, and its truncation would bias the estimate against the float
+ *  build's. Float build: mant = num / s, exp = 0. */
+typedef struct {
+    imu_real_t mant; /* |mant| in [2^29, 2^31), or 0 */
+    int exp;         /* 29 ... 61 here: num below 2^31, s at least 1 */
+} gain_t;
+
+#ifdef IMU_FIXED
+
+/** num / s for s > 0 (any int32 num): |num| 2^za in [2^31, 2^32) and s 2^zs likewise, so
+ *  the quotient of |num| 2^(za + 30) by s 2^zs, rounded, lies in [2^29, 2^31): one
+ *  64-by-32-bit division. */
+static gain_t gain(imu_real_t num, imu_real_t s)
+{
+    gain_t g = {0, 0};
+    if (num != 0) {
+        const uint32_t a = num < 0 ? (uint32_t)(-(int64_t)num) : (uint32_t)num;
+        const int za = imu_clz32(a);
+        const int zs = imu_clz32((uint32_t)s);
+        const uint32_t sn = (uint32_t)s << zs;
+        /* below (2^32 - 1) 2^30 + 2^31: the quotient stays below 2^31 */
+        const uint32_t q = imu_udiv64_32(((uint64_t)(a << za) << 30) + (sn >> 1), sn);
+        g.mant = num < 0 ? -(imu_real_t)q : (imu_real_t)q;
+        g.exp = 30 + za - zs;
+    }
+    return g;
+}
+
+/** x g 2^-extra, rounded and saturated (|x g.mant| < 2^62; the shift is at least -1). */
+static imu_real_t times(imu_real_t x, gain_t g, int extra, uint32_t *sat)
+{
+    const imu_wide_t v = IMU_WMUL(x, g.mant);
+    const int shift = g.exp + extra;
+    if (shift > 62) {
+        return 0; /* below one half */
+    }
+    return IMU_WIDE_SAT(shift > 0 ? imu_rshift_round64(v, shift) : v * ((int64_t)1 << -shift), sat);
+}
+
+#else /* IMU_FLOAT */
+
+static gain_t gain(imu_real_t num, imu_real_t s)
+{
+    gain_t g;
+    g.mant = num / s;
+    g.exp = 0;
+    return g;
+}
+
+static imu_real_t times(imu_real_t x, gain_t g, int extra, uint32_t *sat)
+{
+    (void)extra; /* a change of Q format */
+    (void)sat;
+    return x * g.mant;
+}
+
+#endif
+
 /**
  * Measurement update of one axis with a measured angle (Q29) of variance r / w
  * (r: rad^2 Q35; w: weight in [0, 1], Q30). The weight enters as
  * K = w P H^T / (w P00 + r), which equals the update with variance r / w without
  * ever forming r / w (no overflow as w goes to 0, where the update fades out).
- * Each use of the gain K = w P H^T / s is one rounded product-quotient: a bias gain
- * rounded to Q30 first would keep only some 15 significant bits at 1 kHz, and its
- * truncation would bias the estimate against the float build's.
  */
 static void correct(imu_kf1d_t *f, imu_kf1d_axis_t *a, imu_angle_t measured, imu_real_t r, imu_q30_t w)
 {
@@ -99,14 +158,15 @@ static void correct(imu_kf1d_t *f, imu_kf1d_axis_t *a, imu_angle_t measured, imu
     const imu_real_t wp00 = IMU_MUL(w, a->p00, 30);                 /* rad^2, Q35 */
     const imu_real_t wp01 = IMU_MUL(w, a->p01, 30);                 /* rad^2/s, Q40 */
     const imu_real_t s = IMU_ADD_SAT(wp00, r, sat);                 /* rad^2, Q35, > 0 */
+    const gain_t k_angle = gain(wp00, s);                           /* Q35 / Q35: dimensionless */
+    const gain_t k_bias = gain(wp01, s);                            /* Q40 / Q35: 1/s, 2^5 */
     const imu_angle_t innovation = imu_angle_diff(measured, a->angle);
-    const imu_real_t p00 = a->p00;
     const imu_real_t p01 = a->p01;
-    a->angle = imu_angle_add(a->angle, IMU_MULDIV_SAT(wp00, innovation, s, 0, sat)); /* Q35*Q29/Q35 -> Q29 */
-    a->bias = IMU_ADD_SAT(a->bias, IMU_MULDIV_SAT(wp01, innovation, s, 4, sat), sat); /* Q40*Q29/Q35/2^4 -> Q30 */
-    a->p00 = IMU_SUB_SAT(p00, IMU_MULDIV_SAT(wp00, p00, s, 0, sat), sat);            /* Q35*Q35/Q35 -> Q35 */
-    a->p01 = IMU_SUB_SAT(p01, IMU_MULDIV_SAT(wp00, p01, s, 0, sat), sat);            /* Q35*Q40/Q35 -> Q40 */
-    a->p11 = IMU_SUB_SAT(a->p11, IMU_MULDIV_SAT(wp01, p01, s, 3, sat), sat);         /* Q40*Q40/Q35/2^3 -> Q42 */
+    a->angle = imu_angle_add(a->angle, times(innovation, k_angle, 0, sat));         /* Q29 */
+    a->bias = IMU_ADD_SAT(a->bias, times(innovation, k_bias, 4, sat), sat);         /* Q29 * 2^5 / 2^4 -> Q30 */
+    a->p00 = IMU_SUB_SAT(a->p00, times(a->p00, k_angle, 0, sat), sat);              /* Q35 */
+    a->p01 = IMU_SUB_SAT(p01, times(p01, k_angle, 0, sat), sat);                    /* Q40 */
+    a->p11 = IMU_SUB_SAT(a->p11, times(p01, k_bias, 3, sat), sat);                  /* Q40 * 2^5 / 2^3 -> Q42 */
 }
 
 /**

@@ -547,6 +547,16 @@ void imu_vec3_cross(const imu_q30_t a[3], const imu_q30_t b[3], imu_q30_t out[3]
     out[2] = IMU_SUB(IMU_MUL(a[0], b[1], 30), IMU_MUL(a[1], b[0], 30));
 }
 
+void imu_vec3_turn_back(imu_real_t v[3], const imu_q30_t theta[3])
+{
+    const imu_real_t c0 = IMU_SUB(IMU_MUL(theta[1], v[2], 30), IMU_MUL(theta[2], v[1], 30));
+    const imu_real_t c1 = IMU_SUB(IMU_MUL(theta[2], v[0], 30), IMU_MUL(theta[0], v[2], 30));
+    const imu_real_t c2 = IMU_SUB(IMU_MUL(theta[0], v[1], 30), IMU_MUL(theta[1], v[0], 30));
+    v[0] = IMU_SUB(v[0], c0);
+    v[1] = IMU_SUB(v[1], c1);
+    v[2] = IMU_SUB(v[2], c2);
+}
+
 void imu_quat_mul(const imu_q30_t a[4], const imu_q30_t b[4], imu_q30_t out[4])
 {
     /* Each output component is bounded by |a||b| (near 1), but partial sums of the

@@ -35,6 +35,14 @@ imu_real_t imu_hypot(imu_real_t a, imu_real_t b);
 /** @brief out = a x b for Q30 vectors of magnitude <= 1 (result Q30). */
 void imu_vec3_cross(const imu_q30_t a[3], const imu_q30_t b[3], imu_q30_t out[3]);
 
+/**
+ * @brief v <- v - theta x v: a vector fixed in the earth frame, seen from the sensor frame
+ *        after it turned by the small rotation theta (first order).
+ * @param v      any Q format, |v| (1 + |theta|) below 2^31 in it (the result fits int32)
+ * @param theta  rotation vector, rad, Q30, |theta| at most 1
+ */
+void imu_vec3_turn_back(imu_real_t v[3], const imu_q30_t theta[3]);
+
 /** @brief Normalise a quaternion in place (components Q30, magnitude near 1, at most 2). */
 void imu_quat_normalize(imu_q30_t q[4]);
 

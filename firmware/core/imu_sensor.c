@@ -42,7 +42,8 @@ static void correct(const imu_sensor_cal_t *c, const int16_t raw[3], imu_real_t 
     imu_real_t d[3];
     int i;
     for (i = 0; i < 3; ++i) {
-        d[i] = IMU_SUB_SAT(IMU_FROM_INT_SAT(raw[i], IMU_CAL_OFFSET_Q, sat), c->offset[i], sat);
+        /* |raw 2^8| <= 2^23 and |offset| <= 2^24 (imu_calibration_check): no saturation */
+        d[i] = IMU_SUB(IMU_FROM_INT_SAT(raw[i], IMU_CAL_OFFSET_Q, sat), c->offset[i]);
     }
     for (i = 0; i < 3; ++i) {
         const imu_wide_t sum = IMU_WMUL(c->matrix[3 * i], d[0]) + IMU_WMUL(c->matrix[3 * i + 1], d[1]) +
