@@ -214,21 +214,6 @@ static inline int32_t imu_div_sat(int32_t a, int32_t b, int s, uint32_t *sat)
     return imu_sat32((num < 0) != (b < 0) ? -q : q, sat);
 }
 
-/** a * b / (c * 2^s), rounded to nearest (ties away from zero) and saturated, the
- *  product kept whole: one rounding where a quotient first rounded to a Q format
- *  and then multiplied would carry its relative error into every use.
- *  c > 0 and s in [0, 31] required (callers check). */
-static inline int32_t imu_muldiv_sat(int32_t a, int32_t b, int32_t c, int s, uint32_t *sat)
-{
-    const int64_t num = (int64_t)a * b;                /* |num| <= 2^62 */
-    const int64_t den = (int64_t)c * ((int64_t)1 << s); /* 0 < den < 2^62 */
-    const int64_t half = den / 2;
-    /* (|num| + half) / (c 2^s) = ((|num| + half) >> s) / c in whole numbers (floor of a
-     * floor), one 64-by-32-bit division; negative num rounds the magnitude the same way. */
-    const int64_t q = imu_udiv_or_big((imu_abs64(num) + (uint64_t)half) >> s, (uint32_t)c);
-    return imu_sat32(num < 0 ? -q : q, sat);
-}
-
 /** (v + *residual) >> s, rounded and saturated, with the rounding error left in
  *  *residual for the next call (error feedback): a value added every sample then
  *  sums exactly, where rounding it alone would add the same error every time a
@@ -249,7 +234,6 @@ static inline int32_t imu_wshr_feedback_sat(int64_t v, int s, int64_t *residual,
 #define IMU_MUL_SAT(a, b, s, sat) imu_mul_sat((a), (b), (s), (sat))
 #define IMU_DIV_SAT(a, b, s, sat) imu_div_sat((a), (b), (s), (sat))
 #define IMU_WSHR_FEEDBACK_SAT(v, s, residual, sat) imu_wshr_feedback_sat((v), (s), (residual), (sat))
-#define IMU_MULDIV_SAT(a, b, c, s, sat) imu_muldiv_sat((a), (b), (c), (s), (sat))
 #define IMU_ADD_SAT(a, b, sat) imu_sat32((int64_t)(a) + (b), (sat))
 #define IMU_SUB_SAT(a, b, sat) imu_sat32((int64_t)(a) - (b), (sat))
 #define IMU_NEG_SAT(a, sat) imu_sat32(-(int64_t)(a), (sat))
@@ -329,7 +313,6 @@ typedef double imu_wide_t;
 #define IMU_MUL(a, b, s) ((a) * (b))
 #define IMU_MUL_SAT(a, b, s, sat) ((void)(sat), (a) * (b))
 #define IMU_DIV_SAT(a, b, s, sat) ((void)(sat), (a) / (b))
-#define IMU_MULDIV_SAT(a, b, c, s, sat) ((void)(sat), (a) * (b) / (c))
 #define IMU_WSHR_FEEDBACK_SAT(v, s, residual, sat) ((void)(residual), (void)(sat), (v))
 #define IMU_ADD(a, b) ((a) + (b))
 #define IMU_SUB(a, b) ((a) - (b))

@@ -22,10 +22,11 @@
  * |I| <= bias_limit per axis; -I is the gyro bias estimate. The weight
  * w_a = 1 / (1 + (| |a| - g | / acc_tolerance)^2)^2 keeps linear accelerations out
  * of the integral (g: |a| at the last rest, standard gravity before). The
- * quaternion is advanced with the exact exponential of the rotation vector w' dt,
- * in two steps: first the gyroscope (sample k covers the interval ending at t_k),
- * then the errors are measured against the accelerometer and magnetometer of the
- * same sample and the correction is applied.
+ * errors are measured against the accelerometer and magnetometer of the same
+ * sample (sample k covers the interval ending at t_k): against the attitude the
+ * gyroscope's step reaches, predicted to first order in the step (a step beyond
+ * 2^-2 rad on an axis is integrated first). The quaternion is then advanced once,
+ * with the exact exponential of the rotation vector w' dt.
  *
  * Rest detection (the idea of VQF, Laidig and Seel 2023; own formulation). A run is
  * a stretch of samples in which each gyroscope sample deviates from the run's mean

@@ -1,6 +1,5 @@
 /* Drives the integer divisions of imu_arith.h for tests/test_arith.py: reads lines
  *   d a b s        -> IMU_DIV_SAT(a, b, s)
- *   m a b c s      -> IMU_MULDIV_SAT(a, b, c, s)
  *   u hi lo v      -> imu_udiv64_32(hi 2^32 + lo, v)
  * from stdin and prints each result and the saturation count. Fixed build only. */
 #include <stdio.h>
@@ -15,9 +14,6 @@ int main(void)
         uint32_t sat = 0;
         if (op == 'd' && scanf("%lld %lld %lld", &a, &b, &s) == 3) {
             const int32_t q = IMU_DIV_SAT((int32_t)a, (int32_t)b, (int)s, &sat);
-            printf("%ld %lu\n", (long)q, (unsigned long)sat);
-        } else if (op == 'm' && scanf("%lld %lld %lld %lld", &a, &b, &c, &s) == 4) {
-            const int32_t q = IMU_MULDIV_SAT((int32_t)a, (int32_t)b, (int32_t)c, (int)s, &sat);
             printf("%ld %lu\n", (long)q, (unsigned long)sat);
         } else if (op == 'u' && scanf("%lld %lld %lld", &a, &b, &c) == 3) {
             const uint64_t u = ((uint64_t)a << 32) | (uint64_t)b;
