@@ -229,3 +229,20 @@ def test_codec_frames_match_python_codec(build, data):
     assert codec.encode_per_sample.mean <= ENCODE_CEILING, (
         f"SAMPLE + ESTIMATE encoding takes {codec.encode_per_sample.mean:.0f} instructions per sample on average, "
         f"over the ceiling {ENCODE_CEILING} (see the comment on ENCODE_CEILING)")
+
+
+#: Ceiling on the mean instructions of imu_nav_propagate (the navigation's strapdown step,
+#: tools/bench_nav.py): measured at 1 513 over 60 s of the car drive, plus about 10 %.
+NAV_STEP_CEILING = 1_650
+
+
+def test_nav_step_matches_host_and_stays_under_ceiling(tmp_path):
+    spec = importlib.util.spec_from_file_location("bench_nav", ROOT / "tools" / "bench_nav.py")
+    bench_nav = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench_nav)
+    result = bench_nav.run(3.0, tmp_path)  # raises at the first sample the ARM build differs from x86's
+    assert result["samples"] == 299
+    assert result["instructions_mean"] <= NAV_STEP_CEILING, (
+        f"imu_nav_propagate takes {result['instructions_mean']:.0f} instructions per step on average, over the "
+        f"ceiling {NAV_STEP_CEILING} (see the comment on NAV_STEP_CEILING)")
+    assert 0 < result["stack_bytes"] < 512

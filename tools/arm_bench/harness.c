@@ -9,6 +9,7 @@
  * measured, and bench_halt, the return address at which every call stops.
  */
 #include "imu_filter.h"
+#include "imu_nav.h"
 #include "imu_proto.h"
 
 /* Filter under test and its inputs and outputs. The tool writes the settings
@@ -35,6 +36,16 @@ struct bench_state {
     int32_t weights[2];       /* ESKF gravity and heading measurement weights, Q30 (zeros otherwise) */
 };
 struct bench_state bench_state;
+
+/* Navigation under test (tools/bench_nav.py): its start values, one sample's inputs and
+ * what the tool reads back after each sample (east, north, up mm; velocity Q20; quaternion Q30). */
+imu_nav_t bench_nav;
+imu_nav_origin_t bench_nav_origin;
+imu_q30_t bench_nav_quat[4];
+imu_real_t bench_nav_vel[3];
+imu_rate_t bench_nav_gyr[3];
+imu_q16_t bench_nav_acc[3];
+int32_t bench_nav_out[11]; /* pos[3], vel[3], q[4], saturations */
 
 /* Codec buffers. */
 imu_proto_sample_t bench_sample_msg;
@@ -131,6 +142,26 @@ void bench_fill_messages(uint32_t index, uint32_t timestamp_us, int32_t temperat
     bench_estimate_msg.weights[1] = bench_state.weights[1];
 }
 
+/** imu_nav_start on the bench_nav_* start values; returns its status. */
+int bench_nav_start(int32_t rate_q16)
+{
+    return imu_nav_start(&bench_nav, &bench_nav_origin, rate_q16, bench_nav_quat, bench_nav_vel);
+}
+
+/** Fill bench_nav_out from bench_nav. */
+void bench_nav_read(void)
+{
+    int k;
+    for (k = 0; k < 3; ++k) {
+        bench_nav_out[k] = bench_nav.pos[k];
+        bench_nav_out[3 + k] = bench_nav.vel[k];
+    }
+    for (k = 0; k < 4; ++k) {
+        bench_nav_out[6 + k] = bench_nav.q[k];
+    }
+    bench_nav_out[10] = (int32_t)bench_nav.saturations;
+}
+
 /** Start a decoder on bench_decoder_buf. */
 void bench_decoder_init(void)
 {
@@ -151,6 +182,9 @@ __attribute__((section(".bench_exports"), used)) const void *const bench_exports
     (const void *)imu_proto_sample_encode,
     (const void *)imu_proto_estimate_encode,
     (const void *)imu_proto_decoder_push,
+    (const void *)bench_nav_start,
+    (const void *)bench_nav_read,
+    (const void *)imu_nav_propagate,
     &bench_sizes,
     &bench_filter,
     &bench_sensor,
@@ -163,4 +197,11 @@ __attribute__((section(".bench_exports"), used)) const void *const bench_exports
     bench_wire,
     &bench_decoder,
     &bench_frame,
+    &bench_nav,
+    &bench_nav_origin,
+    bench_nav_quat,
+    bench_nav_vel,
+    bench_nav_gyr,
+    bench_nav_acc,
+    bench_nav_out,
 };
