@@ -81,6 +81,13 @@ def run_driver(exe, variances, updates):
     return results
 
 
+def assert_covariance_close(p, p_ref, atol, build):
+    """P against the reference in units of the reference's standard deviations (variances
+    over eight decades compare on one scale)."""
+    scale = np.sqrt(np.outer(np.diag(p_ref), np.diag(p_ref)))
+    np.testing.assert_allclose(p / scale, p_ref / scale, rtol=0, atol=atol, err_msg=build)
+
+
 def reference(p0, updates):
     """numpy: K = P h / (h P h + r / w); the correction G K z and P in Joseph's form for G K."""
     p = np.diag(p0).astype(float)
@@ -129,8 +136,7 @@ def test_gain_mapped_update_is_josephs_form(drivers, seed):
         got = run_driver(drivers[build], p0, updates)
         assert len(got) == len(updates)
         for (dx, p), (dx_ref, p_ref) in zip(got, expected):
-            scale = np.sqrt(np.outer(np.diag(p_ref), np.diag(p_ref)))
-            np.testing.assert_allclose(p / scale, p_ref / scale, rtol=0, atol=rtol * 10, err_msg=build)
+            assert_covariance_close(p, p_ref, rtol * 10, build)
             np.testing.assert_allclose(dx, dx_ref, rtol=rtol * 10, atol=1e-9 if build == "fixed" else 1e-15,
                                        err_msg=build)
 
@@ -163,8 +169,7 @@ def test_every_kind_of_block_in_one_map_is_josephs_form(drivers):
     expected = reference(p0, updates)
     for build, rtol in (("float", 1e-12), ("fixed", 2e-6)):
         for (dx, p), (dx_ref, p_ref) in zip(run_driver(drivers[build], p0, updates), expected):
-            scale = np.sqrt(np.outer(np.diag(p_ref), np.diag(p_ref)))
-            np.testing.assert_allclose(p / scale, p_ref / scale, rtol=0, atol=rtol * 10, err_msg=build)
+            assert_covariance_close(p, p_ref, rtol * 10, build)
             np.testing.assert_allclose(dx, dx_ref, rtol=rtol * 10, atol=1e-9 if build == "fixed" else 1e-15,
                                        err_msg=build)
 
@@ -199,6 +204,5 @@ def test_time_update_moves_only_the_given_rows(drivers, seed):
         got = run_driver(drivers[build], p0, steps)
         assert len(got) == len(steps)
         for (dx, p), (dx_ref, p_ref) in zip(got, expected):
-            scale = np.sqrt(np.outer(np.diag(p_ref), np.diag(p_ref)))
-            np.testing.assert_allclose(p / scale, p_ref / scale, rtol=0, atol=tol * 10, err_msg=build)
+            assert_covariance_close(p, p_ref, tol * 10, build)
             np.testing.assert_array_equal(p, p.T)

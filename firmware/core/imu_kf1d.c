@@ -92,7 +92,7 @@ static void predict(imu_kf1d_t *f, imu_kf1d_axis_t *a, imu_angle_t predicted, im
  *  build's. Float build: mant = num / s, exp = 0. */
 typedef struct {
     imu_real_t mant; /* |mant| in [2^29, 2^31), or 0 */
-    int exp;         /* 29 ... 61 here: num below 2^31, s at least 1 */
+    int exp;         /* -1 ... 61: |num| at most 2^31, s at least 1 */
 } gain_t;
 
 #ifdef IMU_FIXED
