@@ -20,10 +20,12 @@ import numpy as np
 import pytest
 
 from imulink import __version__, core, protocol, sim
-from imulink.emulator import EmulatedBoard, find_image
+from imulink.chips import ms5611
+from imulink.emulator import BARO_HEIGHT_M, BARO_TEMPERATURE_CDEG, EmulatedBoard, find_image
 from imulink.link import Link
 from imulink.proxy import FaultConfig, FaultInjector
 from imulink.reference import FirmwareFilter
+from imulink.sim import navigation
 
 ROOT = Path(__file__).resolve().parents[1]
 BOARD_NAMES = {"native": "native", "qemu": "qemu-stm32f405"}
@@ -146,6 +148,25 @@ def test_stream_is_the_fixed_point_core_sample_by_sample(board, link, filter_nam
         assert as_lists(estimate) == reference.step(k, *(c[k].tolist() for c in counts)), f"sample {k}"
     statuses = [m.fields for m in messages if m.name == "STATUS"]
     assert len(statuses) >= n // 100 - 1 and all(s["streaming"] for s in statuses)  # once per second of samples
+
+
+def test_barometer_measurements_come_with_their_samples(board, link):
+    """The emulated GY-86's MS5611: a BARO frame every 20 ms (every second sample at 100 Hz)
+    right after the SAMPLE it was read with, the feed's D1 and D2 compensated by the board's
+    driver (ms5611.c) exactly as the data sheet's integer algorithm on the host gives them:
+    the ISA pressure at 450 m and 25 degC that the feed encoded, to the data sheet's
+    resolution."""
+    frames = [m for m in stream(link, 100) if m.name in ("SAMPLE", "BARO")]
+    baro = [m.fields for m in frames if m.name == "BARO"]
+    assert len(baro) >= 45
+    for before, m in zip(frames, frames[1:]):
+        if m.name == "BARO":
+            assert before.name == "SAMPLE" and before.fields["index"] == m.fields["index"]
+    for b in baro:
+        assert (b["pressure_pa"], b["temperature_cdeg"]) == ms5611.compensate(ms5611.EXAMPLE_C, b["d1"], b["d2"])
+        assert abs(b["pressure_pa"] - navigation.pressure_at(BARO_HEIGHT_M)) <= 1.0
+        assert abs(b["temperature_cdeg"] - BARO_TEMPERATURE_CDEG) <= 1
+    assert [b["index"] for b in baro] == list(range(baro[0]["index"], baro[-1]["index"] + 1, 2))
 
 
 def test_status_counts_the_work(link):

@@ -2,24 +2,43 @@
 of recorded samples, and the errors a user meets (a missing or wrong image, a bad option)."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
 from imulink import protocol, sim
+from imulink.chips import ms5611
 from imulink.cli import main
 from imulink.counts import BROAD_PROFILE, SensorProfile
-from imulink.emulator import EmulatedBoard, EmulatorError, feed_frames, find_image
+from imulink.emulator import (BARO_HEIGHT_M, BARO_TEMPERATURE_CDEG, EmulatedBoard, EmulatorError, baro_due, feed_frames,
+                              find_image)
+from imulink.sim import navigation
 
 
-def test_feed_is_one_sample_frame_per_sample_and_a_closing_log():
+def test_feed_is_a_sample_per_request_with_the_barometer_every_20_ms_and_a_closing_log():
     run = sim.make_scenario("turntable", 0.5, 100.0, seed=1)
-    frames = feed_frames(run)
-    messages = [protocol.decode(f) for f in frames]
-    assert [m.name for m in messages] == ["SAMPLE"] * 50 + ["LOG"]
-    np.testing.assert_array_equal([m.fields["gyr"] for m in messages[:-1]], run.gyr_counts)
-    assert messages[-1].fields["text"] == "end of the simulated run (50 samples)"
-    broad = [protocol.decode(f) for f in feed_frames(run, BROAD_PROFILE)]
+    requests = [list(protocol.FrameDecoder().feed(f)) for f in feed_frames(run)]
+    assert [[m.name for m in r] for r in requests] == \
+        [["BARO", "SAMPLE"] if k % 2 == 0 else ["SAMPLE"] for k in range(50)] + [["LOG"]]
+    samples = [r[-1] for r in requests[:-1]]
+    np.testing.assert_array_equal([m.fields["gyr"] for m in samples], run.gyr_counts)
+    assert requests[-1][0].fields["text"] == "end of the simulated run (50 samples)"
+    for k, r in enumerate(requests[:-1:2]):
+        baro = r[0].fields
+        pressure, temperature = ms5611.compensate(ms5611.EXAMPLE_C, baro["d1"], baro["d2"])
+        assert baro["index"] == 2 * k and abs(pressure - navigation.pressure_at(BARO_HEIGHT_M)) <= 1.0
+        assert temperature == BARO_TEMPERATURE_CDEG
+    broad = [list(protocol.FrameDecoder().feed(f))[-1] for f in feed_frames(run, BROAD_PROFILE)]
     np.testing.assert_allclose(np.array([m.fields["acc"] for m in broad[:-1]]) * 2, run.acc_counts, atol=1)
+
+
+def test_barometer_is_due_every_20_ms_at_any_rate():
+    assert baro_due(6, 100.0).tolist() == [True, False, True, False, True, False]
+    assert baro_due(3, 30.0).all()  # 33 ms apart: every sample
+    assert np.flatnonzero(baro_due(100, 1000.0)).tolist() == [0, 20, 40, 60, 80]
+    # the first sample at or after each 20 ms: sample k is at k / 285.714 s
+    assert np.flatnonzero(baro_due(40, 285.714)).tolist() == [math.ceil(m * 0.02 * 285.714) for m in range(7)]
 
 
 def test_images_are_found_and_checked(tmp_path):

@@ -28,6 +28,7 @@ from scipy.io import savemat
 
 from imulink import core, hil, protocol, sim
 from imulink.analysis import attitude_errors, rmse
+from imulink.chips import ms5611
 from imulink.cli import main
 from imulink.counts import BROAD_PROFILE, DEFAULT_PROFILE, counts_to_si
 from imulink.emulator import EmulatedBoard
@@ -94,6 +95,27 @@ def test_eskf_covariance_and_measurement_weights_are_verified_too(tmp_path):
     assert comparison.bit_exact and comparison.verified_count == 1000
     assert "weights" in recording.estimates.COMPARED
     np.testing.assert_array_equal(hil.host_run(recording).fixed["weights"], weights)
+
+
+def test_barometer_is_recorded_and_replayed_with_its_samples(tmp_path, capsys):
+    """The emulated GY-86's BARO frames travel in the recording (Recording.baro, with the
+    index of the sample read with each) and come out of replay's CSV in those samples' rows,
+    under `imulink nav`'s input names; the other rows are empty."""
+    path, csv_path = tmp_path / "baro.imulog", tmp_path / "baro.csv"
+    with EmulatedBoard(front="tcp", duration_s=2.0) as board:
+        hil.record(board.address, path)
+    recording = load_recording(path)
+    baro = recording.baro
+    assert len(baro) == 100 and baro.index.tolist() == list(range(0, 200, 2))
+    assert (baro.pressure_pa == ms5611.compensate(ms5611.EXAMPLE_C, int(baro.d1[0]), int(baro.d2[0]))[0]).all()
+    code, _, _ = run_cli(capsys, "replay", path, "--csv", csv_path)
+    with open(csv_path) as f:
+        rows = list(csv.DictReader(f))
+    assert code == 0 and len(rows) == 200
+    for row in rows:
+        measured = int(row["index"]) % 2 == 0
+        assert (row["baro_pa"] != "") == measured and (row["baro_temp_c"] != "") == measured
+    assert float(rows[0]["baro_pa"]) == baro.pressure_pa[0] and float(rows[0]["baro_temp_c"]) == 25.0
 
 
 def test_record_refuses_a_board_that_states_another_profile_and_writes_nothing(tmp_path):

@@ -32,7 +32,7 @@ from pathlib import Path
 import pytest
 
 from imulink import core, protocol
-from imulink.chips import HMC5883L, MPU6050, STATUS_CODES, I2CBus, RegisterDevice
+from imulink.chips import HMC5883L, MPU6050, MS5611, STATUS_CODES, I2CBus, RegisterDevice
 from imulink.counts import DEFAULT_PROFILE
 from imulink.hil import load_injection_input
 from imulink.link import Link, LinkError
@@ -291,6 +291,7 @@ def test_enter_bootloader_resets_into_the_system_memory(board, link):
 HARNESS_C = r"""
 #include "gy86.h"
 #include "i2c_stm32f4.h"
+#include "ms5611.h"
 
 i2c_stm32f4_t h_dev;
 i2c_bus_t h_bus;
@@ -301,6 +302,9 @@ int16_t h_temperature;
 uint8_t h_out[32];
 uint8_t h_in[32];
 int32_t h_result;
+ms5611_t h_baro;
+ms5611_reading_t h_reading;
+int h_ready;
 
 void h_halt(void);
 void h_init(uint32_t pclk1_hz, uint32_t cpu_hz);
@@ -309,6 +313,8 @@ void h_write_read(uint32_t address, uint32_t write_len, uint32_t read_len);
 void h_delay_ms(uint32_t ms);
 void h_gy86_init(void);
 void h_gy86_read(void);
+void h_ms5611_init(void);
+void h_ms5611_poll(uint32_t now_us);
 
 void h_halt(void) { for (;;) { } }
 void h_init(uint32_t pclk1_hz, uint32_t cpu_hz)
@@ -323,6 +329,16 @@ void h_write_read(uint32_t address, uint32_t write_len, uint32_t read_len)
 void h_delay_ms(uint32_t ms) { h_bus.delay_ms(h_bus.context, ms); }
 void h_gy86_init(void) { h_status = gy86_init(&h_gy86, &h_bus, &gy86_default_config); h_result = h_status.result; }
 void h_gy86_read(void) { h_status = gy86_read(&h_gy86, &h_raw, &h_temperature); h_result = h_status.result; }
+void h_ms5611_init(void)
+{
+    h_status = ms5611_init(&h_baro, &h_bus, MS5611_ADDRESS, MS5611_OSR_4096);
+    h_result = h_status.result;
+}
+void h_ms5611_poll(uint32_t now_us)
+{
+    h_status = ms5611_poll(&h_baro, now_us, &h_reading, &h_ready);
+    h_result = h_status.result;
+}
 """
 
 HARNESS_LD = """
@@ -1021,6 +1037,26 @@ def test_i2c_delay(ready):
     started = ready.soc.now
     ready.call("h_delay_ms", 5)
     assert 5_000 <= ready.soc.now - started < 5_030
+
+
+def test_ms5611_over_the_board_i2c(ready):
+    """The barometer's bring-up (reset, PROM and its CRC) and its measurement cycle over the
+    board's I2C code and the chip model at 0x77, polled as the sample loop polls it: D1 and
+    D2 at OSR 4096, each read once its 9.04 ms conversion is over, compensated to the data
+    sheet's worked example."""
+    b = ready
+    baro = b.bus.attach(0x77, MS5611())
+    assert b.call("h_ms5611_init") == 0, b.read("h_status", 16).hex()
+    readings = []
+    for _ in range(45):  # 45 ms: two measurements
+        assert b.call("h_ms5611_poll", int(b.soc.now)) == 0, b.read("h_status", 16).hex()
+        if struct.unpack("<i", b.read("h_ready", 4))[0]:
+            readings.append(struct.unpack("<iiII", b.read("h_reading", 16)))
+        b.call("h_delay_ms", 1)
+    assert readings == [(100009, 2007, 9085466, 8569150)] * 2
+    assert baro.conversions[:4] == [0x48, 0x58, 0x48, 0x58]
+    counters = b.counters()
+    assert counters["failures"] == 0 and b.soc.all_violations() == []
 
 
 def test_gy86_over_the_board_i2c(ready):

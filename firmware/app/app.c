@@ -11,6 +11,9 @@
 #define SAMPLE_WIRE_BYTES                                                                         \
     (2u * (IMU_PROTO_COBS_MAX(IMU_PROTO_HEADER_SIZE + IMU_PROTO_ESTIMATE_SIZE + IMU_PROTO_CRC_SIZE) + 1u))
 
+/** Bytes of a BARO frame on the wire, at its largest. */
+#define BARO_WIRE_BYTES (IMU_PROTO_COBS_MAX(IMU_PROTO_HEADER_SIZE + IMU_PROTO_BARO_SIZE + IMU_PROTO_CRC_SIZE) + 1u)
+
 /** Sensor failures are reported at most once per this many microseconds, and the sensors set up
  *  again at most as often, so a dead sensor costs little and does not flood the link. */
 #define SENSOR_RETRY_US 1000000u
@@ -97,6 +100,19 @@ static void send_wire(app_t *app, size_t len)
 {
     board_link_write(app->wire, len);
     app->tx_seq = (uint16_t)(app->tx_seq + 1u);
+}
+
+/** A barometer measurement read with sample app->index. */
+static void send_baro(app_t *app, uint32_t timestamp_us, const board_baro_t *reading)
+{
+    imu_proto_baro_t b;
+    b.timestamp_us = timestamp_us;
+    b.index = app->index;
+    b.d1 = reading->d1;
+    b.d2 = reading->d2;
+    b.pressure_pa = reading->pressure_pa;
+    b.temperature_cdeg = reading->temperature_cdeg;
+    send_wire(app, imu_proto_baro_encode(&b, app->tx_seq, app->wire, sizeof app->wire));
 }
 
 static void send_log(app_t *app, uint8_t level, const char *text)
@@ -305,6 +321,8 @@ static void live_sample(app_t *app)
     const uint32_t started = board_cycles();
     const uint64_t read_at = board_time_us();
     const board_sensors_result_t result = board_sensors_read(&raw, &temperature, &message);
+    board_baro_t baro;
+    int have_baro;
     int i;
 
     if (result == BOARD_SENSORS_ENDED) {
@@ -334,8 +352,9 @@ static void live_sample(app_t *app)
         app->failures_since_log = 0;
     }
     app->sensor_saturations += (uint32_t)clipped(&raw);
+    have_baro = board_baro_read(read_at, &baro);
 
-    if (board_link_space() < SAMPLE_WIRE_BYTES) {
+    if (board_link_space() < SAMPLE_WIRE_BYTES + (have_baro ? BARO_WIRE_BYTES : 0u)) {
         /* The host does not keep up: the filter still runs (its state must follow the sensor),
          * the frames are dropped like a full UART buffer would drop them. */
         imu_filter_update_raw(&app->filter, &raw);
@@ -350,6 +369,9 @@ static void live_sample(app_t *app)
         }
         s.temperature = temperature;
         send_wire(app, imu_proto_sample_encode(&s, app->tx_seq, app->wire, sizeof app->wire));
+        if (have_baro) {
+            send_baro(app, (uint32_t)read_at, &baro);
+        }
         run_filter(app, &raw, app->index);
     }
     ++app->index;

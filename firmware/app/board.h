@@ -77,6 +77,24 @@ board_sensors_result_t board_sensors_init(const char **message);
  */
 board_sensors_result_t board_sensors_read(imu_raw_sample_t *raw, int16_t *temperature, const char **message);
 
+/** One barometer measurement (the GY-86's MS5611): its raw conversions and their
+ *  compensation with the chip's PROM. */
+typedef struct {
+    uint32_t d1;              /**< raw pressure conversion, 24 bits */
+    uint32_t d2;              /**< raw temperature conversion, 24 bits */
+    int32_t pressure_pa;      /**< Pa */
+    int32_t temperature_cdeg; /**< 0.01 degC */
+} board_baro_t;
+
+/**
+ * @brief The barometer's measurement completed since the last call, if any; never waits
+ *        (the app calls it after every sample read, which also keeps the MS5611's
+ *        conversions going on a board that drives one).
+ * @param now_us board time, us
+ * @return 1 with *out filled, 0 when nothing new (or the board has no barometer).
+ */
+int board_baro_read(uint64_t now_us, board_baro_t *out);
+
 /* --------------------------------------------------------------------------- system */
 
 /** @brief What went wrong while the board started (a crystal that did not start, say), for a

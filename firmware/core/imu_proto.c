@@ -823,6 +823,40 @@ size_t imu_proto_estimate_encode(const imu_proto_estimate_t *m, uint16_t seq, ui
     return frame_seal(IMU_PROTO_MSG_ESTIMATE, seq, IMU_PROTO_ESTIMATE_SIZE, wire);
 }
 
+size_t imu_proto_baro_pack(const imu_proto_baro_t *m, uint8_t *payload)
+{
+    put_u32(payload + 0, (uint32_t)m->timestamp_us);
+    put_u32(payload + 4, (uint32_t)m->index);
+    put_u32(payload + 8, (uint32_t)m->d1);
+    put_u32(payload + 12, (uint32_t)m->d2);
+    put_u32(payload + 16, (uint32_t)m->pressure_pa);
+    put_u32(payload + 20, (uint32_t)m->temperature_cdeg);
+    return IMU_PROTO_BARO_SIZE;
+}
+
+imu_proto_result_t imu_proto_baro_unpack(imu_proto_baro_t *m, const uint8_t *payload, size_t len)
+{
+    if (len != IMU_PROTO_BARO_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    m->timestamp_us = get_u32(payload + 0);
+    m->index = get_u32(payload + 4);
+    m->d1 = get_u32(payload + 8);
+    m->d2 = get_u32(payload + 12);
+    m->pressure_pa = to_i32(get_u32(payload + 16));
+    m->temperature_cdeg = to_i32(get_u32(payload + 20));
+    return IMU_PROTO_OK;
+}
+
+size_t imu_proto_baro_encode(const imu_proto_baro_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
+{
+    if (wire_cap < IMU_PROTO_BARO_SIZE + IMU_PROTO_MIN_FRAME + 2u) {
+        return 0;
+    }
+    (void)imu_proto_baro_pack(m, wire + FRAME_PAYLOAD_OFFSET);
+    return frame_seal(IMU_PROTO_MSG_BARO, seq, IMU_PROTO_BARO_SIZE, wire);
+}
+
 size_t imu_proto_command_pack(const imu_proto_command_t *m, uint8_t *payload)
 {
     size_t i;

@@ -130,7 +130,7 @@ int imu_proto_decoder_push(imu_proto_decoder_t *d, uint8_t byte, imu_proto_frame
 /** Protocol version ([protocol] version), sent in HELLO. */
 #define IMU_PROTO_VERSION 1u
 /** Schema hash of shared/protocol.toml (CRC-32 of its canonical form), sent in HELLO. */
-#define IMU_PROTO_SCHEMA_HASH 0x7DFE47FDu
+#define IMU_PROTO_SCHEMA_HASH 0xC345F64Bu
 /** Largest payload of any message, bytes. */
 #define IMU_PROTO_MAX_PAYLOAD 201u
 
@@ -145,6 +145,7 @@ typedef enum {
     IMU_PROTO_MSG_CALIBRATION = 7, /**< One axis of a sensor's calibration, applied to the counts before the filter: corrected[axis] = sum_j row[j] * (raw[j] - offset[j]) (answer to GET_CALIBRATION) */
     IMU_PROTO_MSG_SAMPLE = 16, /**< One raw sensor sample, in register counts, as the filter consumed it */
     IMU_PROTO_MSG_ESTIMATE = 17, /**< The filter output after sample `index`, exactly as the fixed-point core computed it */
+    IMU_PROTO_MSG_BARO = 18, /**< One barometer measurement (the GY-86's MS5611): the raw conversions and the data sheet's compensation of them with the chip's PROM, as the board's driver computed it */
     IMU_PROTO_MSG_COMMAND = 32, /**< A request to the board */
 } imu_proto_msg_id_t;
 
@@ -402,6 +403,30 @@ size_t imu_proto_estimate_pack(const imu_proto_estimate_t *m, uint8_t *payload);
 imu_proto_result_t imu_proto_estimate_unpack(imu_proto_estimate_t *m, const uint8_t *payload, size_t len);
 /** @brief Wire bytes of a ESTIMATE frame (delimiter included); 0 when they do not fit or pack fails. */
 size_t imu_proto_estimate_encode(const imu_proto_estimate_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
+
+/** BARO payload bytes. */
+#define IMU_PROTO_BARO_SIZE 24u
+
+/** BARO (id 0x12, to_host): One barometer measurement (the GY-86's MS5611): the raw conversions and
+ *  the data sheet's compensation of them with the chip's PROM, as the board's driver computed it.
+ *  Emulated boards take D1 and D2 from their sensor feed (a BARO frame before the SAMPLE it belongs
+ *  to; the other fields there are ignored).
+ */
+typedef struct {
+    uint32_t timestamp_us; /**< board time of the SAMPLE read with it (its timestamp_us), us */
+    uint32_t index; /**< index of the SAMPLE read with it (the measurement completed during that sample's read or before) */
+    uint32_t d1; /**< raw pressure conversion, 24 bits */
+    uint32_t d2; /**< raw temperature conversion, 24 bits */
+    int32_t pressure_pa; /**< compensated pressure, Pa (the data sheet's 0.01 mbar) */
+    int32_t temperature_cdeg; /**< compensated temperature, 0.01 degC */
+} imu_proto_baro_t;
+
+/** @brief Payload bytes of BARO into `payload` (IMU_PROTO_BARO_SIZE bytes); returns IMU_PROTO_BARO_SIZE. */
+size_t imu_proto_baro_pack(const imu_proto_baro_t *m, uint8_t *payload);
+/** @brief Fields of a BARO payload; IMU_PROTO_ERR_LENGTH when `len` is not a BARO payload length. */
+imu_proto_result_t imu_proto_baro_unpack(imu_proto_baro_t *m, const uint8_t *payload, size_t len);
+/** @brief Wire bytes of a BARO frame (delimiter included); 0 when they do not fit or pack fails. */
+size_t imu_proto_baro_encode(const imu_proto_baro_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 
 /** COMMAND maximum payload bytes. */
 #define IMU_PROTO_COMMAND_SIZE 31u

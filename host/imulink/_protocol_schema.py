@@ -7,7 +7,7 @@ the last field only, text / bytes (length: the maximum, variable on the wire).
 """
 
 PROTOCOL_VERSION = 1
-SCHEMA_HASH = 0x7DFE47FD
+SCHEMA_HASH = 0xC345F64B
 HEADER_SIZE = 3
 CRC_SIZE = 4
 MAX_PAYLOAD = 201
@@ -92,6 +92,14 @@ MESSAGES = {
         ('saturations', 'u32', None),
         ('weights', 'i32', 2),
     )},
+    'BARO': {'id': 0x12, 'direction': 'to_host', 'fields': (
+        ('timestamp_us', 'u32', None),
+        ('index', 'u32', None),
+        ('d1', 'u32', None),
+        ('d2', 'u32', None),
+        ('pressure_pa', 'i32', None),
+        ('temperature_cdeg', 'i32', None),
+    )},
     'COMMAND': {'id': 0x20, 'direction': 'to_board', 'fields': (
         ('command', 'u8', None),
         ('command_seq', 'u16', None),
@@ -153,7 +161,7 @@ CFFI_DECLARATIONS = """
 #define IMU_PROTO_VERSION ...
 #define IMU_PROTO_SCHEMA_HASH ...
 #define IMU_PROTO_MAX_PAYLOAD ...
-typedef enum { IMU_PROTO_MSG_HELLO = 1, IMU_PROTO_MSG_STATUS = 2, IMU_PROTO_MSG_LOG = 3, IMU_PROTO_MSG_ACK = 4, IMU_PROTO_MSG_NACK = 5, IMU_PROTO_MSG_SETTING = 6, IMU_PROTO_MSG_CALIBRATION = 7, IMU_PROTO_MSG_SAMPLE = 16, IMU_PROTO_MSG_ESTIMATE = 17, IMU_PROTO_MSG_COMMAND = 32 } imu_proto_msg_id_t;
+typedef enum { IMU_PROTO_MSG_HELLO = 1, IMU_PROTO_MSG_STATUS = 2, IMU_PROTO_MSG_LOG = 3, IMU_PROTO_MSG_ACK = 4, IMU_PROTO_MSG_NACK = 5, IMU_PROTO_MSG_SETTING = 6, IMU_PROTO_MSG_CALIBRATION = 7, IMU_PROTO_MSG_SAMPLE = 16, IMU_PROTO_MSG_ESTIMATE = 17, IMU_PROTO_MSG_BARO = 18, IMU_PROTO_MSG_COMMAND = 32 } imu_proto_msg_id_t;
 typedef enum { IMU_PROTO_CMD_START_STREAM = 1, IMU_PROTO_CMD_STOP_STREAM = 2, IMU_PROTO_CMD_SELECT_FILTER = 3, IMU_PROTO_CMD_GET_SETTING = 4, IMU_PROTO_CMD_SET_SETTING = 5, IMU_PROTO_CMD_INJECT_SAMPLE = 6, IMU_PROTO_CMD_RESET = 7, IMU_PROTO_CMD_ENTER_BOOTLOADER = 8, IMU_PROTO_CMD_GET_VERSION = 9, IMU_PROTO_CMD_GET_STATUS = 10, IMU_PROTO_CMD_SET_INJECTION_MODE = 11, IMU_PROTO_CMD_SET_CALIBRATION = 12, IMU_PROTO_CMD_GET_CALIBRATION = 13 } imu_proto_command_id_t;
 typedef enum { IMU_PROTO_FILTER_EECF = 1, IMU_PROTO_FILTER_KF1D = 2, IMU_PROTO_FILTER_ESKF = 3 } imu_proto_filter_t;
 typedef enum { IMU_PROTO_REASON_OK = 0, IMU_PROTO_REASON_UNKNOWN_COMMAND = 1, IMU_PROTO_REASON_BAD_LENGTH = 2, IMU_PROTO_REASON_BAD_ARGUMENT = 3, IMU_PROTO_REASON_OUT_OF_RANGE = 4, IMU_PROTO_REASON_BUSY = 5, IMU_PROTO_REASON_NOT_IN_INJECTION_MODE = 6, IMU_PROTO_REASON_UNKNOWN_FILTER = 7, IMU_PROTO_REASON_UNKNOWN_SETTING = 8, IMU_PROTO_REASON_NOT_SUPPORTED = 9 } imu_proto_reason_t;
@@ -204,6 +212,11 @@ typedef struct { uint32_t index; uint8_t filter_id; int32_t quat[4]; int32_t gyr
 size_t imu_proto_estimate_pack(const imu_proto_estimate_t *m, uint8_t *payload);
 imu_proto_result_t imu_proto_estimate_unpack(imu_proto_estimate_t *m, const uint8_t *payload, size_t len);
 size_t imu_proto_estimate_encode(const imu_proto_estimate_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
+#define IMU_PROTO_BARO_SIZE ...
+typedef struct { uint32_t timestamp_us; uint32_t index; uint32_t d1; uint32_t d2; int32_t pressure_pa; int32_t temperature_cdeg; } imu_proto_baro_t;
+size_t imu_proto_baro_pack(const imu_proto_baro_t *m, uint8_t *payload);
+imu_proto_result_t imu_proto_baro_unpack(imu_proto_baro_t *m, const uint8_t *payload, size_t len);
+size_t imu_proto_baro_encode(const imu_proto_baro_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 #define IMU_PROTO_COMMAND_SIZE ...
 typedef struct { uint8_t command; uint16_t command_seq; uint8_t args[28]; size_t args_len; } imu_proto_command_t;
 size_t imu_proto_command_pack(const imu_proto_command_t *m, uint8_t *payload);

@@ -33,14 +33,23 @@ from pathlib import Path
 import numpy as np
 
 from . import core, protocol, sim
+from .chips import ms5611
 from .counts import DEFAULT_PROFILE, PROFILES, SensorProfile, si_to_counts
 from .files import FileError, read_regular_file
 from .firmware_image import MAX_IMAGE_BYTES
 from .proxy import FaultConfig, Proxy, make_front
+from .sim import navigation
 
 TARGETS = ("native", "qemu")
 #: MPU6050 temperature register at 25 degC ((25 - 36.53) * 340).
 TEMPERATURE_25C = -3920
+
+#: The emulated GY-86's barometer: an MS5611 with the data sheet's typical PROM (the board's
+#: feed_baro_prom) measuring D1 and D2 at OSR 4096 (18 ms for both), read with the first
+#: sample after each BARO_PERIOD_S; the air at BARO_HEIGHT_M (ISA) and 25 degC.
+BARO_PERIOD_S = 0.02
+BARO_HEIGHT_M = 450.0
+BARO_TEMPERATURE_CDEG = 2500
 #: QEMU machine of the qemu target and the ELF the firmware build names for it.
 QEMU_MACHINE = "netduinoplus2"
 _IMAGES = {"native": ("native", "imulink-native"), "qemu": ("qemu", "imulink-qemu-netduinoplus2.elf")}
@@ -114,16 +123,29 @@ def find_qemu() -> str:
 # ---------------------------------------------------------------------------- the sensor feed
 
 
+def baro_due(n: int, rate_hz: float) -> np.ndarray:
+    """The samples the emulated barometer's measurements come with: the first of each
+    BARO_PERIOD_S (every sample below 50 Hz)."""
+    slot = np.floor(np.arange(n) / rate_hz / BARO_PERIOD_S + 1e-9)
+    return np.r_[True, slot[1:] != slot[:-1]][:n] if n else np.zeros(0, bool)
+
+
 def feed_frames(simulation: sim.SimResult, profile: SensorProfile = DEFAULT_PROFILE) -> list[bytes]:
-    """The feed of a simulated run: one SAMPLE frame per sample (counts in `profile`),
-    then a LOG frame saying the run is over."""
+    """The feed of a simulated run: one SAMPLE frame per sample (counts in `profile`), with
+    a BARO frame before it where the barometer has a measurement (baro_due), then a LOG
+    frame saying the run is over. Each item of the list is what the board gets for one
+    request (docs/firmware.md)."""
     counts = (simulation.gyr_counts, simulation.acc_counts, simulation.mag_counts)
     if profile != simulation.profile:
         counts = si_to_counts(simulation.gyr, simulation.acc, simulation.mag, profile)
     gyr, acc, mag = (c.tolist() for c in counts)
     period_us = 1e6 / simulation.rate_hz
-    frames = [protocol.encode("SAMPLE", k & 0xFFFF, timestamp_us=round(k * period_us) & 0xFFFFFFFF, index=k,
-                              gyr=gyr[k], acc=acc[k], mag=mag[k], temperature=TEMPERATURE_25C)
+    d1, d2 = ms5611.raw_for(ms5611.EXAMPLE_C, float(navigation.pressure_at(BARO_HEIGHT_M)), BARO_TEMPERATURE_CDEG)
+    due = baro_due(len(gyr), simulation.rate_hz)
+    frames = [(protocol.encode("BARO", k & 0xFFFF, timestamp_us=round(k * period_us) & 0xFFFFFFFF, index=k, d1=d1,
+                               d2=d2, pressure_pa=0, temperature_cdeg=0) if due[k] else b"")
+              + protocol.encode("SAMPLE", k & 0xFFFF, timestamp_us=round(k * period_us) & 0xFFFFFFFF, index=k,
+                                gyr=gyr[k], acc=acc[k], mag=mag[k], temperature=TEMPERATURE_25C)
               for k in range(len(gyr))]
     frames.append(protocol.encode("LOG", len(gyr) & 0xFFFF, level=protocol.LOG_LEVELS["INFO"],
                                   text=f"end of the simulated run ({len(gyr)} samples)"))

@@ -970,6 +970,7 @@ def replay_columns(recording: Recording, run: HostRun, comparison: Comparison) -
             columns[f"{source}_gyro_bias_{axis}_rad_s"] = bias[:, k]
     weights = board(e.weights, 30)  # zero but for the ESKF
     columns["board_gravity_weight"], columns["board_heading_weight"] = weights[:, 0], weights[:, 1]
+    columns["baro_pa"], columns["baro_temp_c"] = _baro_columns(recording)
     identical = np.full(n, np.nan)
     checked = have.copy()
     checked[have] = comparison.verified[estimate_of[have]]
@@ -977,6 +978,21 @@ def replay_columns(recording: Recording, run: HostRun, comparison: Comparison) -
     columns["identical"] = identical
     columns["fixed_float_angle_deg"] = angle_difference(fixed_quat, run.float_quat)
     return columns
+
+
+def _baro_columns(recording: Recording) -> tuple[np.ndarray, np.ndarray]:
+    """The barometer's pressure (Pa) and temperature (degC) in the rows of the samples they
+    were read with (by segment and index), empty elsewhere: the columns `imulink nav`'s input
+    names so."""
+    s, b = recording.samples, recording.baro
+    pressure, temperature = np.full(len(s), np.nan), np.full(len(s), np.nan)
+    row_of = {key: row for row, key in enumerate(zip(s.segment.tolist(), s.index.tolist()))}
+    for segment, index, pa, cdeg in zip(b.segment.tolist(), b.index.tolist(), b.pressure_pa.tolist(),
+                                        b.temperature_cdeg.tolist()):
+        row = row_of.get((segment, index))
+        if row is not None:
+            pressure[row], temperature[row] = pa, cdeg / 100.0
+    return pressure, temperature
 
 
 #: Replay columns that hold integers (a float column only where some rows have no value).

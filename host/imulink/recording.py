@@ -301,6 +301,25 @@ class Estimates:
 
 
 @dataclass
+class Baro:
+    """BARO frames in arrival order: the barometer's raw conversions (24-bit D1, D2) and
+    the board's compensation of them (Pa, 0.01 degC), each with the index of the SAMPLE
+    read with it."""
+
+    host_time: np.ndarray
+    segment: np.ndarray
+    index: np.ndarray
+    timestamp_us: np.ndarray
+    d1: np.ndarray
+    d2: np.ndarray
+    pressure_pa: np.ndarray
+    temperature_cdeg: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+
+@dataclass
 class Recording:
     """A decoded recording.
 
@@ -331,6 +350,7 @@ class Recording:
     #: fields (filter id -> index -> fields) and how many CALIBRATION frames had come
     segment_settings: dict[int, dict[int, dict[int, dict]]] = field(default_factory=dict)
     segment_calibration_frames: dict[int, int] = field(default_factory=dict)
+    baro: Baro = field(default_factory=lambda: _baro_table([]))
 
     def calibration(self, segment: int | None = None):
         """The board's calibration (imulink.calibration.Calibration, in this recording's
@@ -441,7 +461,7 @@ def load_recording(path, progress: Callable[[int, int], None] | None = None) -> 
     logs, settings, calibration_frames = [], {}, []
     segment_settings, segment_calibration_frames = {}, {}
     hello = status = None
-    samples, estimates = [], []
+    samples, estimates, baro = [], [], []
 
     def place(index: int) -> int:
         """The segment of a SAMPLE or ESTIMATE; a segment's first one notes what the board had reported."""
@@ -462,6 +482,8 @@ def load_recording(path, progress: Callable[[int, int], None] | None = None) -> 
                 samples.append((record.time, place(fields["index"]), fields))
             elif name == "ESTIMATE":
                 estimates.append((record.time, place(fields["index"]), record.offset < snapshot_at, fields))
+            elif name == "BARO":
+                baro.append((record.time, place(fields["index"]), fields))
             elif name == "ACK" and fields["command"] in _RESTARTING_IDS:
                 segmenter.restart()
             elif name == "HELLO":
@@ -483,7 +505,7 @@ def load_recording(path, progress: Callable[[int, int], None] | None = None) -> 
     segments = len(set(sample_table.segment.tolist()) | set(estimate_table.segment.tolist()))
     return Recording(path, header, profile, [event for _, event in events], hello, status, settings, sample_table,
                      estimate_table, logs, decoder.counters(), found.damaged, found.truncated_bytes, segments,
-                     calibration_frames, segment_settings, segment_calibration_frames)
+                     calibration_frames, segment_settings, segment_calibration_frames, _baro_table(baro))
 
 
 def _json_object(path: Path, record: LogRecord, what: str) -> dict:
@@ -546,6 +568,16 @@ def _sample_table(rows) -> Samples:
         acc=np.array([x["acc"] for x in f], np.int16).reshape(-1, 3),
         mag=np.array([x["mag"] for x in f], np.int16).reshape(-1, 3),
         temperature=np.array([x["temperature"] for x in f], np.int16),
+    )
+
+
+def _baro_table(rows) -> Baro:
+    f = [r[2] for r in rows]
+    return Baro(
+        host_time=np.array([r[0] for r in rows], np.float64),
+        segment=np.array([r[1] for r in rows], np.int32),
+        **{name: np.array([x[name] for x in f], np.int64)
+           for name in ("index", "timestamp_us", "d1", "d2", "pressure_pa", "temperature_cdeg")},
     )
 
 

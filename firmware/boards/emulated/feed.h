@@ -7,7 +7,9 @@
  * docs/protocol.md) carrying, per sensor sample, one SAMPLE frame whose gyr, acc,
  * mag and temperature are the register counts the board reads (its timestamp_us
  * and index are the simulator's and are not used: the board stamps and counts
- * samples itself). A LOG frame means the feed has ended; its text says why. On QEMU
+ * samples itself). A BARO frame before a SAMPLE is the barometer's D1 and D2 read
+ * with that sample (an MS5611 whose PROM holds feed_baro_prom; the frame's other
+ * fields are not used). A LOG frame means the feed has ended; its text says why. On QEMU
  * the board asks for each sample by sending one byte on the feed UART; the native
  * board reads the feed from a file. docs/firmware.md specifies it for other feeders.
  */
@@ -16,8 +18,10 @@
 
 #include <stdint.h>
 
+#include "board.h"
 #include "imu_proto.h"
 #include "imu_sensor.h"
+#include "ms5611.h"
 
 /** What a byte of the feed completed. */
 typedef enum {
@@ -26,17 +30,37 @@ typedef enum {
     FEED_ENDED = 2,  /**< the end of the feed (feed_t.end_text says why) */
 } feed_event_t;
 
+/** The barometer's raw conversions that came with a sample. */
+typedef struct {
+    int valid;   /**< 1 when the sample had a BARO frame before it */
+    uint32_t d1; /**< raw pressure conversion, 24 bits */
+    uint32_t d2; /**< raw temperature conversion, 24 bits */
+} feed_baro_t;
+
+/** The emulated MS5611's PROM: the data sheet's typical coefficients C1..C6 (its worked
+ *  example), which the host's simulator uses to turn pressures into D1 and D2. */
+extern const uint16_t feed_baro_prom[8];
+
+/**
+ * @brief The measurement of a sample's barometer conversions, compensated with
+ *        feed_baro_prom (the board's board_baro_read), once: *baro is marked used.
+ * @return 1 with *out filled, 0 when the sample had none (or it was taken).
+ */
+int feed_baro_take(feed_baro_t *baro, board_baro_t *out);
+
 /** A feed decoder. All members are private except end_text. */
 typedef struct {
     imu_proto_decoder_t decoder;
     uint8_t frame[IMU_PROTO_MAX_FRAME];
+    feed_baro_t baro;                  /**< a BARO frame waiting for its SAMPLE */
     char end_text[IMU_PROTO_LOG_SIZE]; /**< the LOG text of the end, terminated */
 } feed_t;
 
 /** @brief Start decoding a feed. */
 void feed_init(feed_t *feed);
 
-/** @brief Push one byte of the feed; on FEED_SAMPLE the sample is in *raw and *temperature. */
-feed_event_t feed_push(feed_t *feed, uint8_t byte, imu_raw_sample_t *raw, int16_t *temperature);
+/** @brief Push one byte of the feed; on FEED_SAMPLE the sample is in *raw and *temperature,
+ *         and the barometer's conversions read with it (if any) in *baro. */
+feed_event_t feed_push(feed_t *feed, uint8_t byte, imu_raw_sample_t *raw, int16_t *temperature, feed_baro_t *baro);
 
 #endif /* FEED_H */

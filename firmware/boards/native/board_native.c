@@ -56,6 +56,7 @@ static struct {
     FILE *feed_file;
     const char *feed_path;
     feed_t feed;
+    feed_baro_t baro; /* the barometer's conversions read with the last sample */
     char message[256];
 } native;
 
@@ -236,7 +237,7 @@ board_sensors_result_t board_sensors_read(imu_raw_sample_t *raw, int16_t *temper
         return BOARD_SENSORS_FAILED;
     }
     while ((c = getc(native.feed_file)) != EOF) {
-        switch (feed_push(&native.feed, (uint8_t)c, raw, temperature)) {
+        switch (feed_push(&native.feed, (uint8_t)c, raw, temperature, &native.baro)) {
         case FEED_SAMPLE:
             return BOARD_SENSORS_OK;
         case FEED_ENDED:
@@ -248,6 +249,12 @@ board_sensors_result_t board_sensors_read(imu_raw_sample_t *raw, int16_t *temper
     }
     *message = "end of the sensor feed";
     return BOARD_SENSORS_ENDED;
+}
+
+int board_baro_read(uint64_t now_us, board_baro_t *out)
+{
+    (void)now_us; /* the feed's conversions came with the sample */
+    return feed_baro_take(&native.baro, out);
 }
 
 /* --------------------------------------------------------------------------- system */

@@ -63,7 +63,9 @@ static struct {
     feed_event_t event; /* FEED_MORE: none waiting */
     imu_raw_sample_t raw;
     int16_t temperature;
+    feed_baro_t baro;
 } next_sample;
+static feed_baro_t sample_baro;    /* the barometer's conversions read with the last sample */
 
 void usart2_irq_handler(void);
 APP_IDENTIFICATION("qemu-stm32f405", "STM32F405", 0x413u, 1024u);
@@ -225,7 +227,7 @@ static int feed_ready(void)
 {
     uint8_t byte;
     while (next_sample.event == FEED_MORE && uart_read(&feed_uart, &byte, 1) == 1) {
-        next_sample.event = feed_push(&feed, byte, &next_sample.raw, &next_sample.temperature);
+        next_sample.event = feed_push(&feed, byte, &next_sample.raw, &next_sample.temperature, &next_sample.baro);
         if (next_sample.event != FEED_MORE && feed_outstanding > 0) {
             --feed_outstanding;
         }
@@ -306,7 +308,14 @@ board_sensors_result_t board_sensors_read(imu_raw_sample_t *raw, int16_t *temper
     }
     *raw = next_sample.raw;
     *temperature = next_sample.temperature;
+    sample_baro = next_sample.baro;
     return BOARD_SENSORS_OK;
+}
+
+int board_baro_read(uint64_t now_us, board_baro_t *out)
+{
+    (void)now_us; /* the feed's conversions came with the sample */
+    return feed_baro_take(&sample_baro, out);
 }
 
 void board_idle(void)

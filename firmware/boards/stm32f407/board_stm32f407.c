@@ -22,6 +22,7 @@
 #include "i2c_stm32f4.h"
 #include "identification.h"
 #include "link.h"
+#include "ms5611.h"
 #include "stm32f4.h"
 #include "text.h"
 #include "timers.h"
@@ -33,6 +34,8 @@ static i2c_stm32f4_t i2c_dev;
 static i2c_bus_t i2c_bus;
 static gy86_t gy86;
 static int sensors_ready;              /* gy86_init succeeded: reads may go to the bus */
+static ms5611_t baro;                  /* the GY-86's barometer on the same bus */
+static int baro_ready;                 /* ms5611_init succeeded: the sample loop polls it */
 static char init_failure[SENSOR_STATUS_TEXT_SIZE + 24];
 static char read_failure[SENSOR_STATUS_TEXT_SIZE];
 static char start_up_problem[IMU_PROTO_LOG_SIZE];
@@ -188,8 +191,38 @@ board_sensors_result_t board_sensors_init(const char **message)
     text_add(&t, " g, ");
     text_add_uint(&t, hmc5883l_lsb_per_gauss(config->mag.gain));
     text_add(&t, " LSB/gauss");
+    {
+        /* The barometer is optional: the attitude filters run without it. OSR 4096: the
+         * finest pressure (0.012 mbar rms, DS); a D1 + D2 cycle takes 18 ms. */
+        const sensor_status_t b = ms5611_init(&baro, &i2c_bus, MS5611_ADDRESS, MS5611_OSR_4096);
+        baro_ready = !sensor_failed(&b);
+        text_add(&t, baro_ready ? "; MS5611 ready" : "; no MS5611: ");
+        if (!baro_ready) {
+            text_add(&t, sensor_status_text(&b, status_text, sizeof status_text));
+        }
+    }
     *message = text_end(&t);
     return BOARD_SENSORS_OK;
+}
+
+int board_baro_read(uint64_t now_us, board_baro_t *out)
+{
+    ms5611_reading_t r;
+    sensor_status_t s;
+    int ready = 0;
+    if (!baro_ready) {
+        return 0;
+    }
+    /* a failed step restarts the driver's cycle at the next call: no measurement this time */
+    s = ms5611_poll(&baro, (uint32_t)now_us, &r, &ready);
+    if (sensor_failed(&s) || !ready) {
+        return 0;
+    }
+    out->d1 = r.d1;
+    out->d2 = r.d2;
+    out->pressure_pa = r.pressure_pa;
+    out->temperature_cdeg = r.temperature_cdeg;
+    return 1;
 }
 
 board_sensors_result_t board_sensors_read(imu_raw_sample_t *raw, int16_t *temperature, const char **message)

@@ -110,6 +110,7 @@ class MS5611(I2CDevice):
         self._converting = None        # (result, ms left) of a running conversion
         self._result = 0               # what ADC READ gives next
         self._reloading_ms = 0.0       # PROM reload after RESET
+        self._answer = None            # what is left to read of the answer to the last command
         self.conversions = []          # every CONVERT command received, for the tests
 
     @staticmethod
@@ -124,6 +125,7 @@ class MS5611(I2CDevice):
             return
         command = data[0]
         self._command = command
+        self._answer = None  # the next read phase answers this command
         if command == 0x1E:  # RESET
             self._converting, self._result, self._reloading_ms = None, 0, RESET_MS
         elif command & 0xF0 in (0x40, 0x50) and command & 0x01 == 0 and (command & 0x0F) >> 1 < 5:
@@ -135,14 +137,22 @@ class MS5611(I2CDevice):
             self._converting, self._result = None, 0
 
     def i2c_read(self, n: int) -> bytes:
-        command = self._command
+        """The answer to the last command, byte after byte however the master splits the
+        read (a bus reads a phase at once, a peripheral model a byte at a time); zeros
+        after its end."""
+        if self._answer is None:
+            self._answer = self._answer_to(self._command)
+        out, self._answer = self._answer[:n], self._answer[n:]
+        return out.ljust(n, b"\x00")
+
+    def _answer_to(self, command: int | None) -> bytes:
         if command == 0x00:
             value, self._result = self._result, 0  # a result is read once
-            return value.to_bytes(3, "big")[:n].ljust(n, b"\x00")
+            return value.to_bytes(3, "big")
         if command is not None and 0xA0 <= command <= 0xAE and command % 2 == 0:
             word = self.prom[(command - 0xA0) // 2] if self._reloading_ms <= 0 else 0
-            return word.to_bytes(2, "big")[:n].ljust(n, b"\x00")
-        return bytes(n)
+            return word.to_bytes(2, "big")
+        return b""
 
     def advance(self, ms: float) -> None:
         self._reloading_ms -= ms
