@@ -13,7 +13,7 @@ from imulink.cli import main
 from imulink.counts import BROAD_PROFILE, SensorProfile
 from imulink.emulator import (BARO_HEIGHT_M, BARO_TEMPERATURE_CDEG, EmulatedBoard, EmulatorError, baro_due, feed_frames,
                               find_image)
-from imulink.sim import navigation
+from imulink.sim import navigation, simulate
 
 
 def test_feed_is_a_sample_per_request_with_the_barometer_every_20_ms_and_a_closing_log():
@@ -31,6 +31,22 @@ def test_feed_is_a_sample_per_request_with_the_barometer_every_20_ms_and_a_closi
         assert temperature == BARO_TEMPERATURE_CDEG
     broad = [list(protocol.FrameDecoder().feed(f))[-1] for f in feed_frames(run, BROAD_PROFILE)]
     np.testing.assert_allclose(np.array([m.fields["acc"] for m in broad[:-1]]) * 2, run.acc_counts, atol=1)
+
+
+def test_feed_carries_each_gnss_fix_before_the_sample_it_arrives_with():
+    traj = navigation.car_drive(3.0, 100.0, seed=2)
+    fixes = navigation.gnss_fixes(traj, navigation.GnssModel(rate_hz=5.0, latency_s=0.05), seed=2)
+    requests = [list(protocol.FrameDecoder().feed(f)) for f in feed_frames(simulate(traj, seed=2), gnss=fixes)]
+    with_fix = {k: r[-2].fields for k, r in enumerate(requests[:-1]) if r[-2:-1] and r[-2].name == "GNSS"}
+    arrived = fixes.index + 5 < len(traj.t)
+    assert sorted(with_fix) == (fixes.index[arrived] + 5).tolist()
+    for k, fields in with_fix.items():
+        i = int(np.flatnonzero(fixes.index == k - 5)[0])
+        assert fields["time_ms"] == round(fixes.t_valid[i] * 1000) and fields["fix_type"] == 3
+        assert fields["lat_1e7deg"] == round(fixes.lat_deg[i] * 1e7)
+        assert fields["vel_ned_mm_s"] == tuple(round(v * 1000) for v in (fixes.vel_enu[i, 1], fixes.vel_enu[i, 0],
+                                                                           -fixes.vel_enu[i, 2]))
+        assert fields["h_acc_mm"] == round(fixes.h_acc_m[i] * 1000)
 
 
 def test_barometer_is_due_every_20_ms_at_any_rate():

@@ -33,9 +33,11 @@ from imulink.cli import main
 from imulink.counts import BROAD_PROFILE, DEFAULT_PROFILE, counts_to_si
 from imulink.emulator import EmulatedBoard
 from imulink.link import Disconnected, Link
+from imulink.nav_input import read_nav_csv
 from imulink.proxy import FaultConfig
 from imulink.recording import RecordingWriter, load_recording, read_records
 from imulink.reference import FirmwareFilter
+from imulink.sim import navigation, simulate
 
 def run_cli(capsys, *argv) -> tuple[int, str, str]:
     code = main([str(a) for a in argv])
@@ -116,6 +118,36 @@ def test_barometer_is_recorded_and_replayed_with_its_samples(tmp_path, capsys):
         measured = int(row["index"]) % 2 == 0
         assert (row["baro_pa"] != "") == measured and (row["baro_temp_c"] != "") == measured
     assert float(rows[0]["baro_pa"]) == baro.pressure_pa[0] and float(rows[0]["baro_temp_c"]) == 25.0
+
+
+def test_gnss_fixes_travel_from_the_feed_to_a_navigation_csv(tmp_path, capsys):
+    """A simulated car drive with a 1 Hz receiver 0.2 s late on the emulated board: each fix
+    comes out right after the SAMPLE during which it arrived (20 samples after the one it is
+    valid for), in the recording (Recording.gnss, the receiver's units) and in replay's CSV
+    under `imulink nav`'s input names, which the navigation CSV reader takes as it is."""
+    path, csv_path = tmp_path / "car.imulog", tmp_path / "car.csv"
+    traj = navigation.car_drive(20.0, 100.0, seed=1)
+    fixes = navigation.gnss_fixes(traj, navigation.GnssModel(latency_s=0.2), seed=1)
+    with EmulatedBoard(front="tcp", duration_s=20.0, simulation=simulate(traj, seed=1), gnss=fixes) as board:
+        hil.record(board.address, path)
+    g = load_recording(path).gnss
+    arrived = fixes.index + 20 < len(traj.t)
+    assert len(g) == arrived.sum() >= 19
+    assert g.index.tolist() == (fixes.index[arrived] + 20).tolist()
+    assert g.time_ms.tolist() == np.round(fixes.t_valid[arrived] * 1000).astype(int).tolist()
+    np.testing.assert_allclose(g.lat_1e7deg * 1e-7, fixes.lat_deg[arrived], atol=6e-8)
+    np.testing.assert_allclose(g.height_mm * 1e-3, fixes.height_m[arrived], atol=6e-4)
+    np.testing.assert_allclose(g.vel_ned_mm_s[:, 0] * 1e-3, fixes.vel_enu[arrived, 1], atol=6e-4)
+    np.testing.assert_allclose(g.vel_ned_mm_s[:, 2] * -1e-3, fixes.vel_enu[arrived, 2], atol=6e-4)
+    assert (g.fix_type == 3).all() and (g.fix_ok == 1).all()
+    code, _, _ = run_cli(capsys, "replay", path, "--csv", csv_path)
+    assert code == 0
+    nav = read_nav_csv(csv_path)
+    assert len(nav.timestamp_us) == len(traj.t) and nav.fix_index.tolist() == g.index.tolist()
+    np.testing.assert_allclose(nav.fix_lon_deg, fixes.lon_deg[arrived], atol=6e-8)
+    np.testing.assert_allclose(nav.fix_vel_enu, fixes.vel_enu[arrived], atol=6e-4)
+    np.testing.assert_allclose(nav.fix_h_acc_m, fixes.h_acc_m[arrived], atol=6e-4)
+    assert len(nav.baro_index) == len(traj.t) // 2
 
 
 def test_record_refuses_a_board_that_states_another_profile_and_writes_nothing(tmp_path):

@@ -11,8 +11,9 @@
 #define SAMPLE_WIRE_BYTES                                                                         \
     (2u * (IMU_PROTO_COBS_MAX(IMU_PROTO_HEADER_SIZE + IMU_PROTO_ESTIMATE_SIZE + IMU_PROTO_CRC_SIZE) + 1u))
 
-/** Bytes of a BARO frame on the wire, at its largest. */
+/** Bytes of a BARO and of a GNSS frame on the wire, at their largest. */
 #define BARO_WIRE_BYTES (IMU_PROTO_COBS_MAX(IMU_PROTO_HEADER_SIZE + IMU_PROTO_BARO_SIZE + IMU_PROTO_CRC_SIZE) + 1u)
+#define GNSS_WIRE_BYTES (IMU_PROTO_COBS_MAX(IMU_PROTO_HEADER_SIZE + IMU_PROTO_GNSS_SIZE + IMU_PROTO_CRC_SIZE) + 1u)
 
 /** Sensor failures are reported at most once per this many microseconds, and the sensors set up
  *  again at most as often, so a dead sensor costs little and does not flood the link. */
@@ -322,7 +323,8 @@ static void live_sample(app_t *app)
     const uint64_t read_at = board_time_us();
     const board_sensors_result_t result = board_sensors_read(&raw, &temperature, &message);
     board_baro_t baro;
-    int have_baro;
+    imu_proto_gnss_t gnss;
+    int have_baro, have_gnss;
     int i;
 
     if (result == BOARD_SENSORS_ENDED) {
@@ -353,8 +355,10 @@ static void live_sample(app_t *app)
     }
     app->sensor_saturations += (uint32_t)clipped(&raw);
     have_baro = board_baro_read(read_at, &baro);
+    have_gnss = board_gnss_read(read_at, &gnss);
 
-    if (board_link_space() < SAMPLE_WIRE_BYTES + (have_baro ? BARO_WIRE_BYTES : 0u)) {
+    if (board_link_space() <
+        SAMPLE_WIRE_BYTES + (have_baro ? BARO_WIRE_BYTES : 0u) + (have_gnss ? GNSS_WIRE_BYTES : 0u)) {
         /* The host does not keep up: the filter still runs (its state must follow the sensor),
          * the frames are dropped like a full UART buffer would drop them. */
         imu_filter_update_raw(&app->filter, &raw);
@@ -371,6 +375,11 @@ static void live_sample(app_t *app)
         send_wire(app, imu_proto_sample_encode(&s, app->tx_seq, app->wire, sizeof app->wire));
         if (have_baro) {
             send_baro(app, (uint32_t)read_at, &baro);
+        }
+        if (have_gnss) {
+            gnss.timestamp_us = (uint32_t)read_at;
+            gnss.index = app->index;
+            send_wire(app, imu_proto_gnss_encode(&gnss, app->tx_seq, app->wire, sizeof app->wire));
         }
         run_filter(app, &raw, app->index);
     }

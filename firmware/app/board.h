@@ -17,6 +17,7 @@
 #include <stddef.h>
 #include <stdint.h>
 
+#include "imu_proto.h"
 #include "imu_sensor.h"
 
 /* --------------------------------------------------------------------------- host link (a UART) */
@@ -94,6 +95,13 @@ typedef struct {
  * @return 1 with *out filled, 0 when nothing new (or the board has no barometer).
  */
 int board_baro_read(uint64_t now_us, board_baro_t *out);
+
+/**
+ * @brief The GNSS receiver's fix that arrived since the last call, if any; never waits.
+ * @param fix filled but for timestamp_us and index (the application's)
+ * @return 1 with *fix filled, 0 when nothing new (or the board has no receiver).
+ */
+int board_gnss_read(uint64_t now_us, imu_proto_gnss_t *fix);
 
 /* --------------------------------------------------------------------------- system */
 

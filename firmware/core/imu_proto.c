@@ -857,6 +857,62 @@ size_t imu_proto_baro_encode(const imu_proto_baro_t *m, uint16_t seq, uint8_t *w
     return frame_seal(IMU_PROTO_MSG_BARO, seq, IMU_PROTO_BARO_SIZE, wire);
 }
 
+size_t imu_proto_gnss_pack(const imu_proto_gnss_t *m, uint8_t *payload)
+{
+    size_t i;
+    put_u32(payload + 0, (uint32_t)m->timestamp_us);
+    put_u32(payload + 4, (uint32_t)m->index);
+    put_u32(payload + 8, (uint32_t)m->time_ms);
+    payload[12] = (uint8_t)m->fix_type;
+    payload[13] = (uint8_t)m->fix_ok;
+    payload[14] = (uint8_t)m->num_sv;
+    payload[15] = (uint8_t)m->has_velocity;
+    put_u32(payload + 16, (uint32_t)m->lat_1e7deg);
+    put_u32(payload + 20, (uint32_t)m->lon_1e7deg);
+    put_u32(payload + 24, (uint32_t)m->height_mm);
+    put_u32(payload + 28, (uint32_t)m->h_acc_mm);
+    put_u32(payload + 32, (uint32_t)m->v_acc_mm);
+    for (i = 0; i < 3; ++i) {
+        put_u32(payload + 36 + 4 * i, (uint32_t)m->vel_ned_mm_s[i]);
+    }
+    put_u32(payload + 48, (uint32_t)m->s_acc_mm_s);
+    return IMU_PROTO_GNSS_SIZE;
+}
+
+imu_proto_result_t imu_proto_gnss_unpack(imu_proto_gnss_t *m, const uint8_t *payload, size_t len)
+{
+    size_t i;
+    if (len != IMU_PROTO_GNSS_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    m->timestamp_us = get_u32(payload + 0);
+    m->index = get_u32(payload + 4);
+    m->time_ms = get_u32(payload + 8);
+    m->fix_type = payload[12];
+    m->fix_ok = payload[13];
+    m->num_sv = payload[14];
+    m->has_velocity = payload[15];
+    m->lat_1e7deg = to_i32(get_u32(payload + 16));
+    m->lon_1e7deg = to_i32(get_u32(payload + 20));
+    m->height_mm = to_i32(get_u32(payload + 24));
+    m->h_acc_mm = get_u32(payload + 28);
+    m->v_acc_mm = get_u32(payload + 32);
+    for (i = 0; i < 3; ++i) {
+        m->vel_ned_mm_s[i] = to_i32(get_u32(payload + 36 + 4 * i));
+    }
+    m->s_acc_mm_s = get_u32(payload + 48);
+    return IMU_PROTO_OK;
+}
+
+size_t imu_proto_gnss_encode(const imu_proto_gnss_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
+{
+    if (wire_cap < IMU_PROTO_GNSS_SIZE + IMU_PROTO_MIN_FRAME + 2u) {
+        return 0;
+    }
+    (void)imu_proto_gnss_pack(m, wire + FRAME_PAYLOAD_OFFSET);
+    return frame_seal(IMU_PROTO_MSG_GNSS, seq, IMU_PROTO_GNSS_SIZE, wire);
+}
+
 size_t imu_proto_command_pack(const imu_proto_command_t *m, uint8_t *payload)
 {
     size_t i;

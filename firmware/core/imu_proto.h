@@ -130,7 +130,7 @@ int imu_proto_decoder_push(imu_proto_decoder_t *d, uint8_t byte, imu_proto_frame
 /** Protocol version ([protocol] version), sent in HELLO. */
 #define IMU_PROTO_VERSION 1u
 /** Schema hash of shared/protocol.toml (CRC-32 of its canonical form), sent in HELLO. */
-#define IMU_PROTO_SCHEMA_HASH 0xC345F64Bu
+#define IMU_PROTO_SCHEMA_HASH 0xB5437FCEu
 /** Largest payload of any message, bytes. */
 #define IMU_PROTO_MAX_PAYLOAD 201u
 
@@ -146,6 +146,7 @@ typedef enum {
     IMU_PROTO_MSG_SAMPLE = 16, /**< One raw sensor sample, in register counts, as the filter consumed it */
     IMU_PROTO_MSG_ESTIMATE = 17, /**< The filter output after sample `index`, exactly as the fixed-point core computed it */
     IMU_PROTO_MSG_BARO = 18, /**< One barometer measurement (the GY-86's MS5611): the raw conversions and the data sheet's compensation of them with the chip's PROM, as the board's driver computed it */
+    IMU_PROTO_MSG_GNSS = 19, /**< One fix of the GNSS receiver, in its own units (u-blox NAV-PVT's), as the board received it */
     IMU_PROTO_MSG_COMMAND = 32, /**< A request to the board */
 } imu_proto_msg_id_t;
 
@@ -427,6 +428,37 @@ size_t imu_proto_baro_pack(const imu_proto_baro_t *m, uint8_t *payload);
 imu_proto_result_t imu_proto_baro_unpack(imu_proto_baro_t *m, const uint8_t *payload, size_t len);
 /** @brief Wire bytes of a BARO frame (delimiter included); 0 when they do not fit or pack fails. */
 size_t imu_proto_baro_encode(const imu_proto_baro_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
+
+/** GNSS payload bytes. */
+#define IMU_PROTO_GNSS_SIZE 52u
+
+/** GNSS (id 0x13, to_host): One fix of the GNSS receiver, in its own units (u-blox NAV-PVT's), as
+ *  the board received it. Emulated boards take it from their sensor feed (a GNSS frame before the
+ *  SAMPLE during which it arrives; timestamp_us and index there are not used).
+ */
+typedef struct {
+    uint32_t timestamp_us; /**< board time of the SAMPLE read when the fix had arrived (its timestamp_us), us */
+    uint32_t index; /**< index of that SAMPLE: the fix arrived during its read or before */
+    uint32_t time_ms; /**< the time the fix is valid for: GPS time of week, ms (NMEA: UTC time of day); earlier than its arrival by the receiver's latency */
+    uint8_t fix_type; /**< 0 none, 1 dead reckoning, 2 2-D, 3 3-D, 4 GNSS + dead reckoning, 5 time only (NAV-PVT's fixType) */
+    uint8_t fix_ok; /**< 1: within the receiver's accuracy masks (NAV-PVT's gnssFixOK) */
+    uint8_t num_sv; /**< satellites used */
+    uint8_t has_velocity; /**< 1: vel_ned_mm_s and s_acc_mm_s are valid */
+    int32_t lat_1e7deg; /**< latitude, 1e-7 deg */
+    int32_t lon_1e7deg; /**< longitude, 1e-7 deg */
+    int32_t height_mm; /**< height above the WGS-84 ellipsoid, mm */
+    uint32_t h_acc_mm; /**< horizontal accuracy estimate, mm (0: not given) */
+    uint32_t v_acc_mm; /**< vertical accuracy estimate, mm (0: not given) */
+    int32_t vel_ned_mm_s[3]; /**< velocity north, east, down, mm/s */
+    uint32_t s_acc_mm_s; /**< speed accuracy estimate, mm/s (0: not given) */
+} imu_proto_gnss_t;
+
+/** @brief Payload bytes of GNSS into `payload` (IMU_PROTO_GNSS_SIZE bytes); returns IMU_PROTO_GNSS_SIZE. */
+size_t imu_proto_gnss_pack(const imu_proto_gnss_t *m, uint8_t *payload);
+/** @brief Fields of a GNSS payload; IMU_PROTO_ERR_LENGTH when `len` is not a GNSS payload length. */
+imu_proto_result_t imu_proto_gnss_unpack(imu_proto_gnss_t *m, const uint8_t *payload, size_t len);
+/** @brief Wire bytes of a GNSS frame (delimiter included); 0 when they do not fit or pack fails. */
+size_t imu_proto_gnss_encode(const imu_proto_gnss_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 
 /** COMMAND maximum payload bytes. */
 #define IMU_PROTO_COMMAND_SIZE 31u

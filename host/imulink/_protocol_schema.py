@@ -7,7 +7,7 @@ the last field only, text / bytes (length: the maximum, variable on the wire).
 """
 
 PROTOCOL_VERSION = 1
-SCHEMA_HASH = 0xC345F64B
+SCHEMA_HASH = 0xB5437FCE
 HEADER_SIZE = 3
 CRC_SIZE = 4
 MAX_PAYLOAD = 201
@@ -100,6 +100,22 @@ MESSAGES = {
         ('pressure_pa', 'i32', None),
         ('temperature_cdeg', 'i32', None),
     )},
+    'GNSS': {'id': 0x13, 'direction': 'to_host', 'fields': (
+        ('timestamp_us', 'u32', None),
+        ('index', 'u32', None),
+        ('time_ms', 'u32', None),
+        ('fix_type', 'u8', None),
+        ('fix_ok', 'u8', None),
+        ('num_sv', 'u8', None),
+        ('has_velocity', 'u8', None),
+        ('lat_1e7deg', 'i32', None),
+        ('lon_1e7deg', 'i32', None),
+        ('height_mm', 'i32', None),
+        ('h_acc_mm', 'u32', None),
+        ('v_acc_mm', 'u32', None),
+        ('vel_ned_mm_s', 'i32', 3),
+        ('s_acc_mm_s', 'u32', None),
+    )},
     'COMMAND': {'id': 0x20, 'direction': 'to_board', 'fields': (
         ('command', 'u8', None),
         ('command_seq', 'u16', None),
@@ -161,7 +177,7 @@ CFFI_DECLARATIONS = """
 #define IMU_PROTO_VERSION ...
 #define IMU_PROTO_SCHEMA_HASH ...
 #define IMU_PROTO_MAX_PAYLOAD ...
-typedef enum { IMU_PROTO_MSG_HELLO = 1, IMU_PROTO_MSG_STATUS = 2, IMU_PROTO_MSG_LOG = 3, IMU_PROTO_MSG_ACK = 4, IMU_PROTO_MSG_NACK = 5, IMU_PROTO_MSG_SETTING = 6, IMU_PROTO_MSG_CALIBRATION = 7, IMU_PROTO_MSG_SAMPLE = 16, IMU_PROTO_MSG_ESTIMATE = 17, IMU_PROTO_MSG_BARO = 18, IMU_PROTO_MSG_COMMAND = 32 } imu_proto_msg_id_t;
+typedef enum { IMU_PROTO_MSG_HELLO = 1, IMU_PROTO_MSG_STATUS = 2, IMU_PROTO_MSG_LOG = 3, IMU_PROTO_MSG_ACK = 4, IMU_PROTO_MSG_NACK = 5, IMU_PROTO_MSG_SETTING = 6, IMU_PROTO_MSG_CALIBRATION = 7, IMU_PROTO_MSG_SAMPLE = 16, IMU_PROTO_MSG_ESTIMATE = 17, IMU_PROTO_MSG_BARO = 18, IMU_PROTO_MSG_GNSS = 19, IMU_PROTO_MSG_COMMAND = 32 } imu_proto_msg_id_t;
 typedef enum { IMU_PROTO_CMD_START_STREAM = 1, IMU_PROTO_CMD_STOP_STREAM = 2, IMU_PROTO_CMD_SELECT_FILTER = 3, IMU_PROTO_CMD_GET_SETTING = 4, IMU_PROTO_CMD_SET_SETTING = 5, IMU_PROTO_CMD_INJECT_SAMPLE = 6, IMU_PROTO_CMD_RESET = 7, IMU_PROTO_CMD_ENTER_BOOTLOADER = 8, IMU_PROTO_CMD_GET_VERSION = 9, IMU_PROTO_CMD_GET_STATUS = 10, IMU_PROTO_CMD_SET_INJECTION_MODE = 11, IMU_PROTO_CMD_SET_CALIBRATION = 12, IMU_PROTO_CMD_GET_CALIBRATION = 13 } imu_proto_command_id_t;
 typedef enum { IMU_PROTO_FILTER_EECF = 1, IMU_PROTO_FILTER_KF1D = 2, IMU_PROTO_FILTER_ESKF = 3 } imu_proto_filter_t;
 typedef enum { IMU_PROTO_REASON_OK = 0, IMU_PROTO_REASON_UNKNOWN_COMMAND = 1, IMU_PROTO_REASON_BAD_LENGTH = 2, IMU_PROTO_REASON_BAD_ARGUMENT = 3, IMU_PROTO_REASON_OUT_OF_RANGE = 4, IMU_PROTO_REASON_BUSY = 5, IMU_PROTO_REASON_NOT_IN_INJECTION_MODE = 6, IMU_PROTO_REASON_UNKNOWN_FILTER = 7, IMU_PROTO_REASON_UNKNOWN_SETTING = 8, IMU_PROTO_REASON_NOT_SUPPORTED = 9 } imu_proto_reason_t;
@@ -217,6 +233,11 @@ typedef struct { uint32_t timestamp_us; uint32_t index; uint32_t d1; uint32_t d2
 size_t imu_proto_baro_pack(const imu_proto_baro_t *m, uint8_t *payload);
 imu_proto_result_t imu_proto_baro_unpack(imu_proto_baro_t *m, const uint8_t *payload, size_t len);
 size_t imu_proto_baro_encode(const imu_proto_baro_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
+#define IMU_PROTO_GNSS_SIZE ...
+typedef struct { uint32_t timestamp_us; uint32_t index; uint32_t time_ms; uint8_t fix_type; uint8_t fix_ok; uint8_t num_sv; uint8_t has_velocity; int32_t lat_1e7deg; int32_t lon_1e7deg; int32_t height_mm; uint32_t h_acc_mm; uint32_t v_acc_mm; int32_t vel_ned_mm_s[3]; uint32_t s_acc_mm_s; } imu_proto_gnss_t;
+size_t imu_proto_gnss_pack(const imu_proto_gnss_t *m, uint8_t *payload);
+imu_proto_result_t imu_proto_gnss_unpack(imu_proto_gnss_t *m, const uint8_t *payload, size_t len);
+size_t imu_proto_gnss_encode(const imu_proto_gnss_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 #define IMU_PROTO_COMMAND_SIZE ...
 typedef struct { uint8_t command; uint16_t command_seq; uint8_t args[28]; size_t args_len; } imu_proto_command_t;
 size_t imu_proto_command_pack(const imu_proto_command_t *m, uint8_t *payload);

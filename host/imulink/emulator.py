@@ -130,11 +130,32 @@ def baro_due(n: int, rate_hz: float) -> np.ndarray:
     return np.r_[True, slot[1:] != slot[:-1]][:n] if n else np.zeros(0, bool)
 
 
-def feed_frames(simulation: sim.SimResult, profile: SensorProfile = DEFAULT_PROFILE) -> list[bytes]:
+def gnss_messages(fixes: navigation.GnssFixes, rate_hz: float, n: int) -> dict[int, dict]:
+    """GNSS frames' fields by the sample each fix arrives with (the first at or after its
+    arrival; fixes that arrive after the last sample are left out): the receiver's units,
+    a 3-D fix with velocity, time_ms the time it is valid for."""
+    out = {}
+    for k in range(len(fixes)):
+        sample = int(np.ceil(fixes.t_arrival[k] * rate_hz - 1e-9))
+        if sample >= n:
+            continue
+        vel = fixes.vel_enu[k]
+        out[sample] = dict(time_ms=int(round(fixes.t_valid[k] * 1000.0)) & 0xFFFFFFFF, fix_type=3, fix_ok=1, num_sv=12,
+                           has_velocity=1, lat_1e7deg=int(round(fixes.lat_deg[k] * 1e7)),
+                           lon_1e7deg=int(round(fixes.lon_deg[k] * 1e7)), height_mm=int(round(fixes.height_m[k] * 1e3)),
+                           h_acc_mm=int(round(fixes.h_acc_m[k] * 1e3)), v_acc_mm=int(round(fixes.v_acc_m[k] * 1e3)),
+                           vel_ned_mm_s=[int(round(v * 1e3)) for v in (vel[1], vel[0], -vel[2])],
+                           s_acc_mm_s=int(round(fixes.s_acc_m_s[k] * 1e3)))
+    return out
+
+
+def feed_frames(simulation: sim.SimResult, profile: SensorProfile = DEFAULT_PROFILE,
+                gnss: navigation.GnssFixes | None = None) -> list[bytes]:
     """The feed of a simulated run: one SAMPLE frame per sample (counts in `profile`), with
-    a BARO frame before it where the barometer has a measurement (baro_due), then a LOG
-    frame saying the run is over. Each item of the list is what the board gets for one
-    request (docs/firmware.md)."""
+    a BARO frame before it where the barometer has a measurement (baro_due) and a GNSS
+    frame where a fix of `gnss` has arrived (gnss_messages), then a LOG frame saying the
+    run is over. Each item of the list is what the board gets for one request
+    (docs/firmware.md)."""
     counts = (simulation.gyr_counts, simulation.acc_counts, simulation.mag_counts)
     if profile != simulation.profile:
         counts = si_to_counts(simulation.gyr, simulation.acc, simulation.mag, profile)
@@ -142,10 +163,16 @@ def feed_frames(simulation: sim.SimResult, profile: SensorProfile = DEFAULT_PROF
     period_us = 1e6 / simulation.rate_hz
     d1, d2 = ms5611.raw_for(ms5611.EXAMPLE_C, float(navigation.pressure_at(BARO_HEIGHT_M)), BARO_TEMPERATURE_CDEG)
     due = baro_due(len(gyr), simulation.rate_hz)
-    frames = [(protocol.encode("BARO", k & 0xFFFF, timestamp_us=round(k * period_us) & 0xFFFFFFFF, index=k, d1=d1,
-                               d2=d2, pressure_pa=0, temperature_cdeg=0) if due[k] else b"")
-              + protocol.encode("SAMPLE", k & 0xFFFF, timestamp_us=round(k * period_us) & 0xFFFFFFFF, index=k,
-                                gyr=gyr[k], acc=acc[k], mag=mag[k], temperature=TEMPERATURE_25C)
+    fixes = gnss_messages(gnss, simulation.rate_hz, len(gyr)) if gnss is not None else {}
+
+    def stamp(k: int) -> dict:
+        return dict(timestamp_us=round(k * period_us) & 0xFFFFFFFF, index=k)
+
+    frames = [(protocol.encode("BARO", k & 0xFFFF, **stamp(k), d1=d1, d2=d2, pressure_pa=0, temperature_cdeg=0)
+               if due[k] else b"")
+              + (protocol.encode("GNSS", k & 0xFFFF, **stamp(k), **fixes[k]) if k in fixes else b"")
+              + protocol.encode("SAMPLE", k & 0xFFFF, **stamp(k), gyr=gyr[k], acc=acc[k], mag=mag[k],
+                                temperature=TEMPERATURE_25C)
               for k in range(len(gyr))]
     frames.append(protocol.encode("LOG", len(gyr) & 0xFFFF, level=protocol.LOG_LEVELS["INFO"],
                                   text=f"end of the simulated run ({len(gyr)} samples)"))
@@ -213,6 +240,8 @@ class EmulatedBoard:
         image: the firmware to run instead of the built one.
         simulation: a simulated run (imulink.sim.simulate) to feed instead of the scenario's,
             e.g. with other sensor errors; its rate must be rate_hz.
+        gnss: fixes of a GNSS receiver to feed with the samples (imulink.sim.navigation.gnss_fixes
+            of the simulation's trajectory); none by default.
     """
 
     def __init__(self, target: str = "native", *, front: str = "pty", port: int = 0, scenario: str = "rests",
@@ -220,7 +249,7 @@ class EmulatedBoard:
                  realtime: bool = False, profile: SensorProfile = DEFAULT_PROFILE,
                  faults: FaultConfig | None = None, schema_hash: int | None = None,
                  image: str | os.PathLike | None = None, baud: int = 921600,
-                 simulation: sim.SimResult | None = None):
+                 simulation: sim.SimResult | None = None, gnss: navigation.GnssFixes | None = None):
         if filter_name not in core.FILTERS:
             raise EmulatorError(f"unknown filter {filter_name!r}; choose one of {', '.join(core.FILTERS)}")
         core.Filter(filter_name, rate_hz)  # SettingsError for a rate the filter is not made for (nor the host's replay)
@@ -240,6 +269,7 @@ class EmulatedBoard:
         self.schema_hash = schema_hash
         if simulation is not None and simulation.rate_hz != self.rate_hz:
             raise EmulatorError(f"the simulation runs at {simulation.rate_hz:g} Hz, the board at {rate_hz:g} Hz")
+        self.gnss = gnss
         self.simulation = simulation if simulation is not None else sim.make_scenario(scenario, duration_s, rate_hz,
                                                                                       seed)
         self._counts = (self.simulation.gyr_counts, self.simulation.acc_counts, self.simulation.mag_counts)
@@ -266,7 +296,7 @@ class EmulatedBoard:
     def start(self) -> "EmulatedBoard":
         self._dir = Path(tempfile.mkdtemp(prefix="imulink-board-"))
         try:
-            frames = feed_frames(self.simulation, self.profile)
+            frames = feed_frames(self.simulation, self.profile, self.gnss)
             if self.target == "native":
                 self._start_native(frames)
             else:

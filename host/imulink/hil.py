@@ -971,6 +971,7 @@ def replay_columns(recording: Recording, run: HostRun, comparison: Comparison) -
     weights = board(e.weights, 30)  # zero but for the ESKF
     columns["board_gravity_weight"], columns["board_heading_weight"] = weights[:, 0], weights[:, 1]
     columns["baro_pa"], columns["baro_temp_c"] = _baro_columns(recording)
+    columns.update(_gnss_columns(recording))
     identical = np.full(n, np.nan)
     checked = have.copy()
     checked[have] = comparison.verified[estimate_of[have]]
@@ -980,23 +981,52 @@ def replay_columns(recording: Recording, run: HostRun, comparison: Comparison) -
     return columns
 
 
+def _rows_of(recording: Recording, segment: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """The sample row of each (segment, index), -1 where that sample was not received."""
+    s = recording.samples
+    row_of = {key: row for row, key in enumerate(zip(s.segment.tolist(), s.index.tolist()))}
+    return np.array([row_of.get(key, -1) for key in zip(segment.tolist(), index.tolist())], np.int64)
+
+
+def _gnss_columns(recording: Recording) -> dict[str, np.ndarray]:
+    """The receiver's fixes in the rows of the samples they arrived with, empty elsewhere, in
+    SI units under `imulink nav`'s input names (velocity east, north, up), with gnss_time_ms,
+    the time each is valid for (the receiver's clock: its latency is the difference)."""
+    g, n = recording.gnss, len(recording.samples)
+    rows = _rows_of(recording, g.segment, g.index)
+    have = rows >= 0
+    values = {"gnss_time_ms": g.time_ms, "gnss_lat_deg": g.lat_1e7deg * 1e-7, "gnss_lon_deg": g.lon_1e7deg * 1e-7,
+              "gnss_height_m": g.height_mm * 1e-3, "gnss_vel_e_m_s": g.vel_ned_mm_s[:, 1] * 1e-3,
+              "gnss_vel_n_m_s": g.vel_ned_mm_s[:, 0] * 1e-3, "gnss_vel_u_m_s": -g.vel_ned_mm_s[:, 2] * 1e-3,
+              "gnss_h_acc_m": g.h_acc_mm * 1e-3, "gnss_v_acc_m": g.v_acc_mm * 1e-3,
+              "gnss_s_acc_m_s": g.s_acc_mm_s * 1e-3}
+    columns = {}
+    for name, value in values.items():
+        column = np.full(n, np.nan)
+        if name.startswith("gnss_vel") or name == "gnss_s_acc_m_s":
+            ok = have & (g.has_velocity != 0)
+        else:
+            ok = have
+        column[rows[ok]] = value[ok]
+        columns[name] = column
+    return columns
+
+
 def _baro_columns(recording: Recording) -> tuple[np.ndarray, np.ndarray]:
     """The barometer's pressure (Pa) and temperature (degC) in the rows of the samples they
     were read with (by segment and index), empty elsewhere: the columns `imulink nav`'s input
     names so."""
-    s, b = recording.samples, recording.baro
-    pressure, temperature = np.full(len(s), np.nan), np.full(len(s), np.nan)
-    row_of = {key: row for row, key in enumerate(zip(s.segment.tolist(), s.index.tolist()))}
-    for segment, index, pa, cdeg in zip(b.segment.tolist(), b.index.tolist(), b.pressure_pa.tolist(),
-                                        b.temperature_cdeg.tolist()):
-        row = row_of.get((segment, index))
-        if row is not None:
-            pressure[row], temperature[row] = pa, cdeg / 100.0
+    b, n = recording.baro, len(recording.samples)
+    rows = _rows_of(recording, b.segment, b.index)
+    have = rows >= 0
+    pressure, temperature = np.full(n, np.nan), np.full(n, np.nan)
+    pressure[rows[have]] = b.pressure_pa[have]
+    temperature[rows[have]] = b.temperature_cdeg[have] / 100.0
     return pressure, temperature
 
 
 #: Replay columns that hold integers (a float column only where some rows have no value).
-_INTEGER_COLUMNS = ("timestamp_us", "segment", "index", "verifiable", "identical")
+_INTEGER_COLUMNS = ("timestamp_us", "segment", "index", "verifiable", "identical", "gnss_time_ms")
 
 
 def export_csv(columns: dict[str, np.ndarray], path) -> None:

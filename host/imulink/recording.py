@@ -320,6 +320,33 @@ class Baro:
 
 
 @dataclass
+class Gnss:
+    """GNSS frames in arrival order: the receiver's fixes in its own units (1e-7 deg, mm,
+    mm/s, NED velocity), each with the index of the SAMPLE it arrived with and the time
+    it is valid for (time_ms)."""
+
+    host_time: np.ndarray
+    segment: np.ndarray
+    index: np.ndarray
+    timestamp_us: np.ndarray
+    time_ms: np.ndarray
+    fix_type: np.ndarray
+    fix_ok: np.ndarray
+    num_sv: np.ndarray
+    has_velocity: np.ndarray
+    lat_1e7deg: np.ndarray
+    lon_1e7deg: np.ndarray
+    height_mm: np.ndarray
+    h_acc_mm: np.ndarray
+    v_acc_mm: np.ndarray
+    vel_ned_mm_s: np.ndarray  # (n, 3)
+    s_acc_mm_s: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+
+@dataclass
 class Recording:
     """A decoded recording.
 
@@ -351,6 +378,7 @@ class Recording:
     segment_settings: dict[int, dict[int, dict[int, dict]]] = field(default_factory=dict)
     segment_calibration_frames: dict[int, int] = field(default_factory=dict)
     baro: Baro = field(default_factory=lambda: _baro_table([]))
+    gnss: Gnss = field(default_factory=lambda: _gnss_table([]))
 
     def calibration(self, segment: int | None = None):
         """The board's calibration (imulink.calibration.Calibration, in this recording's
@@ -461,7 +489,7 @@ def load_recording(path, progress: Callable[[int, int], None] | None = None) -> 
     logs, settings, calibration_frames = [], {}, []
     segment_settings, segment_calibration_frames = {}, {}
     hello = status = None
-    samples, estimates, baro = [], [], []
+    samples, estimates, baro, gnss = [], [], [], []
 
     def place(index: int) -> int:
         """The segment of a SAMPLE or ESTIMATE; a segment's first one notes what the board had reported."""
@@ -484,6 +512,8 @@ def load_recording(path, progress: Callable[[int, int], None] | None = None) -> 
                 estimates.append((record.time, place(fields["index"]), record.offset < snapshot_at, fields))
             elif name == "BARO":
                 baro.append((record.time, place(fields["index"]), fields))
+            elif name == "GNSS":
+                gnss.append((record.time, place(fields["index"]), fields))
             elif name == "ACK" and fields["command"] in _RESTARTING_IDS:
                 segmenter.restart()
             elif name == "HELLO":
@@ -505,7 +535,8 @@ def load_recording(path, progress: Callable[[int, int], None] | None = None) -> 
     segments = len(set(sample_table.segment.tolist()) | set(estimate_table.segment.tolist()))
     return Recording(path, header, profile, [event for _, event in events], hello, status, settings, sample_table,
                      estimate_table, logs, decoder.counters(), found.damaged, found.truncated_bytes, segments,
-                     calibration_frames, segment_settings, segment_calibration_frames, _baro_table(baro))
+                     calibration_frames, segment_settings, segment_calibration_frames, _baro_table(baro),
+                     _gnss_table(gnss))
 
 
 def _json_object(path: Path, record: LogRecord, what: str) -> dict:
@@ -578,6 +609,18 @@ def _baro_table(rows) -> Baro:
         segment=np.array([r[1] for r in rows], np.int32),
         **{name: np.array([x[name] for x in f], np.int64)
            for name in ("index", "timestamp_us", "d1", "d2", "pressure_pa", "temperature_cdeg")},
+    )
+
+
+def _gnss_table(rows) -> Gnss:
+    f = [r[2] for r in rows]
+    return Gnss(
+        host_time=np.array([r[0] for r in rows], np.float64),
+        segment=np.array([r[1] for r in rows], np.int32),
+        vel_ned_mm_s=np.array([x["vel_ned_mm_s"] for x in f], np.int64).reshape(-1, 3),
+        **{name: np.array([x[name] for x in f], np.int64)
+           for name in ("index", "timestamp_us", "time_ms", "fix_type", "fix_ok", "num_sv", "has_velocity",
+                        "lat_1e7deg", "lon_1e7deg", "height_mm", "h_acc_mm", "v_acc_mm", "s_acc_mm_s")},
     )
 
 

@@ -23,14 +23,25 @@ int feed_baro_take(feed_baro_t *baro, board_baro_t *out)
     return 1;
 }
 
+int feed_gnss_take(feed_gnss_t *gnss, imu_proto_gnss_t *fix)
+{
+    if (!gnss->valid) {
+        return 0;
+    }
+    gnss->valid = 0;
+    *fix = gnss->fix;
+    return 1;
+}
+
 void feed_init(feed_t *feed)
 {
     imu_proto_decoder_init(&feed->decoder, feed->frame, sizeof feed->frame);
     feed->baro.valid = 0;
+    feed->gnss.valid = 0;
     feed->end_text[0] = '\0';
 }
 
-feed_event_t feed_push(feed_t *feed, uint8_t byte, imu_raw_sample_t *raw, int16_t *temperature, feed_baro_t *baro)
+feed_event_t feed_push(feed_t *feed, uint8_t byte, feed_sample_t *sample)
 {
     imu_proto_frame_t frame;
     if (!imu_proto_decoder_push(&feed->decoder, byte, &frame)) {
@@ -43,14 +54,20 @@ feed_event_t feed_push(feed_t *feed, uint8_t byte, imu_raw_sample_t *raw, int16_
             return FEED_MORE;
         }
         for (i = 0; i < 3; ++i) {
-            raw->gyr[i] = s.gyr[i];
-            raw->acc[i] = s.acc[i];
-            raw->mag[i] = s.mag[i];
+            sample->raw.gyr[i] = s.gyr[i];
+            sample->raw.acc[i] = s.acc[i];
+            sample->raw.mag[i] = s.mag[i];
         }
-        *temperature = s.temperature;
-        *baro = feed->baro;
+        sample->temperature = s.temperature;
+        sample->baro = feed->baro;
+        sample->gnss = feed->gnss;
         feed->baro.valid = 0;
+        feed->gnss.valid = 0;
         return FEED_SAMPLE;
+    }
+    if (frame.msg_id == IMU_PROTO_MSG_GNSS) {
+        feed->gnss.valid = imu_proto_gnss_unpack(&feed->gnss.fix, frame.payload, frame.payload_len) == IMU_PROTO_OK;
+        return FEED_MORE;
     }
     if (frame.msg_id == IMU_PROTO_MSG_BARO) {
         imu_proto_baro_t b;

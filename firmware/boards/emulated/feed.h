@@ -9,7 +9,8 @@
  * and index are the simulator's and are not used: the board stamps and counts
  * samples itself). A BARO frame before a SAMPLE is the barometer's D1 and D2 read
  * with that sample (an MS5611 whose PROM holds feed_baro_prom; the frame's other
- * fields are not used). A LOG frame means the feed has ended; its text says why. On QEMU
+ * fields are not used), a GNSS frame before a SAMPLE the receiver's fix that arrived by
+ * then. A LOG frame means the feed has ended; its text says why. On QEMU
  * the board asks for each sample by sending one byte on the feed UART; the native
  * board reads the feed from a file. docs/firmware.md specifies it for other feeders.
  */
@@ -37,6 +38,20 @@ typedef struct {
     uint32_t d2; /**< raw temperature conversion, 24 bits */
 } feed_baro_t;
 
+/** The receiver's fix that arrived with a sample. */
+typedef struct {
+    int valid;            /**< 1 when the sample had a GNSS frame before it */
+    imu_proto_gnss_t fix; /**< the fix (its timestamp_us and index are the feeder's) */
+} feed_gnss_t;
+
+/** One sample of the feed and what came with it. */
+typedef struct {
+    imu_raw_sample_t raw;
+    int16_t temperature;
+    feed_baro_t baro;
+    feed_gnss_t gnss;
+} feed_sample_t;
+
 /** The emulated MS5611's PROM: the data sheet's typical coefficients C1..C6 (its worked
  *  example), which the host's simulator uses to turn pressures into D1 and D2. */
 extern const uint16_t feed_baro_prom[8];
@@ -53,14 +68,18 @@ typedef struct {
     imu_proto_decoder_t decoder;
     uint8_t frame[IMU_PROTO_MAX_FRAME];
     feed_baro_t baro;                  /**< a BARO frame waiting for its SAMPLE */
+    feed_gnss_t gnss;                  /**< a GNSS frame waiting for its SAMPLE */
     char end_text[IMU_PROTO_LOG_SIZE]; /**< the LOG text of the end, terminated */
 } feed_t;
 
 /** @brief Start decoding a feed. */
 void feed_init(feed_t *feed);
 
-/** @brief Push one byte of the feed; on FEED_SAMPLE the sample is in *raw and *temperature,
- *         and the barometer's conversions read with it (if any) in *baro. */
-feed_event_t feed_push(feed_t *feed, uint8_t byte, imu_raw_sample_t *raw, int16_t *temperature, feed_baro_t *baro);
+/** @brief Push one byte of the feed; on FEED_SAMPLE *sample holds the sample and the
+ *         barometer's conversions and the receiver's fix that came with it (if any). */
+feed_event_t feed_push(feed_t *feed, uint8_t byte, feed_sample_t *sample);
+
+/** @brief The fix that came with a sample, once: *gnss is marked used. 1 with *fix filled, else 0. */
+int feed_gnss_take(feed_gnss_t *gnss, imu_proto_gnss_t *fix);
 
 #endif /* FEED_H */

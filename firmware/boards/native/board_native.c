@@ -56,7 +56,7 @@ static struct {
     FILE *feed_file;
     const char *feed_path;
     feed_t feed;
-    feed_baro_t baro; /* the barometer's conversions read with the last sample */
+    feed_sample_t sample; /* the last sample and what came with it */
     char message[256];
 } native;
 
@@ -237,8 +237,10 @@ board_sensors_result_t board_sensors_read(imu_raw_sample_t *raw, int16_t *temper
         return BOARD_SENSORS_FAILED;
     }
     while ((c = getc(native.feed_file)) != EOF) {
-        switch (feed_push(&native.feed, (uint8_t)c, raw, temperature, &native.baro)) {
+        switch (feed_push(&native.feed, (uint8_t)c, &native.sample)) {
         case FEED_SAMPLE:
+            *raw = native.sample.raw;
+            *temperature = native.sample.temperature;
             return BOARD_SENSORS_OK;
         case FEED_ENDED:
             *message = native.feed.end_text;
@@ -254,7 +256,13 @@ board_sensors_result_t board_sensors_read(imu_raw_sample_t *raw, int16_t *temper
 int board_baro_read(uint64_t now_us, board_baro_t *out)
 {
     (void)now_us; /* the feed's conversions came with the sample */
-    return feed_baro_take(&native.baro, out);
+    return feed_baro_take(&native.sample.baro, out);
+}
+
+int board_gnss_read(uint64_t now_us, imu_proto_gnss_t *fix)
+{
+    (void)now_us; /* the feed's fix came with the sample */
+    return feed_gnss_take(&native.sample.gnss, fix);
 }
 
 /* --------------------------------------------------------------------------- system */

@@ -61,11 +61,9 @@ static schedule_t schedule;        /* real time: when samples are due */
 /* A sample decoded from the feed and not yet handed to the application. */
 static struct {
     feed_event_t event; /* FEED_MORE: none waiting */
-    imu_raw_sample_t raw;
-    int16_t temperature;
-    feed_baro_t baro;
+    feed_sample_t sample;
 } next_sample;
-static feed_baro_t sample_baro;    /* the barometer's conversions read with the last sample */
+static feed_sample_t last_sample;  /* the sample handed to the application and what came with it */
 
 void usart2_irq_handler(void);
 APP_IDENTIFICATION("qemu-stm32f405", "STM32F405", 0x413u, 1024u);
@@ -227,7 +225,7 @@ static int feed_ready(void)
 {
     uint8_t byte;
     while (next_sample.event == FEED_MORE && uart_read(&feed_uart, &byte, 1) == 1) {
-        next_sample.event = feed_push(&feed, byte, &next_sample.raw, &next_sample.temperature, &next_sample.baro);
+        next_sample.event = feed_push(&feed, byte, &next_sample.sample);
         if (next_sample.event != FEED_MORE && feed_outstanding > 0) {
             --feed_outstanding;
         }
@@ -306,16 +304,22 @@ board_sensors_result_t board_sensors_read(imu_raw_sample_t *raw, int16_t *temper
         *message = feed.end_text;
         return BOARD_SENSORS_ENDED;
     }
-    *raw = next_sample.raw;
-    *temperature = next_sample.temperature;
-    sample_baro = next_sample.baro;
+    last_sample = next_sample.sample;
+    *raw = last_sample.raw;
+    *temperature = last_sample.temperature;
     return BOARD_SENSORS_OK;
 }
 
 int board_baro_read(uint64_t now_us, board_baro_t *out)
 {
     (void)now_us; /* the feed's conversions came with the sample */
-    return feed_baro_take(&sample_baro, out);
+    return feed_baro_take(&last_sample.baro, out);
+}
+
+int board_gnss_read(uint64_t now_us, imu_proto_gnss_t *fix)
+{
+    (void)now_us; /* the feed's fix came with the sample */
+    return feed_gnss_take(&last_sample.gnss, fix);
 }
 
 void board_idle(void)

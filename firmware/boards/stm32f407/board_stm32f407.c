@@ -240,6 +240,14 @@ board_sensors_result_t board_sensors_read(imu_raw_sample_t *raw, int16_t *temper
     return BOARD_SENSORS_OK; /* a magnetometer overflow is delivered: the core flags the clipped axis */
 }
 
+int board_gnss_read(uint64_t now_us, imu_proto_gnss_t *fix)
+{
+    /* The receiver on USART2 (docs/firmware.md) is not driven yet: no fixes. */
+    (void)now_us;
+    (void)fix;
+    return 0;
+}
+
 const char *board_start_up_problem(void)
 {
     return start_up_problem[0] != '\0' ? start_up_problem : 0;
