@@ -49,6 +49,20 @@ def test_feed_carries_each_gnss_fix_before_the_sample_it_arrives_with():
         assert fields["h_acc_mm"] == round(fixes.h_acc_m[i] * 1000)
 
 
+def test_feed_carries_a_barometer_along_a_trajectory():
+    """Given the simulator's barometer samples (50 Hz, the air along a hill of the drive, with
+    noise and drift), the feed's BARO frames are at their samples and compensate back to
+    their pressure and temperature to the data sheet's resolution (1 Pa, 0.01 degC)."""
+    traj = navigation.car_drive(3.0, 100.0, seed=3)
+    baro = navigation.baro_samples(traj, seed=3)
+    requests = [list(protocol.FrameDecoder().feed(f)) for f in feed_frames(simulate(traj, seed=3), baro=baro)]
+    found = {k: r[0].fields for k, r in enumerate(requests[:-1]) if r[0].name == "BARO"}
+    assert sorted(found) == baro.index.tolist()
+    for k, pa, c in zip(baro.index, baro.pressure_pa, baro.temperature_c):
+        pressure, temperature = ms5611.compensate(ms5611.EXAMPLE_C, found[k]["d1"], found[k]["d2"])
+        assert abs(pressure - pa) <= 1.0 and abs(temperature - c * 100.0) <= 1.0
+
+
 def test_barometer_is_due_every_20_ms_at_any_rate():
     assert baro_due(6, 100.0).tolist() == [True, False, True, False, True, False]
     assert baro_due(3, 30.0).all()  # 33 ms apart: every sample

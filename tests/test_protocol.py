@@ -614,7 +614,7 @@ def test_schema_hash_covers_layout_not_documentation(project_copy):
     toml.write_text(original.replace("board time when the sample was read", "when the sample was taken"))
     assert gen.schema_hash(gen.load_schema(toml)) == schema.SCHEMA_HASH
     for edit in (('name = "temperature", type = "i16"', 'name = "temperature", type = "u16"'),
-                 ("id = 0x11", "id = 0x13"),
+                 ("id = 0x11", "id = 0x1F"),
                  ('{ name = "BUSY", value = 5', '{ name = "BUSY", value = 15')):
         assert edit[0] in original
         toml.write_text(original.replace(*edit))

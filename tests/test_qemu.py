@@ -46,7 +46,7 @@ def test_live_run_is_bit_exact(qemu_board, filter_name, tmp_path):
         link.connect()
         link.command("SELECT_FILTER", filter_id=core.FILTERS[filter_name][0])
     path = tmp_path / "live.imulog"
-    result = hil.record(qemu_board.address, path, duration_s=3.0, profile=qemu_board.profile)
+    result = hil.record(qemu_board.address, path, duration_s=5.0, profile=qemu_board.profile)
     recording = load_recording(path)
     comparison = hil.compare(recording)
     assert result.filter_name == filter_name and recording.hello["board"] == "qemu-stm32f405"

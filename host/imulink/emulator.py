@@ -149,27 +149,37 @@ def gnss_messages(fixes: navigation.GnssFixes, rate_hz: float, n: int) -> dict[i
     return out
 
 
+def baro_conversions(n: int, rate_hz: float, baro: navigation.BaroSamples | None = None) -> dict[int, tuple[int, int]]:
+    """The emulated MS5611's D1 and D2 by the sample they are read with: those of `baro`'s
+    pressures and temperatures (at its samples), or without it the still air of
+    BARO_HEIGHT_M and BARO_TEMPERATURE_CDEG every BARO_PERIOD_S (baro_due)."""
+    if baro is None:
+        still = ms5611.raw_for(ms5611.EXAMPLE_C, float(navigation.pressure_at(BARO_HEIGHT_M)), BARO_TEMPERATURE_CDEG)
+        return {int(k): still for k in np.flatnonzero(baro_due(n, rate_hz))}
+    return {int(k): ms5611.raw_for(ms5611.EXAMPLE_C, float(pa), float(c) * 100.0)
+            for k, pa, c in zip(baro.index, baro.pressure_pa, baro.temperature_c) if k < n}
+
+
 def feed_frames(simulation: sim.SimResult, profile: SensorProfile = DEFAULT_PROFILE,
-                gnss: navigation.GnssFixes | None = None) -> list[bytes]:
+                gnss: navigation.GnssFixes | None = None, baro: navigation.BaroSamples | None = None) -> list[bytes]:
     """The feed of a simulated run: one SAMPLE frame per sample (counts in `profile`), with
-    a BARO frame before it where the barometer has a measurement (baro_due) and a GNSS
-    frame where a fix of `gnss` has arrived (gnss_messages), then a LOG frame saying the
-    run is over. Each item of the list is what the board gets for one request
+    a BARO frame before it where the barometer has a measurement (baro_conversions) and a
+    GNSS frame where a fix of `gnss` has arrived (gnss_messages), then a LOG frame saying
+    the run is over. Each item of the list is what the board gets for one request
     (docs/firmware.md)."""
     counts = (simulation.gyr_counts, simulation.acc_counts, simulation.mag_counts)
     if profile != simulation.profile:
         counts = si_to_counts(simulation.gyr, simulation.acc, simulation.mag, profile)
     gyr, acc, mag = (c.tolist() for c in counts)
     period_us = 1e6 / simulation.rate_hz
-    d1, d2 = ms5611.raw_for(ms5611.EXAMPLE_C, float(navigation.pressure_at(BARO_HEIGHT_M)), BARO_TEMPERATURE_CDEG)
-    due = baro_due(len(gyr), simulation.rate_hz)
+    conversions = baro_conversions(len(gyr), simulation.rate_hz, baro)
     fixes = gnss_messages(gnss, simulation.rate_hz, len(gyr)) if gnss is not None else {}
 
     def stamp(k: int) -> dict:
         return dict(timestamp_us=round(k * period_us) & 0xFFFFFFFF, index=k)
 
-    frames = [(protocol.encode("BARO", k & 0xFFFF, **stamp(k), d1=d1, d2=d2, pressure_pa=0, temperature_cdeg=0)
-               if due[k] else b"")
+    frames = [(protocol.encode("BARO", k & 0xFFFF, **stamp(k), d1=conversions[k][0], d2=conversions[k][1],
+                               pressure_pa=0, temperature_cdeg=0) if k in conversions else b"")
               + (protocol.encode("GNSS", k & 0xFFFF, **stamp(k), **fixes[k]) if k in fixes else b"")
               + protocol.encode("SAMPLE", k & 0xFFFF, **stamp(k), gyr=gyr[k], acc=acc[k], mag=mag[k],
                                 temperature=TEMPERATURE_25C)
@@ -242,6 +252,8 @@ class EmulatedBoard:
             e.g. with other sensor errors; its rate must be rate_hz.
         gnss: fixes of a GNSS receiver to feed with the samples (imulink.sim.navigation.gnss_fixes
             of the simulation's trajectory); none by default.
+        baro: the barometer's samples along the trajectory (imulink.sim.navigation.baro_samples);
+            by default still air at BARO_HEIGHT_M every BARO_PERIOD_S.
     """
 
     def __init__(self, target: str = "native", *, front: str = "pty", port: int = 0, scenario: str = "rests",
@@ -249,7 +261,8 @@ class EmulatedBoard:
                  realtime: bool = False, profile: SensorProfile = DEFAULT_PROFILE,
                  faults: FaultConfig | None = None, schema_hash: int | None = None,
                  image: str | os.PathLike | None = None, baud: int = 921600,
-                 simulation: sim.SimResult | None = None, gnss: navigation.GnssFixes | None = None):
+                 simulation: sim.SimResult | None = None, gnss: navigation.GnssFixes | None = None,
+                 baro: navigation.BaroSamples | None = None):
         if filter_name not in core.FILTERS:
             raise EmulatorError(f"unknown filter {filter_name!r}; choose one of {', '.join(core.FILTERS)}")
         core.Filter(filter_name, rate_hz)  # SettingsError for a rate the filter is not made for (nor the host's replay)
@@ -269,7 +282,7 @@ class EmulatedBoard:
         self.schema_hash = schema_hash
         if simulation is not None and simulation.rate_hz != self.rate_hz:
             raise EmulatorError(f"the simulation runs at {simulation.rate_hz:g} Hz, the board at {rate_hz:g} Hz")
-        self.gnss = gnss
+        self.gnss, self.baro = gnss, baro
         self.simulation = simulation if simulation is not None else sim.make_scenario(scenario, duration_s, rate_hz,
                                                                                       seed)
         self._counts = (self.simulation.gyr_counts, self.simulation.acc_counts, self.simulation.mag_counts)
@@ -296,7 +309,7 @@ class EmulatedBoard:
     def start(self) -> "EmulatedBoard":
         self._dir = Path(tempfile.mkdtemp(prefix="imulink-board-"))
         try:
-            frames = feed_frames(self.simulation, self.profile, self.gnss)
+            frames = feed_frames(self.simulation, self.profile, self.gnss, self.baro)
             if self.target == "native":
                 self._start_native(frames)
             else:
