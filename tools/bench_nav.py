@@ -67,14 +67,16 @@ def host_fixed(directory: Path, traj, gyr, acc) -> np.ndarray:
     if gcc is None:
         raise bench_arm.BenchError("gcc (the host compiler) is missing")
     exe = directory / "nav_fixed"
-    subprocess.run([gcc, "-std=c99", "-O2", "-DIMU_FIXED", f"-I{bench_arm.CORE_DIR}", "-o", str(exe), str(DRIVER),
+    bench_arm._run([gcc, "-std=c99", "-O2", "-DIMU_FIXED", f"-I{bench_arm.CORE_DIR}", "-o", str(exe), str(DRIVER),
                     str(bench_arm.CORE_DIR / "imu_nav.c"), str(bench_arm.CORE_DIR / "imu_math.c"), "-lm"],
-                   check=True)
+                   "compiling the x86 navigation driver")
     o = traj.origin
     head = [RATE_HZ, o.lat_deg, o.lon_deg, o.height_m, *traj.quat[0], *traj.vel_enu[0]]
     lines = [" ".join(repr(float(x)) for x in head)]
     lines += [" ".join(repr(float(x)) for x in (*g, *a)) for g, a in zip(gyr, acc)]
-    out = subprocess.run([str(exe)], input="\n".join(lines) + "\n", capture_output=True, text=True, check=True)
+    out = subprocess.run([str(exe)], input="\n".join(lines) + "\n", capture_output=True, text=True)
+    if out.returncode != 0:
+        raise bench_arm.BenchError(f"the x86 navigation driver failed ({out.returncode}): {out.stderr.strip()}")
     rows = np.array([r.split() for r in out.stdout.strip().split("\n")[1:-1]], dtype=float)
     scale = np.r_[[1000.0] * 3, [2.0**20] * 3, [2.0**30] * 4]
     return np.rint(rows * scale).astype(np.int64)
