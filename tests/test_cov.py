@@ -1,6 +1,7 @@
 """The block-floating covariance (firmware/core/imu_cov.c) against numpy: the scalar
 update, optimal and with a gain map (Schmidt / "consider" update in Joseph's form), and the
-time update with a transition that moves a few rows, in both builds (tests/c/cov_driver.c)."""
+time update with a transition that moves a few rows, in both builds (tests/c/cov_driver.c);
+and its 15-state instance for the navigation filter (imu_navcov.c)."""
 from __future__ import annotations
 
 import shutil
@@ -21,14 +22,16 @@ DRIVER = ROOT / "tests" / "c" / "cov_driver.c"
 
 @pytest.fixture(scope="module")
 def drivers(tmp_path_factory):
+    """The drivers of imu_cov.c ("fixed", "float") and of imu_navcov.c ("nav fixed", "nav float")."""
     out = {}
     for build in ("FIXED", "FLOAT"):
-        exe = tmp_path_factory.mktemp("cov") / f"cov_{build.lower()}"
-        proc = subprocess.run([GCC, "-std=c99", "-Wall", "-Wextra", "-Werror", f"-DIMU_{build}", f"-I{CORE}",
-                               "-fsanitize=undefined,address", "-fno-sanitize-recover=all", "-o", str(exe),
-                               str(DRIVER), str(CORE / "imu_cov.c"), "-lm"], capture_output=True, text=True)
-        assert proc.returncode == 0, proc.stderr
-        out[build.lower()] = exe
+        for name, source, flags in (("", "imu_cov.c", []), ("nav ", "imu_navcov.c", ["-DNAVCOV"])):
+            exe = tmp_path_factory.mktemp("cov") / f"cov_{name.strip()}{build.lower()}"
+            proc = subprocess.run([GCC, "-std=c99", "-Wall", "-Wextra", "-Werror", f"-DIMU_{build}", *flags,
+                                   f"-I{CORE}", "-fsanitize=undefined,address", "-fno-sanitize-recover=all", "-o",
+                                   str(exe), str(DRIVER), str(CORE / source), "-lm"], capture_output=True, text=True)
+            assert proc.returncode == 0, proc.stderr
+            out[name + build.lower()] = exe
     return out
 
 
@@ -205,4 +208,43 @@ def test_time_update_moves_only_the_given_rows(drivers, seed):
         assert len(got) == len(steps)
         for (dx, p), (dx_ref, p_ref) in zip(got, expected):
             assert_covariance_close(p, p_ref, tol * 10, build)
+            np.testing.assert_array_equal(p, p.T)
+
+
+@pytest.mark.parametrize("seed", [6, 7])
+def test_navigation_instance_with_fifteen_states(drivers, seed):
+    """The 15-state instance (imu_navcov.c) over eleven decades, as the navigation filter uses
+    it: its transition applied as three factors of three moving rows each (position from
+    velocity, attitude and accelerometer bias; velocity from attitude and that bias; attitude
+    from itself and the gyro bias), then position and velocity updates and one that
+    correlates everything; the result is Phi P Phi^T + Q and the Kalman update."""
+    rng = np.random.default_rng(seed)
+    p0 = [4e-5, 4e-5, 1e-4, 2e-4, 2e-4, 3e-4, 1e-3, 1e-3, 3e-2, 1e-6, 1e-6, 2e-6, 1e-2, 1e-2, 2e-2]
+    position = np.zeros((3, 15))
+    position[:, 0:3] = np.eye(3)
+    position[:, 3:6] = 0.05 * np.eye(3)
+    position[:, 6:9] = rng.uniform(-1e-3, 1e-3, (3, 3))
+    position[:, 12:15] = rng.uniform(-1e-4, 1e-4, (3, 3))
+    velocity = np.zeros((3, 15))
+    velocity[:, 3:6] = np.eye(3)
+    velocity[:, 6:9] = rng.uniform(-0.01, 0.01, (3, 3))
+    velocity[:, 12:15] = 0.003 * _rotation(rng, 1.0)
+    attitude = np.zeros((3, 15))
+    attitude[:, 6:9] = _rotation(rng, 0.05).T
+    attitude[:, 9:12] = -0.05 * np.eye(3)
+    qvar = [0.0] * 3 + [1e-9] * 3 + [1e-9] * 3 + [1e-12] * 3 + [1e-10] * 3
+    unit = np.eye(15)
+    steps = [Predict([0, 1, 2], position, [0.0] * 15), Predict([3, 4, 5], velocity, [0.0] * 15),
+             Predict([6, 7, 8], attitude, qvar),
+             *[(unit[k], 2e-6, 1e-3 * (k + 1), 1.0, None) for k in range(6)],
+             (rng.uniform(-1, 1, 15), 2e-4, 0.01, 1.0, None),
+             Predict([0, 1, 2], position, [0.0] * 15), Predict([3, 4, 5], velocity, [0.0] * 15),
+             Predict([6, 7, 8], attitude, qvar)]
+    expected = reference(p0, steps)
+    for build, tol in (("nav float", 1e-12), ("nav fixed", 2e-6)):
+        got = run_driver(drivers[build], p0, steps)
+        assert len(got) == len(steps)
+        for (dx, p), (dx_ref, p_ref) in zip(got, expected):
+            assert_covariance_close(p, p_ref, tol * 10, build)
+            np.testing.assert_allclose(dx, dx_ref, rtol=1e-4 if build == "nav fixed" else 1e-9, atol=tol)
             np.testing.assert_array_equal(p, p.T)

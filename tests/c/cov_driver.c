@@ -6,11 +6,24 @@
  *   p count moving[count] rows[count][n] qvar[n]
  * a time update whose transition is the identity but for the given rows,
  * (real values) and prints after each step "dx" (zero for a time update) and the n x n
- * covariance as reals. Built twice, with -DIMU_FIXED and -DIMU_FLOAT. */
+ * covariance as reals. Built twice, with -DIMU_FIXED and -DIMU_FLOAT; with -DNAVCOV, for
+ * the navigation filter's 15-state instance (imu_navcov.c) instead of imu_cov.c. */
 #include <math.h>
 #include <stdio.h>
 
+#ifdef NAVCOV
+#include "imu_navcov.h"
+#undef IMU_COV_MAX
+#define IMU_COV_MAX IMU_NAVCOV_MAX
+#define imu_cov_t imu_navcov_t
+#define imu_cov_map_t imu_navcov_map_t
+#define imu_cov_init imu_navcov_init
+#define imu_cov_predict imu_navcov_predict
+#define imu_cov_update imu_navcov_update
+#define imu_cov_get imu_navcov_get
+#else
 #include "imu_cov.h"
+#endif
 
 #ifdef IMU_FIXED
 /* Q formats of the inputs: variances, process noise and r in Q60 (below 8); h, z, w, v and

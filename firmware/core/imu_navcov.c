@@ -1,0 +1,22 @@
+/**
+ * @file imu_navcov.c
+ * @brief imu_cov.c compiled for the navigation filter's 15 states (see imu_navcov.h): its
+ *        names and sizes replaced, its code the same.
+ */
+#include "imu_navcov.h"
+
+#undef IMU_COV_MAX
+#define IMU_COV_MAX IMU_NAVCOV_MAX
+#undef IMU_COV_CELLS
+#define IMU_COV_CELLS IMU_NAVCOV_CELLS
+#define imu_cov_t imu_navcov_t
+#define imu_cov_map_t imu_navcov_map_t
+#define imu_cov_init imu_navcov_init
+#define imu_cov_predict imu_navcov_predict
+#define imu_cov_update imu_navcov_update
+#define imu_cov_reset_state imu_navcov_reset_state
+#define imu_cov_cap_unit_variance imu_navcov_cap_unit_variance
+#define imu_cov_get imu_navcov_get
+#define imu_cov_element_q30 imu_navcov_element_q30
+
+#include "imu_cov.c"
