@@ -116,6 +116,7 @@ imu_status_t imu_nav_start(imu_nav_t *n, const imu_nav_origin_t *origin, imu_rea
     ellipsoid(s, c, origin->height, &n->origin_rm, &n->origin_rn_cos, &gravity);
     /* rad per mm: (1 / a) / ((M0 + h0) / a), Q59 * 2^30 / Q30 -> Q59 */
     n->lat_per_mm = IMU_DIV_SAT(INV_A_MM_Q59, n->origin_rm, 30, &n->saturations);
+    n->lon_per_mm = IMU_DIV_SAT(INV_A_MM_Q59, n->origin_rn_cos, 30, &n->saturations);
     /* 2^46 / rate (Q16): below 2^31 from 10 Hz on */
     n->dt = IMU_DIV_SAT(IMU_QCONST(1.0, 16), rate, 30, &n->saturations);
     for (k = 0; k < 4; ++k) {
@@ -127,11 +128,44 @@ imu_status_t imu_nav_start(imu_nav_t *n, const imu_nav_origin_t *origin, imu_rea
         n->pos[k] = 0;
         n->gyro_bias[k] = 0;
         n->acc_bias[k] = 0;
+        n->acc[k] = 0;
         n->vel_carry[k] = 0;
         n->pos_carry[k] = 0;
     }
     update_geometry(n);
     return IMU_OK;
+}
+
+/** The position moved by `step` (ENU, mm, Q15; below 2^61 / 2 in magnitude), the offsets
+ *  scaled to the origin's radii, each rounding carried to the next. */
+static void move(imu_nav_t *n, const imu_wide_t step[3])
+{
+    uint32_t *sat = &n->saturations;
+    int k;
+    for (k = 0; k < 3; ++k) {
+        if (k == 2) {
+            n->pos[2] = IMU_ADD_SAT(n->pos[2], IMU_WSHR_FEEDBACK_SAT(step[2], 15, &n->pos_carry[2], sat), sat);
+        } else {
+            /* Q15 mm * Q30 scale (below 2) = Q45 mm below 2^61.7 >> 45 -> mm */
+            const imu_q30_t scale = k == 0 ? n->scale_east : n->scale_north;
+            n->pos[k] = IMU_ADD_SAT(n->pos[k], IMU_WSHR_FEEDBACK_SAT(step[k] * scale, 45, &n->pos_carry[k], sat), sat);
+        }
+    }
+}
+
+void imu_nav_move(imu_nav_t *n, const imu_wide_t step[3])
+{
+    move(n, step);
+    update_geometry(n);
+}
+
+void imu_nav_offsets(imu_nav_t *n, imu_angle_t lat, imu_angle_t lon, imu_real_t height, imu_real_t out[3])
+{
+    uint32_t *sat = &n->saturations;
+    /* rad (Q29) * 2^30 / rad per mm (Q59) -> mm; the longitude difference wrapped to +-pi */
+    out[0] = IMU_DIV_SAT(imu_angle_diff(lon, n->origin.lon), n->lon_per_mm, 30, sat);
+    out[1] = IMU_DIV_SAT(IMU_SUB_SAT(lat, n->origin.lat, sat), n->lat_per_mm, 30, sat);
+    out[2] = IMU_SUB_SAT(height, n->origin.height, sat);
 }
 
 void imu_nav_propagate(imu_nav_t *n, const imu_rate_t gyr[3], const imu_q16_t acc[3])
@@ -141,6 +175,7 @@ void imu_nav_propagate(imu_nav_t *n, const imu_rate_t gyr[3], const imu_q16_t ac
     imu_q16_t f[3];      /* specific force at the middle of the turn, sensor frame, m/s^2, Q16 */
     imu_q16_t a[3];      /* acceleration, ENU, m/s^2, Q16 */
     imu_real_t vel[3];   /* the new velocity, Q20 */
+    imu_wide_t step[3];  /* the position's step, mm, Q15 */
     int k;
     for (k = 0; k < 3; ++k) {
         /* rad/s Q24 * s Q30 >> 24 -> rad Q30 */
@@ -177,15 +212,10 @@ void imu_nav_propagate(imu_nav_t *n, const imu_rate_t gyr[3], const imu_q16_t ac
         /* The step's metres, the trapezoid (v + v') dt / 2: (Q20 + Q20) * Q30 = Q50 (at
          * most 2^30 * 2^26.7), >> 25 -> Q25 m twice the step; * 500 -> Q25 mm the step,
          * >> 10 -> Q15 mm (at most 2^30.7 at 512 m/s and 10 Hz). */
-        const imu_wide_t step = IMU_WSHR(IMU_WSHR(((imu_wide_t)n->vel[k] + vel[k]) * n->dt, 25) * 500, 10);
-        if (k == 2) {
-            n->pos[2] = IMU_ADD_SAT(n->pos[2], IMU_WSHR_FEEDBACK_SAT(step, 15, &n->pos_carry[2], sat), sat);
-        } else {
-            /* Q15 mm * Q30 scale (below 2) = Q45 mm below 2^61.7 >> 45 -> mm */
-            const imu_q30_t scale = k == 0 ? n->scale_east : n->scale_north;
-            n->pos[k] = IMU_ADD_SAT(n->pos[k], IMU_WSHR_FEEDBACK_SAT(step * scale, 45, &n->pos_carry[k], sat), sat);
-        }
+        step[k] = IMU_WSHR(IMU_WSHR(((imu_wide_t)n->vel[k] + vel[k]) * n->dt, 25) * 500, 10);
         n->vel[k] = vel[k];
+        n->acc[k] = a[k];
     }
+    move(n, step);
     update_geometry(n);
 }

@@ -1,8 +1,8 @@
 /**
  * @file imu_nav.h
  * @brief Strapdown navigation: attitude, velocity and position from the gyroscope and the
- *        accelerometer, on the WGS-84 ellipsoid (the propagation of issue 16's `nav`
- *        filter; its Kalman updates are still to come).
+ *        accelerometer, on the WGS-84 ellipsoid (the propagation of the `nav` filter,
+ *        imu_navkf.h).
  *
  * Frames and conventions as everywhere in imulink: the local level frame is east, north,
  * up (ENU) at the current position, the quaternion turns sensor vectors into it (w first),
@@ -43,6 +43,7 @@ typedef struct {
     imu_q30_t origin_rm;        /**< (M0 + h0) / a, Q30 (a: the ellipsoid's semi-major axis) */
     imu_q30_t origin_rn_cos;    /**< (N0 + h0) cos(lat0) / a, Q30 */
     imu_real_t lat_per_mm;      /**< rad of latitude per mm of north offset, Q59 */
+    imu_real_t lon_per_mm;      /**< rad of longitude per mm of east offset, Q59 (below 2^31 within +-85 deg) */
     imu_q30_t dt;               /**< sample interval, s, Q30 */
     imu_q30_t q[4];             /**< attitude, sensor to ENU, Q30 */
     imu_real_t vel[3];          /**< velocity, ENU, m/s, Q20 (|v| <= IMU_NAV_MAX_SPEED) */
@@ -54,6 +55,7 @@ typedef struct {
     imu_q30_t scale_east;       /**< ((N0 + h0) cos lat0) / ((N + h) cos lat), Q30 */
     imu_q30_t scale_north;      /**< (M0 + h0) / (M + h), Q30 */
     imu_real_t gravity;         /**< normal gravity at the position, m/s^2, Q24 */
+    imu_q16_t acc[3];           /**< the last step's acceleration, ENU, m/s^2, Q16 (gravity removed) */
     uint32_t saturations;       /**< clamped intermediate results (0 in normal operation) */
 } imu_nav_t;
 
@@ -74,6 +76,19 @@ imu_status_t imu_nav_start(imu_nav_t *n, const imu_nav_origin_t *origin, imu_rea
  *            (what a MEMS accelerometer's low-pass delivers), m/s^2, Q16
  */
 void imu_nav_propagate(imu_nav_t *n, const imu_rate_t gyr[3], const imu_q16_t acc[3]);
+
+/**
+ * @brief Curvilinear offsets (east, north, up; mm, the units of `pos`) of a geodetic point
+ *        from the origin: what `pos` would be there. Saturated (counted) beyond int32.
+ * @param lat rad, Q29; @param lon rad, Q29; @param height mm above the ellipsoid
+ */
+void imu_nav_offsets(imu_nav_t *n, imu_angle_t lat, imu_angle_t lon, imu_real_t height, imu_real_t out[3]);
+
+/**
+ * @brief Move the position by a displacement in the local level frame (east, north, up),
+ *        mm, Q15 each (wide: a correction), with the rounding carried as the steps' is.
+ */
+void imu_nav_move(imu_nav_t *n, const imu_wide_t step[3]);
 
 /** @brief Latitude of the position, rad, Q29. */
 imu_angle_t imu_nav_latitude(const imu_nav_t *n);

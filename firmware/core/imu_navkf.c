@@ -1,0 +1,457 @@
+/**
+ * @file imu_navkf.c
+ * @brief Loosely coupled GNSS/INS navigation filter (see imu_navkf.h).
+ */
+#include "imu_navkf.h"
+
+#include "imu_math.h"
+
+enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12 };
+
+/* Process noise per second in the states' units squared, Q54 (imu_navkf.h): twice the
+ * MPU6050 data sheet's white noise (400 ug/sqrt(Hz), 0.005 deg/s/sqrt(Hz)), room for the
+ * quantisation and what the first-order model leaves out; the biases' random walks
+ * 1e-5 rad/s/sqrt(s) and 1e-4 m/s^2/sqrt(s). */
+#define NOISE_VEL IMU_QCONST(6.1529e-5 / 4096.0, 54) /* (2 * 3.923e-3 m/s^2/sqrt(Hz))^2 / (64 m/s)^2 */
+#define NOISE_ATT IMU_QCONST(3.0462e-8, 54)          /* (2 * 8.727e-5 rad/s/sqrt(Hz))^2 */
+#define NOISE_GYRO_BIAS IMU_QCONST(1e-10, 54)
+#define NOISE_ACC_BIAS IMU_QCONST(1e-8, 54)
+
+/* Initial standard deviations in the states' units, Q30: velocity 1 m/s, roll and pitch
+ * 2 deg, heading 10 deg (from a magnetometer), gyro bias 1.5 deg/s, accelerometer bias
+ * 0.5 m/s^2. Position: the first fix's accuracy. */
+#define START_VEL IMU_QCONST(1.0 / 64.0, 30)
+#define START_TILT IMU_QCONST(0.034906585, 30)
+#define START_HEADING IMU_QCONST(0.17453293, 30)
+#define START_GYRO_BIAS IMU_QCONST(0.026179939, 30)
+#define START_ACC_BIAS IMU_QCONST(0.5, 30)
+
+/* Rest: the bias-corrected rate below 0.05 rad/s (Q24) and the specific force within
+ * 0.3 m/s^2 (Q16) of gravity for REST_TIME; with GNSS, only while the last fix's speed is
+ * below REST_SPEED (m/s, Q20): a car cruising straight is as still as a parked one. */
+#define REST_GYRO IMU_QCONST(0.05, 24)
+#define REST_ACC IMU_QCONST(0.3, 16)
+#define REST_SPEED IMU_QCONST(0.3, 20)
+/** Zero velocity's standard deviation: 0.02 m/s in units of 64 m/s, Q30. */
+#define ZERO_VELOCITY_SIGMA IMU_QCONST(0.02 / 64.0, 30)
+
+/* The gate on the position's normalised innovation squared (each axis against its own
+ * variance: the correlations between the axes are small beside the fix's noise), Q16:
+ * chi-square at 99.9 % for three degrees of freedom. The velocity is not gated: its
+ * innovations are what makes the heading observable, large while the heading is wrong
+ * (a receiver's Doppler velocity does not jump with multipath as its position does). */
+#define GATE_3 IMU_QCONST(16.27, 16)
+
+/** Unit conversions into the states' units (Q30): mm to 1024 m (Q50 factor, >> 20),
+ *  mm/s to 64 m/s (Q46, >> 16), m/s Q20 to 64 m/s (Q36, >> 26). */
+#define MM_TO_POS IMU_QCONST(1.0 / 1024000.0, 50)
+#define MM_TO_POS_AXIS IMU_QCONST(0.70710678118654752 / 1024000.0, 50) /* per horizontal axis */
+#define MM_S_TO_VEL IMU_QCONST(1.0 / 64000.0, 46)
+#define Q20_TO_VEL IMU_QCONST(1.0 / 64.0, 36)
+
+/** Seconds (Q16): the covariance's interval, the time after which the gate gives in, how
+ *  long without GNSS before rest alone makes zero velocity, and the longest count kept. */
+#define COV_INTERVAL IMU_QCONST(0.05, 16)
+#define REJECT_TIME IMU_QCONST(5.0, 16)
+#define GNSS_GONE_TIME IMU_QCONST(2.0, 16)
+#define LONGEST_COUNT IMU_QCONST(60.0, 16)
+
+static const int POSITION_ROWS[3] = {POS, POS + 1, POS + 2};
+static const int VELOCITY_ROWS[3] = {VEL, VEL + 1, VEL + 2};
+static const int ATTITUDE_ROWS[3] = {ATT, ATT + 1, ATT + 2};
+
+static void matrix(const imu_q30_t q[4], imu_q30_t r[3][3])
+{
+    int k;
+    for (k = 0; k < 3; ++k) {
+        imu_quat_matrix_row(q, k, r[k]);
+    }
+}
+
+/** rows[i][first + j] = -(a x column j of r)_i: the columns of -[a x] R. */
+static void minus_cross_columns(const imu_q30_t a[3], imu_q30_t r[3][3], imu_q30_t rows[3][IMU_NAVCOV_MAX],
+                                int first)
+{
+    int i, j;
+    for (j = 0; j < 3; ++j) {
+        const imu_q30_t column[3] = {r[0][j], r[1][j], r[2][j]};
+        imu_q30_t c[3];
+        imu_vec3_cross(a, column, c);
+        for (i = 0; i < 3; ++i) {
+            rows[i][first + j] = -c[i]; /* |c| <= 1 */
+        }
+    }
+}
+
+static void clear_rows(imu_q30_t rows[3][IMU_NAVCOV_MAX])
+{
+    int i, j;
+    for (i = 0; i < 3; ++i) {
+        for (j = 0; j < IMU_NAVCOV_MAX; ++j) {
+            rows[i][j] = 0;
+        }
+    }
+}
+
+/**
+ * The covariance over the interval of `steps` samples (T s): P <- Phi P Phi^T + Q with, in
+ * the states' units, R0 and R1 the attitude at the interval's start and end, Rm their
+ * mean, dv the specific force integrated over it (ENU), A = R1^T R0:
+ *   position: p + T v - [(dv T / 2) x] R0 dtheta - Rm (T^2 / 2) ba
+ *   velocity: v - [dv x] R0 dtheta - Rm T ba
+ *   attitude: A dtheta - T (I + A) / 2 bg
+ * (the earth-frame attitude error R dtheta stays put while the board turns, so the
+ * specific force's effect integrates to [dv x]), applied as three factors.
+ */
+static void covariance_step(imu_navkf_t *f)
+{
+    uint32_t *sat = &f->nav.saturations;
+    imu_q30_t r0[3][3], r1[3][3], rm[3][3], a[3][3];
+    imu_q30_t rows[3][IMU_NAVCOV_MAX];
+    imu_wide_t qvar[IMU_NAVCOV_MAX];
+    imu_q30_t dvu[3], pu[3];
+    const imu_q30_t t = f->nav.dt * f->steps; /* s, Q30: at most 0.1 s * cov_steps (below 0.25 s) */
+    const imu_q30_t t16 = IMU_MUL(t, IMU_QCONST(1.0 / 16.0, 30), 30); /* T 64 m/s / 1024 m */
+    const imu_q30_t t32 = IMU_MUL(t, IMU_QCONST(1.0 / 32.0, 30), 30);
+    const imu_q30_t t64 = IMU_MUL(t, IMU_QCONST(1.0 / 64.0, 30), 30);
+    const imu_q30_t t2 = IMU_MUL(t64, t32, 30);                        /* T^2 / 2 / 1024 */
+    int i, j, k;
+    matrix(f->q_start, r0);
+    matrix(f->nav.q, r1);
+    for (k = 0; k < 3; ++k) {
+        dvu[k] = IMU_WIDE_SAT(IMU_WSHR(f->dv[k], 22), sat); /* Q52 -> Q30, units of 64 m/s */
+        pu[k] = IMU_MUL(dvu[k], t32, 30);                   /* dv T / 2 in units of 1024 m */
+    }
+    for (i = 0; i < 3; ++i) {
+        for (j = 0; j < 3; ++j) {
+            rm[i][j] = IMU_ADD(IMU_HALF(r0[i][j]), IMU_HALF(r1[i][j]));
+            a[i][j] = IMU_ADD(IMU_ADD(IMU_MUL(r1[0][i], r0[0][j], 30), IMU_MUL(r1[1][i], r0[1][j], 30)),
+                              IMU_MUL(r1[2][i], r0[2][j], 30));
+        }
+    }
+    for (i = 0; i < IMU_NAVCOV_MAX; ++i) {
+        qvar[i] = 0;
+    }
+
+    clear_rows(rows);
+    minus_cross_columns(pu, r0, rows, ATT);
+    for (i = 0; i < 3; ++i) {
+        rows[i][POS + i] = IMU_ONE_Q30;
+        rows[i][VEL + i] = t16;
+        for (j = 0; j < 3; ++j) {
+            rows[i][ACC_BIAS + j] = -IMU_MUL(rm[i][j], t2, 30);
+        }
+    }
+    imu_navcov_predict(&f->cov, rows, POSITION_ROWS, 3, qvar, 84, sat);
+
+    clear_rows(rows);
+    minus_cross_columns(dvu, r0, rows, ATT);
+    for (i = 0; i < 3; ++i) {
+        rows[i][VEL + i] = IMU_ONE_Q30;
+        for (j = 0; j < 3; ++j) {
+            rows[i][ACC_BIAS + j] = -IMU_MUL(rm[i][j], t64, 30);
+        }
+    }
+    imu_navcov_predict(&f->cov, rows, VELOCITY_ROWS, 3, qvar, 84, sat);
+
+    clear_rows(rows);
+    for (i = 0; i < 3; ++i) {
+        for (j = 0; j < 3; ++j) {
+            rows[i][ATT + j] = a[i][j];
+            /* -T (delta_ij + a_ij) / 2 */
+            rows[i][GYRO_BIAS + j] = -IMU_ADD(i == j ? IMU_HALF(t) : 0, IMU_MUL(IMU_HALF(t), a[i][j], 30));
+        }
+        /* Q54 per second * s Q30 -> Q84 */
+        qvar[VEL + i] = IMU_WMUL(NOISE_VEL, t);
+        qvar[ATT + i] = IMU_WMUL(NOISE_ATT, t);
+        qvar[GYRO_BIAS + i] = IMU_WMUL(NOISE_GYRO_BIAS, t);
+        qvar[ACC_BIAS + i] = IMU_WMUL(NOISE_ACC_BIAS, t);
+    }
+    imu_navcov_predict(&f->cov, rows, ATTITUDE_ROWS, 3, qvar, 84, sat);
+    for (i = 0; i < 3; ++i) {
+        imu_navcov_cap_unit_variance(&f->cov, ATT + i); /* an attitude error beyond a radian means nothing */
+    }
+}
+
+/** Start a covariance interval at the current attitude. */
+static void restart_interval(imu_navkf_t *f)
+{
+    int k;
+    for (k = 0; k < 4; ++k) {
+        f->q_start[k] = f->nav.q[k];
+    }
+    for (k = 0; k < 3; ++k) {
+        f->dv[k] = 0;
+    }
+    f->steps = 0;
+}
+
+/** Bring the covariance up to the current sample. */
+static void flush(imu_navkf_t *f)
+{
+    if (f->steps > 0) {
+        covariance_step(f);
+    }
+    restart_interval(f);
+}
+
+/** One scalar measurement of state i: innovation z (Q30, the state's unit; what earlier
+ *  parts of the same measurement corrected is taken off here), variance r (Q60, unit^2). */
+static void measure(imu_navkf_t *f, int i, imu_q30_t z, imu_wide_t r, imu_q30_t dx[IMU_NAVKF_STATES])
+{
+    uint32_t *sat = &f->nav.saturations;
+    imu_q30_t h[IMU_NAVKF_STATES];
+    int j;
+    for (j = 0; j < IMU_NAVKF_STATES; ++j) {
+        h[j] = 0;
+    }
+    h[i] = IMU_ONE_Q30;
+    (void)imu_navcov_update(&f->cov, h, r, 60, IMU_SUB_SAT(z, dx[i], sat), IMU_ONE_Q30, NULL, dx, sat);
+}
+
+/** The corrections dx (the states' units, Q30) applied to the strapdown state. */
+static void apply(imu_navkf_t *f, const imu_q30_t dx[IMU_NAVKF_STATES])
+{
+    uint32_t *sat = &f->nav.saturations;
+    imu_nav_t *n = &f->nav;
+    imu_wide_t step[3];
+    imu_q30_t theta[3];
+    int k;
+    for (k = 0; k < 3; ++k) {
+        step[k] = IMU_WSHR(IMU_WMUL(dx[POS + k], 1024000), 15); /* units Q30 * 1024000 -> mm Q30 >> 15 -> Q15 */
+        /* units of 64 m/s, Q30 -> m/s Q20: * 64 >> 10 */
+        n->vel[k] = IMU_ADD_SAT(n->vel[k], IMU_MUL(dx[VEL + k], IMU_QCONST(64.0, 24), 34), sat);
+        theta[k] = dx[ATT + k];
+        n->gyro_bias[k] = IMU_ADD_SAT(n->gyro_bias[k], IMU_SHR(dx[GYRO_BIAS + k], 6), sat); /* Q30 -> Q24 */
+        n->acc_bias[k] = IMU_ADD_SAT(n->acc_bias[k], IMU_SHR(dx[ACC_BIAS + k], 14), sat);   /* Q30 -> Q16 */
+    }
+    imu_nav_move(n, step);
+    imu_quat_integrate(n->q, theta);
+    restart_interval(f);
+}
+
+static void clear(imu_q30_t dx[IMU_NAVKF_STATES])
+{
+    int k;
+    for (k = 0; k < IMU_NAVKF_STATES; ++k) {
+        dx[k] = 0;
+    }
+}
+
+/** Velocity (m/s, Q20) in units of 64 m/s, Q30. */
+static imu_q30_t velocity_units(imu_real_t v, uint32_t *sat)
+{
+    return IMU_MUL_SAT(v, Q20_TO_VEL, 26, sat);
+}
+
+static void zero_velocity(imu_navkf_t *f)
+{
+    uint32_t *sat = &f->nav.saturations;
+    imu_q30_t dx[IMU_NAVKF_STATES];
+    int k;
+    clear(dx);
+    for (k = 0; k < 3; ++k) {
+        measure(f, VEL + k, IMU_NEG_SAT(velocity_units(f->nav.vel[k], sat), sat),
+                IMU_WMUL(ZERO_VELOCITY_SIGMA, ZERO_VELOCITY_SIGMA), dx);
+    }
+    apply(f, dx);
+    ++f->zero_velocity;
+}
+
+/** Whether the sample looks like rest: the bias-corrected rate and specific force. */
+static int still_sample(const imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc[3])
+{
+    const imu_nav_t *n = &f->nav;
+    const imu_q16_t g = IMU_SHR(n->gravity, 8); /* Q24 -> Q16 */
+    imu_wide_t w2 = 0, f2 = 0;                  /* Q48 (rad/s)^2, Q32 (m/s^2)^2 */
+    int k;
+    for (k = 0; k < 3; ++k) {
+        /* |gyr|, |bias| below 2^30 (Q24: 64 rad/s), |acc|, |bias| below 2^30 (Q16) */
+        const imu_wide_t w = (imu_wide_t)gyr[k] - n->gyro_bias[k];
+        const imu_wide_t a = (imu_wide_t)acc[k] - n->acc_bias[k];
+        w2 += w * w;
+        f2 += a * a;
+    }
+    return w2 < IMU_WMUL(REST_GYRO, REST_GYRO) && f2 > IMU_WMUL(g - REST_ACC, g - REST_ACC) &&
+           f2 < IMU_WMUL(g + REST_ACC, g + REST_ACC);
+}
+
+/** Samples in a time (s, Q16, at most a minute), at least one. */
+static int32_t seconds_in_steps(imu_navkf_t *f, imu_real_t seconds)
+{
+    /* s Q16 * 2^30 / dt Q30 -> samples Q16 (below 2^31 for a minute at 1 kHz) -> Q0 */
+    const int32_t steps = IMU_TO_INT(IMU_DIV_SAT(seconds, f->nav.dt, 30, &f->nav.saturations), 16);
+    return steps < 1 ? 1 : steps;
+}
+
+imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t acc[3], const imu_real_t mag[3],
+                             const imu_navkf_fix_t *fix)
+{
+    uint32_t *sat;
+    imu_nav_origin_t origin;
+    imu_angle_t euler[3] = {0, 0, 0};
+    imu_q30_t q[4];
+    imu_real_t vel[3] = {0, 0, 0};
+    imu_wide_t var[IMU_NAVKF_STATES];
+    imu_q30_t sigma[IMU_NAVKF_STATES];
+    int k;
+    if (!(rate >= IMU_QCONST(10.0, 16) && rate <= IMU_QCONST(1000.0, 16)) ||
+        !imu_tilt_from_acc(acc, &euler[0], &euler[1])) {
+        return IMU_ERR_RANGE;
+    }
+    if (!(fix->h_acc >= 1 && fix->h_acc <= (1 << 30) && fix->v_acc >= 1 && fix->v_acc <= (1 << 30) &&
+          fix->s_acc >= 1 && fix->s_acc <= (1 << 30))) {
+        return IMU_ERR_RANGE;
+    }
+    euler[2] = imu_heading_from_mag(mag, euler[0], euler[1]);
+    imu_euler_to_quat(euler, q);
+    origin.lat = fix->lat;
+    origin.lon = fix->lon;
+    origin.height = fix->height;
+    if (fix->has_vel) {
+        for (k = 0; k < 3; ++k) {
+            vel[k] = fix->vel[k];
+        }
+    }
+    if (imu_nav_start(&f->nav, &origin, rate, q, vel) != IMU_OK) {
+        return IMU_ERR_RANGE;
+    }
+    sat = &f->nav.saturations;
+    sigma[POS] = sigma[POS + 1] = IMU_MUL_SAT(fix->h_acc, MM_TO_POS_AXIS, 20, sat);
+    sigma[POS + 2] = IMU_MUL_SAT(fix->v_acc, MM_TO_POS, 20, sat);
+    for (k = 0; k < 3; ++k) {
+        sigma[VEL + k] = START_VEL;
+        sigma[ATT + k] = k == 2 ? START_HEADING : START_TILT;
+        sigma[GYRO_BIAS + k] = START_GYRO_BIAS;
+        sigma[ACC_BIAS + k] = START_ACC_BIAS;
+    }
+    for (k = 0; k < IMU_NAVKF_STATES; ++k) {
+        var[k] = IMU_WMUL(sigma[k], sigma[k]); /* Q60 */
+    }
+    imu_navcov_init(&f->cov, IMU_NAVKF_STATES, var, 60, sat);
+    f->dt_per_64 = IMU_MUL(f->nav.dt, IMU_QCONST(1.0 / 64.0, 36), 30); /* s Q30 -> s / 64, Q36 */
+    f->cov_steps = seconds_in_steps(f, COV_INTERVAL);
+    f->rest_steps = f->cov_steps;
+    f->reject_steps = seconds_in_steps(f, REJECT_TIME);
+    f->gone_steps = seconds_in_steps(f, GNSS_GONE_TIME);
+    f->longest_steps = seconds_in_steps(f, LONGEST_COUNT);
+    f->still = 0;
+    f->since_fix = 0;
+    f->fix_stood = 1;
+    f->rejecting = -1;
+    f->rejected = 0;
+    f->zero_velocity = 0;
+    restart_interval(f);
+    return IMU_OK;
+}
+
+void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc[3])
+{
+    int k;
+    f->still = still_sample(f, gyr, acc) ? (f->still < f->rest_steps ? f->still + 1 : f->still) : 0;
+    f->since_fix += f->since_fix < f->longest_steps;
+    f->rejecting += f->rejecting >= 0 && f->rejecting < f->reject_steps;
+    imu_nav_propagate(&f->nav, gyr, acc);
+    for (k = 0; k < 3; ++k) {
+        /* the specific force in ENU (the acceleration with gravity back), Q16 * Q36 -> Q52 */
+        const imu_q16_t force = k == 2 ? IMU_ADD_SAT(f->nav.acc[2], IMU_SHR(f->nav.gravity, 8), &f->nav.saturations)
+                                       : f->nav.acc[k];
+        f->dv[k] += IMU_WMUL(force, f->dt_per_64);
+    }
+    if (++f->steps < f->cov_steps) {
+        return;
+    }
+    flush(f);
+    if (f->still >= f->rest_steps && (f->fix_stood || f->since_fix >= f->gone_steps)) {
+        zero_velocity(f);
+    }
+}
+
+/** z^2 / (P_ii + r) for the gate, Q16 (the gate's own saturations are not counted). */
+static imu_real_t normalised_square(const imu_navkf_t *f, int i, imu_q30_t z, imu_wide_t r)
+{
+    uint32_t ignored = 0;
+    imu_real_t s = IMU_ADD_SAT(imu_navcov_element_q30(&f->cov, i, i, &ignored),
+                               IMU_WIDE_SAT(IMU_WSHR(r, 30), &ignored), &ignored); /* Q30 */
+    if (s <= 0) {
+        return 0; /* both below the Q30 resolution: nothing to gate on */
+    }
+    return IMU_DIV_SAT(IMU_MUL_SAT(z, z, 30, &ignored), s, 16, &ignored);
+}
+
+int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
+{
+    uint32_t *sat = &f->nav.saturations;
+    imu_nav_t *n = &f->nav;
+    imu_real_t at_fix[3];
+    imu_q30_t z[6], dx[IMU_NAVKF_STATES];
+    imu_wide_t r[6];
+    imu_real_t nis = 0; /* Q16 */
+    const int count = fix->has_vel ? 6 : 3;
+    int k;
+    flush(f);
+    imu_nav_offsets(n, fix->lat, fix->lon, fix->height, at_fix);
+    for (k = 0; k < 3; ++k) {
+        /* where the estimate was when the fix was valid: back by v age (Q20 * Q30 >> 20 -> m
+         * Q30, * 1000 >> 30 -> mm) and by a age for the velocity (Q16 * Q30 >> 26 -> Q20) */
+        const imu_real_t back = IMU_WIDE_SAT(IMU_WSHR(IMU_WSHR(IMU_WMUL(n->vel[k], fix->age), 20) * 1000, 30), sat);
+        imu_real_t d = IMU_SUB_SAT(at_fix[k], IMU_SUB_SAT(n->pos[k], back, sat), sat); /* offset mm */
+        if (k < 2) {
+            d = IMU_DIV_SAT(d, k == 0 ? n->scale_east : n->scale_north, 30, sat); /* offset mm -> mm */
+        }
+        z[k] = IMU_MUL_SAT(d, MM_TO_POS, 20, sat);
+        r[k] = k < 2 ? IMU_WMUL(IMU_MUL_SAT(fix->h_acc, MM_TO_POS_AXIS, 20, sat),
+                                IMU_MUL_SAT(fix->h_acc, MM_TO_POS_AXIS, 20, sat))
+                     : IMU_WMUL(IMU_MUL_SAT(fix->v_acc, MM_TO_POS, 20, sat), IMU_MUL_SAT(fix->v_acc, MM_TO_POS, 20, sat));
+        if (fix->has_vel) {
+            const imu_real_t was = IMU_SUB_SAT(n->vel[k], IMU_WIDE_SAT(IMU_WSHR(IMU_WMUL(n->acc[k], fix->age), 26), sat),
+                                               sat);
+            const imu_q30_t sigma = IMU_MUL_SAT(fix->s_acc, MM_S_TO_VEL, 16, sat);
+            z[3 + k] = velocity_units(IMU_SUB_SAT(fix->vel[k], was, sat), sat);
+            r[3 + k] = IMU_WMUL(sigma, sigma);
+        }
+    }
+    for (k = 0; k < 3; ++k) {
+        nis = IMU_ADD_SAT(nis, normalised_square(f, k, z[k], r[k]), sat);
+    }
+    if (fix->has_vel) {
+        /* whether the board stands, from any fix: a rejected one's position is in doubt, not its speed */
+        imu_wide_t speed2 = 0; /* Q40 */
+        for (k = 0; k < 3; ++k) {
+            speed2 += IMU_WMUL(fix->vel[k], fix->vel[k]);
+        }
+        f->fix_stood = speed2 < IMU_WMUL(REST_SPEED, REST_SPEED);
+        f->since_fix = 0;
+    }
+    if (nis > GATE_3) {
+        if (f->rejecting < 0) {
+            f->rejecting = 0;
+        }
+        if (f->rejecting < f->reject_steps) {
+            ++f->rejected;
+            return 0;
+        }
+    }
+    f->rejecting = -1;
+    clear(dx);
+    for (k = 0; k < count; ++k) {
+        measure(f, k, z[k], r[k], dx);
+    }
+    apply(f, dx);
+    return 1;
+}
+
+void imu_navkf_position(const imu_navkf_t *f, imu_angle_t *lat, imu_angle_t *lon, imu_real_t *height)
+{
+    const imu_nav_t *n = &f->nav;
+    uint32_t ignored = 0;
+    *lat = imu_nav_latitude(n);
+    /* east offset (mm) * rad per mm (Q59) >> 30 -> Q29, wrapped */
+    *lon = imu_angle_add(n->origin.lon, IMU_MUL_SAT(n->pos[0], n->lon_per_mm, 30, &ignored));
+    *height = IMU_ADD_SAT(n->origin.height, n->pos[2], &ignored);
+}
+
+void imu_navkf_variance(const imu_navkf_t *f, int i, imu_real_t *mant, int32_t *exp)
+{
+    imu_navcov_get(&f->cov, i, i, mant, exp);
+}

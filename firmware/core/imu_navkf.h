@@ -1,0 +1,104 @@
+/**
+ * @file imu_navkf.h
+ * @brief The `nav` filter: loosely coupled GNSS/INS navigation, a 15-state error-state
+ *        Kalman filter around the strapdown propagation of imu_nav.h (seed 002, sections 4
+ *        and 5), with zero-velocity updates at rest and position fixes from any source
+ *        (seed 003's markers).
+ *
+ * Error state (the covariance's states, each block in a unit of its own so that every
+ * innovation, correction and transition entry is a Q30 value below 2):
+ *
+ * | states | what | unit |
+ * |---|---|---|
+ * | 0-2   | position error, east north up | 1024 m |
+ * | 3-5   | velocity error, ENU | 64 m/s |
+ * | 6-8   | attitude error, sensor frame (true = estimate turned by it) | rad |
+ * | 9-11  | gyroscope bias error | rad/s |
+ * | 12-14 | accelerometer bias error | m/s^2 |
+ *
+ * The covariance (imu_navcov.h, block-floating: its variances span fourteen decades) is
+ * propagated every `cov_steps` samples (about 20 Hz) with the interval's transition,
+ * built from the attitude at its start and end and the specific force integrated over
+ * it, applied as three factors of three moving rows each (position, then velocity, then
+ * attitude: each factor reads only states the earlier ones left alone, so their product
+ * is the transition). A measurement first brings the covariance up to the sample.
+ *
+ * Measurements: GNSS position and velocity with the receiver's accuracies, back to the
+ * time the fix was valid for by the estimated velocity and acceleration (the latency of a
+ * receiver: tenths of a second); gated by the normalised innovation (a multipath jump is
+ * rejected and counted; after REJECT_TIME of rejections the filter accepts again, as the
+ * estimate is then the one in doubt). Position fixes with an accuracy (markers). At rest
+ * (the bias-corrected rate and the specific force still for `rest_steps`; with GNSS, only
+ * while the last fix said the board stood), zero velocity.
+ *
+ * Fixed build formats are written where each value is declared; the float build holds the
+ * same quantities in the same units (one source).
+ */
+#ifndef IMU_NAVKF_H
+#define IMU_NAVKF_H
+
+#include "imu_nav.h"
+#include "imu_navcov.h"
+
+/** Number of error states. */
+#define IMU_NAVKF_STATES 15
+
+/** A GNSS fix (or, without velocity, a position fix from any source). */
+typedef struct {
+    imu_angle_t lat;    /**< rad, Q29 */
+    imu_angle_t lon;    /**< rad, Q29 */
+    imu_real_t height;  /**< mm above the ellipsoid */
+    imu_real_t vel[3];  /**< ENU, m/s, Q20 (used when has_vel) */
+    int has_vel;        /**< 0: a position-only fix */
+    imu_real_t h_acc;   /**< horizontal accuracy (1 sigma of the distance), mm, 1 .. 2^30 */
+    imu_real_t v_acc;   /**< vertical accuracy, mm, 1 .. 2^30 */
+    imu_real_t s_acc;   /**< speed accuracy (each axis), mm/s, 1 .. 2^30 */
+    imu_q30_t age;      /**< how long ago the fix was valid, s, Q30, [0, 1] */
+} imu_navkf_fix_t;
+
+typedef struct {
+    imu_nav_t nav;              /**< the strapdown state */
+    imu_navcov_t cov;           /**< error-state covariance, the units above */
+    imu_q30_t q_start[4];       /**< attitude at the start of the covariance interval, Q30 */
+    imu_wide_t dv[3];           /**< specific force (ENU) times dt summed over the interval, in units of 64 m/s, Q52 */
+    int32_t steps;              /**< samples in the interval so far */
+    int32_t cov_steps;          /**< samples per covariance interval */
+    imu_q30_t dt_per_64;        /**< sample interval / 64, s, Q36 (dv's factor) */
+    int32_t still;              /**< consecutive still samples (stops counting at rest_steps) */
+    int32_t rest_steps;         /**< still samples that make rest */
+    int32_t reject_steps;       /**< samples of rejected fixes after which the gate gives in */
+    int32_t gone_steps;         /**< samples without a GNSS fix after which rest alone makes zero velocity */
+    int32_t longest_steps;      /**< where the counts stop (a minute) */
+    int32_t since_fix;          /**< samples since the last GNSS fix (stops counting at a minute) */
+    int fix_stood;              /**< 1 when the last GNSS fix's speed was below REST_SPEED */
+    int32_t rejecting;          /**< samples since the first of the current run of rejected fixes; -1: none */
+    uint32_t rejected;          /**< GNSS fixes rejected by the gate, in all */
+    uint32_t zero_velocity;     /**< zero-velocity updates, in all */
+} imu_navkf_t;
+
+/**
+ * @brief Start at rest: attitude from the accelerometer (tilt) and the magnetometer
+ *        (heading), position from `fix` (its origin too), velocity from the fix's when it
+ *        has one, else zero.
+ * @param rate sample rate, Hz, Q16, 10 .. 1000
+ * @param acc  specific force, m/s^2, Q16; @param mag field, any unit (Q16 uT on the wire)
+ * @return IMU_ERR_RANGE for a rate or fix out of range, or an accelerometer that reads nothing.
+ */
+imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t acc[3], const imu_real_t mag[3],
+                             const imu_navkf_fix_t *fix);
+
+/** @brief One IMU sample (gyro rad/s Q24, specific force m/s^2 Q16): propagation, and the
+ *         covariance and any zero-velocity update at the end of an interval. */
+void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc[3]);
+
+/** @brief A GNSS fix, or a position fix (has_vel 0). @return 1 when used, 0 when the gate rejected it. */
+int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix);
+
+/** @brief Position: latitude, longitude (rad, Q29) and height (mm). */
+void imu_navkf_position(const imu_navkf_t *f, imu_angle_t *lat, imu_angle_t *lon, imu_real_t *height);
+
+/** @brief Variance of error state i (table above) as P_ii = mant 2^(exp - 30) in (its unit)^2;
+ *         float build: mant = P_ii, exp = 0. */
+void imu_navkf_variance(const imu_navkf_t *f, int i, imu_real_t *mant, int32_t *exp);
+
+#endif /* IMU_NAVKF_H */
