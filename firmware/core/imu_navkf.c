@@ -32,8 +32,18 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12 };
 #define REST_GYRO IMU_QCONST(0.05, 24)
 #define REST_ACC IMU_QCONST(0.3, 16)
 #define REST_SPEED IMU_QCONST(0.3, 20)
+/* ... and, with GNSS, while the specific force has no trend: its low-passes over 0.1 s and
+ * 1 s (weights per sample dt / tau) within 0.03 m/s^2 (Q16) on every axis. A car setting off
+ * gently keeps its rate and the norm of its force; the force's slow rise is what shows. */
+#define TREND_FAST_TAU IMU_QCONST(0.1, 16)
+#define TREND_SLOW_TAU IMU_QCONST(1.0, 16)
+#define TREND_LIMIT IMU_QCONST(0.03, 16)
 /** Zero velocity's standard deviation: 0.02 m/s in units of 64 m/s, Q30. */
 #define ZERO_VELOCITY_SIGMA IMU_QCONST(0.02 / 64.0, 30)
+/** The magnetometer's heading at rest: the standard deviation of the unit field's east
+ *  component (about the sine of the heading error times the field's horizontal share),
+ *  Q30: 0.02, a microtesla of noise and disturbance in a 50 uT field. */
+#define FIELD_EAST_SIGMA IMU_QCONST(0.02, 30)
 
 /* The gate on the position's normalised innovation squared (each axis against its own
  * variance: the correlations between the axes are small beside the fix's noise), Q16:
@@ -209,6 +219,14 @@ static void measure(imu_navkf_t *f, int i, imu_q30_t z, imu_wide_t r, imu_q30_t 
     (void)imu_navcov_update(&f->cov, h, r, 60, IMU_SUB_SAT(z, dx[i], sat), IMU_ONE_Q30, NULL, dx, sat);
 }
 
+static void clear(imu_q30_t dx[IMU_NAVKF_STATES])
+{
+    int k;
+    for (k = 0; k < IMU_NAVKF_STATES; ++k) {
+        dx[k] = 0;
+    }
+}
+
 /** The corrections dx (the states' units, Q30) applied to the strapdown state. */
 static void apply(imu_navkf_t *f, const imu_q30_t dx[IMU_NAVKF_STATES])
 {
@@ -230,14 +248,6 @@ static void apply(imu_navkf_t *f, const imu_q30_t dx[IMU_NAVKF_STATES])
     restart_interval(f);
 }
 
-static void clear(imu_q30_t dx[IMU_NAVKF_STATES])
-{
-    int k;
-    for (k = 0; k < IMU_NAVKF_STATES; ++k) {
-        dx[k] = 0;
-    }
-}
-
 /** Velocity (m/s, Q20) in units of 64 m/s, Q30. */
 static imu_q30_t velocity_units(imu_real_t v, uint32_t *sat)
 {
@@ -256,6 +266,39 @@ static void zero_velocity(imu_navkf_t *f)
     }
     apply(f, dx);
     ++f->zero_velocity;
+}
+
+/**
+ * The magnetometer's heading: the field has no east component (the magnetic north is the
+ * north here), so the estimate's east component e = r0 . m (r0: R's east row, m the unit
+ * field in the sensor frame) is the innovation's negative. With R = R^ (I + [dtheta x]),
+ * e = r0 . m + r0 . (dtheta x m) = r0 . m + dtheta . (m x r0): h = m x r0, z = -r0 . m.
+ * Only the heading moves: h is perpendicular to the field, and the tilt it could also
+ * reach is held by the accelerometer and GNSS far more tightly.
+ */
+static void field_heading(imu_navkf_t *f, const imu_real_t mag[3])
+{
+    uint32_t *sat = &f->nav.saturations;
+    imu_q30_t unit[3], r0[3], h[IMU_NAVKF_STATES], dx[IMU_NAVKF_STATES];
+    imu_real_t norm;
+    int k;
+    if (!imu_vec3_normalize(mag, unit, &norm)) {
+        return;
+    }
+    imu_quat_matrix_row(f->nav.q, 0, r0);
+    clear(h);
+    clear(dx);
+    imu_vec3_cross(unit, r0, &h[ATT]);
+    {
+        /* -r0 . m, Q30 */
+        imu_real_t east = 0;
+        for (k = 0; k < 3; ++k) {
+            east = IMU_SUB_SAT(east, IMU_MUL(r0[k], unit[k], 30), sat);
+        }
+        (void)imu_navcov_update(&f->cov, h, IMU_WMUL(FIELD_EAST_SIGMA, FIELD_EAST_SIGMA), 60, east, IMU_ONE_Q30,
+                                NULL, dx, sat);
+    }
+    apply(f, dx);
 }
 
 /** Whether the sample looks like rest: the bias-corrected rate and specific force. */
@@ -336,6 +379,12 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     f->gone_steps = seconds_in_steps(f, GNSS_GONE_TIME);
     f->longest_steps = seconds_in_steps(f, LONGEST_COUNT);
     f->still = 0;
+    /* dt / tau, Q30: s Q30 * 2^16 / s Q16 (tau above dt) */
+    f->fast_weight = IMU_DIV_SAT(f->nav.dt, TREND_FAST_TAU, 16, sat);
+    f->slow_weight = IMU_DIV_SAT(f->nav.dt, TREND_SLOW_TAU, 16, sat);
+    for (k = 0; k < 3; ++k) {
+        f->force_fast[k] = f->force_slow[k] = acc[k];
+    }
     f->since_fix = 0;
     f->fix_stood = 1;
     f->rejecting = -1;
@@ -345,8 +394,25 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     return IMU_OK;
 }
 
-void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc[3])
+/** The specific force's low-passes; returns 1 when they agree (no trend). */
+static int force_steady(imu_navkf_t *f, const imu_q16_t acc[3])
 {
+    uint32_t *sat = &f->nav.saturations;
+    int k, steady = 1;
+    for (k = 0; k < 3; ++k) {
+        f->force_fast[k] = IMU_ADD_SAT(f->force_fast[k], IMU_MUL(IMU_SUB_SAT(acc[k], f->force_fast[k], sat),
+                                                                 f->fast_weight, 30), sat);
+        f->force_slow[k] = IMU_ADD_SAT(f->force_slow[k], IMU_MUL(IMU_SUB_SAT(acc[k], f->force_slow[k], sat),
+                                                                 f->slow_weight, 30), sat);
+        steady &= IMU_SUB_SAT(f->force_fast[k], f->force_slow[k], sat) < TREND_LIMIT &&
+                  IMU_SUB_SAT(f->force_slow[k], f->force_fast[k], sat) < TREND_LIMIT;
+    }
+    return steady;
+}
+
+void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc[3], const imu_real_t mag[3])
+{
+    const int steady = force_steady(f, acc);
     int k;
     f->still = still_sample(f, gyr, acc) ? (f->still < f->rest_steps ? f->still + 1 : f->still) : 0;
     f->since_fix += f->since_fix < f->longest_steps;
@@ -362,8 +428,11 @@ void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc
         return;
     }
     flush(f);
-    if (f->still >= f->rest_steps && (f->fix_stood || f->since_fix >= f->gone_steps)) {
+    if (f->still >= f->rest_steps && (f->since_fix >= f->gone_steps || (f->fix_stood && steady))) {
         zero_velocity(f);
+        if (mag != 0 && f->since_fix < f->gone_steps) {
+            field_heading(f, mag); /* with GNSS only: a walker indoors meets iron everywhere */
+        }
     }
 }
 

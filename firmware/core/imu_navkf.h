@@ -29,7 +29,8 @@
  * rejected and counted; after REJECT_TIME of rejections the filter accepts again, as the
  * estimate is then the one in doubt). Position fixes with an accuracy (markers). At rest
  * (the bias-corrected rate and the specific force still for `rest_steps`; with GNSS, only
- * while the last fix said the board stood), zero velocity.
+ * while the last fix said the board stood and the force shows no trend), zero velocity, and with GNSS the
+ * magnetometer's heading (which GNSS cannot observe while the board stands).
  *
  * Fixed build formats are written where each value is declared; the float build holds the
  * same quantities in the same units (one source).
@@ -69,6 +70,10 @@ typedef struct {
     int32_t reject_steps;       /**< samples of rejected fixes after which the gate gives in */
     int32_t gone_steps;         /**< samples without a GNSS fix after which rest alone makes zero velocity */
     int32_t longest_steps;      /**< where the counts stop (a minute) */
+    imu_q16_t force_fast[3];    /**< the specific force low-passed over 0.1 s, sensor frame, m/s^2, Q16 */
+    imu_q16_t force_slow[3];    /**< ... over 1 s */
+    imu_q30_t fast_weight;      /**< their weights per sample, dt / tau, Q30 */
+    imu_q30_t slow_weight;
     int32_t since_fix;          /**< samples since the last GNSS fix (stops counting at a minute) */
     int fix_stood;              /**< 1 when the last GNSS fix's speed was below REST_SPEED */
     int32_t rejecting;          /**< samples since the first of the current run of rejected fixes; -1: none */
@@ -87,9 +92,13 @@ typedef struct {
 imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t acc[3], const imu_real_t mag[3],
                              const imu_navkf_fix_t *fix);
 
-/** @brief One IMU sample (gyro rad/s Q24, specific force m/s^2 Q16): propagation, and the
- *         covariance and any zero-velocity update at the end of an interval. */
-void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc[3]);
+/**
+ * @brief One IMU sample: propagation, and at the end of an interval the covariance and, at
+ *        rest, zero velocity and (with GNSS) the magnetometer's heading.
+ * @param gyr rad/s, Q24; @param acc specific force, m/s^2, Q16
+ * @param mag field in the sensor frame, any unit (Q16 uT on the wire), or NULL / zero: none
+ */
+void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc[3], const imu_real_t mag[3]);
 
 /** @brief A GNSS fix, or a position fix (has_vel 0). @return 1 when used, 0 when the gate rejected it. */
 int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix);

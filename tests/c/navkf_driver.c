@@ -2,7 +2,7 @@
  * one record per line until EOF:
  *   b lat_deg lon_deg height_m vel_e vel_n vel_u h_acc_m v_acc_m s_acc_m_s has_vel ax ay az mx my mz
  *     start (the fix, then the accelerometer and magnetometer at rest), once, first;
- *   s gx gy gz ax ay az        an IMU sample (rad/s, m/s^2): prints the state after it,
+ *   s gx gy gz ax ay az mx my mz   an IMU sample (rad/s, m/s^2, uT; 0 0 0: no field): prints the state after it,
  *     "lat_deg lon_deg height_m vel_e vel_n vel_u qw qx qy qz" and the 15 standard
  *     deviations of the error state in SI units (m, m/s, rad, rad/s, m/s^2);
  *   f lat_deg lon_deg height_m vel_e vel_n vel_u h_acc_m v_acc_m s_acc_m_s has_vel age_s
@@ -64,7 +64,7 @@ int main(void)
 {
     imu_navkf_t f;
     imu_navkf_fix_t fix;
-    double rate, x[6];
+    double rate, x[9];
     char kind[2];
     int k;
     if (scanf("%lf", &rate) != 1) {
@@ -98,9 +98,10 @@ int main(void)
         } else if (kind[0] == 's') {
             imu_rate_t gyr[3];
             imu_q16_t acc[3];
+            imu_real_t mag[3];
             imu_angle_t lat, lon;
             imu_real_t height;
-            for (k = 0; k < 6; ++k) {
+            for (k = 0; k < 9; ++k) {
                 if (scanf("%lf", &x[k]) != 1) {
                     return 2;
                 }
@@ -108,8 +109,9 @@ int main(void)
             for (k = 0; k < 3; ++k) {
                 gyr[k] = TO_Q(x[k], 24);
                 acc[k] = TO_Q(x[3 + k], 16);
+                mag[k] = TO_Q(x[6 + k], 16);
             }
-            imu_navkf_step(&f, gyr, acc);
+            imu_navkf_step(&f, gyr, acc, mag);
             imu_navkf_position(&f, &lat, &lon, &height);
             printf("%.12f %.12f %.6f", FROM_Q(lat, 29) / DEG, FROM_Q(lon, 29) / DEG, FROM_Q(height, 0) / 1000.0);
             for (k = 0; k < 3; ++k) {
