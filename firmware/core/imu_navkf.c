@@ -59,11 +59,10 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12 };
 #define MM_S_TO_VEL IMU_QCONST(1.0 / 64000.0, 46)
 #define Q20_TO_VEL IMU_QCONST(1.0 / 64.0, 36)
 
-/** Seconds (Q16): the covariance's interval, the time after which the gate gives in, how
- *  long without GNSS before rest alone makes zero velocity, and the longest count kept. */
+/** Seconds (Q16): the covariance's interval, the time after which the gate gives in, and
+ *  the longest count kept (how long without GNSS before rest alone makes zero velocity). */
 #define COV_INTERVAL IMU_QCONST(0.05, 16)
 #define REJECT_TIME IMU_QCONST(5.0, 16)
-#define GNSS_GONE_TIME IMU_QCONST(2.0, 16)
 #define LONGEST_COUNT IMU_QCONST(60.0, 16)
 
 static const int POSITION_ROWS[3] = {POS, POS + 1, POS + 2};
@@ -376,7 +375,6 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     f->cov_steps = seconds_in_steps(f, COV_INTERVAL);
     f->rest_steps = f->cov_steps;
     f->reject_steps = seconds_in_steps(f, REJECT_TIME);
-    f->gone_steps = seconds_in_steps(f, GNSS_GONE_TIME);
     f->longest_steps = seconds_in_steps(f, LONGEST_COUNT);
     f->still = 0;
     /* dt / tau, Q30: s Q30 * 2^16 / s Q16 (tau above dt) */
@@ -385,7 +383,7 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     for (k = 0; k < 3; ++k) {
         f->force_fast[k] = f->force_slow[k] = acc[k];
     }
-    f->since_fix = 0;
+    f->since_fix = fix->source == IMU_NAVKF_GNSS ? 0 : f->longest_steps;
     f->fix_stood = 1;
     f->rejecting = -1;
     f->rejected = 0;
@@ -428,10 +426,16 @@ void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc
         return;
     }
     flush(f);
-    if (f->still >= f->rest_steps && (f->since_fix >= f->gone_steps || (f->fix_stood && steady))) {
-        zero_velocity(f);
-        if (mag != 0 && f->since_fix < f->gone_steps) {
-            field_heading(f, mag); /* with GNSS only: a walker indoors meets iron everywhere */
+    {
+        /* GNSS within the last minute: rest only as the last fix says (through an outage too:
+         * a car cruising through a tunnel is as still as a foot in its stance); without, the
+         * sensors alone decide */
+        const int with_gnss = f->since_fix < f->longest_steps;
+        if (f->still >= f->rest_steps && (with_gnss ? f->fix_stood && steady : 1)) {
+            zero_velocity(f);
+            if (mag != 0 && with_gnss) {
+                field_heading(f, mag); /* with GNSS only: a walker indoors meets iron everywhere */
+            }
         }
     }
 }
@@ -480,10 +484,10 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
             r[3 + k] = IMU_WMUL(sigma, sigma);
         }
     }
-    for (k = 0; k < 3; ++k) {
+    for (k = 0; k < 3 && fix->source == IMU_NAVKF_GNSS; ++k) {
         nis = IMU_ADD_SAT(nis, normalised_square(f, k, z[k], r[k]), sat);
     }
-    if (fix->has_vel) {
+    if (fix->has_vel && fix->source == IMU_NAVKF_GNSS) {
         /* whether the board stands, from any fix: a rejected one's position is in doubt, not its speed */
         imu_wide_t speed2 = 0; /* Q40 */
         for (k = 0; k < 3; ++k) {

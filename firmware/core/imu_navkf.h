@@ -26,10 +26,12 @@
  * Measurements: GNSS position and velocity with the receiver's accuracies, back to the
  * time the fix was valid for by the estimated velocity and acceleration (the latency of a
  * receiver: tenths of a second); gated by the normalised innovation (a multipath jump is
- * rejected and counted; after REJECT_TIME of rejections the filter accepts again, as the
- * estimate is then the one in doubt). Position fixes with an accuracy (markers). At rest
+ * rejected and counted; after 5 s of rejections the filter accepts again, as the estimate
+ * is then the one in doubt). Position fixes with an accuracy (markers: not gated). At rest
  * (the bias-corrected rate and the specific force still for `rest_steps`; with GNSS, only
- * while the last fix said the board stood and the force shows no trend), zero velocity, and with GNSS the
+ * while the last fix said the board stood and the force shows no trend, through an outage
+ * too; after a minute without GNSS, or from a start without it, on the sensors alone),
+ * zero velocity, and with GNSS the
  * magnetometer's heading (which GNSS cannot observe while the board stands).
  *
  * Fixed build formats are written where each value is declared; the float build holds the
@@ -44,8 +46,15 @@
 /** Number of error states. */
 #define IMU_NAVKF_STATES 15
 
-/** A GNSS fix (or, without velocity, a position fix from any source). */
+/** Where a fix comes from. */
+typedef enum {
+    IMU_NAVKF_GNSS = 0,  /**< a receiver: gated, and its speed tells whether the board stands */
+    IMU_NAVKF_MARKER = 1 /**< a known place (seed 003's markers): trusted as its accuracy says */
+} imu_navkf_source_t;
+
+/** A GNSS fix, or a position fix from another source (without velocity). */
 typedef struct {
+    int source;         /**< imu_navkf_source_t */
     imu_angle_t lat;    /**< rad, Q29 */
     imu_angle_t lon;    /**< rad, Q29 */
     imu_real_t height;  /**< mm above the ellipsoid */
@@ -68,8 +77,7 @@ typedef struct {
     int32_t still;              /**< consecutive still samples (stops counting at rest_steps) */
     int32_t rest_steps;         /**< still samples that make rest */
     int32_t reject_steps;       /**< samples of rejected fixes after which the gate gives in */
-    int32_t gone_steps;         /**< samples without a GNSS fix after which rest alone makes zero velocity */
-    int32_t longest_steps;      /**< where the counts stop (a minute) */
+    int32_t longest_steps;      /**< where the counts stop: a minute (without GNSS for that long, rest is the sensors') */
     imu_q16_t force_fast[3];    /**< the specific force low-passed over 0.1 s, sensor frame, m/s^2, Q16 */
     imu_q16_t force_slow[3];    /**< ... over 1 s */
     imu_q30_t fast_weight;      /**< their weights per sample, dt / tau, Q30 */

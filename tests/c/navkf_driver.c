@@ -1,12 +1,14 @@
 /* Drives imu_navkf.c for tests/test_navkf.py: reads from stdin the sample rate (Hz), then
  * one record per line until EOF:
  *   b lat_deg lon_deg height_m vel_e vel_n vel_u h_acc_m v_acc_m s_acc_m_s has_vel ax ay az mx my mz
- *     start (the fix, then the accelerometer and magnetometer at rest), once, first;
+ *     start at a GNSS fix (then the accelerometer and magnetometer at rest), once, first;
+ *     "k" instead of "b": start at a known place (a marker: no GNSS);
  *   s gx gy gz ax ay az mx my mz   an IMU sample (rad/s, m/s^2, uT; 0 0 0: no field): prints the state after it,
  *     "lat_deg lon_deg height_m vel_e vel_n vel_u qw qx qy qz" and the 15 standard
  *     deviations of the error state in SI units (m, m/s, rad, rad/s, m/s^2);
  *   f lat_deg lon_deg height_m vel_e vel_n vel_u h_acc_m v_acc_m s_acc_m_s has_vel age_s
- *     a fix (has_vel 0: a position fix).
+ *     a GNSS fix (has_vel 0: without velocity);
+ *   m lat_deg lon_deg height_m 0 0 0 h_acc_m v_acc_m 1 0 age_s   a marker's position fix.
  * At the end: "rejected N zero_velocity N saturations N". Built twice, with -DIMU_FIXED
  * (and -DIMU_CHECK_NARROWING) and -DIMU_FLOAT. */
 #include <math.h>
@@ -70,9 +72,10 @@ int main(void)
     if (scanf("%lf", &rate) != 1) {
         return 2;
     }
-    if (scanf("%1s", kind) != 1 || kind[0] != 'b' || !read_fix(&fix, 0)) {
+    if (scanf("%1s", kind) != 1 || (kind[0] != 'b' && kind[0] != 'k') || !read_fix(&fix, 0)) {
         return 2;
     }
+    fix.source = kind[0] == 'k' ? IMU_NAVKF_MARKER : IMU_NAVKF_GNSS;
     {
         imu_q16_t acc[3];
         imu_real_t mag[3];
@@ -90,10 +93,11 @@ int main(void)
         }
     }
     while (scanf("%1s", kind) == 1) {
-        if (kind[0] == 'f') {
+        if (kind[0] == 'f' || kind[0] == 'm') {
             if (!read_fix(&fix, 1)) {
                 return 2;
             }
+            fix.source = kind[0] == 'm' ? IMU_NAVKF_MARKER : IMU_NAVKF_GNSS;
             (void)imu_navkf_fix(&f, &fix);
         } else if (kind[0] == 's') {
             imu_rate_t gyr[3];
