@@ -12,7 +12,7 @@ from cffi import FFI
 ROOT = Path(__file__).resolve().parents[2]
 CORE_DIR = ROOT / "firmware" / "core"
 CORE_SOURCES = ["imu_math.c", "imu_settings.c", "imu_sensor.c", "imu_cov.c", "imu_rest.c", "imu_eecf.c", "imu_kf1d.c",
-                "imu_eskf.c", "imu_filter.c", "imu_proto.c"]
+                "imu_eskf.c", "imu_filter.c", "imu_proto.c", "imu_nav.c", "imu_navcov.c", "imu_navkf.c"]
 
 _TYPEDEFS = {
     "fixed": """
@@ -98,9 +98,56 @@ _DECLARATIONS = """
                                   uint8_t *wire, size_t wire_cap);
     void imu_proto_decoder_init(imu_proto_decoder_t *d, uint8_t *buf, size_t cap);
     int imu_proto_decoder_push(imu_proto_decoder_t *d, uint8_t byte, imu_proto_frame_t *frame);
+
+    #define IMU_NAVKF_STATES ...
+    typedef enum { IMU_NAVKF_GNSS = 0, IMU_NAVKF_MARKER = 1 } imu_navkf_source_t;
+    typedef struct {
+        int source; imu_angle_t lat; imu_angle_t lon; imu_real_t height; imu_real_t vel[3]; int has_vel;
+        imu_real_t h_acc; imu_real_t v_acc; imu_real_t s_acc; imu_q30_t age;
+    } imu_navkf_fix_t;
+    typedef struct { imu_q30_t q[4]; imu_real_t vel[3]; uint32_t saturations; ...; } imu_nav_t;
+    typedef struct { imu_nav_t nav; uint32_t rejected; uint32_t zero_velocity; ...; } imu_navkf_t;
+    imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t acc[3], const imu_real_t mag[3],
+                                 const imu_navkf_fix_t *fix);
+    void imu_navkf_position(const imu_navkf_t *f, imu_angle_t *lat, imu_angle_t *lon, imu_real_t *height);
+    void imu_navkf_variance(const imu_navkf_t *f, int i, imu_real_t *mant, int32_t *exp);
+    void navkf_run(imu_navkf_t *f, size_t n, const imu_rate_t *gyr, const imu_q16_t *acc, const imu_real_t *mag,
+                   const int32_t *fix_after, size_t fix_count, const imu_navkf_fix_t *fixes, uint8_t *accepted,
+                   imu_angle_t *lat_lon, imu_real_t *height, imu_real_t *vel, imu_q30_t *quat, imu_real_t *var_mant,
+                   int32_t *var_exp);
 """
 # The message structs and functions of imu_proto.h, generated from shared/protocol.toml.
 _DECLARATIONS += runpy.run_path(str(Path(__file__).with_name("_protocol_schema.py")))["CFFI_DECLARATIONS"]
+
+
+# The nav filter over a whole recording in one call (the per-sample loop in C): after the
+# IMU sample k, the fixes whose fix_after is k (ascending); the outputs of every sample.
+_NAVKF_RUN = """
+static void navkf_run(imu_navkf_t *f, size_t n, const imu_rate_t *gyr, const imu_q16_t *acc, const imu_real_t *mag,
+                      const int32_t *fix_after, size_t fix_count, const imu_navkf_fix_t *fixes, uint8_t *accepted,
+                      imu_angle_t *lat_lon, imu_real_t *height, imu_real_t *vel, imu_q30_t *quat, imu_real_t *var_mant,
+                      int32_t *var_exp)
+{
+    size_t k, j = 0;
+    int i;
+    for (k = 0; k < n; ++k) {
+        imu_navkf_step(f, gyr + 3 * k, acc + 3 * k, mag + 3 * k);
+        for (; j < fix_count && fix_after[j] == (int32_t)k; ++j) {
+            accepted[j] = (uint8_t)imu_navkf_fix(f, &fixes[j]);
+        }
+        imu_navkf_position(f, &lat_lon[2 * k], &lat_lon[2 * k + 1], &height[k]);
+        for (i = 0; i < 3; ++i) {
+            vel[3 * k + i] = f->nav.vel[i];
+        }
+        for (i = 0; i < 4; ++i) {
+            quat[4 * k + i] = f->nav.q[i];
+        }
+        for (i = 0; i < IMU_NAVKF_STATES; ++i) {
+            imu_navkf_variance(f, i, &var_mant[IMU_NAVKF_STATES * k + i], &var_exp[IMU_NAVKF_STATES * k + i]);
+        }
+    }
+}
+"""
 
 
 def _make(arithmetic: str) -> FFI:
@@ -109,7 +156,7 @@ def _make(arithmetic: str) -> FFI:
     rel = Path(__file__).resolve().parents[2]
     ffi.set_source(
         f"imulink._core_{arithmetic}",
-        '#include "imu_filter.h"\n#include "imu_math.h"\n#include "imu_proto.h"\n',
+        '#include "imu_filter.h"\n#include "imu_math.h"\n#include "imu_proto.h"\n#include "imu_navkf.h"\n' + _NAVKF_RUN,
         sources=[str((CORE_DIR / s).relative_to(rel)) for s in CORE_SOURCES],
         include_dirs=[str(CORE_DIR.relative_to(rel))],
         define_macros=[("IMU_FIXED" if arithmetic == "fixed" else "IMU_FLOAT", "1")],

@@ -44,7 +44,9 @@ class NavInput:
     `mag` (N,3, or None); the barometer samples (`baro_index` into the IMU samples,
     `baro_pa`, `baro_temp_c`); the fixes (`fix_index`, `fix_lat_deg`, `fix_lon_deg`,
     `fix_height_m`, `fix_h_acc_m`, `fix_v_acc_m`, and `fix_vel_enu` (M,3) and
-    `fix_s_acc_m_s` NaN where a fix has no velocity)."""
+    `fix_s_acc_m_s` NaN where a fix has no velocity; `fix_age_s`, when given, how long before
+    the sample of its row each fix was valid: a CSV puts a fix in the row it was measured at,
+    a recording in the row it arrived with)."""
     timestamp_us: np.ndarray
     gyr: np.ndarray
     acc: np.ndarray
@@ -60,6 +62,7 @@ class NavInput:
     fix_v_acc_m: np.ndarray
     fix_vel_enu: np.ndarray
     fix_s_acc_m_s: np.ndarray
+    fix_age_s: np.ndarray | None = None  # how long before its row each fix was valid (a receiver's latency)
 
     def __len__(self) -> int:
         return len(self.timestamp_us)

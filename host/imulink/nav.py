@@ -1,0 +1,177 @@
+"""The `nav` filter (firmware/core/imu_navkf.c) run offline over a navigation input, in
+the firmware's fixed point or the float twin, through the same C core the board runs.
+
+The filter starts at the first fix (a GNSS fix with velocity; a fix without one is a
+marker's, at a known place) with the attitude from the accelerometer and magnetometer of
+that sample, at rest; every later sample is propagated, and each fix is used right after
+the sample of its row (with its age, when the input says how late it arrived: the filter
+takes the estimate back that far). A fix without a velocity is a marker's: trusted as its
+accuracy says, never gated.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .core import _module, to_fixed
+from .nav_input import NavInput
+from .sensor_input import InputError
+
+#: The error states (imu_navkf.h): names and the unit each block's variance is kept in.
+STATE_NAMES = ("pos_e", "pos_n", "pos_u", "vel_e", "vel_n", "vel_u", "att_x", "att_y", "att_z",
+               "gyro_bias_x", "gyro_bias_y", "gyro_bias_z", "acc_bias_x", "acc_bias_y", "acc_bias_z")
+STATE_UNITS = np.array([1024.0] * 3 + [64.0] * 3 + [1.0] * 9)
+STATES = len(STATE_NAMES)
+#: The sample rates the filter takes (imu_navkf_start).
+MIN_RATE_HZ, MAX_RATE_HZ = 10.0, 1000.0
+
+
+@dataclass
+class NavResult:
+    """The filter's output for each sample from the start (`start` is its index in the input):
+    geodetic position (deg, m), ENU velocity (m/s), attitude quaternion (sensor to ENU, w
+    first), the error state's standard deviations (STATE_NAMES, SI units: m, m/s, rad,
+    rad/s, m/s^2); per fix of the input from the start on, whether the gate let it in;
+    counts of rejected fixes, zero-velocity updates and saturations."""
+    start: int
+    timestamp_us: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    height_m: np.ndarray
+    vel_enu: np.ndarray
+    quat: np.ndarray
+    sigma: np.ndarray
+    fix_index: np.ndarray
+    fix_accepted: np.ndarray
+    rejected: int
+    zero_velocity: int
+    saturations: int
+
+    def __len__(self) -> int:
+        return len(self.timestamp_us)
+
+    def fix_age_s(self) -> np.ndarray:
+        """Seconds since the last fix the filter used, per sample (NaN before the first)."""
+        used = self.fix_index[self.fix_accepted] - self.start
+        last = np.full(len(self), -1, dtype=np.int64)
+        last[used] = used
+        last = np.maximum.accumulate(np.r_[0, last[1:]])  # the start is a fix too
+        return (self.timestamp_us - self.timestamp_us[last]) / 1e6
+
+    def gated(self) -> np.ndarray:
+        """Fixes the gate rejected so far, per sample."""
+        counts = np.zeros(len(self), dtype=np.int64)
+        np.add.at(counts, self.fix_index[~self.fix_accepted] - self.start, 1)
+        return np.cumsum(counts)
+
+
+def sample_rate_hz(timestamp_us: np.ndarray) -> float:
+    """The rate of a sample stream from its timestamps (the median interval)."""
+    intervals = np.diff(np.asarray(timestamp_us, dtype=np.float64))
+    return 1e6 / float(np.median(intervals))
+
+
+def run(inp: NavInput, arithmetic: str = "fixed") -> NavResult:
+    """Run the filter over `inp` (a NavInput: imulink.nav_input); InputError when it has no
+    fix to start from or a rate the filter does not take."""
+    if arithmetic not in ("fixed", "float"):
+        raise ValueError(f"arithmetic must be 'fixed' or 'float', not {arithmetic!r}")
+    if len(inp.fix_index) == 0:
+        raise InputError("the input has no GNSS or position fix: the nav filter starts at the first one")
+    rate = sample_rate_hz(inp.timestamp_us)
+    if not MIN_RATE_HZ <= rate <= MAX_RATE_HZ:
+        raise InputError(f"the samples come at {rate:g} Hz; the nav filter takes {MIN_RATE_HZ:g} to {MAX_RATE_HZ:g} Hz")
+    mod = _module(arithmetic)
+    ffi, lib = mod.ffi, mod.lib
+    fixed = arithmetic == "fixed"
+    real = "int32_t" if fixed else "double"
+
+    def convert(values, frac_bits: int, what: str):
+        values = np.asarray(values, dtype=np.float64)
+        if not fixed:
+            return np.ascontiguousarray(values)
+        scaled = np.round(values * 2.0 ** frac_bits)
+        if np.any(np.abs(scaled) > 2 ** 31 - 1):
+            raise InputError(f"{what} beyond the fixed-point range")
+        return np.ascontiguousarray(scaled.astype(np.int32))
+
+    start = int(inp.fix_index[0])
+    mag = inp.mag if inp.mag is not None else np.zeros((len(inp), 3))
+    gyr = convert(inp.gyr[start + 1:], 24, "an angular rate")
+    acc = convert(inp.acc[start + 1:], 16, "a specific force")
+    mags = convert(mag[start + 1:], 16, "a magnetic field")
+
+    fixes = ffi.new("imu_navkf_fix_t[]", max(1, len(inp.fix_index)))
+    for j in range(len(inp.fix_index)):
+        f = fixes[j]
+        has_vel = not math.isnan(float(inp.fix_s_acc_m_s[j]))
+        f.source = lib.IMU_NAVKF_GNSS if has_vel else lib.IMU_NAVKF_MARKER
+        f.has_vel = int(has_vel)
+        lat, lon = math.radians(float(inp.fix_lat_deg[j])), math.radians(float(inp.fix_lon_deg[j]))
+        if fixed:
+            f.lat, f.lon = to_fixed(lat, 29, "a latitude"), to_fixed(lon, 29, "a longitude")
+            f.height = to_fixed(float(inp.fix_height_m[j]) * 1000.0, 0, "a height")
+            f.h_acc = max(1, to_fixed(float(inp.fix_h_acc_m[j]) * 1000.0, 0, "an accuracy"))
+            f.v_acc = max(1, to_fixed(float(inp.fix_v_acc_m[j]) * 1000.0, 0, "an accuracy"))
+            f.s_acc = max(1, to_fixed(float(inp.fix_s_acc_m_s[j]) * 1000.0, 0, "an accuracy")) if has_vel else 1000
+            f.vel = [to_fixed(float(v), 20, "a velocity") for v in inp.fix_vel_enu[j]] if has_vel else [0, 0, 0]
+        else:
+            f.lat, f.lon, f.height = lat, lon, float(inp.fix_height_m[j]) * 1000.0
+            f.h_acc = float(inp.fix_h_acc_m[j]) * 1000.0
+            f.v_acc = float(inp.fix_v_acc_m[j]) * 1000.0
+            f.s_acc = float(inp.fix_s_acc_m_s[j]) * 1000.0 if has_vel else 1000.0
+            f.vel = [float(v) for v in inp.fix_vel_enu[j]] if has_vel else [0.0, 0.0, 0.0]
+        age = 0.0 if inp.fix_age_s is None else float(inp.fix_age_s[j])
+        if not 0.0 <= age <= 1.0:
+            raise InputError(f"a fix {age:g} s old at its row; the nav filter takes fixes up to 1 s late")
+        f.age = to_fixed(age, 30, "a fix's age") if fixed else age
+
+    state = ffi.new("imu_navkf_t *")
+    start_acc = ffi.new(f"{real}[3]", [int(v) if fixed else float(v) for v in convert(inp.acc[start], 16, "a force")])
+    start_mag = ffi.new(f"{real}[3]", [int(v) if fixed else float(v) for v in convert(mag[start], 16, "a field")])
+    rate_value = to_fixed(rate, 16, "the sample rate") if fixed else rate
+    if lib.imu_navkf_start(state, rate_value, start_acc, start_mag, ffi.addressof(fixes[0])) != 0:
+        raise InputError(f"the nav filter cannot start at line {start + 2}: a fix out of range (latitude beyond "
+                         "85 deg, a height beyond 10 km) or an accelerometer that reads nothing")
+
+    state0 = ffi.new("imu_navkf_t *", state[0])  # the start, kept for its row
+    n = len(inp) - start - 1
+    later = np.ascontiguousarray(inp.fix_index[1:] - (start + 1), dtype=np.int32)
+    accepted = np.zeros(len(later), dtype=np.uint8)
+    lat_lon = np.zeros((n, 2), dtype=np.int32 if fixed else np.float64)
+    height = np.zeros(n, dtype=lat_lon.dtype)
+    vel = np.zeros((n, 3), dtype=lat_lon.dtype)
+    quat = np.zeros((n, 4), dtype=lat_lon.dtype)
+    var_mant = np.zeros((n, STATES), dtype=lat_lon.dtype)
+    var_exp = np.zeros((n, STATES), dtype=np.int32)
+    ptr = f"{real} *"
+    lib.navkf_run(state, n, ffi.cast(ptr, ffi.from_buffer(gyr)), ffi.cast(ptr, ffi.from_buffer(acc)),
+                  ffi.cast(ptr, ffi.from_buffer(mags)), ffi.cast("int32_t *", ffi.from_buffer(later)), len(later),
+                  fixes + 1, ffi.cast("uint8_t *", ffi.from_buffer(accepted)), ffi.cast(ptr, ffi.from_buffer(lat_lon)),
+                  ffi.cast(ptr, ffi.from_buffer(height)), ffi.cast(ptr, ffi.from_buffer(vel)),
+                  ffi.cast(ptr, ffi.from_buffer(quat)), ffi.cast(ptr, ffi.from_buffer(var_mant)),
+                  ffi.cast("int32_t *", ffi.from_buffer(var_exp)))
+
+    scale = (lambda q: 2.0 ** -q) if fixed else (lambda q: 1.0)
+    # the start's own row: the state imu_navkf_start left
+    start_position = ffi.new(f"{real}[3]")
+    lib.imu_navkf_position(state0, start_position, start_position + 1, start_position + 2)
+    start_mant, start_exp = np.zeros((1, STATES), dtype=var_mant.dtype), np.zeros((1, STATES), dtype=np.int32)
+    for i in range(STATES):
+        m, e = ffi.new(ptr), ffi.new("int32_t *")
+        lib.imu_navkf_variance(state0, i, m, e)
+        start_mant[0, i], start_exp[0, i] = m[0], e[0]
+    lat_lon = np.vstack([[start_position[0], start_position[1]], lat_lon])
+    height = np.r_[start_position[2], height]
+    vel = np.vstack([list(state0.nav.vel), vel])
+    quat = np.vstack([list(state0.nav.q), quat])
+    variance = np.vstack([start_mant, var_mant]) * np.exp2(np.vstack([start_exp, var_exp]) - (30 if fixed else 0))
+    return NavResult(
+        start=start, timestamp_us=inp.timestamp_us[start:],
+        lat_deg=np.degrees(lat_lon[:, 0] * scale(29)), lon_deg=np.degrees(lat_lon[:, 1] * scale(29)),
+        height_m=height * scale(0) / 1000.0, vel_enu=vel * scale(20), quat=quat * scale(30),
+        sigma=np.sqrt(np.maximum(variance, 0.0)) * STATE_UNITS,
+        fix_index=inp.fix_index[1:], fix_accepted=accepted.astype(bool),
+        rejected=int(state.rejected), zero_velocity=int(state.zero_velocity), saturations=int(state.nav.saturations))
