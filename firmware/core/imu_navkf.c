@@ -62,7 +62,7 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12 };
 /** Seconds (Q16): the covariance's interval, the time after which the gate gives in, and
  *  the longest count kept (how long without GNSS before rest alone makes zero velocity). */
 #define COV_INTERVAL IMU_QCONST(0.05, 16)
-#define REJECT_TIME IMU_QCONST(5.0, 16)
+#define REJECT_TIME IMU_QCONST(30.0, 16)
 #define LONGEST_COUNT IMU_QCONST(60.0, 16)
 
 static const int POSITION_ROWS[3] = {POS, POS + 1, POS + 2};
@@ -236,11 +236,17 @@ static void apply(imu_navkf_t *f, const imu_q30_t dx[IMU_NAVKF_STATES])
     int k;
     for (k = 0; k < 3; ++k) {
         step[k] = IMU_WSHR(IMU_WMUL(dx[POS + k], 1024000), 15); /* units Q30 * 1024000 -> mm Q30 >> 15 -> Q15 */
-        /* units of 64 m/s, Q30 -> m/s Q20: * 64 >> 10 */
-        n->vel[k] = IMU_ADD_SAT(n->vel[k], IMU_MUL(dx[VEL + k], IMU_QCONST(64.0, 24), 34), sat);
+        /* Each correction's rounding is carried to the next (the biases are unobservable at
+         * times: rounded alone, their corrections would random-walk them, and the heading
+         * with them, away from the float build's). Units of 64 m/s, Q30 -> m/s Q20: * 64 >> 10,
+         * the same integer as Q30 >> 4 */
+        n->vel[k] = IMU_ADD_SAT(n->vel[k], IMU_WSHR_FEEDBACK_SAT(IMU_WMUL(dx[VEL + k], IMU_QCONST(64.0, 24)), 34,
+                                                                 &f->carry[VEL + k], sat), sat);
         theta[k] = dx[ATT + k];
-        n->gyro_bias[k] = IMU_ADD_SAT(n->gyro_bias[k], IMU_SHR(dx[GYRO_BIAS + k], 6), sat); /* Q30 -> Q24 */
-        n->acc_bias[k] = IMU_ADD_SAT(n->acc_bias[k], IMU_SHR(dx[ACC_BIAS + k], 14), sat);   /* Q30 -> Q16 */
+        n->gyro_bias[k] = IMU_ADD_SAT(n->gyro_bias[k], IMU_WSHR_FEEDBACK_SAT(dx[GYRO_BIAS + k], 6,
+                                                                             &f->carry[GYRO_BIAS + k], sat), sat);
+        n->acc_bias[k] = IMU_ADD_SAT(n->acc_bias[k], IMU_WSHR_FEEDBACK_SAT(dx[ACC_BIAS + k], 14,
+                                                                           &f->carry[ACC_BIAS + k], sat), sat);
     }
     imu_nav_move(n, step);
     imu_quat_integrate(n->q, theta);
@@ -377,6 +383,9 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     f->reject_steps = seconds_in_steps(f, REJECT_TIME);
     f->longest_steps = seconds_in_steps(f, LONGEST_COUNT);
     f->still = 0;
+    for (k = 0; k < IMU_NAVKF_STATES; ++k) {
+        f->carry[k] = 0;
+    }
     /* dt / tau, Q30: s Q30 * 2^16 / s Q16 (tau above dt) */
     f->fast_weight = IMU_DIV_SAT(f->nav.dt, TREND_FAST_TAU, 16, sat);
     f->slow_weight = IMU_DIV_SAT(f->nav.dt, TREND_SLOW_TAU, 16, sat);

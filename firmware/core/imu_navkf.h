@@ -26,8 +26,9 @@
  * Measurements: GNSS position and velocity with the receiver's accuracies, back to the
  * time the fix was valid for by the estimated velocity and acceleration (the latency of a
  * receiver: tenths of a second); gated by the normalised innovation (a multipath jump is
- * rejected and counted; after 5 s of rejections the filter accepts again, as the estimate
- * is then the one in doubt). Position fixes with an accuracy (markers: not gated). At rest
+ * rejected and counted, while dead reckoning lets the covariance grow, until the fixes
+ * agree again; after 30 s of nothing but rejections the filter accepts again, as the
+ * estimate is then the one in doubt). Position fixes with an accuracy (markers: not gated). At rest
  * (the bias-corrected rate and the specific force still for `rest_steps`; with GNSS, only
  * while the last fix said the board stood and the force shows no trend, through an outage
  * too; after a minute without GNSS, or from a start without it, on the sensors alone),
@@ -72,6 +73,8 @@ typedef struct {
     imu_q30_t q_start[4];       /**< attitude at the start of the covariance interval, Q30 */
     imu_wide_t dv[3];           /**< specific force (ENU) times dt summed over the interval, in units of 64 m/s, Q52 */
     int32_t steps;              /**< samples in the interval so far */
+    imu_wide_t carry[IMU_NAVKF_STATES]; /**< the corrections' rounding, carried to the next (velocity: Q54 of
+                                             m/s; biases: Q30; 0 elsewhere and in the float build) */
     int32_t cov_steps;          /**< samples per covariance interval */
     imu_q30_t dt_per_64;        /**< sample interval / 64, s, Q36 (dv's factor) */
     int32_t still;              /**< consecutive still samples (stops counting at rest_steps) */

@@ -52,7 +52,7 @@ class NavResult:
     def __len__(self) -> int:
         return len(self.timestamp_us)
 
-    def fix_age_s(self) -> np.ndarray:
+    def since_fix_s(self) -> np.ndarray:
         """Seconds since the last fix the filter used, per sample (NaN before the first)."""
         used = self.fix_index[self.fix_accepted] - self.start
         last = np.full(len(self), -1, dtype=np.int64)

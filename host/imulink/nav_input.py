@@ -163,6 +163,37 @@ def read_nav_csv(path) -> NavInput:
                     fix_v_acc_m=fix_array[:, 5], fix_vel_enu=fix_array[:, 6:9], fix_s_acc_m_s=fix_array[:, 9])
 
 
+def simulated_input(imu, fixes=None, at_arrival: bool = False) -> NavInput:
+    """A simulated run as a NavInput: `imu` an imulink.sim.SimResult, `fixes` a
+    sim.navigation.GnssFixes or MarkerFixes (position only: accuracy each axis). With
+    `at_arrival`, each GNSS fix sits in the row of the sample it reaches the board with and
+    says how late it is (a recording's order); else in the row it was measured at."""
+    n = len(imu.t)
+    index = np.zeros(0, dtype=np.int64) if fixes is None else np.asarray(fixes.index, dtype=np.int64)
+    m = len(index)
+    age = None
+    if fixes is not None and hasattr(fixes, "vel_enu"):
+        vel, s_acc = fixes.vel_enu, fixes.s_acc_m_s
+        h_acc, v_acc = fixes.h_acc_m, fixes.v_acc_m
+        if at_arrival:
+            rate = 1.0 / float(imu.t[1] - imu.t[0])
+            index = np.minimum(np.ceil(np.round(fixes.t_arrival * rate, 6)).astype(np.int64), n - 1)
+            age = imu.t[index] - fixes.t_valid
+    elif fixes is not None:
+        vel, s_acc = np.full((m, 3), math.nan), np.full(m, math.nan)
+        h_acc, v_acc = np.full(m, fixes.accuracy_m * math.sqrt(2.0)), np.full(m, fixes.accuracy_m)
+    else:
+        vel, s_acc, h_acc, v_acc = np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0)
+    empty = np.zeros(0)
+    return NavInput(timestamp_us=np.round(imu.t * 1e6).astype(np.int64), gyr=imu.gyr, acc=imu.acc, mag=imu.mag,
+                    baro_index=np.zeros(0, dtype=np.int64), baro_pa=empty, baro_temp_c=empty, fix_index=index,
+                    fix_lat_deg=np.asarray(fixes.lat_deg) if m else empty,
+                    fix_lon_deg=np.asarray(fixes.lon_deg) if m else empty,
+                    fix_height_m=np.asarray(fixes.height_m) if m else empty, fix_h_acc_m=np.asarray(h_acc),
+                    fix_v_acc_m=np.asarray(v_acc), fix_vel_enu=np.asarray(vel), fix_s_acc_m_s=np.asarray(s_acc),
+                    fix_age_s=age)
+
+
 def write_nav_csv(path, imu, fixes=None, baro=None, truth=None) -> None:
     """Write a simulated run as a navigation CSV: `imu` an imulink.sim.SimResult, `fixes` a
     sim.navigation.GnssFixes or MarkerFixes (position only), `baro` a BaroSamples, `truth`

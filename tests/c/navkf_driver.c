@@ -26,7 +26,7 @@ void imu_narrowing_failed(const char *file, int line, const char *what, int64_t 
 #endif
 
 #ifdef IMU_FIXED
-#define TO_Q(x, q) ((int32_t)llround((x) * ldexp(1.0, (q))))
+#define TO_Q(x, q) ((int32_t)llrint((x) * ldexp(1.0, (q)))) /* half to even, as numpy and imulink.nav round */
 #define FROM_Q(x, q) ((double)(x) * ldexp(1.0, -(q)))
 #define VAR_Q 30 /* P_ii = mant 2^(exp - VAR_Q) */
 #else
