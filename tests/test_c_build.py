@@ -160,7 +160,7 @@ def test_include_checker_catches_violations():
 
 
 def test_core_includes_no_platform_header():
-    local = {p.name for p in HEADERS}
+    local = {p.name for p in HEADERS + SOURCES}  # imu_navcov.c compiles imu_cov.c again
     problems = []
     n_includes = 0
     for path in SOURCES + HEADERS:

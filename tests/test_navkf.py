@@ -20,22 +20,14 @@ from imulink.sensor_input import InputError
 from imulink.sim import navigation as nv
 from imulink.sim import quat as Q
 from imulink.sim import simulate
-from imulink.sim.sensors import AccModel, GyroModel, MagModel, SensorSuite
 
 ROOT = Path(__file__).resolve().parents[1]
 CORE = ROOT / "firmware" / "core"
 RATE = 100.0
-DEG = math.pi / 180.0
-#: The MPU6050 data sheet's white noise (0.005 deg/s/sqrt(Hz), 400 ug/sqrt(Hz)) and turn-on
-#: biases within its zero-rate and zero-g specifications.
-GYRO_BIAS = np.array([0.8, -0.5, 0.6]) * DEG
-ACC_BIAS = np.array([0.25, -0.3, 0.2])
 
 
-def sensors(rate: float = RATE) -> SensorSuite:
-    return SensorSuite(gyro=GyroModel(arw=0.005 * DEG, bias_instability=0.0, rrw=0.0, bias=GYRO_BIAS),
-                       acc=AccModel(noise_std=400e-6 * 9.80665 * math.sqrt(rate / 2), bias=ACC_BIAS),
-                       mag=MagModel())
+def sensors():
+    return nv.datasheet_sensors(RATE)
 
 
 def errors(traj, result: nav.NavResult) -> dict[str, np.ndarray]:

@@ -1,32 +1,36 @@
 #!/usr/bin/env python3
-"""Cortex-M4 cost and accuracy of the navigation's strapdown propagation (issue 16).
+"""Accuracy and Cortex-M4 cost of the `nav` filter (issue 16; firmware/core/imu_navkf.c).
 
-Builds the fixed-point core for the Cortex-M4 as tools/bench_arm.py does (same flags,
-same harness ELF), then runs imu_nav_propagate in the unicorn emulator over the
-simulator's car drive (`imulink.sim.navigation.car_drive`, seed 0, 100 Hz) with ideal
-sensors: the gyroscope's exact rates and the specific force's mean over each sample
-interval (no noise, no quantisation), so what remains is the propagation's own error.
-After every sample the position, velocity and quaternion are read back and compared
-with the x86 fixed build (tests/c/nav_driver.c, compiled with gcc): the benchmark fails
-at the first difference. Reported:
+Accuracy: the filter through imulink.nav (the C core via cffi), fixed point and float twin,
+on the navigation simulator's scenarios with the MPU6050 data sheet's noise and turn-on
+biases (`imulink.sim.navigation.datasheet_sensors`), seed 0, 100 Hz:
 
-- instructions per IMU step (imu_nav_propagate), mean and max, and the deepest stack;
-- sizeof(imu_nav_t) on the target;
-- the fixed build's horizontal and vertical position error and velocity error against
-  the truth over the run.
+- car drive, 20 min, GNSS at 1 Hz with white errors of 2.5 m horizontal, 5 m vertical,
+  0.1 m/s; the same with two 30 s outages; with time-correlated errors (2 m horizontal,
+  3 m vertical, 100 s) and a multipath jump of 19 m for 10 s; with 0.2 s latency;
+- foot-mounted walk, 5 min of laps, no GNSS, zero velocity in the stances: the error at
+  the end as a share of the distance walked;
+- handheld walk indoors, 10 min, a marker's position fix (0.1 m) each minute: the error
+  just before each.
 
-    .venv/bin/python tools/bench_nav.py [--seconds 60] [--json]
+Errors after the first minute (the car's start). Fixed vs float: the largest position
+difference and attitude difference over each run.
 
-The GNSS, barometer and rest updates of the filter are not written yet: this measures
-the part every IMU sample runs.
+Cost: the fixed-point core built for the Cortex-M4 as tools/bench_arm.py builds it (same
+flags, same harness ELF), run in the unicorn emulator over the first `--seconds` of the car
+drive: instructions per IMU step (imu_navkf_step; every fifth sample also propagates the
+covariance) and per GNSS fix (imu_navkf_fix), the deepest stack, sizeof(imu_navkf_t).
+After every sample the position, velocity and attitude are read back and compared with
+the x86 fixed build (imulink.nav): the benchmark fails at the first difference.
+
+    .venv/bin/python tools/bench_nav.py [--seconds 60] [--no-accuracy] [--no-arm] [--json]
 """
 from __future__ import annotations
 
 import argparse
 import json
-import shutil
+import math
 import struct
-import subprocess
 import sys
 import tempfile
 import time
@@ -39,134 +43,236 @@ sys.path.insert(0, str(ROOT / "tools"))
 sys.path.insert(0, str(ROOT / "host"))
 
 import bench_arm  # noqa: E402
+from imulink import nav  # noqa: E402
+from imulink.nav_input import simulated_input  # noqa: E402
 from imulink.sim import navigation as nv  # noqa: E402
-from imulink.sim.sensors import _interval_mean_in_body  # noqa: E402
+from imulink.sim import quat as Q  # noqa: E402
+from imulink.sim import simulate  # noqa: E402
 
-DRIVER = ROOT / "tests" / "c" / "nav_driver.c"
 RATE_HZ = 100.0
+SEED = 0
+OUTAGES = ((300.0, 330.0), (700.0, 730.0))
+MULTIPATH = ((420.0, 430.0, 15.0, -10.0, 5.0),)
 
 
-def to_q(x: float, q: int) -> int:
-    """llround(x 2^q), as the driver converts (halves away from zero)."""
-    v = abs(x) * 2.0**q
-    n = int(np.floor(v + 0.5))
-    return -n if x < 0 else n
+def errors(traj, result: nav.NavResult) -> dict[str, np.ndarray]:
+    """Per sample from the start: horizontal and vertical error (m), velocity error (m/s),
+    heading error (deg)."""
+    k = slice(result.start, None)
+    e = nv.local_offsets(result.lat_deg, result.lon_deg, result.height_m, traj.lat_deg[k], traj.lon_deg[k],
+                         traj.height_m[k])
+    forward_true = Q.rotate(traj.quat[k], [0.0, 1.0, 0.0])
+    forward = Q.rotate(result.quat, [0.0, 1.0, 0.0])
+    heading = np.arctan2(forward[:, 0], forward[:, 1]) - np.arctan2(forward_true[:, 0], forward_true[:, 1])
+    return {"horizontal": np.hypot(e[:, 0], e[:, 1]), "vertical": np.abs(e[:, 2]),
+            "velocity": np.linalg.norm(result.vel_enu - traj.vel_enu[k], axis=1),
+            "heading": np.degrees(np.abs(np.angle(np.exp(1j * heading))))}
 
 
-def ideal_run(seconds: float):
-    traj = nv.car_drive(seconds, RATE_HZ, seed=0)
-    f_earth = traj.acc_lin.copy()
-    f_earth[:, 2] += traj.gravity
-    acc = _interval_mean_in_body(traj.quat, traj.gyr, traj.dt, f_earth)
-    return traj, traj.gyr[1:], acc[1:]
+def rms(x) -> float:
+    return float(np.sqrt(np.mean(np.square(x))))
 
 
-def host_fixed(directory: Path, traj, gyr, acc) -> np.ndarray:
-    """The x86 fixed build's state after each sample, as integers (mm, Q20, Q30)."""
-    gcc = shutil.which("gcc")
-    if gcc is None:
-        raise bench_arm.BenchError("gcc (the host compiler) is missing")
-    exe = directory / "nav_fixed"
-    bench_arm._run([gcc, "-std=c99", "-O2", "-DIMU_FIXED", f"-I{bench_arm.CORE_DIR}", "-o", str(exe), str(DRIVER),
-                    str(bench_arm.CORE_DIR / "imu_nav.c"), str(bench_arm.CORE_DIR / "imu_math.c"), "-lm"],
-                   "compiling the x86 navigation driver")
-    o = traj.origin
-    head = [RATE_HZ, o.lat_deg, o.lon_deg, o.height_m, *traj.quat[0], *traj.vel_enu[0]]
-    lines = [" ".join(repr(float(x)) for x in head)]
-    lines += [" ".join(repr(float(x)) for x in (*g, *a)) for g, a in zip(gyr, acc)]
-    out = subprocess.run([str(exe)], input="\n".join(lines) + "\n", capture_output=True, text=True)
-    if out.returncode != 0:
-        raise bench_arm.BenchError(f"the x86 navigation driver failed ({out.returncode}): {out.stderr.strip()}")
-    rows = np.array([r.split() for r in out.stdout.strip().split("\n")[1:-1]], dtype=float)
-    scale = np.r_[[1000.0] * 3, [2.0**20] * 3, [2.0**30] * 4]
-    return np.rint(rows * scale).astype(np.int64)
+def builds_differ(results) -> tuple[float, float]:
+    """Largest position (m) and attitude (deg) difference of the fixed build from the float."""
+    fixed, flt = results["fixed"], results["float"]
+    d = nv.local_offsets(fixed.lat_deg, fixed.lon_deg, fixed.height_m, flt.lat_deg, flt.lon_deg, flt.height_m)
+    dot = np.minimum(np.abs(np.sum(fixed.quat * flt.quat, axis=1)) / np.linalg.norm(fixed.quat, axis=1), 1.0)
+    return float(np.linalg.norm(d, axis=1).max()), float(np.degrees(2.0 * np.arccos(dot)).max())
 
 
-def run(seconds: float, build_dir: Path, progress=lambda _m: None) -> dict:
-    start = time.perf_counter()
+def car_drive(minutes: float):
+    traj = nv.car_drive(minutes * 60.0, RATE_HZ, seed=SEED)
+    return traj, simulate(traj, nv.datasheet_sensors(RATE_HZ), seed=SEED)
+
+
+def start_marker(traj, accuracy_m: float, extra=None) -> nv.MarkerFixes:
+    """A marker's fix at the start (where a walk without GNSS starts), and `extra` markers."""
+    index, lat, lon, h = [0], [traj.lat_deg[0]], [traj.lon_deg[0]], [traj.height_m[0]]
+    if extra is not None:
+        index += list(extra.index)
+        lat, lon, h = lat + list(extra.lat_deg), lon + list(extra.lon_deg), h + list(extra.height_m)
+    return nv.MarkerFixes(index=np.array(index), lat_deg=np.array(lat), lon_deg=np.array(lon),
+                          height_m=np.array(h), accuracy_m=accuracy_m, truth_pos_enu=traj.pos_enu[index])
+
+
+def accuracy(progress=lambda _m: None) -> list[dict]:
+    rows = []
+    traj, imu = car_drive(20.0)
+    car = {
+        "car drive, 20 min, white GNSS errors": (nv.GnssModel(), False),
+        "the same, two 30 s outages (300 s, 700 s)": (nv.GnssModel(outages=OUTAGES), False),
+        "the same, correlated errors and a 19 m multipath jump": (
+            nv.GnssModel(correlated_h_m=2.0, correlated_v_m=3.0, multipath=MULTIPATH), False),
+        "the same, white errors, fixes 0.2 s late": (nv.GnssModel(latency_s=0.2), True),
+    }
+    for name, (model, late) in car.items():
+        fixes = nv.gnss_fixes(traj, model, seed=SEED)
+        results = {a: nav.run(simulated_input(imu, fixes, at_arrival=late), a) for a in ("fixed", "float")}
+        row = {"scenario": name, "fixed_vs_float_m_deg": builds_differ(results)}
+        for arithmetic, result in results.items():
+            e = errors(traj, result)
+            t = (result.timestamp_us - result.timestamp_us[0]) / 1e6
+            settled = t >= 60.0
+            row[arithmetic] = {"horizontal_rmse_m": rms(e["horizontal"][settled]),
+                               "vertical_rmse_m": rms(e["vertical"][settled]),
+                               "velocity_rmse_m_s": rms(e["velocity"][settled]),
+                               "heading_rmse_deg": rms(e["heading"][settled]),
+                               "horizontal_max_m": float(e["horizontal"][settled].max()),
+                               "rejected": result.rejected}
+            if model.outages:
+                row[arithmetic]["drift_at_outage_ends_m"] = [float(e["horizontal"][np.searchsorted(t, end) - 1])
+                                                             for _, end in model.outages]
+        rows.append(row)
+        progress(f"{name}: done")
+
+    walk = nv.foot_walk(300.0, RATE_HZ, seed=SEED)
+    imu = simulate(walk, nv.datasheet_sensors(RATE_HZ), seed=SEED)
+    results = {a: nav.run(simulated_input(imu, start_marker(walk, 0.01)), a) for a in ("fixed", "float")}
+    walked = float(np.sum(np.linalg.norm(walk.vel_enu[:, :2], axis=1)) / RATE_HZ)
+    row = {"scenario": f"foot-mounted walk, 5 min ({walked:.0f} m), no GNSS, zero velocity",
+           "fixed_vs_float_m_deg": builds_differ(results)}
+    for arithmetic, result in results.items():
+        end = float(errors(walk, result)["horizontal"][-1])
+        row[arithmetic] = {"end_error_m": end, "end_error_percent": 100.0 * end / walked}
+    rows.append(row)
+    progress("foot walk: done")
+
+    hand = nv.handheld_walk(600.0, RATE_HZ, seed=SEED)
+    imu = simulate(hand, nv.datasheet_sensors(RATE_HZ), seed=SEED)
+    markers = nv.marker_fixes(hand, 60.0, 0.1, seed=SEED)
+    results = {a: nav.run(simulated_input(imu, start_marker(hand, 0.1, markers)), a) for a in ("fixed", "float")}
+    row = {"scenario": "handheld walk indoors, 10 min, a marker (0.1 m) each minute",
+           "fixed_vs_float_m_deg": builds_differ(results)}
+    for arithmetic, result in results.items():
+        before = errors(hand, result)["horizontal"][markers.index - 1]
+        row[arithmetic] = {"error_before_each_marker_m": [round(float(x), 1) for x in before]}
+    rows.append(row)
+    progress("handheld walk: done")
+    return rows
+
+
+def to_words(values, q: int) -> list[int]:
+    return [int(v) for v in np.rint(np.asarray(values, dtype=np.float64) * 2.0 ** q)]
+
+
+def arm_cost(seconds: float, build_dir: Path, progress=lambda _m: None) -> dict:
+    """The Cortex-M4 build over the first `seconds` of the car drive, every sample compared
+    with the x86 fixed build."""
     build = bench_arm.build_arm(build_dir)
     bench_arm.check_no_float(build)
-    traj, gyr, acc = ideal_run(seconds)
-    host = host_fixed(build_dir, traj, gyr, acc)
-    progress(f"built {build.elf}; host fixed build run on {len(gyr)} samples")
+    traj, imu = car_drive(seconds / 60.0)
+    fixes = nv.gnss_fixes(traj, nv.GnssModel(), seed=SEED)
+    inp = simulated_input(imu, fixes)
+    host = nav.run(inp, "fixed")
+    progress(f"built {build.elf}; the x86 fixed build run on {len(inp)} samples")
     emu = bench_arm.Emulator(build)
-    o = traj.origin
-    emu.write("bench_nav_origin", struct.pack("<3i", to_q(np.deg2rad(o.lat_deg), 29),
-                                              to_q(np.deg2rad(o.lon_deg), 29), to_q(o.height_m * 1000.0, 0)))
-    emu.write("bench_nav_quat", struct.pack("<4i", *(to_q(float(v), 30) for v in traj.quat[0])))
-    emu.write("bench_nav_vel", struct.pack("<3i", *(to_q(float(v), 20) for v in traj.vel_enu[0])))
-    status = emu.call("bench_nav_start", to_q(RATE_HZ, 16)).value
+
+    def fix_bytes(j: int) -> bytes:
+        lat, lon = math.radians(float(inp.fix_lat_deg[j])), math.radians(float(inp.fix_lon_deg[j]))
+        words = [0, *to_words([lat, lon], 29), *to_words([inp.fix_height_m[j] * 1000.0], 0),
+                 *to_words(inp.fix_vel_enu[j], 20), 1,
+                 *to_words([inp.fix_h_acc_m[j] * 1000.0, inp.fix_v_acc_m[j] * 1000.0,
+                            inp.fix_s_acc_m_s[j] * 1000.0], 0), 0]
+        return struct.pack("<12i", *words)
+
+    g_addr, a_addr, m_addr = (emu.address(n) for n in ("bench_navkf_gyr", "bench_navkf_acc", "bench_navkf_mag"))
+    state, fix_addr = emu.address("bench_navkf"), emu.address("bench_navkf_fix")
+    emu.write(fix_addr, fix_bytes(0))
+    emu.write(a_addr, struct.pack("<3i", *to_words(inp.acc[0], 16)))
+    emu.write(m_addr, struct.pack("<3i", *to_words(inp.mag[0], 16)))
+    status = emu.call("bench_navkf_start", to_words([RATE_HZ], 16)[0]).value
     if status != 0:
-        raise bench_arm.BenchError(f"bench_nav_start returned {status}")
-    nav, g_addr, a_addr = emu.address("bench_nav"), emu.address("bench_nav_gyr"), emu.address("bench_nav_acc")
-    counts = np.zeros(len(gyr), np.int64)
-    stack = 0
-    got = np.zeros((len(gyr), 10), np.int64)
-    for i, (g, a) in enumerate(zip(gyr, acc)):
-        emu.write(g_addr, struct.pack("<3i", *(to_q(float(v), 24) for v in g)))
-        emu.write(a_addr, struct.pack("<3i", *(to_q(float(v), 16) for v in a)))
-        r = emu.call("imu_nav_propagate", nav, g_addr, a_addr)
-        counts[i], stack = r.instructions, max(stack, r.stack)
-        emu.call("bench_nav_read")
-        out = struct.unpack("<11i", emu.read("bench_nav_out", 44))
-        got[i] = out[:10]
+        raise bench_arm.BenchError(f"bench_navkf_start returned {status}")
+    fix_at = {int(k): j for j, k in enumerate(inp.fix_index) if j > 0}
+    expected = np.c_[to_words(np.radians(host.lat_deg), 29), to_words(np.radians(host.lon_deg), 29),
+                     np.rint(host.height_m * 1000.0), np.rint(host.vel_enu * 2.0 ** 20),
+                     np.rint(host.quat * 2.0 ** 30)].astype(np.int64)
+    steps, fix_counts, stack = [], [], 0
+    for k in range(1, len(inp)):
+        emu.write(g_addr, struct.pack("<3i", *to_words(inp.gyr[k], 24)))
+        emu.write(a_addr, struct.pack("<3i", *to_words(inp.acc[k], 16)))
+        emu.write(m_addr, struct.pack("<3i", *to_words(inp.mag[k], 16)))
+        r = emu.call("imu_navkf_step", state, g_addr, a_addr, m_addr)
+        steps.append(r.instructions)
+        stack = max(stack, r.stack)
+        if k in fix_at:
+            emu.write(fix_addr, fix_bytes(fix_at[k]))
+            r = emu.call("imu_navkf_fix", state, fix_addr)
+            fix_counts.append(r.instructions)
+            stack = max(stack, r.stack)
+        emu.call("bench_navkf_read")
+        out = struct.unpack("<13i", emu.read("bench_navkf_out", 52))
         if out[10] != 0:
-            raise bench_arm.BenchError(f"sample {i}: {out[10]} saturations")
-        if not np.array_equal(got[i], host[i]):
-            raise bench_arm.BenchError(f"sample {i}: the Cortex-M4 build differs from the x86 fixed build: "
-                                       f"{got[i].tolist()} vs {host[i].tolist()}")
-    m0, n0 = nv.radii(o.lat_deg)
-    truth = np.c_[np.deg2rad(traj.lon_deg[1:] - o.lon_deg) * (n0 + o.height_m) * np.cos(np.deg2rad(o.lat_deg)),
-                  np.deg2rad(traj.lat_deg[1:] - o.lat_deg) * (m0 + o.height_m), traj.height_m[1:] - o.height_m]
-    error = got[:, :3] / 1000.0 - truth
+            raise bench_arm.BenchError(f"sample {k}: {out[10]} saturations")
+        if not np.array_equal(np.array(out[:10]), expected[k]):
+            raise bench_arm.BenchError(f"sample {k}: the Cortex-M4 build differs from the x86 fixed build: "
+                                       f"{list(out[:10])} vs {expected[k].tolist()}")
+    steps = np.array(steps)
+    cov_steps = steps[4::5]  # every fifth sample at 100 Hz ends a covariance interval
     return {
         "compiler": build.compiler,
-        "samples": len(gyr),
-        "seconds": seconds,
-        "rate_hz": RATE_HZ,
-        "distance_m": float(np.sum(np.linalg.norm(traj.vel_enu[:, :2], axis=1)) * traj.dt),
-        "instructions_mean": float(counts.mean()),
-        "instructions_max": int(counts.max()),
+        "samples": len(steps),
+        "fixes": len(fix_counts),
+        "step_mean": float(steps.mean()),
+        "step_max": int(steps.max()),
+        "step_covariance_mean": float(cov_steps.mean()),
+        "step_other_mean": float(np.delete(steps, np.s_[4::5]).mean()),
+        "fix_mean": float(np.mean(fix_counts)),
+        "fix_max": int(np.max(fix_counts)),
+        "per_step_with_fixes_mean": float((steps.sum() + np.sum(fix_counts)) / len(steps)),
         "stack_bytes": int(stack),
-        "state_bytes": build.symbols["bench_nav"].size,
-        "horizontal_error_max_m": float(np.max(np.hypot(error[:, 0], error[:, 1]))),
-        "vertical_error_max_m": float(np.max(np.abs(error[:, 2]))),
-        "velocity_error_max_m_s": float(np.max(np.abs(got[:, 3:6] / 2.0**20 - traj.vel_enu[1:]))),
-        "run_s": time.perf_counter() - start,
+        "state_bytes": build.symbols["bench_navkf"].size,
     }
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                                      formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)
-    parser.add_argument("--seconds", type=float, default=60.0, help="simulated drive, s (default 60)")
+    parser.add_argument("--seconds", type=float, default=60.0,
+                        help="seconds of the car drive the Cortex-M4 build runs (default 60)")
+    parser.add_argument("--no-accuracy", action="store_true", help="skip the accuracy scenarios")
+    parser.add_argument("--no-arm", action="store_true", help="skip the Cortex-M4 cost")
     parser.add_argument("--json", action="store_true", help="print the results as JSON")
     args = parser.parse_args()
-    if args.seconds <= 0:
-        parser.error("--seconds must be positive")
+    if args.seconds < 2.0:
+        parser.error("--seconds must be at least 2 (a fix each second)")
+    started = time.perf_counter()
+    log = (lambda m: None) if args.json else (lambda m: print(m, file=sys.stderr))
+    out = {}
     try:
-        with tempfile.TemporaryDirectory(prefix="bench_nav.") as tmp:
-            r = run(args.seconds, Path(tmp), lambda m: print(m, file=sys.stderr))
+        if not args.no_accuracy:
+            out["accuracy"] = accuracy(log)
+        if not args.no_arm:
+            with tempfile.TemporaryDirectory(prefix="bench_nav.") as tmp:
+                out["arm"] = arm_cost(args.seconds, Path(tmp), log)
     except bench_arm.BenchError as exc:
         print(f"bench_nav: {exc}", file=sys.stderr)
         return 1
+    out["run_s"] = time.perf_counter() - started
     if args.json:
-        print(json.dumps(r, indent=2))
+        print(json.dumps(out, indent=2))
         return 0
-    print(f"Cortex-M4 build: {r['compiler']}")
-    print(f"car drive, {r['seconds']:g} s at {r['rate_hz']:g} Hz ({r['distance_m']:.0f} m), ideal sensors; "
-          f"every sample identical to the x86 fixed build")
-    print()
-    print("| measured | value |")
-    print("|---|---:|")
-    print(f"| imu_nav_propagate, instructions per IMU step, mean / max | {r['instructions_mean']:.0f} / "
-          f"{r['instructions_max']} |")
-    print(f"| stack, bytes (painted) | {r['stack_bytes']} |")
-    print(f"| imu_nav_t, bytes | {r['state_bytes']} |")
-    print(f"| position error vs truth, horizontal / vertical max, m | {r['horizontal_error_max_m']:.3f} / "
-          f"{r['vertical_error_max_m']:.3f} |")
-    print(f"| velocity error vs truth, max, m/s | {r['velocity_error_max_m_s']:.5f} |")
-    print(f"\nruntime: {r['run_s']:.0f} s")
+    for row in out.get("accuracy", []):
+        print(f"{row['scenario']}:")
+        for arithmetic in ("fixed", "float"):
+            values = ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}"
+                               for k, v in row[arithmetic].items())
+            print(f"  {arithmetic}: {values}")
+        print(f"  fixed vs float: {row['fixed_vs_float_m_deg'][0]:.3f} m, {row['fixed_vs_float_m_deg'][1]:.4f} deg")
+    if "arm" in out:
+        r = out["arm"]
+        print(f"\nCortex-M4 ({r['compiler']}), {r['samples']} samples and {r['fixes']} fixes of the car drive, "
+              "every sample identical to the x86 fixed build:")
+        print("| measured | instructions |")
+        print("|---|---:|")
+        print(f"| imu_navkf_step, mean / max | {r['step_mean']:.0f} / {r['step_max']} |")
+        print(f"| ... samples that end a covariance interval (every fifth), mean | {r['step_covariance_mean']:.0f} |")
+        print(f"| ... the other samples, mean | {r['step_other_mean']:.0f} |")
+        print(f"| imu_navkf_fix (GNSS position and velocity), mean / max | {r['fix_mean']:.0f} / {r['fix_max']} |")
+        print(f"| per IMU sample with the fixes, mean | {r['per_step_with_fixes_mean']:.0f} |")
+        print(f"\nstack {r['stack_bytes']} B (painted), imu_navkf_t {r['state_bytes']} B")
+    print(f"\nruntime: {out['run_s']:.0f} s")
     return 0
 
 

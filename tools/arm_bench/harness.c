@@ -9,7 +9,7 @@
  * measured, and bench_halt, the return address at which every call stops.
  */
 #include "imu_filter.h"
-#include "imu_nav.h"
+#include "imu_navkf.h"
 #include "imu_proto.h"
 
 /* Filter under test and its inputs and outputs. The tool writes the settings
@@ -37,15 +37,15 @@ struct bench_state {
 };
 struct bench_state bench_state;
 
-/* Navigation under test (tools/bench_nav.py): its start values, one sample's inputs and
- * what the tool reads back after each sample (east, north, up mm; velocity Q20; quaternion Q30). */
-imu_nav_t bench_nav;
-imu_nav_origin_t bench_nav_origin;
-imu_q30_t bench_nav_quat[4];
-imu_real_t bench_nav_vel[3];
-imu_rate_t bench_nav_gyr[3];
-imu_q16_t bench_nav_acc[3];
-int32_t bench_nav_out[11]; /* pos[3], vel[3], q[4], saturations */
+/* The nav filter under test (tools/bench_nav.py): its start values and one sample's
+ * inputs, and what the tool reads back after each sample (latitude, longitude Q29 rad,
+ * height mm, velocity Q20, quaternion Q30, saturations, rejected fixes). */
+imu_navkf_t bench_navkf;
+imu_navkf_fix_t bench_navkf_fix;
+imu_rate_t bench_navkf_gyr[3];
+imu_q16_t bench_navkf_acc[3];
+imu_real_t bench_navkf_mag[3];
+int32_t bench_navkf_out[13];
 
 /* Codec buffers. */
 imu_proto_sample_t bench_sample_msg;
@@ -142,24 +142,26 @@ void bench_fill_messages(uint32_t index, uint32_t timestamp_us, int32_t temperat
     bench_estimate_msg.weights[1] = bench_state.weights[1];
 }
 
-/** imu_nav_start on the bench_nav_* start values; returns its status. */
-int bench_nav_start(int32_t rate_q16)
+/** imu_navkf_start at bench_navkf_fix with bench_navkf_acc and _mag; returns its status. */
+int bench_navkf_start(int32_t rate_q16)
 {
-    return imu_nav_start(&bench_nav, &bench_nav_origin, rate_q16, bench_nav_quat, bench_nav_vel);
+    return imu_navkf_start(&bench_navkf, rate_q16, bench_navkf_acc, bench_navkf_mag, &bench_navkf_fix);
 }
 
-/** Fill bench_nav_out from bench_nav. */
-void bench_nav_read(void)
+/** Fill bench_navkf_out from bench_navkf. */
+void bench_navkf_read(void)
 {
     int k;
+    imu_navkf_position(&bench_navkf, &bench_navkf_out[0], &bench_navkf_out[1], &bench_navkf_out[2]);
     for (k = 0; k < 3; ++k) {
-        bench_nav_out[k] = bench_nav.pos[k];
-        bench_nav_out[3 + k] = bench_nav.vel[k];
+        bench_navkf_out[3 + k] = bench_navkf.nav.vel[k];
     }
     for (k = 0; k < 4; ++k) {
-        bench_nav_out[6 + k] = bench_nav.q[k];
+        bench_navkf_out[6 + k] = bench_navkf.nav.q[k];
     }
-    bench_nav_out[10] = (int32_t)bench_nav.saturations;
+    bench_navkf_out[10] = (int32_t)bench_navkf.nav.saturations;
+    bench_navkf_out[11] = (int32_t)bench_navkf.rejected;
+    bench_navkf_out[12] = (int32_t)bench_navkf.zero_velocity;
 }
 
 /** Start a decoder on bench_decoder_buf. */
@@ -182,9 +184,10 @@ __attribute__((section(".bench_exports"), used)) const void *const bench_exports
     (const void *)imu_proto_sample_encode,
     (const void *)imu_proto_estimate_encode,
     (const void *)imu_proto_decoder_push,
-    (const void *)bench_nav_start,
-    (const void *)bench_nav_read,
-    (const void *)imu_nav_propagate,
+    (const void *)bench_navkf_start,
+    (const void *)bench_navkf_read,
+    (const void *)imu_navkf_step,
+    (const void *)imu_navkf_fix,
     &bench_sizes,
     &bench_filter,
     &bench_sensor,
@@ -197,11 +200,10 @@ __attribute__((section(".bench_exports"), used)) const void *const bench_exports
     bench_wire,
     &bench_decoder,
     &bench_frame,
-    &bench_nav,
-    &bench_nav_origin,
-    bench_nav_quat,
-    bench_nav_vel,
-    bench_nav_gyr,
-    bench_nav_acc,
-    bench_nav_out,
+    &bench_navkf,
+    &bench_navkf_fix,
+    bench_navkf_gyr,
+    bench_navkf_acc,
+    bench_navkf_mag,
+    bench_navkf_out,
 };

@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import quat as Q
+from .sensors import AccModel, GyroModel, MagModel, SensorSuite
 from .trajectories import Trajectory, _lowpass_noise, _n_samples, integrate_gyro
 
 # WGS-84 (NIMA TR8350.2): semi-major axis, flattening, first eccentricity squared.
@@ -379,6 +380,21 @@ def drone_flight(duration_s: float, rate_hz: float, seed: int = 0, origin: Origi
     x_b = np.cross(y_b, z_b)
     target_quat = Q.from_rotmat(np.stack([x_b, y_b, z_b], axis=-1))  # columns: body axes in ENU
     return _trajectory(rate_hz, target_quat, lambda quat: vel, origin, on_ground | (np.linalg.norm(vel, axis=1) == 0))
+
+
+#: The MPU6050 data sheet's white noise (rate noise 0.005 deg/s/sqrt(Hz), accelerometer
+#: 400 ug/sqrt(Hz)) and turn-on biases within its zero-rate and zero-g specifications: the
+#: sensors of the navigation benchmarks (issue 16).
+DATASHEET_GYRO_BIAS = np.radians([0.8, -0.5, 0.6])
+DATASHEET_ACC_BIAS = np.array([0.25, -0.3, 0.2])
+
+
+def datasheet_sensors(rate_hz: float) -> SensorSuite:
+    """An MPU6050 as its data sheet describes it, with the turn-on biases above; the HMC5883L's noise."""
+    return SensorSuite(gyro=GyroModel(arw=math.radians(0.005), bias_instability=0.0, rrw=0.0,
+                                      bias=DATASHEET_GYRO_BIAS),
+                       acc=AccModel(noise_std=400e-6 * 9.80665 * math.sqrt(rate_hz / 2.0), bias=DATASHEET_ACC_BIAS),
+                       mag=MagModel())
 
 
 @dataclass
