@@ -38,7 +38,8 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12 };
 #define TREND_FAST_TAU IMU_QCONST(0.1, 16)
 #define TREND_SLOW_TAU IMU_QCONST(1.0, 16)
 #define TREND_LIMIT IMU_QCONST(0.03, 16)
-/** Zero velocity's standard deviation: 0.02 m/s in units of 64 m/s, Q30. */
+/** Zero velocity's standard deviation: 0.02 m/s in units of 64 m/s, Q30 (zero rate's: the
+ *  gyroscope's noise, NOISE_ATT over a sample). */
 #define ZERO_VELOCITY_SIGMA IMU_QCONST(0.02 / 64.0, 30)
 /** The magnetometer's heading at rest: the standard deviation of the unit field's east
  *  component (about the sine of the heading error times the field's horizontal share),
@@ -259,7 +260,9 @@ static imu_q30_t velocity_units(imu_real_t v, uint32_t *sat)
     return IMU_MUL_SAT(v, Q20_TO_VEL, 26, sat);
 }
 
-static void zero_velocity(imu_navkf_t *f)
+/** At rest: zero velocity, and zero rate (the gyroscope reads its bias: the bias-corrected
+ *  rate `gyr` - bias, one sample's, is the gyro bias error's innovation). */
+static void at_rest(imu_navkf_t *f, const imu_rate_t gyr[3])
 {
     uint32_t *sat = &f->nav.saturations;
     imu_q30_t dx[IMU_NAVKF_STATES];
@@ -268,6 +271,11 @@ static void zero_velocity(imu_navkf_t *f)
     for (k = 0; k < 3; ++k) {
         measure(f, VEL + k, IMU_NEG_SAT(velocity_units(f->nav.vel[k], sat), sat),
                 IMU_WMUL(ZERO_VELOCITY_SIGMA, ZERO_VELOCITY_SIGMA), dx);
+    }
+    for (k = 0; k < 3; ++k) {
+        /* rad/s Q24 -> Q30 (|rate| below 2 rad/s at rest) */
+        measure(f, GYRO_BIAS + k, IMU_SHL_SAT(IMU_SUB_SAT(gyr[k], f->nav.gyro_bias[k], sat), 6, sat),
+                f->zero_rate_var, dx);
     }
     apply(f, dx);
     ++f->zero_velocity;
@@ -383,6 +391,9 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     f->reject_steps = seconds_in_steps(f, REJECT_TIME);
     f->longest_steps = seconds_in_steps(f, LONGEST_COUNT);
     f->still = 0;
+    /* a sample's rate noise: twice the data sheet's density over the sample rate's band,
+     * (rad^2/s Q54) * (Hz Q16) = Q70 >> 10 -> (rad/s)^2, Q60 */
+    f->zero_rate_var = IMU_WSHR(IMU_WMUL(NOISE_ATT, rate), 10);
     for (k = 0; k < IMU_NAVKF_STATES; ++k) {
         f->carry[k] = 0;
     }
@@ -441,7 +452,7 @@ void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc
          * sensors alone decide */
         const int with_gnss = f->since_fix < f->longest_steps;
         if (f->still >= f->rest_steps && (with_gnss ? f->fix_stood && steady : 1)) {
-            zero_velocity(f);
+            at_rest(f, gyr);
             if (mag != 0 && with_gnss) {
                 field_heading(f, mag); /* with GNSS only: a walker indoors meets iron everywhere */
             }

@@ -32,7 +32,7 @@
  * (the bias-corrected rate and the specific force still for `rest_steps`; with GNSS, only
  * while the last fix said the board stood and the force shows no trend, through an outage
  * too; after a minute without GNSS, or from a start without it, on the sensors alone),
- * zero velocity, and with GNSS the
+ * zero velocity and zero rate (the gyroscope reads its bias), and with GNSS the
  * magnetometer's heading (which GNSS cannot observe while the board stands).
  *
  * Fixed build formats are written where each value is declared; the float build holds the
@@ -79,6 +79,7 @@ typedef struct {
     imu_q30_t dt_per_64;        /**< sample interval / 64, s, Q36 (dv's factor) */
     int32_t still;              /**< consecutive still samples (stops counting at rest_steps) */
     int32_t rest_steps;         /**< still samples that make rest */
+    imu_wide_t zero_rate_var;   /**< variance of one sample's rate at rest, (rad/s)^2, Q60 */
     int32_t reject_steps;       /**< samples of rejected fixes after which the gate gives in */
     int32_t longest_steps;      /**< where the counts stop: a minute (without GNSS for that long, rest is the sensors') */
     imu_q16_t force_fast[3];    /**< the specific force low-passed over 0.1 s, sensor frame, m/s^2, Q16 */
@@ -89,7 +90,7 @@ typedef struct {
     int fix_stood;              /**< 1 when the last GNSS fix's speed was below REST_SPEED */
     int32_t rejecting;          /**< samples since the first of the current run of rejected fixes; -1: none */
     uint32_t rejected;          /**< GNSS fixes rejected by the gate, in all */
-    uint32_t zero_velocity;     /**< zero-velocity updates, in all */
+    uint32_t zero_velocity;     /**< zero-velocity (and zero-rate) updates, in all */
 } imu_navkf_t;
 
 /**
