@@ -148,6 +148,19 @@ def test_gnss_fixes_travel_from_the_feed_to_a_navigation_csv(tmp_path, capsys):
     np.testing.assert_allclose(nav.fix_vel_enu, fixes.vel_enu[arrived], atol=6e-4)
     np.testing.assert_allclose(nav.fix_h_acc_m, fixes.h_acc_m[arrived], atol=6e-4)
     assert len(nav.baro_index) == len(traj.t) // 2
+    # `imulink nav` runs on the recording, the receiver's latency given: the nav filter starts
+    # at the first fix and follows the drive (the replay CSV's timestamp_us is the emulated
+    # board's clock, which runs fast here: `nav` takes the recording itself)
+    out = tmp_path / "nav.csv"
+    code, _, err = run_cli(capsys, "nav", path, "--csv", out, "--gnss-latency", "0.2")
+    assert code == 0, err
+    estimate = np.genfromtxt(out, delimiter=",", names=True)
+    assert len(estimate) == len(traj.t) - 20  # from the sample the first fix arrived with
+    k = slice(20, None)
+    error = navigation.local_offsets(estimate["lat_deg"], estimate["lon_deg"], estimate["height_m"],
+                                     traj.lat_deg[k], traj.lon_deg[k], traj.height_m[k])
+    assert np.hypot(error[:, 0], error[:, 1]).max() < 6.0  # 2.5 m fixes and a start at rest
+    assert estimate["gated"][-1] == 0
 
 
 def test_record_refuses_a_board_that_states_another_profile_and_writes_nothing(tmp_path):

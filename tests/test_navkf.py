@@ -270,3 +270,77 @@ def test_the_core_is_clean_under_the_sanitizers(drivers, scenario):
         d = nv.local_offsets(rows[same, 0], rows[same, 1], rows[same, 2], reference.lat_deg[1:][same],
                              reference.lon_deg[1:][same], reference.height_m[1:][same])
         assert np.abs(d).max() < 2e-3  # the driver prints 1e-12 deg and 1 um
+
+
+# ---------------------------------------------------------------- imulink nav
+
+def nav_cli(capsys, *argv):
+    from imulink.cli import main
+
+    code = main(["nav", *(str(a) for a in argv)])
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.fixture(scope="module")
+def drive_csv(tmp_path_factory):
+    """Two minutes of the car drive as a navigation CSV, with the truth (ignored by readers)."""
+    from imulink.nav_input import write_nav_csv
+
+    traj = nv.car_drive(120.0, RATE, seed=2)
+    imu = simulate(traj, sensors(), seed=2)
+    path = tmp_path_factory.mktemp("navcsv") / "drive.csv"
+    write_nav_csv(path, imu, nv.gnss_fixes(traj, nv.GnssModel(), seed=2), truth=traj)
+    return traj, path
+
+
+def test_imulink_nav_writes_the_estimate_of_every_sample(drive_csv, tmp_path, capsys):
+    import json
+
+    traj, path = drive_csv
+    out = tmp_path / "nav.csv"
+    code, stdout, _ = nav_cli(capsys, path, "--csv", out, "--json")
+    assert code == 0
+    report = json.loads(stdout)
+    assert report["samples"] == report["rows_written"] == len(traj.t) and report["fixes"] == 120
+    assert report["fixes_used"] + report["fixes_gated"] == 120 and report["saturations"] == 0
+    estimate = np.genfromtxt(out, delimiter=",", names=True)
+    assert estimate.dtype.names == ("timestamp_us",) + nav.OUTPUT_COLUMNS
+    e = nv.local_offsets(estimate["lat_deg"], estimate["lon_deg"], estimate["height_m"], traj.lat_deg, traj.lon_deg,
+                         traj.height_m)
+    assert rms(np.hypot(e[10000:, 0], e[10000:, 1])) < 1.5
+    np.testing.assert_allclose(estimate["vel_e_m_s"][10000:], traj.vel_enu[10000:, 0], atol=0.5)
+    assert (estimate["fix_age_s"] <= 1.01).all() and estimate["sd_east_m"].min() > 0
+    float_out = tmp_path / "nav_float.csv"
+    assert nav_cli(capsys, path, "--csv", float_out, "--arith", "float")[0] == 0
+    other = np.genfromtxt(float_out, delimiter=",", names=True)
+    d = nv.local_offsets(estimate["lat_deg"], estimate["lon_deg"], estimate["height_m"], other["lat_deg"],
+                         other["lon_deg"], other["height_m"])
+    assert 0 < np.abs(d).max() < 0.1  # two builds, one filter
+
+
+def test_imulink_nav_refuses_bad_input_in_one_line(drive_csv, tmp_path, capsys):
+    traj, path = drive_csv
+    out = tmp_path / "nav.csv"
+    lines = path.read_text().splitlines()
+    keep = [k for k, column in enumerate(lines[0].split(",")) if not column.startswith("gnss_")]
+    cases = {
+        "missing.csv": (None, "no such file"),
+        "no_fix.csv": ("\n".join(",".join(line.split(",")[k] for k in keep) for line in lines),
+                       "no GNSS or position fix"),
+        "backwards.csv": ("\n".join(lines[:5] + [lines[3]] + lines[5:]), "line 6: timestamp_us"),
+        "nan.csv": ("\n".join(lines[:7] + [lines[7].replace(lines[7].split(",")[1], "nan", 1)] + lines[8:]),
+                    "line 8: gyr_x_rad_s is 'nan'"),
+    }
+    for name, (text, message) in cases.items():
+        source = tmp_path / name
+        if text is not None:
+            source.write_text(text + "\n")
+        code, _, err = nav_cli(capsys, source, "--csv", out)
+        assert code == 2 and err.startswith("imulink: error: ") and err.count("\n") == 1, (name, err)
+        assert message in err, (name, err)
+        assert not out.exists()
+    code, _, err = nav_cli(capsys, path, "--csv", out, "--gnss-latency", "0.1")
+    assert code == 2 and "--gnss-latency is for a recording" in err
+    code, _, err = nav_cli(capsys, path, "--csv", path)
+    assert code == 2 and "is an input of this command" in err

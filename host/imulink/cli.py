@@ -315,6 +315,55 @@ def _cmd_allan(args) -> int:
     return 0
 
 
+@_command
+def _cmd_nav(args) -> int:
+    from pathlib import Path
+
+    from . import nav
+    from .files import check_output
+    from .nav_input import read_nav_csv
+
+    check_output(args.csv, inputs=[args.input])
+    path = Path(args.input)
+    if not path.is_file():
+        raise UsageError(f"{args.input}: no such file")
+    status, phase = _late_progress()
+    try:
+        if path.suffix.lower() == ".csv":
+            if args.gnss_latency:
+                raise UsageError("--gnss-latency is for a recording: a CSV puts each fix in the row it was measured at")
+            inp = read_nav_csv(path)
+        else:
+            from .recording import load_recording
+
+            inp = nav.input_from_recording(load_recording(path, progress=phase(f"reading {path.name}")),
+                                           args.gnss_latency)
+        result = nav.run(inp, args.arith)
+        nav.write_csv(result, args.csv, inputs=[args.input])
+    finally:
+        status.done()
+    used = int(result.fix_accepted.sum()) + 1
+    report = {"input": str(path), "output": args.csv, "arithmetic": args.arith, "samples": len(inp),
+              "start_row": result.start, "rows_written": len(result), "rate_hz": nav.sample_rate_hz(inp.timestamp_us),
+              "fixes": len(inp.fix_index), "fixes_used": used, "fixes_gated": result.rejected,
+              "zero_velocity_updates": result.zero_velocity, "saturations": result.saturations,
+              "end": {"lat_deg": float(result.lat_deg[-1]), "lon_deg": float(result.lon_deg[-1]),
+                      "height_m": float(result.height_m[-1]),
+                      "sd_horizontal_m": float(math.hypot(result.sigma[-1, 0], result.sigma[-1, 1])),
+                      "sd_up_m": float(result.sigma[-1, 2])}}
+    if args.json:
+        _print_json(report)
+        return 0
+    end = report["end"]
+    print(f"{args.csv}: {len(result)} rows ({args.arith} build, {report['rate_hz']:g} Hz, from line "
+          f"{result.start + 2}, the first fix)")
+    print(f"fixes: {used} of {report['fixes']} used, {result.rejected} gated; zero-velocity updates: "
+          f"{result.zero_velocity}; saturations: {result.saturations}")
+    print(f"end: {end['lat_deg']:.7f} deg, {end['lon_deg']:.7f} deg, {end['height_m']:.2f} m "
+          f"(sd {end['sd_horizontal_m']:.2f} m horizontal, {end['sd_up_m']:.2f} m up)")
+    return 0
+
+
 #: `imulink calibrate` sensor names -> the calibration's sensor key
 CALIBRATE_SENSORS = {"gyro": "gyr", "accel": "acc", "mag": "mag"}
 
@@ -515,6 +564,37 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--confidence", type=_in_range(float, 0.01, 0.999, "must be a probability from 0.01 to 0.999"),
                    default=0.683, help="confidence of the intervals (default: 0.683, one standard deviation)")
     p.set_defaults(func=_cmd_allan)
+
+    p = sub.add_parser(
+        "nav", help="run the nav filter (GNSS/INS navigation) offline over a recording or a navigation CSV",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Run the `nav` filter (docs/navigation.md: a loosely coupled GNSS/INS error-state Kalman\n"
+                    "filter, the C core the board runs) over INPUT and write its estimate for every sample\n"
+                    "from the first fix on.\n\n"
+                    "INPUT is one of:\n"
+                    "  FILE.csv      a navigation CSV: a header and one row per IMU sample with\n"
+                    "                timestamp_us, gyr_x_rad_s.., acc_x_m_s2..; optionally mag_x_uT..; a fix\n"
+                    "                in the row it was measured at: gnss_lat_deg, gnss_lon_deg, gnss_height_m,\n"
+                    "                gnss_h_acc_m, gnss_v_acc_m and, unless it is a marker's, gnss_vel_e_m_s,\n"
+                    "                gnss_vel_n_m_s, gnss_vel_u_m_s, gnss_s_acc_m_s (docs/navigation.md)\n"
+                    "  FILE.imulog   a recording (imulink record): its samples, and the receiver's 3-D fixes\n"
+                    "                in the rows they arrived with\n"
+                    "The filter starts at the first fix, at rest (attitude from the accelerometer and\n"
+                    "the magnetometer). A fix without velocity is a marker's: trusted, never gated.\n\n"
+                    "Output (--csv): timestamp_us, lat_deg, lon_deg, height_m, vel_e_m_s, vel_n_m_s,\n"
+                    "vel_u_m_s, qw, qx, qy, qz (sensor to east-north-up), the standard deviations of the\n"
+                    "error state (sd_*), fix_age_s (since the last fix used) and gated (fixes rejected so\n"
+                    "far).",
+        epilog=EXIT_STATUS_HELP)
+    p.add_argument("input", metavar="INPUT", help="a navigation CSV (.csv) or a recording")
+    p.add_argument("--csv", metavar="OUT", required=True, help="write the estimate to OUT (CSV)")
+    p.add_argument("--arith", choices=("fixed", "float"), default="fixed",
+                   help="the firmware's fixed point (default) or the float twin")
+    p.add_argument("--gnss-latency", type=_in_range(float, 0.0, 1.0, "must be 0 to 1 s"), default=0.0,
+                   metavar="SECONDS", help="a recording's receiver latency: how long before its arrival each fix "
+                                           "was valid (default 0)")
+    _json_argument(p, "a summary of the run")
+    p.set_defaults(func=_cmd_nav)
 
     from .link import DEFAULT_BAUD
     from .live_calibration import DEFAULT_MAX_DURATION_S

@@ -981,7 +981,7 @@ def replay_columns(recording: Recording, run: HostRun, comparison: Comparison) -
     return columns
 
 
-def _rows_of(recording: Recording, segment: np.ndarray, index: np.ndarray) -> np.ndarray:
+def sample_rows(recording: Recording, segment: np.ndarray, index: np.ndarray) -> np.ndarray:
     """The sample row of each (segment, index), -1 where that sample was not received."""
     s = recording.samples
     row_of = {key: row for row, key in enumerate(zip(s.segment.tolist(), s.index.tolist()))}
@@ -993,7 +993,7 @@ def _gnss_columns(recording: Recording) -> dict[str, np.ndarray]:
     SI units under `imulink nav`'s input names (velocity east, north, up), with gnss_time_ms,
     the time each is valid for (the receiver's clock: its latency is the difference)."""
     g, n = recording.gnss, len(recording.samples)
-    rows = _rows_of(recording, g.segment, g.index)
+    rows = sample_rows(recording, g.segment, g.index)
     have = rows >= 0
     values = {"gnss_time_ms": g.time_ms, "gnss_lat_deg": g.lat_1e7deg * 1e-7, "gnss_lon_deg": g.lon_1e7deg * 1e-7,
               "gnss_height_m": g.height_mm * 1e-3, "gnss_vel_e_m_s": g.vel_ned_mm_s[:, 1] * 1e-3,
@@ -1017,7 +1017,7 @@ def _baro_columns(recording: Recording) -> tuple[np.ndarray, np.ndarray]:
     were read with (by segment and index), empty elsewhere: the columns `imulink nav`'s input
     names so."""
     b, n = recording.baro, len(recording.samples)
-    rows = _rows_of(recording, b.segment, b.index)
+    rows = sample_rows(recording, b.segment, b.index)
     have = rows >= 0
     pressure, temperature = np.full(n, np.nan), np.full(n, np.nan)
     pressure[rows[have]] = b.pressure_pa[have]

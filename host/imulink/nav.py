@@ -67,6 +67,71 @@ class NavResult:
         return np.cumsum(counts)
 
 
+def input_from_recording(recording, latency_s: float = 0.0) -> NavInput:
+    """A recording (imulink.recording.Recording) as a NavInput: its samples in SI, its
+    barometer readings and its usable GNSS fixes (3-D, within the receiver's accuracy masks)
+    in the rows of the samples they came with, each `latency_s` old there (the receiver's
+    latency: a fix's time of week is on the receiver's clock, not the board's)."""
+    from .hil import sample_rows
+    from .recording import sample_times
+
+    s, p, g, b = recording.samples, recording.profile, recording.gnss, recording.baro
+    if len(s) < 2:
+        raise InputError("the recording has fewer than 2 samples")
+    rows = sample_rows(recording, g.segment, g.index)
+    usable = (rows >= 0) & (g.fix_ok != 0) & ((g.fix_type == 3) | (g.fix_type == 4))
+    order = np.argsort(rows[usable], kind="stable")
+    has_vel = (g.has_velocity[usable] != 0)[order]
+    vel_ned = g.vel_ned_mm_s[usable][order] * 1e-3
+    baro_rows = sample_rows(recording, b.segment, b.index)
+    baro_ok = baro_rows >= 0
+    nan = np.full(int(usable.sum()), math.nan)
+    return NavInput(
+        timestamp_us=np.round(sample_times(recording) * 1e6).astype(np.int64), gyr=s.gyr * p.gyro_scale,
+        acc=s.acc * p.acc_scale, mag=s.mag * p.mag_scale, baro_index=baro_rows[baro_ok],
+        baro_pa=b.pressure_pa[baro_ok].astype(np.float64), baro_temp_c=b.temperature_cdeg[baro_ok] / 100.0,
+        fix_index=rows[usable][order], fix_lat_deg=g.lat_1e7deg[usable][order] * 1e-7,
+        fix_lon_deg=g.lon_1e7deg[usable][order] * 1e-7, fix_height_m=g.height_mm[usable][order] * 1e-3,
+        fix_h_acc_m=np.maximum(g.h_acc_mm[usable][order], 1) * 1e-3,
+        fix_v_acc_m=np.maximum(g.v_acc_mm[usable][order], 1) * 1e-3,
+        fix_vel_enu=np.where(has_vel[:, None], np.c_[vel_ned[:, 1], vel_ned[:, 0], -vel_ned[:, 2]], math.nan),
+        fix_s_acc_m_s=np.where(has_vel, np.maximum(g.s_acc_mm_s[usable][order], 1) * 1e-3, nan),
+        fix_age_s=np.full(int(usable.sum()), float(latency_s)))
+
+
+#: Columns of the CSV `imulink nav` writes (write_csv), after timestamp_us.
+OUTPUT_COLUMNS = ("lat_deg", "lon_deg", "height_m", "vel_e_m_s", "vel_n_m_s", "vel_u_m_s", "qw", "qx", "qy", "qz",
+                  "sd_east_m", "sd_north_m", "sd_up_m", "sd_vel_e_m_s", "sd_vel_n_m_s", "sd_vel_u_m_s",
+                  "sd_att_x_deg", "sd_att_y_deg", "sd_att_z_deg", "sd_gyro_bias_x_deg_s", "sd_gyro_bias_y_deg_s",
+                  "sd_gyro_bias_z_deg_s", "sd_acc_bias_x_m_s2", "sd_acc_bias_y_m_s2", "sd_acc_bias_z_m_s2",
+                  "fix_age_s", "gated")
+
+
+def write_csv(result: NavResult, path, inputs=()) -> None:
+    """The filter's output, one row per sample from the start: OUTPUT_COLUMNS (standard
+    deviations of the error state; attitude and gyro bias in degrees), the time since the
+    last fix used and the fixes gated so far. Written beside `path` and renamed into place."""
+    from .files import write_replacing
+
+    sigma = result.sigma.copy()
+    sigma[:, 6:12] = np.degrees(sigma[:, 6:12])
+    cells = [result.timestamp_us.astype(str), np.char.mod("%.9f", result.lat_deg), np.char.mod("%.9f", result.lon_deg),
+             np.char.mod("%.4f", result.height_m)]
+    cells += [np.char.mod("%.5f", result.vel_enu[:, k]) for k in range(3)]
+    cells += [np.char.mod("%.9f", result.quat[:, k]) for k in range(4)]
+    cells += [np.char.mod("%.6g", sigma[:, k]) for k in range(STATES)]
+    age = result.since_fix_s()
+    cells += [np.char.mod("%.2f", age), result.gated().astype(str)]
+
+    def write(temporary) -> None:
+        with open(temporary, "w", encoding="utf-8") as out:
+            out.write(",".join(("timestamp_us",) + OUTPUT_COLUMNS) + "\n")
+            for row in zip(*cells):
+                out.write(",".join(row) + "\n")
+
+    write_replacing(path, write, inputs=inputs)
+
+
 def sample_rate_hz(timestamp_us: np.ndarray) -> float:
     """The rate of a sample stream from its timestamps (the median interval)."""
     intervals = np.diff(np.asarray(timestamp_us, dtype=np.float64))
