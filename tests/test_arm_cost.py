@@ -232,11 +232,13 @@ def test_codec_frames_match_python_codec(build, data):
 
 
 #: Ceilings on the nav filter's mean instructions (tools/bench_nav.py over the first 3 s of
-#: the car drive, at rest: every fifth sample propagates the covariance and makes a
-#: zero-velocity and zero-rate update and a magnetometer heading): per IMU step, measured
-#: at 14 966, and per GNSS fix, measured at 43 883; plus about 10 %.
-NAV_STEP_CEILING = 16_500
-NAV_FIX_CEILING = 48_300
+#: the car drive, at rest: every 50 ms the covariance is propagated and a zero-velocity and
+#: zero-rate update and a magnetometer heading are made): per IMU step, measured at 19 041;
+#: per GNSS fix (with the covariance brought up to its sample), 82 088; per barometer
+#: sample (an update once a second), 1 086; plus about 10 %.
+NAV_STEP_CEILING = 21_000
+NAV_FIX_CEILING = 90_300
+NAV_BARO_CEILING = 1_200
 
 
 def test_nav_filter_matches_host_and_stays_under_ceiling(tmp_path):
@@ -251,4 +253,7 @@ def test_nav_filter_matches_host_and_stays_under_ceiling(tmp_path):
     assert result["fix_mean"] <= NAV_FIX_CEILING, (
         f"imu_navkf_fix takes {result['fix_mean']:.0f} instructions per fix on average, over the "
         f"ceiling {NAV_FIX_CEILING} (see the comment on NAV_STEP_CEILING)")
+    assert result["baro_mean"] <= NAV_BARO_CEILING, (
+        f"imu_navkf_baro takes {result['baro_mean']:.0f} instructions per sample on average, over the "
+        f"ceiling {NAV_BARO_CEILING} (see the comment on NAV_STEP_CEILING)")
     assert 0 < result["stack_bytes"] < 2048

@@ -1,7 +1,7 @@
 """The block-floating covariance (firmware/core/imu_cov.c) against numpy: the scalar
 update, optimal and with a gain map (Schmidt / "consider" update in Joseph's form), and the
 time update with a transition that moves a few rows, in both builds (tests/c/cov_driver.c);
-and its 15-state instance for the navigation filter (imu_navcov.c)."""
+and its 16-state instance for the navigation filter (imu_navcov.c)."""
 from __future__ import annotations
 
 import shutil
@@ -212,33 +212,35 @@ def test_time_update_moves_only_the_given_rows(drivers, seed):
 
 
 @pytest.mark.parametrize("seed", [6, 7])
-def test_navigation_instance_with_fifteen_states(drivers, seed):
-    """The 15-state instance (imu_navcov.c) over eleven decades, as the navigation filter uses
+def test_navigation_instance_with_sixteen_states(drivers, seed):
+    """The 16-state instance (imu_navcov.c) over eleven decades, as the navigation filter uses
     it: its transition applied as three factors of three moving rows each (position from
     velocity, attitude and accelerometer bias; velocity from attitude and that bias; attitude
-    from itself and the gyro bias), then position and velocity updates and one that
-    correlates everything; the result is Phi P Phi^T + Q and the Kalman update."""
+    from itself and the gyro bias), then position and velocity updates, a barometer's (the
+    height and the barometer's bias) and one that correlates everything; the result is
+    Phi P Phi^T + Q and the Kalman update."""
     rng = np.random.default_rng(seed)
-    p0 = [4e-5, 4e-5, 1e-4, 2e-4, 2e-4, 3e-4, 1e-3, 1e-3, 3e-2, 1e-6, 1e-6, 2e-6, 1e-2, 1e-2, 2e-2]
-    position = np.zeros((3, 15))
+    p0 = [4e-5, 4e-5, 1e-4, 2e-4, 2e-4, 3e-4, 1e-3, 1e-3, 3e-2, 1e-6, 1e-6, 2e-6, 1e-2, 1e-2, 2e-2, 4e-4]
+    position = np.zeros((3, 16))
     position[:, 0:3] = np.eye(3)
     position[:, 3:6] = 0.05 * np.eye(3)
     position[:, 6:9] = rng.uniform(-1e-3, 1e-3, (3, 3))
     position[:, 12:15] = rng.uniform(-1e-4, 1e-4, (3, 3))
-    velocity = np.zeros((3, 15))
+    velocity = np.zeros((3, 16))
     velocity[:, 3:6] = np.eye(3)
     velocity[:, 6:9] = rng.uniform(-0.01, 0.01, (3, 3))
     velocity[:, 12:15] = 0.003 * _rotation(rng, 1.0)
-    attitude = np.zeros((3, 15))
+    attitude = np.zeros((3, 16))
     attitude[:, 6:9] = _rotation(rng, 0.05).T
     attitude[:, 9:12] = -0.05 * np.eye(3)
-    qvar = [0.0] * 3 + [1e-9] * 3 + [1e-9] * 3 + [1e-12] * 3 + [1e-10] * 3
-    unit = np.eye(15)
-    steps = [Predict([0, 1, 2], position, [0.0] * 15), Predict([3, 4, 5], velocity, [0.0] * 15),
+    qvar = [0.0] * 3 + [1e-9] * 3 + [1e-9] * 3 + [1e-12] * 3 + [1e-10] * 3 + [1e-9]
+    unit = np.eye(16)
+    steps = [Predict([0, 1, 2], position, [0.0] * 16), Predict([3, 4, 5], velocity, [0.0] * 16),
              Predict([6, 7, 8], attitude, qvar),
              *[(unit[k], 2e-6, 1e-3 * (k + 1), 1.0, None) for k in range(6)],
-             (rng.uniform(-1, 1, 15), 2e-4, 0.01, 1.0, None),
-             Predict([0, 1, 2], position, [0.0] * 15), Predict([3, 4, 5], velocity, [0.0] * 15),
+             (unit[2] + unit[15], 1e-6, 2e-3, 1.0, None),
+             (rng.uniform(-1, 1, 16), 2e-4, 0.01, 1.0, None),
+             Predict([0, 1, 2], position, [0.0] * 16), Predict([3, 4, 5], velocity, [0.0] * 16),
              Predict([6, 7, 8], attitude, qvar)]
     expected = reference(p0, steps)
     for build, tol in (("nav float", 1e-12), ("nav fixed", 2e-6)):

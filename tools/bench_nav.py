@@ -6,7 +6,8 @@ on the navigation simulator's scenarios with the MPU6050 data sheet's noise and 
 biases (`imulink.sim.navigation.datasheet_sensors`), seed 0, 100 Hz:
 
 - car drive, 20 min, GNSS at 1 Hz with white errors of 2.5 m horizontal, 5 m vertical,
-  0.1 m/s; the same with two 30 s outages; with time-correlated errors (2 m horizontal,
+  0.1 m/s; the same with the barometer (the MS5611 at 50 Hz: noise, temperature drift,
+  weather); with two 30 s outages; with time-correlated errors (2 m horizontal,
   3 m vertical, 100 s) and a multipath jump of 19 m for 10 s; with 0.2 s latency;
 - foot-mounted walk, 5 min of laps, no GNSS, zero velocity in the stances: the error at
   the end as a share of the distance walked;
@@ -18,8 +19,9 @@ difference and attitude difference over each run.
 
 Cost: the fixed-point core built for the Cortex-M4 as tools/bench_arm.py builds it (same
 flags, same harness ELF), run in the unicorn emulator over the first `--seconds` of the car
-drive: instructions per IMU step (imu_navkf_step; every fifth sample also propagates the
-covariance) and per GNSS fix (imu_navkf_fix), the deepest stack, sizeof(imu_navkf_t).
+drive with its barometer: instructions per IMU step (imu_navkf_step; every fifth sample
+also propagates the covariance), per GNSS fix (imu_navkf_fix) and per barometer sample
+(imu_navkf_baro: an update once a second), the deepest stack, sizeof(imu_navkf_t).
 After every sample the position, velocity and attitude are read back and compared with
 the x86 fixed build (imulink.nav): the benchmark fails at the first difference.
 
@@ -100,15 +102,18 @@ def accuracy(progress=lambda _m: None) -> list[dict]:
     rows = []
     traj, imu = car_drive(20.0)
     car = {
-        "car drive, 20 min, white GNSS errors": (nv.GnssModel(), False),
-        "the same, two 30 s outages (300 s, 700 s)": (nv.GnssModel(outages=OUTAGES), False),
+        "car drive, 20 min, white GNSS errors": (nv.GnssModel(), None),
+        "the same with the barometer": (nv.GnssModel(), "baro"),
+        "the same, two 30 s outages (300 s, 700 s)": (nv.GnssModel(outages=OUTAGES), None),
         "the same, correlated errors and a 19 m multipath jump": (
-            nv.GnssModel(correlated_h_m=2.0, correlated_v_m=3.0, multipath=MULTIPATH), False),
-        "the same, white errors, fixes 0.2 s late": (nv.GnssModel(latency_s=0.2), True),
+            nv.GnssModel(correlated_h_m=2.0, correlated_v_m=3.0, multipath=MULTIPATH), None),
+        "the same, white errors, fixes 0.2 s late": (nv.GnssModel(latency_s=0.2), "late"),
     }
-    for name, (model, late) in car.items():
+    for name, (model, option) in car.items():
         fixes = nv.gnss_fixes(traj, model, seed=SEED)
-        results = {a: nav.run(simulated_input(imu, fixes, at_arrival=late), a) for a in ("fixed", "float")}
+        baro = nv.baro_samples(traj, seed=SEED) if option == "baro" else None
+        inp = simulated_input(imu, fixes, at_arrival=option == "late", baro=baro)
+        results = {a: nav.run(inp, a) for a in ("fixed", "float")}
         row = {"scenario": name, "fixed_vs_float_m_deg": builds_differ(results)}
         for arithmetic, result in results.items():
             e = errors(traj, result)
@@ -163,7 +168,7 @@ def arm_cost(seconds: float, build_dir: Path, progress=lambda _m: None) -> dict:
     bench_arm.check_no_float(build)
     traj, imu = car_drive(seconds / 60.0)
     fixes = nv.gnss_fixes(traj, nv.GnssModel(), seed=SEED)
-    inp = simulated_input(imu, fixes)
+    inp = simulated_input(imu, fixes, baro=nv.baro_samples(traj, seed=SEED))
     host = nav.run(inp, "fixed")
     progress(f"built {build.elf}; the x86 fixed build run on {len(inp)} samples")
     emu = bench_arm.Emulator(build)
@@ -185,10 +190,11 @@ def arm_cost(seconds: float, build_dir: Path, progress=lambda _m: None) -> dict:
     if status != 0:
         raise bench_arm.BenchError(f"bench_navkf_start returned {status}")
     fix_at = {int(k): j for j, k in enumerate(inp.fix_index) if j > 0}
+    baro_at = {int(k): int(np.rint(p)) for k, p in zip(inp.baro_index, inp.baro_pa)}
     expected = np.c_[to_words(np.radians(host.lat_deg), 29), to_words(np.radians(host.lon_deg), 29),
                      np.rint(host.height_m * 1000.0), np.rint(host.vel_enu * 2.0 ** 20),
                      np.rint(host.quat * 2.0 ** 30)].astype(np.int64)
-    steps, fix_counts, stack = [], [], 0
+    steps, ended, fix_counts, baro_counts, stack = [], [], [], [], 0
     for k in range(1, len(inp)):
         emu.write(g_addr, struct.pack("<3i", *to_words(inp.gyr[k], 24)))
         emu.write(a_addr, struct.pack("<3i", *to_words(inp.acc[k], 16)))
@@ -196,31 +202,38 @@ def arm_cost(seconds: float, build_dir: Path, progress=lambda _m: None) -> dict:
         r = emu.call("imu_navkf_step", state, g_addr, a_addr, m_addr)
         steps.append(r.instructions)
         stack = max(stack, r.stack)
+        emu.call("bench_navkf_read")
+        ended.append(struct.unpack("<14i", emu.read("bench_navkf_out", 56))[13] == 0)
+        if k in baro_at:
+            r = emu.call("imu_navkf_baro", state, baro_at[k] & 0xFFFFFFFF)
+            baro_counts.append(r.instructions)
+            stack = max(stack, r.stack)
         if k in fix_at:
             emu.write(fix_addr, fix_bytes(fix_at[k]))
             r = emu.call("imu_navkf_fix", state, fix_addr)
             fix_counts.append(r.instructions)
             stack = max(stack, r.stack)
         emu.call("bench_navkf_read")
-        out = struct.unpack("<13i", emu.read("bench_navkf_out", 52))
+        out = struct.unpack("<14i", emu.read("bench_navkf_out", 56))
         if out[10] != 0:
             raise bench_arm.BenchError(f"sample {k}: {out[10]} saturations")
         if not np.array_equal(np.array(out[:10]), expected[k]):
             raise bench_arm.BenchError(f"sample {k}: the Cortex-M4 build differs from the x86 fixed build: "
                                        f"{list(out[:10])} vs {expected[k].tolist()}")
-    steps = np.array(steps)
-    cov_steps = steps[4::5]  # every fifth sample at 100 Hz ends a covariance interval
+    steps, ended = np.array(steps), np.array(ended)
     return {
         "compiler": build.compiler,
         "samples": len(steps),
         "fixes": len(fix_counts),
         "step_mean": float(steps.mean()),
         "step_max": int(steps.max()),
-        "step_covariance_mean": float(cov_steps.mean()),
-        "step_other_mean": float(np.delete(steps, np.s_[4::5]).mean()),
+        "step_covariance_mean": float(steps[ended].mean()),
+        "step_other_mean": float(steps[~ended].mean()),
         "fix_mean": float(np.mean(fix_counts)),
         "fix_max": int(np.max(fix_counts)),
-        "per_step_with_fixes_mean": float((steps.sum() + np.sum(fix_counts)) / len(steps)),
+        "baro_mean": float(np.mean(baro_counts)),
+        "baro_max": int(np.max(baro_counts)),
+        "per_step_with_fixes_mean": float((steps.sum() + np.sum(fix_counts) + np.sum(baro_counts)) / len(steps)),
         "stack_bytes": int(stack),
         "state_bytes": build.symbols["bench_navkf"].size,
     }
@@ -262,15 +275,17 @@ def main() -> int:
         print(f"  fixed vs float: {row['fixed_vs_float_m_deg'][0]:.3f} m, {row['fixed_vs_float_m_deg'][1]:.4f} deg")
     if "arm" in out:
         r = out["arm"]
-        print(f"\nCortex-M4 ({r['compiler']}), {r['samples']} samples and {r['fixes']} fixes of the car drive, "
-              "every sample identical to the x86 fixed build:")
+        print(f"\nCortex-M4 ({r['compiler']}), the car drive's {r['samples']} samples, {r['fixes']} fixes and its "
+              "barometer, every sample identical to the x86 fixed build:")
         print("| measured | instructions |")
         print("|---|---:|")
         print(f"| imu_navkf_step, mean / max | {r['step_mean']:.0f} / {r['step_max']} |")
-        print(f"| ... samples that end a covariance interval (every fifth), mean | {r['step_covariance_mean']:.0f} |")
+        print(f"| ... samples that end a covariance interval (50 ms), mean | {r['step_covariance_mean']:.0f} |")
         print(f"| ... the other samples, mean | {r['step_other_mean']:.0f} |")
         print(f"| imu_navkf_fix (GNSS position and velocity), mean / max | {r['fix_mean']:.0f} / {r['fix_max']} |")
-        print(f"| per IMU sample with the fixes, mean | {r['per_step_with_fixes_mean']:.0f} |")
+        print(f"| imu_navkf_baro (50 Hz, an update once a second), mean / max | {r['baro_mean']:.0f} / "
+              f"{r['baro_max']} |")
+        print(f"| per IMU sample with the fixes and the barometer, mean | {r['per_step_with_fixes_mean']:.0f} |")
         print(f"\nstack {r['stack_bytes']} B (painted), imu_navkf_t {r['state_bytes']} B")
     print(f"\nruntime: {out['run_s']:.0f} s")
     return 0

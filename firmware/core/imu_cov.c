@@ -12,7 +12,7 @@
 #define CELL_UPPER(i, j) ((i) * IMU_COV_MAX - (i) * ((i) - 1) / 2 + ((j) - (i)))
 #define CELL_OF(i, j) ((i) <= (j) ? CELL_UPPER(i, j) : CELL_UPPER(j, i))
 
-/* The table below is written out for nine states, or fifteen (imu_navcov.c). */
+/* The table below is written out for nine states, or sixteen (imu_navcov.c). */
 #if IMU_COV_MAX == 9
 #define CELL_ROW(i) \
     { CELL_OF(i, 0), CELL_OF(i, 1), CELL_OF(i, 2), CELL_OF(i, 3), CELL_OF(i, 4), \
@@ -20,16 +20,16 @@
 #define CELL_ROWS \
     CELL_ROW(0), CELL_ROW(1), CELL_ROW(2), CELL_ROW(3), CELL_ROW(4), CELL_ROW(5), CELL_ROW(6), CELL_ROW(7), \
         CELL_ROW(8)
-#elif IMU_COV_MAX == 15
+#elif IMU_COV_MAX == 16
 #define CELL_ROW(i) \
     { CELL_OF(i, 0), CELL_OF(i, 1), CELL_OF(i, 2), CELL_OF(i, 3), CELL_OF(i, 4), \
       CELL_OF(i, 5), CELL_OF(i, 6), CELL_OF(i, 7), CELL_OF(i, 8), CELL_OF(i, 9), \
-      CELL_OF(i, 10), CELL_OF(i, 11), CELL_OF(i, 12), CELL_OF(i, 13), CELL_OF(i, 14) }
+      CELL_OF(i, 10), CELL_OF(i, 11), CELL_OF(i, 12), CELL_OF(i, 13), CELL_OF(i, 14), CELL_OF(i, 15) }
 #define CELL_ROWS \
     CELL_ROW(0), CELL_ROW(1), CELL_ROW(2), CELL_ROW(3), CELL_ROW(4), CELL_ROW(5), CELL_ROW(6), CELL_ROW(7), \
-        CELL_ROW(8), CELL_ROW(9), CELL_ROW(10), CELL_ROW(11), CELL_ROW(12), CELL_ROW(13), CELL_ROW(14)
+        CELL_ROW(8), CELL_ROW(9), CELL_ROW(10), CELL_ROW(11), CELL_ROW(12), CELL_ROW(13), CELL_ROW(14), CELL_ROW(15)
 #else
-#error "imu_cov.c: CELL_INDEX is written out for 9 or 15 states"
+#error "imu_cov.c: CELL_INDEX is written out for 9 or 16 states"
 #endif
 
 /** Storage index of (i, j) for any i, j: a table, as the covariance loops look it up

@@ -1,6 +1,6 @@
 /**
  * @file imu_navcov.c
- * @brief imu_cov.c compiled for the navigation filter's 15 states (see imu_navcov.h): its
+ * @brief imu_cov.c compiled for the navigation filter's 16 states (see imu_navcov.h): its
  *        names and sizes replaced, its code the same.
  */
 #include "imu_navcov.h"

@@ -1,6 +1,6 @@
 /**
  * @file imu_navcov.h
- * @brief The block-floating covariance of imu_cov.h for the navigation filter's 15 states:
+ * @brief The block-floating covariance of imu_cov.h for the navigation filter's 16 states:
  *        the same code (imu_navcov.c compiles imu_cov.c again with these names and sizes).
  *
  * A second instance rather than a larger IMU_COV_MAX: imu_cov keeps its work arrays on
@@ -14,7 +14,7 @@
 #include "imu_cov.h"
 
 /** Largest number of states. */
-#define IMU_NAVCOV_MAX 15
+#define IMU_NAVCOV_MAX 16
 /** Number of stored elements (upper triangle). */
 #define IMU_NAVCOV_CELLS (IMU_NAVCOV_MAX * (IMU_NAVCOV_MAX + 1) / 2)
 
@@ -24,9 +24,9 @@ typedef struct {
     int32_t e[IMU_NAVCOV_MAX];      /**< per-state exponents; 0 in the float build */
 } imu_navcov_t;
 
-/** imu_cov_map_t for five blocks of three states. */
+/** imu_cov_map_t for blocks of three states (the last block holds one). */
 typedef struct {
-    uint8_t block[IMU_NAVCOV_MAX / 3];
+    uint8_t block[(IMU_NAVCOV_MAX + 2) / 3];
     imu_q30_t along[3];
 } imu_navcov_map_t;
 

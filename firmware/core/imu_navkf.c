@@ -6,7 +6,7 @@
 
 #include "imu_math.h"
 
-enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12 };
+enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12, BARO_BIAS = 15 };
 
 /* Process noise per second in the states' units squared, Q54 (imu_navkf.h): twice the
  * MPU6050 data sheet's white noise (400 ug/sqrt(Hz), 0.005 deg/s/sqrt(Hz)), room for the
@@ -16,6 +16,8 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12 };
 #define NOISE_ATT IMU_QCONST(3.0462e-8, 54)          /* (2 * 8.727e-5 rad/s/sqrt(Hz))^2 */
 #define NOISE_GYRO_BIAS IMU_QCONST(1e-10, 54)
 #define NOISE_ACC_BIAS IMU_QCONST(1e-8, 54)
+/** The barometer's bias, a random walk of 2.5 m/sqrt(h) (the weather: 30 Pa/sqrt(h)), in units of 1024 m */
+#define NOISE_BARO_BIAS IMU_QCONST(1.7e-3 / 1048576.0, 54)
 
 /* Initial standard deviations in the states' units, Q30: velocity 1 m/s, roll and pitch
  * 2 deg, heading 10 deg (from a magnetometer), gyro bias 1.5 deg/s, accelerometer bias
@@ -25,6 +27,22 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12 };
 #define START_HEADING IMU_QCONST(0.17453293, 30)
 #define START_GYRO_BIAS IMU_QCONST(0.026179939, 30)
 #define START_ACC_BIAS IMU_QCONST(0.5, 30)
+#define START_BARO_BIAS IMU_QCONST(20.0 / 1024.0, 30) /* 20 m: the first sample's height is the estimate's */
+
+/* The barometer: a height every BARO_INTERVAL at most (s, Q16; a sample's noise is 0.1 m,
+ * what limits it is slower), each of standard deviation BARO_SIGMA (0.3 m, in units of
+ * 1024 m, Q30). Pressures outside BARO_MIN_PA .. BARO_MAX_PA are not air's. The height
+ * from a pressure p against a reference (p0, h0): h0 - H ln(p / p0), the isothermal
+ * atmosphere's with the scale height H = R T / (M g) at the ISA temperature of h0
+ * (288.15 K - 6.5 K/km), the logarithm's series in u = (p - p0) / p0 to u^4 (2 cm at
+ * |u| = 0.1); past |u| = BARO_REFERENCE_SPAN the reference moves to the sample. */
+#define BARO_INTERVAL IMU_QCONST(1.0, 16)
+#define BARO_SIGMA IMU_QCONST(0.3 / 1024.0, 30)
+#define BARO_MIN_PA 10000
+#define BARO_MAX_PA 120000
+#define BARO_REFERENCE_SPAN IMU_QCONST(0.05, 30)
+#define SCALE_HEIGHT_SEA_MM IMU_QCONST(8434675.0, 0)     /* 29.27175 m/K * 288.15 K, mm */
+#define SCALE_HEIGHT_PER_MM IMU_QCONST(0.19026636, 30)   /* 29.27175 m/K * 6.5 K/km: mm of H per mm of height */
 
 /* Rest: the bias-corrected rate below 0.05 rad/s (Q24) and the specific force within
  * 0.3 m/s^2 (Q16) of gravity for REST_TIME; with GNSS, only while the last fix's speed is
@@ -32,12 +50,14 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12 };
 #define REST_GYRO IMU_QCONST(0.05, 24)
 #define REST_ACC IMU_QCONST(0.3, 16)
 #define REST_SPEED IMU_QCONST(0.3, 20)
-/* ... and, with GNSS, while the specific force has no trend: its low-passes over 0.1 s and
- * 1 s (weights per sample dt / tau) within 0.03 m/s^2 (Q16) on every axis. A car setting off
- * gently keeps its rate and the norm of its force; the force's slow rise is what shows. */
+/* ... and, with GNSS, weighted by how steady the specific force is: its low-passes over
+ * 0.1 s and 1 s (weights per sample dt / tau) apart by 0.02 m/s^2 (Q24) on an axis weigh a
+ * quarter (imu_deviation_weight: continuous, so that the fixed and float builds never take
+ * different branches). A car setting off gently keeps its rate and the norm of its force;
+ * the force's slow rise is what shows. */
 #define TREND_FAST_TAU IMU_QCONST(0.1, 16)
 #define TREND_SLOW_TAU IMU_QCONST(1.0, 16)
-#define TREND_LIMIT IMU_QCONST(0.03, 16)
+#define TREND_TOLERANCE IMU_QCONST(0.02, 24)
 /** Zero velocity's standard deviation: 0.02 m/s in units of 64 m/s, Q30 (zero rate's: the
  *  gyroscope's noise, NOISE_ATT over a sample). */
 #define ZERO_VELOCITY_SIGMA IMU_QCONST(0.02 / 64.0, 30)
@@ -177,6 +197,7 @@ static void covariance_step(imu_navkf_t *f)
         qvar[GYRO_BIAS + i] = IMU_WMUL(NOISE_GYRO_BIAS, t);
         qvar[ACC_BIAS + i] = IMU_WMUL(NOISE_ACC_BIAS, t);
     }
+    qvar[BARO_BIAS] = IMU_WMUL(NOISE_BARO_BIAS, t);
     imu_navcov_predict(&f->cov, rows, ATTITUDE_ROWS, 3, qvar, 84, sat);
     for (i = 0; i < 3; ++i) {
         imu_navcov_cap_unit_variance(&f->cov, ATT + i); /* an attitude error beyond a radian means nothing */
@@ -206,8 +227,9 @@ static void flush(imu_navkf_t *f)
 }
 
 /** One scalar measurement of state i: innovation z (Q30, the state's unit; what earlier
- *  parts of the same measurement corrected is taken off here), variance r (Q60, unit^2). */
-static void measure(imu_navkf_t *f, int i, imu_q30_t z, imu_wide_t r, imu_q30_t dx[IMU_NAVKF_STATES])
+ *  parts of the same measurement corrected is taken off here), variance r / w (r: Q60,
+ *  unit^2; w: a weight in [0, 1], Q30). */
+static void measure(imu_navkf_t *f, int i, imu_q30_t z, imu_wide_t r, imu_q30_t w, imu_q30_t dx[IMU_NAVKF_STATES])
 {
     uint32_t *sat = &f->nav.saturations;
     imu_q30_t h[IMU_NAVKF_STATES];
@@ -216,7 +238,7 @@ static void measure(imu_navkf_t *f, int i, imu_q30_t z, imu_wide_t r, imu_q30_t 
         h[j] = 0;
     }
     h[i] = IMU_ONE_Q30;
-    (void)imu_navcov_update(&f->cov, h, r, 60, IMU_SUB_SAT(z, dx[i], sat), IMU_ONE_Q30, NULL, dx, sat);
+    (void)imu_navcov_update(&f->cov, h, r, 60, IMU_SUB_SAT(z, dx[i], sat), w, NULL, dx, sat);
 }
 
 static void clear(imu_q30_t dx[IMU_NAVKF_STATES])
@@ -249,6 +271,9 @@ static void apply(imu_navkf_t *f, const imu_q30_t dx[IMU_NAVKF_STATES])
         n->acc_bias[k] = IMU_ADD_SAT(n->acc_bias[k], IMU_WSHR_FEEDBACK_SAT(dx[ACC_BIAS + k], 14,
                                                                            &f->carry[ACC_BIAS + k], sat), sat);
     }
+    /* units of 1024 m, Q30 -> mm (* 1024000 >> 30), the rounding carried */
+    f->baro_bias = IMU_ADD_SAT(f->baro_bias, IMU_WSHR_FEEDBACK_SAT(IMU_WMUL(dx[BARO_BIAS], 1024000), 30,
+                                                                   &f->carry[BARO_BIAS], sat), sat);
     imu_nav_move(n, step);
     imu_quat_integrate(n->q, theta);
     restart_interval(f);
@@ -261,8 +286,8 @@ static imu_q30_t velocity_units(imu_real_t v, uint32_t *sat)
 }
 
 /** At rest: zero velocity, and zero rate (the gyroscope reads its bias: the bias-corrected
- *  rate `gyr` - bias, one sample's, is the gyro bias error's innovation). */
-static void at_rest(imu_navkf_t *f, const imu_rate_t gyr[3])
+ *  rate `gyr` - bias, one sample's, is the gyro bias error's innovation); weight w (Q30). */
+static void at_rest(imu_navkf_t *f, const imu_rate_t gyr[3], imu_q30_t w)
 {
     uint32_t *sat = &f->nav.saturations;
     imu_q30_t dx[IMU_NAVKF_STATES];
@@ -270,12 +295,12 @@ static void at_rest(imu_navkf_t *f, const imu_rate_t gyr[3])
     clear(dx);
     for (k = 0; k < 3; ++k) {
         measure(f, VEL + k, IMU_NEG_SAT(velocity_units(f->nav.vel[k], sat), sat),
-                IMU_WMUL(ZERO_VELOCITY_SIGMA, ZERO_VELOCITY_SIGMA), dx);
+                IMU_WMUL(ZERO_VELOCITY_SIGMA, ZERO_VELOCITY_SIGMA), w, dx);
     }
     for (k = 0; k < 3; ++k) {
         /* rad/s Q24 -> Q30 (|rate| below 2 rad/s at rest) */
         measure(f, GYRO_BIAS + k, IMU_SHL_SAT(IMU_SUB_SAT(gyr[k], f->nav.gyro_bias[k], sat), 6, sat),
-                f->zero_rate_var, dx);
+                f->zero_rate_var, w, dx);
     }
     apply(f, dx);
     ++f->zero_velocity;
@@ -289,7 +314,7 @@ static void at_rest(imu_navkf_t *f, const imu_rate_t gyr[3])
  * Only the heading moves: h is perpendicular to the field, and the tilt it could also
  * reach is held by the accelerometer and GNSS far more tightly.
  */
-static void field_heading(imu_navkf_t *f, const imu_real_t mag[3])
+static void field_heading(imu_navkf_t *f, const imu_real_t mag[3], imu_q30_t w)
 {
     uint32_t *sat = &f->nav.saturations;
     imu_q30_t unit[3], r0[3], h[IMU_NAVKF_STATES], dx[IMU_NAVKF_STATES];
@@ -308,8 +333,8 @@ static void field_heading(imu_navkf_t *f, const imu_real_t mag[3])
         for (k = 0; k < 3; ++k) {
             east = IMU_SUB_SAT(east, IMU_MUL(r0[k], unit[k], 30), sat);
         }
-        (void)imu_navcov_update(&f->cov, h, IMU_WMUL(FIELD_EAST_SIGMA, FIELD_EAST_SIGMA), 60, east, IMU_ONE_Q30,
-                                NULL, dx, sat);
+        (void)imu_navcov_update(&f->cov, h, IMU_WMUL(FIELD_EAST_SIGMA, FIELD_EAST_SIGMA), 60, east, w, NULL, dx,
+                                sat);
     }
     apply(f, dx);
 }
@@ -381,6 +406,7 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
         sigma[GYRO_BIAS + k] = START_GYRO_BIAS;
         sigma[ACC_BIAS + k] = START_ACC_BIAS;
     }
+    sigma[BARO_BIAS] = START_BARO_BIAS;
     for (k = 0; k < IMU_NAVKF_STATES; ++k) {
         var[k] = IMU_WMUL(sigma[k], sigma[k]); /* Q60 */
     }
@@ -391,6 +417,10 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     f->reject_steps = seconds_in_steps(f, REJECT_TIME);
     f->longest_steps = seconds_in_steps(f, LONGEST_COUNT);
     f->still = 0;
+    f->baro_bias = 0;
+    f->baro_reference = 0;
+    f->baro_steps = seconds_in_steps(f, BARO_INTERVAL);
+    f->since_baro = f->baro_steps;
     /* a sample's rate noise: twice the data sheet's density over the sample rate's band,
      * (rad^2/s Q54) * (Hz Q16) = Q70 >> 10 -> (rad/s)^2, Q60 */
     f->zero_rate_var = IMU_WSHR(IMU_WMUL(NOISE_ATT, rate), 10);
@@ -412,28 +442,33 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     return IMU_OK;
 }
 
-/** The specific force's low-passes; returns 1 when they agree (no trend). */
-static int force_steady(imu_navkf_t *f, const imu_q16_t acc[3])
+/** The specific force's low-passes; returns how steady it is, a weight in [0, 1] (Q30):
+ *  1 while they agree, falling smoothly as they part. */
+static imu_q30_t force_steadiness(imu_navkf_t *f, const imu_q16_t acc[3])
 {
     uint32_t *sat = &f->nav.saturations;
-    int k, steady = 1;
+    imu_q16_t trend = 0; /* the largest difference of the low-passes, m/s^2, Q16 */
+    int k;
     for (k = 0; k < 3; ++k) {
+        imu_q16_t d;
         f->force_fast[k] = IMU_ADD_SAT(f->force_fast[k], IMU_MUL(IMU_SUB_SAT(acc[k], f->force_fast[k], sat),
                                                                  f->fast_weight, 30), sat);
         f->force_slow[k] = IMU_ADD_SAT(f->force_slow[k], IMU_MUL(IMU_SUB_SAT(acc[k], f->force_slow[k], sat),
                                                                  f->slow_weight, 30), sat);
-        steady &= IMU_SUB_SAT(f->force_fast[k], f->force_slow[k], sat) < TREND_LIMIT &&
-                  IMU_SUB_SAT(f->force_slow[k], f->force_fast[k], sat) < TREND_LIMIT;
+        d = IMU_SUB_SAT(f->force_fast[k], f->force_slow[k], sat);
+        d = d < 0 ? IMU_NEG_SAT(d, sat) : d;
+        trend = d > trend ? d : trend;
     }
-    return steady;
+    return imu_deviation_weight(IMU_SHL_SAT(trend, 8, sat), TREND_TOLERANCE, sat); /* Q16 -> Q24 */
 }
 
 void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc[3], const imu_real_t mag[3])
 {
-    const int steady = force_steady(f, acc);
+    const imu_q30_t steadiness = force_steadiness(f, acc);
     int k;
     f->still = still_sample(f, gyr, acc) ? (f->still < f->rest_steps ? f->still + 1 : f->still) : 0;
     f->since_fix += f->since_fix < f->longest_steps;
+    f->since_baro += f->since_baro < f->baro_steps;
     f->rejecting += f->rejecting >= 0 && f->rejecting < f->reject_steps;
     imu_nav_propagate(&f->nav, gyr, acc);
     for (k = 0; k < 3; ++k) {
@@ -451,10 +486,11 @@ void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc
          * a car cruising through a tunnel is as still as a foot in its stance); without, the
          * sensors alone decide */
         const int with_gnss = f->since_fix < f->longest_steps;
-        if (f->still >= f->rest_steps && (with_gnss ? f->fix_stood && steady : 1)) {
-            at_rest(f, gyr);
+        const imu_q30_t w = with_gnss ? steadiness : IMU_ONE_Q30;
+        if (f->still >= f->rest_steps && (with_gnss ? f->fix_stood : 1) && w > 0) {
+            at_rest(f, gyr, w);
             if (mag != 0 && with_gnss) {
-                field_heading(f, mag); /* with GNSS only: a walker indoors meets iron everywhere */
+                field_heading(f, mag, w); /* with GNSS only: a walker indoors meets iron everywhere */
             }
         }
     }
@@ -481,6 +517,10 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
     imu_wide_t r[6];
     imu_real_t nis = 0; /* Q16 */
     const int count = fix->has_vel ? 6 : 3;
+    /* standard deviations in the states' units, Q30: horizontal (each axis), vertical, speed */
+    const imu_q30_t sigma_pos[2] = {IMU_MUL_SAT(fix->h_acc, MM_TO_POS_AXIS, 20, sat),
+                                    IMU_MUL_SAT(fix->v_acc, MM_TO_POS, 20, sat)};
+    const imu_q30_t sigma_vel = IMU_MUL_SAT(fix->s_acc, MM_S_TO_VEL, 16, sat);
     int k;
     flush(f);
     imu_nav_offsets(n, fix->lat, fix->lon, fix->height, at_fix);
@@ -493,15 +533,11 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
             d = IMU_DIV_SAT(d, k == 0 ? n->scale_east : n->scale_north, 30, sat); /* offset mm -> mm */
         }
         z[k] = IMU_MUL_SAT(d, MM_TO_POS, 20, sat);
-        r[k] = k < 2 ? IMU_WMUL(IMU_MUL_SAT(fix->h_acc, MM_TO_POS_AXIS, 20, sat),
-                                IMU_MUL_SAT(fix->h_acc, MM_TO_POS_AXIS, 20, sat))
-                     : IMU_WMUL(IMU_MUL_SAT(fix->v_acc, MM_TO_POS, 20, sat), IMU_MUL_SAT(fix->v_acc, MM_TO_POS, 20, sat));
+        r[k] = IMU_WMUL(sigma_pos[k < 2 ? 0 : 1], sigma_pos[k < 2 ? 0 : 1]);
         if (fix->has_vel) {
-            const imu_real_t was = IMU_SUB_SAT(n->vel[k], IMU_WIDE_SAT(IMU_WSHR(IMU_WMUL(n->acc[k], fix->age), 26), sat),
-                                               sat);
-            const imu_q30_t sigma = IMU_MUL_SAT(fix->s_acc, MM_S_TO_VEL, 16, sat);
-            z[3 + k] = velocity_units(IMU_SUB_SAT(fix->vel[k], was, sat), sat);
-            r[3 + k] = IMU_WMUL(sigma, sigma);
+            const imu_real_t back_vel = IMU_WIDE_SAT(IMU_WSHR(IMU_WMUL(n->acc[k], fix->age), 26), sat);
+            z[3 + k] = velocity_units(IMU_SUB_SAT(fix->vel[k], IMU_SUB_SAT(n->vel[k], back_vel, sat), sat), sat);
+            r[3 + k] = IMU_WMUL(sigma_vel, sigma_vel);
         }
     }
     for (k = 0; k < 3 && fix->source == IMU_NAVKF_GNSS; ++k) {
@@ -528,10 +564,75 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
     f->rejecting = -1;
     clear(dx);
     for (k = 0; k < count; ++k) {
-        measure(f, k, z[k], r[k], dx);
+        measure(f, k, z[k], r[k], IMU_ONE_Q30, dx);
     }
     apply(f, dx);
     return 1;
+}
+
+/** ln(1 + u) for |u| <= BARO_REFERENCE_SPAN, Q30: u - u^2/2 + u^3/3 - u^4/4. */
+static imu_q30_t log1p_series(imu_q30_t u)
+{
+    const imu_q30_t u2 = IMU_MUL(u, u, 30), u3 = IMU_MUL(u2, u, 30), u4 = IMU_MUL(u2, u2, 30);
+    return IMU_SUB(IMU_ADD(IMU_SUB(u, IMU_HALF(u2)), IMU_MUL(u3, IMU_QCONST(1.0 / 3.0, 30), 30)),
+                   IMU_MUL(u4, IMU_QCONST(0.25, 30), 30));
+}
+
+/** The height (mm) of a pressure (Pa) against the reference: h0 - H ln(p / p0). */
+static imu_real_t baro_height(const imu_navkf_t *f, imu_real_t pressure)
+{
+    uint32_t ignored = 0; /* within the span: |u| <= 0.05 + a pascal */
+    const imu_q30_t u = IMU_DIV_SAT(IMU_SUB(pressure, f->baro_reference), f->baro_reference, 30, &ignored);
+    const imu_real_t h = IMU_SUB(SCALE_HEIGHT_SEA_MM, IMU_MUL(f->baro_reference_height, SCALE_HEIGHT_PER_MM, 30));
+    /* Q30 * mm >> 30 -> mm; |H ln| below 0.06 * 8.5e6 */
+    return IMU_SUB_SAT(f->baro_reference_height, IMU_WIDE_SAT(IMU_WSHR(IMU_WMUL(log1p_series(u), h), 30), &ignored),
+                       &ignored);
+}
+
+void imu_navkf_baro(imu_navkf_t *f, imu_real_t pressure)
+{
+    uint32_t *sat = &f->nav.saturations;
+    imu_nav_t *n = &f->nav;
+    const imu_real_t estimate = IMU_ADD_SAT(n->origin.height, n->pos[2], sat); /* mm */
+    imu_real_t height;
+    if (!(pressure >= BARO_MIN_PA && pressure <= BARO_MAX_PA)) {
+        return;
+    }
+    if (f->baro_reference == 0) {
+        f->baro_reference = pressure;
+        f->baro_reference_height = estimate;
+    }
+    {
+        uint32_t ignored = 0;
+        const imu_q30_t u = IMU_DIV_SAT(IMU_SUB(pressure, f->baro_reference), f->baro_reference, 30, &ignored);
+        if (u > 2 * BARO_REFERENCE_SPAN || u < -2 * BARO_REFERENCE_SPAN) {
+            return; /* a jump of 800 m between two samples: not the air's pressure */
+        }
+        if (u > BARO_REFERENCE_SPAN || u < -BARO_REFERENCE_SPAN) {
+            /* a new reference at this sample, at the height the old one gives it (the series
+             * stays within its span however far the board climbs) */
+            f->baro_reference_height = baro_height(f, pressure);
+            f->baro_reference = pressure;
+        }
+    }
+    if (f->since_baro < f->baro_steps) {
+        return;
+    }
+    height = baro_height(f, pressure);
+    flush(f);
+    {
+        /* z = h_baro - (h + b): the height's and the bias's errors, each in units of 1024 m */
+        imu_q30_t h[IMU_NAVKF_STATES], dx[IMU_NAVKF_STATES];
+        const imu_real_t d = IMU_SUB_SAT(IMU_SUB_SAT(height, estimate, sat), f->baro_bias, sat); /* mm */
+        clear(h);
+        clear(dx);
+        h[POS + 2] = IMU_ONE_Q30;
+        h[BARO_BIAS] = IMU_ONE_Q30;
+        (void)imu_navcov_update(&f->cov, h, IMU_WMUL(BARO_SIGMA, BARO_SIGMA), 60, IMU_MUL_SAT(d, MM_TO_POS, 20, sat),
+                                IMU_ONE_Q30, NULL, dx, sat);
+        apply(f, dx);
+    }
+    f->since_baro = 0;
 }
 
 void imu_navkf_position(const imu_navkf_t *f, imu_angle_t *lat, imu_angle_t *lon, imu_real_t *height)

@@ -1,6 +1,6 @@
 /**
  * @file imu_navkf.h
- * @brief The `nav` filter: loosely coupled GNSS/INS navigation, a 15-state error-state
+ * @brief The `nav` filter: loosely coupled GNSS/INS navigation, a 16-state error-state
  *        Kalman filter around the strapdown propagation of imu_nav.h (seed 002, sections 4
  *        and 5), with zero-velocity updates at rest and position fixes from any source
  *        (seed 003's markers).
@@ -15,6 +15,7 @@
  * | 6-8   | attitude error, sensor frame (true = estimate turned by it) | rad |
  * | 9-11  | gyroscope bias error | rad/s |
  * | 12-14 | accelerometer bias error | m/s^2 |
+ * | 15    | barometer bias error (its height minus the true one) | 1024 m |
  *
  * The covariance (imu_navcov.h, block-floating: its variances span fourteen decades) is
  * propagated every `cov_steps` samples (about 20 Hz) with the interval's transition,
@@ -23,14 +24,15 @@
  * attitude: each factor reads only states the earlier ones left alone, so their product
  * is the transition). A measurement first brings the covariance up to the sample.
  *
- * Measurements: GNSS position and velocity with the receiver's accuracies, back to the
+ * Measurements: the barometer's height (with a bias state: the weather moves it), GNSS
+ * position and velocity with the receiver's accuracies, back to the
  * time the fix was valid for by the estimated velocity and acceleration (the latency of a
  * receiver: tenths of a second); gated by the normalised innovation (a multipath jump is
  * rejected and counted, while dead reckoning lets the covariance grow, until the fixes
  * agree again; after 30 s of nothing but rejections the filter accepts again, as the
  * estimate is then the one in doubt). Position fixes with an accuracy (markers: not gated). At rest
  * (the bias-corrected rate and the specific force still for `rest_steps`; with GNSS, only
- * while the last fix said the board stood and the force shows no trend, through an outage
+ * while the last fix said the board stood, weighted by how steady the force is, through an outage
  * too; after a minute without GNSS, or from a start without it, on the sensors alone),
  * zero velocity and zero rate (the gyroscope reads its bias), and with GNSS the
  * magnetometer's heading (which GNSS cannot observe while the board stands).
@@ -45,7 +47,7 @@
 #include "imu_navcov.h"
 
 /** Number of error states. */
-#define IMU_NAVKF_STATES 15
+#define IMU_NAVKF_STATES 16
 
 /** Where a fix comes from. */
 typedef enum {
@@ -81,7 +83,7 @@ typedef struct {
     int32_t rest_steps;         /**< still samples that make rest */
     imu_wide_t zero_rate_var;   /**< variance of one sample's rate at rest, (rad/s)^2, Q60 */
     int32_t reject_steps;       /**< samples of rejected fixes after which the gate gives in */
-    int32_t longest_steps;      /**< where the counts stop: a minute (without GNSS for that long, rest is the sensors') */
+    int32_t longest_steps;      /**< where the counts stop: a minute (without GNSS that long, rest is the sensors') */
     imu_q16_t force_fast[3];    /**< the specific force low-passed over 0.1 s, sensor frame, m/s^2, Q16 */
     imu_q16_t force_slow[3];    /**< ... over 1 s */
     imu_q30_t fast_weight;      /**< their weights per sample, dt / tau, Q30 */
@@ -91,6 +93,11 @@ typedef struct {
     int32_t rejecting;          /**< samples since the first of the current run of rejected fixes; -1: none */
     uint32_t rejected;          /**< GNSS fixes rejected by the gate, in all */
     uint32_t zero_velocity;     /**< zero-velocity (and zero-rate) updates, in all */
+    imu_real_t baro_bias;       /**< the barometer's height minus the true one, mm */
+    imu_real_t baro_reference;  /**< pressure of the barometer's reference, Pa (0: none yet) */
+    imu_real_t baro_reference_height; /**< the reference's height, mm */
+    int32_t baro_steps;         /**< samples between barometer updates */
+    int32_t since_baro;         /**< samples since the last (stops counting at baro_steps) */
 } imu_navkf_t;
 
 /**
@@ -114,6 +121,13 @@ void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc
 
 /** @brief A GNSS fix, or a position fix (has_vel 0). @return 1 when used, 0 when the gate rejected it. */
 int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix);
+
+/**
+ * @brief A barometer sample: its pressure (Pa; an MS5611's compensated value) gives a
+ *        height against a reference taken at the first sample; at most one update a second
+ *        (height and the barometer's bias, which follows the weather).
+ */
+void imu_navkf_baro(imu_navkf_t *f, imu_real_t pressure);
 
 /** @brief Position: latitude, longitude (rad, Q29) and height (mm). */
 void imu_navkf_position(const imu_navkf_t *f, imu_angle_t *lat, imu_angle_t *lon, imu_real_t *height);

@@ -112,6 +112,7 @@ _DECLARATIONS = """
     void imu_navkf_position(const imu_navkf_t *f, imu_angle_t *lat, imu_angle_t *lon, imu_real_t *height);
     void imu_navkf_variance(const imu_navkf_t *f, int i, imu_real_t *mant, int32_t *exp);
     void navkf_run(imu_navkf_t *f, size_t n, const imu_rate_t *gyr, const imu_q16_t *acc, const imu_real_t *mag,
+                   const int32_t *baro_after, size_t baro_count, const imu_real_t *baro_pa,
                    const int32_t *fix_after, size_t fix_count, const imu_navkf_fix_t *fixes, uint8_t *accepted,
                    imu_angle_t *lat_lon, imu_real_t *height, imu_real_t *vel, imu_q30_t *quat, imu_real_t *var_mant,
                    int32_t *var_exp);
@@ -121,17 +122,22 @@ _DECLARATIONS += runpy.run_path(str(Path(__file__).with_name("_protocol_schema.p
 
 
 # The nav filter over a whole recording in one call (the per-sample loop in C): after the
-# IMU sample k, the fixes whose fix_after is k (ascending); the outputs of every sample.
+# IMU sample k, the barometer samples and then the fixes whose *_after is k (ascending);
+# the outputs of every sample.
 _NAVKF_RUN = """
 static void navkf_run(imu_navkf_t *f, size_t n, const imu_rate_t *gyr, const imu_q16_t *acc, const imu_real_t *mag,
+                      const int32_t *baro_after, size_t baro_count, const imu_real_t *baro_pa,
                       const int32_t *fix_after, size_t fix_count, const imu_navkf_fix_t *fixes, uint8_t *accepted,
                       imu_angle_t *lat_lon, imu_real_t *height, imu_real_t *vel, imu_q30_t *quat, imu_real_t *var_mant,
                       int32_t *var_exp)
 {
-    size_t k, j = 0;
+    size_t k, j = 0, b = 0;
     int i;
     for (k = 0; k < n; ++k) {
         imu_navkf_step(f, gyr + 3 * k, acc + 3 * k, mag + 3 * k);
+        for (; b < baro_count && baro_after[b] == (int32_t)k; ++b) {
+            imu_navkf_baro(f, baro_pa[b]);
+        }
         for (; j < fix_count && fix_after[j] == (int32_t)k; ++j) {
             accepted[j] = (uint8_t)imu_navkf_fix(f, &fixes[j]);
         }

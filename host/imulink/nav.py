@@ -21,8 +21,8 @@ from .sensor_input import InputError
 
 #: The error states (imu_navkf.h): names and the unit each block's variance is kept in.
 STATE_NAMES = ("pos_e", "pos_n", "pos_u", "vel_e", "vel_n", "vel_u", "att_x", "att_y", "att_z",
-               "gyro_bias_x", "gyro_bias_y", "gyro_bias_z", "acc_bias_x", "acc_bias_y", "acc_bias_z")
-STATE_UNITS = np.array([1024.0] * 3 + [64.0] * 3 + [1.0] * 9)
+               "gyro_bias_x", "gyro_bias_y", "gyro_bias_z", "acc_bias_x", "acc_bias_y", "acc_bias_z", "baro_bias")
+STATE_UNITS = np.array([1024.0] * 3 + [64.0] * 3 + [1.0] * 9 + [1024.0])
 STATES = len(STATE_NAMES)
 #: The sample rates the filter takes (imu_navkf_start).
 MIN_RATE_HZ, MAX_RATE_HZ = 10.0, 1000.0
@@ -33,7 +33,7 @@ class NavResult:
     """The filter's output for each sample from the start (`start` is its index in the input):
     geodetic position (deg, m), ENU velocity (m/s), attitude quaternion (sensor to ENU, w
     first), the error state's standard deviations (STATE_NAMES, SI units: m, m/s, rad,
-    rad/s, m/s^2); per fix of the input from the start on, whether the gate let it in;
+    rad/s, m/s^2, m); per fix of the input from the start on, whether the gate let it in;
     counts of rejected fixes, zero-velocity updates and saturations."""
     start: int
     timestamp_us: np.ndarray
@@ -104,7 +104,7 @@ OUTPUT_COLUMNS = ("lat_deg", "lon_deg", "height_m", "vel_e_m_s", "vel_n_m_s", "v
                   "sd_east_m", "sd_north_m", "sd_up_m", "sd_vel_e_m_s", "sd_vel_n_m_s", "sd_vel_u_m_s",
                   "sd_att_x_deg", "sd_att_y_deg", "sd_att_z_deg", "sd_gyro_bias_x_deg_s", "sd_gyro_bias_y_deg_s",
                   "sd_gyro_bias_z_deg_s", "sd_acc_bias_x_m_s2", "sd_acc_bias_y_m_s2", "sd_acc_bias_z_m_s2",
-                  "fix_age_s", "gated")
+                  "sd_baro_bias_m", "fix_age_s", "gated")
 
 
 def write_csv(result: NavResult, path, inputs=()) -> None:
@@ -204,6 +204,10 @@ def run(inp: NavInput, arithmetic: str = "fixed") -> NavResult:
     state0 = ffi.new("imu_navkf_t *", state[0])  # the start, kept for its row
     n = len(inp) - start - 1
     later = np.ascontiguousarray(inp.fix_index[1:] - (start + 1), dtype=np.int32)
+    baro = inp.baro_index > start  # the samples after the start's
+    baro_after = np.ascontiguousarray(inp.baro_index[baro] - (start + 1), dtype=np.int32)
+    baro_pa = np.ascontiguousarray(np.rint(inp.baro_pa[baro]).astype(np.int32) if fixed
+                                   else np.asarray(inp.baro_pa[baro], dtype=np.float64))
     accepted = np.zeros(len(later), dtype=np.uint8)
     lat_lon = np.zeros((n, 2), dtype=np.int32 if fixed else np.float64)
     height = np.zeros(n, dtype=lat_lon.dtype)
@@ -213,7 +217,9 @@ def run(inp: NavInput, arithmetic: str = "fixed") -> NavResult:
     var_exp = np.zeros((n, STATES), dtype=np.int32)
     ptr = f"{real} *"
     lib.navkf_run(state, n, ffi.cast(ptr, ffi.from_buffer(gyr)), ffi.cast(ptr, ffi.from_buffer(acc)),
-                  ffi.cast(ptr, ffi.from_buffer(mags)), ffi.cast("int32_t *", ffi.from_buffer(later)), len(later),
+                  ffi.cast(ptr, ffi.from_buffer(mags)), ffi.cast("int32_t *", ffi.from_buffer(baro_after)),
+                  len(baro_after), ffi.cast(ptr, ffi.from_buffer(baro_pa)),
+                  ffi.cast("int32_t *", ffi.from_buffer(later)), len(later),
                   fixes + 1, ffi.cast("uint8_t *", ffi.from_buffer(accepted)), ffi.cast(ptr, ffi.from_buffer(lat_lon)),
                   ffi.cast(ptr, ffi.from_buffer(height)), ffi.cast(ptr, ffi.from_buffer(vel)),
                   ffi.cast(ptr, ffi.from_buffer(quat)), ffi.cast(ptr, ffi.from_buffer(var_mant)),

@@ -163,9 +163,10 @@ def read_nav_csv(path) -> NavInput:
                     fix_v_acc_m=fix_array[:, 5], fix_vel_enu=fix_array[:, 6:9], fix_s_acc_m_s=fix_array[:, 9])
 
 
-def simulated_input(imu, fixes=None, at_arrival: bool = False) -> NavInput:
+def simulated_input(imu, fixes=None, at_arrival: bool = False, baro=None) -> NavInput:
     """A simulated run as a NavInput: `imu` an imulink.sim.SimResult, `fixes` a
-    sim.navigation.GnssFixes or MarkerFixes (position only: accuracy each axis). With
+    sim.navigation.GnssFixes or MarkerFixes (position only: accuracy each axis), `baro` a
+    sim.navigation.BaroSamples. With
     `at_arrival`, each GNSS fix sits in the row of the sample it reaches the board with and
     says how late it is (a recording's order); else in the row it was measured at."""
     n = len(imu.t)
@@ -186,7 +187,9 @@ def simulated_input(imu, fixes=None, at_arrival: bool = False) -> NavInput:
         vel, s_acc, h_acc, v_acc = np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0)
     empty = np.zeros(0)
     return NavInput(timestamp_us=np.round(imu.t * 1e6).astype(np.int64), gyr=imu.gyr, acc=imu.acc, mag=imu.mag,
-                    baro_index=np.zeros(0, dtype=np.int64), baro_pa=empty, baro_temp_c=empty, fix_index=index,
+                    baro_index=np.zeros(0, dtype=np.int64) if baro is None else np.asarray(baro.index, dtype=np.int64),
+                    baro_pa=empty if baro is None else np.asarray(baro.pressure_pa),
+                    baro_temp_c=empty if baro is None else np.asarray(baro.temperature_c), fix_index=index,
                     fix_lat_deg=np.asarray(fixes.lat_deg) if m else empty,
                     fix_lon_deg=np.asarray(fixes.lon_deg) if m else empty,
                     fix_height_m=np.asarray(fixes.height_m) if m else empty, fix_h_acc_m=np.asarray(h_acc),

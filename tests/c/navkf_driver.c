@@ -4,11 +4,12 @@
  *     start at a GNSS fix (then the accelerometer and magnetometer at rest), once, first;
  *     "k" instead of "b": start at a known place (a marker: no GNSS);
  *   s gx gy gz ax ay az mx my mz   an IMU sample (rad/s, m/s^2, uT; 0 0 0: no field): prints the state after it,
- *     "lat_deg lon_deg height_m vel_e vel_n vel_u qw qx qy qz" and the 15 standard
- *     deviations of the error state in SI units (m, m/s, rad, rad/s, m/s^2);
+ *     "lat_deg lon_deg height_m vel_e vel_n vel_u qw qx qy qz" and the 16 standard
+ *     deviations of the error state in SI units (m, m/s, rad, rad/s, m/s^2, m);
  *   f lat_deg lon_deg height_m vel_e vel_n vel_u h_acc_m v_acc_m s_acc_m_s has_vel age_s
  *     a GNSS fix (has_vel 0: without velocity);
- *   m lat_deg lon_deg height_m 0 0 0 h_acc_m v_acc_m 1 0 age_s   a marker's position fix.
+ *   m lat_deg lon_deg height_m 0 0 0 h_acc_m v_acc_m 1 0 age_s   a marker's position fix;
+ *   p pressure_pa              a barometer sample.
  * At the end: "rejected N zero_velocity N saturations N". Built twice, with -DIMU_FIXED
  * (and -DIMU_CHECK_NARROWING) and -DIMU_FLOAT. */
 #include <math.h>
@@ -37,7 +38,7 @@ void imu_narrowing_failed(const char *file, int line, const char *what, int64_t 
 
 static const double DEG = 3.14159265358979323846 / 180.0;
 /* the error states' units (imu_navkf.h) */
-static const double UNIT[IMU_NAVKF_STATES] = {1024, 1024, 1024, 64, 64, 64, 1, 1, 1, 1, 1, 1, 1, 1, 1};
+static const double UNIT[IMU_NAVKF_STATES] = {1024, 1024, 1024, 64, 64, 64, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1024};
 
 static int read_fix(imu_navkf_fix_t *fix, int with_age)
 {
@@ -99,6 +100,12 @@ int main(void)
             }
             fix.source = kind[0] == 'm' ? IMU_NAVKF_MARKER : IMU_NAVKF_GNSS;
             (void)imu_navkf_fix(&f, &fix);
+        } else if (kind[0] == 'p') {
+            double pressure;
+            if (scanf("%lf", &pressure) != 1) {
+                return 2;
+            }
+            imu_navkf_baro(&f, TO_Q(pressure, 0));
         } else if (kind[0] == 's') {
             imu_rate_t gyr[3];
             imu_q16_t acc[3];

@@ -39,13 +39,14 @@ struct bench_state bench_state;
 
 /* The nav filter under test (tools/bench_nav.py): its start values and one sample's
  * inputs, and what the tool reads back after each sample (latitude, longitude Q29 rad,
- * height mm, velocity Q20, quaternion Q30, saturations, rejected fixes). */
+ * height mm, velocity Q20, quaternion Q30, saturations, rejected fixes, zero-velocity updates,
+ * samples in the covariance interval). */
 imu_navkf_t bench_navkf;
 imu_navkf_fix_t bench_navkf_fix;
 imu_rate_t bench_navkf_gyr[3];
 imu_q16_t bench_navkf_acc[3];
 imu_real_t bench_navkf_mag[3];
-int32_t bench_navkf_out[13];
+int32_t bench_navkf_out[14];
 
 /* Codec buffers. */
 imu_proto_sample_t bench_sample_msg;
@@ -162,6 +163,7 @@ void bench_navkf_read(void)
     bench_navkf_out[10] = (int32_t)bench_navkf.nav.saturations;
     bench_navkf_out[11] = (int32_t)bench_navkf.rejected;
     bench_navkf_out[12] = (int32_t)bench_navkf.zero_velocity;
+    bench_navkf_out[13] = bench_navkf.steps; /* 0: the covariance interval has just ended */
 }
 
 /** Start a decoder on bench_decoder_buf. */
@@ -188,6 +190,7 @@ __attribute__((section(".bench_exports"), used)) const void *const bench_exports
     (const void *)bench_navkf_read,
     (const void *)imu_navkf_step,
     (const void *)imu_navkf_fix,
+    (const void *)imu_navkf_baro,
     &bench_sizes,
     &bench_filter,
     &bench_sensor,
