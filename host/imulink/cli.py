@@ -344,7 +344,7 @@ def _cmd_nav(args) -> int:
         status.done()
     used = int(result.fix_accepted.sum()) + 1
     report = {"input": str(path), "output": args.csv, "arithmetic": args.arith, "samples": len(inp),
-              "start_row": result.start, "rows_written": len(result), "rate_hz": nav.sample_rate_hz(inp.timestamp_us),
+              "start_sample": result.start, "rows_written": len(result), "rate_hz": nav.sample_rate_hz(inp.timestamp_us),
               "fixes": len(inp.fix_index), "fixes_used": used, "fixes_gated": result.rejected,
               "zero_velocity_updates": result.zero_velocity, "saturations": result.saturations,
               "end": {"lat_deg": float(result.lat_deg[-1]), "lon_deg": float(result.lon_deg[-1]),
