@@ -45,8 +45,9 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12, BARO_BIAS = 15 }
 #define SCALE_HEIGHT_PER_MM IMU_QCONST(0.19026636, 30)   /* 29.27175 m/K * 6.5 K/km: mm of H per mm of height */
 
 /* Rest: the bias-corrected rate below 0.05 rad/s (Q24) and the specific force within
- * 0.3 m/s^2 (Q16) of gravity for REST_TIME; with GNSS, only while the last fix's speed is
- * below REST_SPEED (m/s, Q20): a car cruising straight is as still as a parked one. */
+ * 0.3 m/s^2 (Q16) of gravity for a covariance interval (50 ms: a foot's stance is some
+ * 0.5 s); with GNSS, only while the last fix's speed is below REST_SPEED (m/s, Q20): a
+ * car cruising straight is as still as a parked one. */
 #define REST_GYRO IMU_QCONST(0.05, 24)
 #define REST_ACC IMU_QCONST(0.3, 16)
 #define REST_SPEED IMU_QCONST(0.3, 20)
@@ -365,6 +366,13 @@ static int32_t seconds_in_steps(imu_navkf_t *f, imu_real_t seconds)
     return steps < 1 ? 1 : steps;
 }
 
+/** Whether a fix's accuracies are within 1 mm (mm/s) .. 2^30. */
+static int accuracies_in_range(const imu_navkf_fix_t *fix)
+{
+    return fix->h_acc >= 1 && fix->h_acc <= (1 << 30) && fix->v_acc >= 1 && fix->v_acc <= (1 << 30) &&
+           fix->s_acc >= 1 && fix->s_acc <= (1 << 30);
+}
+
 imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t acc[3], const imu_real_t mag[3],
                              const imu_navkf_fix_t *fix)
 {
@@ -380,8 +388,7 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
         !imu_tilt_from_acc(acc, &euler[0], &euler[1])) {
         return IMU_ERR_RANGE;
     }
-    if (!(fix->h_acc >= 1 && fix->h_acc <= (1 << 30) && fix->v_acc >= 1 && fix->v_acc <= (1 << 30) &&
-          fix->s_acc >= 1 && fix->s_acc <= (1 << 30))) {
+    if (!accuracies_in_range(fix)) {
         return IMU_ERR_RANGE;
     }
     euler[2] = imu_heading_from_mag(mag, euler[0], euler[1]);
@@ -522,6 +529,9 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
                                     IMU_MUL_SAT(fix->v_acc, MM_TO_POS, 20, sat)};
     const imu_q30_t sigma_vel = IMU_MUL_SAT(fix->s_acc, MM_S_TO_VEL, 16, sat);
     int k;
+    if (!accuracies_in_range(fix)) {
+        return 0;
+    }
     flush(f);
     imu_nav_offsets(n, fix->lat, fix->lon, fix->height, at_fix);
     for (k = 0; k < 3; ++k) {

@@ -119,7 +119,8 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
  */
 void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc[3], const imu_real_t mag[3]);
 
-/** @brief A GNSS fix, or a position fix (has_vel 0). @return 1 when used, 0 when the gate rejected it. */
+/** @brief A GNSS fix, or a position fix (has_vel 0). @return 1 when used; 0 when the gate rejected it
+ *         (counted in `rejected`) or an accuracy is out of its range (not counted). */
 int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix);
 
 /**
