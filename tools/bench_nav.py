@@ -7,7 +7,8 @@ biases (`imulink.sim.navigation.datasheet_sensors`), seed 0, 100 Hz:
 
 - car drive, 20 min, GNSS at 1 Hz with white errors of 2.5 m horizontal, 5 m vertical,
   0.1 m/s; the same with the barometer (the MS5611 at 50 Hz: noise, temperature drift,
-  weather); with two 30 s outages; with time-correlated errors (2 m horizontal,
+  weather); with two 30 s outages; with the antenna 1.5 m forward and 1.2 m up (its lever
+  arm set); with time-correlated errors (2 m horizontal,
   3 m vertical, 100 s) and a multipath jump of 19 m for 10 s; with 0.2 s latency;
 - foot-mounted walk, 5 min of laps, no GNSS, zero velocity in the stances: the error at
   the end as a share of the distance walked;
@@ -55,6 +56,7 @@ RATE_HZ = 100.0
 SEED = 0
 OUTAGES = ((300.0, 330.0), (700.0, 730.0))
 MULTIPATH = ((420.0, 430.0, 15.0, -10.0, 5.0),)
+ANTENNA = (0.5, 1.5, 1.2)  # m: right, forward, up of the sensor
 
 
 def errors(traj, result: nav.NavResult) -> dict[str, np.ndarray]:
@@ -108,12 +110,16 @@ def accuracy(progress=lambda _m: None) -> list[dict]:
         "the same, correlated errors and a 19 m multipath jump": (
             nv.GnssModel(correlated_h_m=2.0, correlated_v_m=3.0, multipath=MULTIPATH), None),
         "the same, white errors, fixes 0.2 s late": (nv.GnssModel(latency_s=0.2), "late"),
+        f"the same, the antenna at {ANTENNA} m from the sensor, its lever arm set": (nv.GnssModel(), "antenna"),
     }
     for name, (model, option) in car.items():
         fixes = nv.gnss_fixes(traj, model, seed=SEED)
+        if option == "antenna":
+            fixes = nv.antenna_fixes(traj, fixes, ANTENNA)
         baro = nv.baro_samples(traj, seed=SEED) if option == "baro" else None
         inp = simulated_input(imu, fixes, at_arrival=option == "late", baro=baro)
-        results = {a: nav.run(inp, a) for a in ("fixed", "float")}
+        arm = ANTENNA if option == "antenna" else None
+        results = {a: nav.run(inp, a, lever_arm_m=arm) for a in ("fixed", "float")}
         row = {"scenario": name, "fixed_vs_float_m_deg": builds_differ(results)}
         for arithmetic, result in results.items():
             e = errors(traj, result)

@@ -87,6 +87,9 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12, BARO_BIAS = 15 }
 #define REJECT_TIME IMU_QCONST(30.0, 16)
 #define LONGEST_COUNT IMU_QCONST(60.0, 16)
 
+/** The antenna's lever arm: each axis within +-10 m (mm). */
+#define MAX_LEVER_ARM_MM IMU_QCONST(10000.0, 0)
+
 static const int POSITION_ROWS[3] = {POS, POS + 1, POS + 2};
 static const int VELOCITY_ROWS[3] = {VEL, VEL + 1, VEL + 2};
 static const int ATTITUDE_ROWS[3] = {ATT, ATT + 1, ATT + 2};
@@ -227,27 +230,37 @@ static void flush(imu_navkf_t *f)
     restart_interval(f);
 }
 
-/** One scalar measurement of state i: innovation z (Q30, the state's unit; what earlier
- *  parts of the same measurement corrected is taken off here), variance r / w (r: Q60,
- *  unit^2; w: a weight in [0, 1], Q30). */
-static void measure(imu_navkf_t *f, int i, imu_q30_t z, imu_wide_t r, imu_q30_t w, imu_q30_t dx[IMU_NAVKF_STATES])
-{
-    uint32_t *sat = &f->nav.saturations;
-    imu_q30_t h[IMU_NAVKF_STATES];
-    int j;
-    for (j = 0; j < IMU_NAVKF_STATES; ++j) {
-        h[j] = 0;
-    }
-    h[i] = IMU_ONE_Q30;
-    (void)imu_navcov_update(&f->cov, h, r, 60, IMU_SUB_SAT(z, dx[i], sat), w, NULL, dx, sat);
-}
-
 static void clear(imu_q30_t dx[IMU_NAVKF_STATES])
 {
     int k;
     for (k = 0; k < IMU_NAVKF_STATES; ++k) {
         dx[k] = 0;
     }
+}
+
+/** One scalar measurement with row h (Q30, the states' units): innovation z (Q30; what
+ *  earlier parts of the same measurement corrected, h . dx, is taken off here), variance
+ *  r / w (r: Q60, unit^2; w: a weight in [0, 1], Q30). */
+static void measure_row(imu_navkf_t *f, const imu_q30_t h[IMU_NAVKF_STATES], imu_q30_t z, imu_wide_t r, imu_q30_t w,
+                        imu_q30_t dx[IMU_NAVKF_STATES])
+{
+    uint32_t *sat = &f->nav.saturations;
+    imu_wide_t corrected = 0; /* h . dx, Q60 */
+    int j;
+    for (j = 0; j < IMU_NAVKF_STATES; ++j) {
+        corrected += IMU_WMUL(h[j], dx[j]);
+    }
+    (void)imu_navcov_update(&f->cov, h, r, 60, IMU_SUB_SAT(z, IMU_WIDE_SAT(IMU_WSHR(corrected, 30), sat), sat), w,
+                            NULL, dx, sat);
+}
+
+/** The same for state i alone. */
+static void measure(imu_navkf_t *f, int i, imu_q30_t z, imu_wide_t r, imu_q30_t w, imu_q30_t dx[IMU_NAVKF_STATES])
+{
+    imu_q30_t h[IMU_NAVKF_STATES];
+    clear(h);
+    h[i] = IMU_ONE_Q30;
+    measure_row(f, h, z, r, w, dx);
 }
 
 /** The corrections dx (the states' units, Q30) applied to the strapdown state. */
@@ -366,6 +379,62 @@ static int32_t seconds_in_steps(imu_navkf_t *f, imu_real_t seconds)
     return steps < 1 ? 1 : steps;
 }
 
+/** The antenna's offset from the sensor in ENU, R l, mm. */
+static void antenna_offset(const imu_navkf_t *f, imu_real_t out[3])
+{
+    imu_q30_t row[3];
+    int k;
+    for (k = 0; k < 3; ++k) {
+        imu_quat_matrix_row(f->nav.q, k, row);
+        /* Q30 * m Q20 >> 30 -> m Q20 (|l| <= 10 m), * 1000 -> mm */
+        out[k] = IMU_MUL(IMU_ADD(IMU_ADD(IMU_MUL(row[0], f->lever_arm[0], 30), IMU_MUL(row[1], f->lever_arm[1], 30)),
+                                 IMU_MUL(row[2], f->lever_arm[2], 30)),
+                         IMU_QCONST(1000.0, 20), 40);
+    }
+}
+
+/** r x l for a row r of R (Q30) and the lever arm l (m, Q20): m, Q20. */
+static void cross_arm(const imu_q30_t r[3], const imu_real_t l[3], imu_real_t out[3])
+{
+    out[0] = IMU_SUB(IMU_MUL(r[1], l[2], 30), IMU_MUL(r[2], l[1], 30));
+    out[1] = IMU_SUB(IMU_MUL(r[2], l[0], 30), IMU_MUL(r[0], l[2], 30));
+    out[2] = IMU_SUB(IMU_MUL(r[0], l[1], 30), IMU_MUL(r[1], l[0], 30));
+}
+
+/** The antenna position's sensitivity to the attitude error, axis k (ENU): R (I + [dtheta x]) l
+ *  = R l - R [l x] dtheta, so its row is -(R [l x])_k = -(r_k x l) (r_k: row k of R), in units
+ *  of 1024 m per rad (Q30): m Q20 is the same integer; the float build divides by 1024. */
+static void lever_arm_row(const imu_navkf_t *f, int k, imu_q30_t out[3])
+{
+    imu_q30_t row[3];
+    imu_real_t c[3];
+    int j;
+    imu_quat_matrix_row(f->nav.q, k, row);
+    cross_arm(row, f->lever_arm, c);
+    for (j = 0; j < 3; ++j) {
+        out[j] = -IMU_MUL(c[j], IMU_QCONST(1.0 / 1024.0, 40), 30);
+    }
+}
+
+/** The antenna's velocity beside the sensor's, R (w x l), w the bias-corrected rate: m/s, Q20
+ *  (its sensitivity to the attitude and gyro bias errors is left out: below a cm/s). */
+static void antenna_velocity(const imu_navkf_t *f, imu_real_t out[3])
+{
+    imu_real_t turn[3]; /* w x l, m/s, Q20: rad/s Q24 * m Q20 >> 24 */
+    imu_q30_t row[3];
+    const imu_real_t *l = f->lever_arm;
+    const imu_rate_t *w = f->rate;
+    int k;
+    turn[0] = IMU_SUB(IMU_MUL(w[1], l[2], 24), IMU_MUL(w[2], l[1], 24));
+    turn[1] = IMU_SUB(IMU_MUL(w[2], l[0], 24), IMU_MUL(w[0], l[2], 24));
+    turn[2] = IMU_SUB(IMU_MUL(w[0], l[1], 24), IMU_MUL(w[1], l[0], 24));
+    for (k = 0; k < 3; ++k) {
+        imu_quat_matrix_row(f->nav.q, k, row);
+        out[k] = IMU_ADD(IMU_ADD(IMU_MUL(row[0], turn[0], 30), IMU_MUL(row[1], turn[1], 30)),
+                         IMU_MUL(row[2], turn[2], 30));
+    }
+}
+
 /** Whether a fix's accuracies are within 1 mm (mm/s) .. 2^30. */
 static int accuracies_in_range(const imu_navkf_fix_t *fix)
 {
@@ -374,7 +443,7 @@ static int accuracies_in_range(const imu_navkf_fix_t *fix)
 }
 
 imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t acc[3], const imu_real_t mag[3],
-                             const imu_navkf_fix_t *fix)
+                             const imu_navkf_fix_t *fix, const imu_real_t lever_arm[3])
 {
     uint32_t *sat;
     imu_nav_origin_t origin;
@@ -391,6 +460,11 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     if (!accuracies_in_range(fix)) {
         return IMU_ERR_RANGE;
     }
+    for (k = 0; k < 3 && lever_arm != 0; ++k) {
+        if (!(lever_arm[k] >= -MAX_LEVER_ARM_MM && lever_arm[k] <= MAX_LEVER_ARM_MM)) {
+            return IMU_ERR_RANGE;
+        }
+    }
     euler[2] = imu_heading_from_mag(mag, euler[0], euler[1]);
     imu_euler_to_quat(euler, q);
     origin.lat = fix->lat;
@@ -405,6 +479,21 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
         return IMU_ERR_RANGE;
     }
     sat = &f->nav.saturations;
+    for (k = 0; k < 3; ++k) {
+        /* mm * 2^40 / 1000 >> 20 -> m, Q20 */
+        f->lever_arm[k] = lever_arm != 0 ? IMU_MUL(lever_arm[k], IMU_QCONST(0.001, 40), 20) : 0;
+        f->rate[k] = 0;
+    }
+    {
+        /* the fix is the antenna's: the sensor is R l below it */
+        imu_real_t arm_enu[3];
+        imu_wide_t step[3];
+        antenna_offset(f, arm_enu);
+        for (k = 0; k < 3; ++k) {
+            step[k] = IMU_WMUL(IMU_NEG_SAT(arm_enu[k], sat), IMU_QCONST(1.0, 15)); /* mm -> Q15 */
+        }
+        imu_nav_move(&f->nav, step);
+    }
     sigma[POS] = sigma[POS + 1] = IMU_MUL_SAT(fix->h_acc, MM_TO_POS_AXIS, 20, sat);
     sigma[POS + 2] = IMU_MUL_SAT(fix->v_acc, MM_TO_POS, 20, sat);
     for (k = 0; k < 3; ++k) {
@@ -474,6 +563,9 @@ void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc
     const imu_q30_t steadiness = force_steadiness(f, acc);
     int k;
     f->still = still_sample(f, gyr, acc) ? (f->still < f->rest_steps ? f->still + 1 : f->still) : 0;
+    for (k = 0; k < 3; ++k) {
+        f->rate[k] = IMU_SUB_SAT(gyr[k], f->nav.gyro_bias[k], &f->nav.saturations);
+    }
     f->since_fix += f->since_fix < f->longest_steps;
     f->since_baro += f->since_baro < f->baro_steps;
     f->rejecting += f->rejecting >= 0 && f->rejecting < f->reject_steps;
@@ -519,7 +611,7 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
 {
     uint32_t *sat = &f->nav.saturations;
     imu_nav_t *n = &f->nav;
-    imu_real_t at_fix[3];
+    imu_real_t at_fix[3], arm_enu[3], arm_vel[3]; /* offsets mm; the antenna's velocity beside the sensor's, Q20 */
     imu_q30_t z[6], dx[IMU_NAVKF_STATES];
     imu_wide_t r[6];
     imu_real_t nis = 0; /* Q16 */
@@ -534,6 +626,8 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
     }
     flush(f);
     imu_nav_offsets(n, fix->lat, fix->lon, fix->height, at_fix);
+    antenna_offset(f, arm_enu);
+    antenna_velocity(f, arm_vel);
     for (k = 0; k < 3; ++k) {
         /* where the estimate was when the fix was valid: back by v age (Q20 * Q30 >> 20 -> m
          * Q30, * 1000 >> 30 -> mm) and by a age for the velocity (Q16 * Q30 >> 26 -> Q20) */
@@ -542,11 +636,12 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
         if (k < 2) {
             d = IMU_DIV_SAT(d, k == 0 ? n->scale_east : n->scale_north, 30, sat); /* offset mm -> mm */
         }
-        z[k] = IMU_MUL_SAT(d, MM_TO_POS, 20, sat);
+        z[k] = IMU_MUL_SAT(IMU_SUB_SAT(d, arm_enu[k], sat), MM_TO_POS, 20, sat);
         r[k] = IMU_WMUL(sigma_pos[k < 2 ? 0 : 1], sigma_pos[k < 2 ? 0 : 1]);
         if (fix->has_vel) {
             const imu_real_t back_vel = IMU_WIDE_SAT(IMU_WSHR(IMU_WMUL(n->acc[k], fix->age), 26), sat);
-            z[3 + k] = velocity_units(IMU_SUB_SAT(fix->vel[k], IMU_SUB_SAT(n->vel[k], back_vel, sat), sat), sat);
+            const imu_real_t was = IMU_ADD_SAT(IMU_SUB_SAT(n->vel[k], back_vel, sat), arm_vel[k], sat);
+            z[3 + k] = velocity_units(IMU_SUB_SAT(fix->vel[k], was, sat), sat);
             r[3 + k] = IMU_WMUL(sigma_vel, sigma_vel);
         }
     }
@@ -574,7 +669,13 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
     f->rejecting = -1;
     clear(dx);
     for (k = 0; k < count; ++k) {
-        measure(f, k, z[k], r[k], IMU_ONE_Q30, dx);
+        imu_q30_t h[IMU_NAVKF_STATES];
+        clear(h);
+        h[k] = IMU_ONE_Q30;
+        if (k < 3) {
+            lever_arm_row(f, k, &h[ATT]);
+        }
+        measure_row(f, h, z[k], r[k], IMU_ONE_Q30, dx);
     }
     apply(f, dx);
     return 1;

@@ -24,18 +24,19 @@
  * attitude: each factor reads only states the earlier ones left alone, so their product
  * is the transition). A measurement first brings the covariance up to the sample.
  *
- * Measurements: the barometer's height (with a bias state: the weather moves it), GNSS
- * position and velocity with the receiver's accuracies, back to the
- * time the fix was valid for by the estimated velocity and acceleration (the latency of a
- * receiver: tenths of a second); gated by the normalised innovation (a multipath jump is
- * rejected and counted, while dead reckoning lets the covariance grow, until the fixes
- * agree again; after 30 s of nothing but rejections the filter accepts again, as the
- * estimate is then the one in doubt). Position fixes with an accuracy (markers: not gated). At rest
- * (the bias-corrected rate and the specific force still for `rest_steps`; with GNSS, only
- * while the last fix said the board stood, weighted by how steady the force is, through an outage
- * too; after a minute without GNSS, or from a start without it, on the sensors alone),
- * zero velocity and zero rate (the gyroscope reads its bias), and with GNSS the
- * magnetometer's heading (which GNSS cannot observe while the board stands).
+ * Measurements: the barometer's height (with a bias state: the weather moves it); GNSS
+ * position and velocity of the antenna (a lever arm from the sensor) with the receiver's
+ * accuracies, back to the time the fix was valid for by the estimated velocity and
+ * acceleration (a receiver's latency: tenths of a second), gated by the normalised
+ * innovation (a multipath jump is rejected and counted, while dead reckoning lets the
+ * covariance grow, until the fixes agree again; after 30 s of nothing but rejections the
+ * filter accepts again, as the estimate is then the one in doubt); position fixes with an
+ * accuracy (markers: not gated). At rest (the bias-corrected rate and the specific force
+ * still for `rest_steps`; with GNSS, only while the last fix said the board stood,
+ * weighted by how steady the force is, through an outage too; after a minute without
+ * GNSS, or from a start without it, on the sensors alone), zero velocity and zero rate
+ * (the gyroscope reads its bias), and with GNSS the magnetometer's heading (which GNSS
+ * cannot observe while the board stands).
  *
  * Fixed build formats are written where each value is declared; the float build holds the
  * same quantities in the same units (one source).
@@ -75,6 +76,8 @@ typedef struct {
     imu_q30_t q_start[4];       /**< attitude at the start of the covariance interval, Q30 */
     imu_wide_t dv[3];           /**< specific force (ENU) times dt summed over the interval, in units of 64 m/s, Q52 */
     int32_t steps;              /**< samples in the interval so far */
+    imu_real_t lever_arm[3];    /**< the GNSS antenna's position in the sensor frame, m, Q20 (within +-10 m) */
+    imu_rate_t rate[3];         /**< the last sample's bias-corrected rate, rad/s, Q24 */
     imu_wide_t carry[IMU_NAVKF_STATES]; /**< the corrections' rounding, carried to the next (velocity: Q54 of
                                              m/s; biases: Q30; 0 elsewhere and in the float build) */
     int32_t cov_steps;          /**< samples per covariance interval */
@@ -106,10 +109,13 @@ typedef struct {
  *        has one, else zero.
  * @param rate sample rate, Hz, Q16, 10 .. 1000
  * @param acc  specific force, m/s^2, Q16; @param mag field, any unit (Q16 uT on the wire)
- * @return IMU_ERR_RANGE for a rate or fix out of range, or an accelerometer that reads nothing.
+ * @param lever_arm the GNSS antenna's position in the sensor frame (x right, y forward, z up),
+ *        mm, each axis within +-10 m, or NULL: at the sensor. The fixes are the antenna's.
+ * @return IMU_ERR_RANGE for a rate, fix or lever arm out of range, or an accelerometer that
+ *         reads nothing.
  */
 imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t acc[3], const imu_real_t mag[3],
-                             const imu_navkf_fix_t *fix);
+                             const imu_navkf_fix_t *fix, const imu_real_t lever_arm[3]);
 
 /**
  * @brief One IMU sample: propagation, and at the end of an interval the covariance and, at

@@ -338,7 +338,7 @@ def _cmd_nav(args) -> int:
 
             inp = nav.input_from_recording(load_recording(path, progress=phase(f"reading {path.name}")),
                                            args.gnss_latency)
-        result = nav.run(inp, args.arith)
+        result = nav.run(inp, args.arith, args.lever_arm)
         nav.write_csv(result, args.csv, inputs=[args.input])
     finally:
         status.done()
@@ -590,6 +590,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--csv", metavar="OUT", required=True, help="write the estimate to OUT (CSV)")
     p.add_argument("--arith", choices=("fixed", "float"), default="fixed",
                    help="the firmware's fixed point (default) or the float twin")
+    p.add_argument("--lever-arm", type=_lever_arm, metavar="X,Y,Z",
+                   help="the GNSS antenna's position in the sensor frame (x right, y forward, z up), m, each within "
+                        "+-10 (default: at the sensor)")
     p.add_argument("--gnss-latency", type=_in_range(float, 0.0, 1.0, "must be 0 to 1 s"), default=0.0,
                    metavar="SECONDS", help="a recording's receiver latency: how long before its arrival each fix "
                                            "was valid (default 0)")
@@ -692,6 +695,17 @@ def _profile(name: str):
         return PROFILES[name]
     except KeyError:
         raise argparse.ArgumentTypeError(f"unknown sensor profile {name!r}; choose from {', '.join(PROFILES)}") from None
+
+
+def _lever_arm(text: str) -> tuple[float, float, float]:
+    """X,Y,Z in metres, each finite and within +-10."""
+    try:
+        values = tuple(float(part) for part in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 3 or not all(math.isfinite(v) and abs(v) <= 10.0 for v in values):
+        raise argparse.ArgumentTypeError(f"{text!r} is not X,Y,Z in metres, each within +-10")
+    return values
 
 
 def _in_range(parse, low, high, requirement: str):

@@ -138,9 +138,15 @@ def sample_rate_hz(timestamp_us: np.ndarray) -> float:
     return 1e6 / float(np.median(intervals))
 
 
-def run(inp: NavInput, arithmetic: str = "fixed") -> NavResult:
-    """Run the filter over `inp` (a NavInput: imulink.nav_input); InputError when it has no
-    fix to start from or a rate the filter does not take."""
+#: The largest lever arm the filter takes, each axis, m.
+MAX_LEVER_ARM_M = 10.0
+
+
+def run(inp: NavInput, arithmetic: str = "fixed", lever_arm_m=None) -> NavResult:
+    """Run the filter over `inp` (a NavInput: imulink.nav_input); `lever_arm_m` is the GNSS
+    antenna's position in the sensor frame (x right, y forward, z up), m, each axis within
+    +-10 m (None: at the sensor). InputError when the input has no fix to start from or a
+    rate the filter does not take."""
     if arithmetic not in ("fixed", "float"):
         raise ValueError(f"arithmetic must be 'fixed' or 'float', not {arithmetic!r}")
     if len(inp.fix_index) == 0:
@@ -148,6 +154,11 @@ def run(inp: NavInput, arithmetic: str = "fixed") -> NavResult:
     rate = sample_rate_hz(inp.timestamp_us)
     if not MIN_RATE_HZ <= rate <= MAX_RATE_HZ:
         raise InputError(f"the samples come at {rate:g} Hz; the nav filter takes {MIN_RATE_HZ:g} to {MAX_RATE_HZ:g} Hz")
+    arm = None
+    if lever_arm_m is not None:
+        arm = [float(v) for v in lever_arm_m]
+        if len(arm) != 3 or not all(math.isfinite(v) and abs(v) <= MAX_LEVER_ARM_M for v in arm):
+            raise InputError(f"a lever arm is three distances within +-{MAX_LEVER_ARM_M:g} m, not {lever_arm_m!r}")
     mod = _module(arithmetic)
     ffi, lib = mod.ffi, mod.lib
     fixed = arithmetic == "fixed"
@@ -197,7 +208,9 @@ def run(inp: NavInput, arithmetic: str = "fixed") -> NavResult:
     start_acc = ffi.new(f"{real}[3]", [int(v) if fixed else float(v) for v in convert(inp.acc[start], 16, "a force")])
     start_mag = ffi.new(f"{real}[3]", [int(v) if fixed else float(v) for v in convert(mag[start], 16, "a field")])
     rate_value = to_fixed(rate, 16, "the sample rate") if fixed else rate
-    if lib.imu_navkf_start(state, rate_value, start_acc, start_mag, ffi.addressof(fixes[0])) != 0:
+    arm_mm = ffi.NULL if arm is None else ffi.new(f"{real}[3]", [round(v * 1000.0) if fixed else v * 1000.0
+                                                                  for v in arm])
+    if lib.imu_navkf_start(state, rate_value, start_acc, start_mag, ffi.addressof(fixes[0]), arm_mm) != 0:
         raise InputError(f"the nav filter cannot start at line {start + 2}: a fix out of range (latitude beyond "
                          "85 deg, a height beyond 10 km) or an accelerometer that reads nothing")
 

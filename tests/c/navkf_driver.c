@@ -89,7 +89,7 @@ int main(void)
             acc[k] = TO_Q(x[k], 16);
             mag[k] = TO_Q(x[3 + k], 16);
         }
-        if (imu_navkf_start(&f, TO_Q(rate, 16), acc, mag, &fix) != IMU_OK) {
+        if (imu_navkf_start(&f, TO_Q(rate, 16), acc, mag, &fix, NULL) != IMU_OK) {
             return 3;
         }
     }

@@ -146,7 +146,7 @@ void bench_fill_messages(uint32_t index, uint32_t timestamp_us, int32_t temperat
 /** imu_navkf_start at bench_navkf_fix with bench_navkf_acc and _mag; returns its status. */
 int bench_navkf_start(int32_t rate_q16)
 {
-    return imu_navkf_start(&bench_navkf, rate_q16, bench_navkf_acc, bench_navkf_mag, &bench_navkf_fix);
+    return imu_navkf_start(&bench_navkf, rate_q16, bench_navkf_acc, bench_navkf_mag, &bench_navkf_fix, 0);
 }
 
 /** Fill bench_navkf_out from bench_navkf. */

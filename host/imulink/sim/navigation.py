@@ -498,6 +498,25 @@ def gnss_fixes(traj: NavTrajectory, model: GnssModel | None = None, seed: int = 
                      truth_pos_enu=traj.pos_enu[index[keep]], truth_vel_enu=traj.vel_enu[index[keep]])
 
 
+def antenna_fixes(traj: NavTrajectory, fixes: GnssFixes, arm_m) -> GnssFixes:
+    """The fixes of an antenna at `arm_m` (m, sensor frame: x right, y forward, z up) from the
+    sensor whose trajectory `traj` is: R l further and, while the body turns at w, R (w x l)
+    faster (the errors of `fixes` kept)."""
+    arm = np.asarray(arm_m, dtype=np.float64)
+    k = fixes.index
+    rot = Q.to_rotmat(traj.quat[k])
+    offset = np.einsum("nij,j->ni", rot, arm)
+    m, n = radii(fixes.lat_deg)
+    moved = GnssFixes(**fixes.__dict__)
+    moved.lat_deg = fixes.lat_deg + np.degrees(offset[:, 1] / (m + fixes.height_m))
+    cos_lat = np.cos(np.radians(fixes.lat_deg))
+    moved.lon_deg = fixes.lon_deg + np.degrees(offset[:, 0] / ((n + fixes.height_m) * cos_lat))
+    moved.height_m = fixes.height_m + offset[:, 2]
+    moved.pos_enu = fixes.pos_enu + offset
+    moved.vel_enu = fixes.vel_enu + np.einsum("nij,nj->ni", rot, np.cross(traj.gyr[k], arm))
+    return moved
+
+
 @dataclass
 class MarkerFixes:
     """Position fixes from markers at known places (seed 003's QR codes): `index` the IMU
