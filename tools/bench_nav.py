@@ -10,6 +10,7 @@ biases (`imulink.sim.navigation.datasheet_sensors`), seed 0, 100 Hz:
   weather); with two 30 s outages; with the antenna 1.5 m forward and 1.2 m up (its lever
   arm set); with time-correlated errors (2 m horizontal,
   3 m vertical, 100 s) and a multipath jump of 19 m for 10 s; with 0.2 s latency;
+- drone flight, 10 min (climbs, hovers, legs at up to 12 m/s), GNSS and the barometer;
 - foot-mounted walk, 5 min of laps, no GNSS, zero velocity in the stances: the error at
   the end as a share of the distance walked;
 - handheld walk indoors, 10 min, a marker's position fix (0.1 m) each minute: the error
@@ -136,6 +137,21 @@ def accuracy(progress=lambda _m: None) -> list[dict]:
                                                              for _, end in model.outages]
         rows.append(row)
         progress(f"{name}: done")
+
+    drone = nv.drone_flight(600.0, RATE_HZ, seed=SEED)
+    imu = simulate(drone, nv.datasheet_sensors(RATE_HZ), seed=SEED)
+    inp = simulated_input(imu, nv.gnss_fixes(drone, nv.GnssModel(), seed=SEED), baro=nv.baro_samples(drone, seed=SEED))
+    results = {a: nav.run(inp, a) for a in ("fixed", "float")}
+    row = {"scenario": "drone flight, 10 min, GNSS and the barometer", "fixed_vs_float_m_deg": builds_differ(results)}
+    for arithmetic, result in results.items():
+        e = errors(drone, result)
+        settled = (result.timestamp_us - result.timestamp_us[0]) >= 60e6
+        row[arithmetic] = {"horizontal_rmse_m": rms(e["horizontal"][settled]),
+                           "vertical_rmse_m": rms(e["vertical"][settled]),
+                           "velocity_rmse_m_s": rms(e["velocity"][settled]),
+                           "heading_rmse_deg": rms(e["heading"][settled]), "rejected": result.rejected}
+    rows.append(row)
+    progress("drone flight: done")
 
     walk = nv.foot_walk(300.0, RATE_HZ, seed=SEED)
     imu = simulate(walk, nv.datasheet_sensors(RATE_HZ), seed=SEED)
