@@ -18,7 +18,6 @@ from imulink import nav
 from imulink.nav_input import simulated_input
 from imulink.sensor_input import InputError
 from imulink.sim import navigation as nv
-from imulink.sim import quat as Q
 from imulink.sim import simulate
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -28,20 +27,6 @@ RATE = 100.0
 
 def sensors():
     return nv.datasheet_sensors(RATE)
-
-
-def errors(traj, result: nav.NavResult) -> dict[str, np.ndarray]:
-    """Per sample from the start: horizontal and vertical position error (m), velocity
-    error (m/s), heading error (deg)."""
-    k = slice(result.start, None)
-    e = nv.local_offsets(result.lat_deg, result.lon_deg, result.height_m, traj.lat_deg[k], traj.lon_deg[k],
-                         traj.height_m[k])
-    forward_true = Q.rotate(traj.quat[k], [0.0, 1.0, 0.0])
-    forward = Q.rotate(result.quat, [0.0, 1.0, 0.0])
-    heading = np.arctan2(forward[:, 0], forward[:, 1]) - np.arctan2(forward_true[:, 0], forward_true[:, 1])
-    return {"horizontal": np.hypot(e[:, 0], e[:, 1]), "vertical": np.abs(e[:, 2]),
-            "velocity": np.linalg.norm(result.vel_enu - traj.vel_enu[k], axis=1),
-            "heading": np.degrees(np.abs(np.angle(np.exp(1j * heading))))}
 
 
 def rms(x) -> float:
@@ -74,7 +59,7 @@ def test_car_drive_meets_the_issues_numbers(drive):
     traj, imu = drive
     results = both(simulated_input(imu, nv.gnss_fixes(traj, nv.GnssModel(), seed=0)))
     for result in results.values():
-        e = errors(traj, result)
+        e = nav.errors(result, traj)
         settled = (result.timestamp_us - result.timestamp_us[0]) >= 60e6
         assert rms(e["horizontal"][settled]) <= 1.2
         assert rms(e["velocity"][settled]) <= 0.08
@@ -96,8 +81,8 @@ def test_the_barometer_holds_the_height(drive):
     results = both(simulated_input(imu, fixes, baro=nv.baro_samples(traj, seed=0)))
     settled = slice(6000, None)
     for result in results.values():
-        vertical = rms(errors(traj, result)["vertical"][settled])
-        assert vertical <= 0.5 and vertical < 0.8 * rms(errors(traj, without)["vertical"][settled])
+        vertical = rms(nav.errors(result, traj)["vertical"][settled])
+        assert vertical <= 0.5 and vertical < 0.8 * rms(nav.errors(without, traj)["vertical"][settled])
         assert result.sigma[-1, 15] < 1.0  # the barometer's bias is learnt from the fixes
     assert_builds_agree(results)
 
@@ -111,12 +96,12 @@ def test_the_antennas_lever_arm_is_taken_into_account(drive):
     settled = slice(6000, None)
     results = {a: nav.run(inp, a, lever_arm_m=arm) for a in ("fixed", "float")}
     for result in results.values():
-        e = errors(traj, result)
+        e = nav.errors(result, traj)
         assert rms(e["horizontal"][settled]) <= 1.2 and rms(e["velocity"][settled]) <= 0.08
         assert rms(e["heading"][settled]) <= 1.0
     assert_builds_agree(results)
-    ignored = errors(traj, nav.run(inp, "fixed"))
-    assert rms(ignored["horizontal"][settled]) > 1.2 * rms(errors(traj, results["fixed"])["horizontal"][settled])
+    ignored = nav.errors(nav.run(inp, "fixed"), traj)
+    assert rms(ignored["horizontal"][settled]) > 1.2 * rms(nav.errors(results["fixed"], traj)["horizontal"][settled])
     with pytest.raises(InputError, match="lever arm"):
         nav.run(inp, "fixed", lever_arm_m=(0.0, 11.0, 0.0))
 
@@ -128,9 +113,9 @@ def test_receiver_latency_is_taken_back(drive):
     late = nv.gnss_fixes(traj, nv.GnssModel(latency_s=0.2), seed=0)
     inp = simulated_input(imu, late, at_arrival=True)
     settled = slice(6000, None)
-    with_age = rms(errors(traj, nav.run(inp, "fixed"))["horizontal"][settled])
+    with_age = rms(nav.errors(nav.run(inp, "fixed"), traj)["horizontal"][settled])
     inp.fix_age_s = None
-    without = rms(errors(traj, nav.run(inp, "fixed"))["horizontal"][settled])
+    without = rms(nav.errors(nav.run(inp, "fixed"), traj)["horizontal"][settled])
     assert with_age <= 1.2
     assert without > 1.5 * with_age
 
@@ -142,7 +127,7 @@ def test_outages_drift_little_and_the_return_is_smooth(drive):
     spans = ((300.0, 330.0), (700.0, 730.0))
     results = both(simulated_input(imu, nv.gnss_fixes(traj, nv.GnssModel(outages=spans), seed=0)))
     for result in results.values():
-        h = errors(traj, result)["horizontal"]
+        h = nav.errors(result, traj)["horizontal"]
         t = (result.timestamp_us - result.timestamp_us[0]) / 1e6
         drift = [h[np.searchsorted(t, end) - 1] for _, end in spans]
         assert np.mean(drift) <= 10.0
@@ -170,7 +155,7 @@ def test_a_multipath_jump_is_rejected_and_counted(drive):
         assert result.rejected == int(jumped.sum()) == 10
         assert result.gated()[-1] == 10
         during = (t >= 420.0) & (t < 440.0)
-        assert errors(traj, result)["horizontal"][during].max() < 3.0
+        assert nav.errors(result, traj)["horizontal"][during].max() < 3.0
 
 
 def test_foot_walk_with_zero_velocity_returns_within_two_percent():
@@ -184,7 +169,7 @@ def test_foot_walk_with_zero_velocity_returns_within_two_percent():
     walked = float(np.sum(np.linalg.norm(traj.vel_enu[:, :2], axis=1)) / RATE)
     for result in results.values():
         assert result.zero_velocity > 2000  # every stance, each 50 ms
-        end = errors(traj, result)["horizontal"][-1]
+        end = nav.errors(result, traj)["horizontal"][-1]
         assert end <= 0.02 * walked
     assert_builds_agree(results, position_m=0.1)
 
@@ -201,7 +186,7 @@ def test_handheld_walk_is_pulled_back_by_each_marker():
                            truth_pos_enu=np.vstack([traj.pos_enu[:1], markers.truth_pos_enu]))
     for arithmetic in ("fixed", "float"):
         result = nav.run(simulated_input(imu, every), arithmetic)
-        h = errors(traj, result)["horizontal"]
+        h = nav.errors(result, traj)["horizontal"]
         assert result.fix_accepted.all()
         assert h[markers.index].max() < 0.5
         assert h[markers.index - 1].max() > 2.0  # between markers it drifts: the markers do the work

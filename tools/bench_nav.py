@@ -50,7 +50,6 @@ import bench_arm  # noqa: E402
 from imulink import nav  # noqa: E402
 from imulink.nav_input import simulated_input  # noqa: E402
 from imulink.sim import navigation as nv  # noqa: E402
-from imulink.sim import quat as Q  # noqa: E402
 from imulink.sim import simulate  # noqa: E402
 
 RATE_HZ = 100.0
@@ -58,20 +57,6 @@ SEED = 0
 OUTAGES = ((300.0, 330.0), (700.0, 730.0))
 MULTIPATH = ((420.0, 430.0, 15.0, -10.0, 5.0),)
 ANTENNA = (0.5, 1.5, 1.2)  # m: right, forward, up of the sensor
-
-
-def errors(traj, result: nav.NavResult) -> dict[str, np.ndarray]:
-    """Per sample from the start: horizontal and vertical error (m), velocity error (m/s),
-    heading error (deg)."""
-    k = slice(result.start, None)
-    e = nv.local_offsets(result.lat_deg, result.lon_deg, result.height_m, traj.lat_deg[k], traj.lon_deg[k],
-                         traj.height_m[k])
-    forward_true = Q.rotate(traj.quat[k], [0.0, 1.0, 0.0])
-    forward = Q.rotate(result.quat, [0.0, 1.0, 0.0])
-    heading = np.arctan2(forward[:, 0], forward[:, 1]) - np.arctan2(forward_true[:, 0], forward_true[:, 1])
-    return {"horizontal": np.hypot(e[:, 0], e[:, 1]), "vertical": np.abs(e[:, 2]),
-            "velocity": np.linalg.norm(result.vel_enu - traj.vel_enu[k], axis=1),
-            "heading": np.degrees(np.abs(np.angle(np.exp(1j * heading))))}
 
 
 def rms(x) -> float:
@@ -123,7 +108,7 @@ def accuracy(progress=lambda _m: None) -> list[dict]:
         results = {a: nav.run(inp, a, lever_arm_m=arm) for a in ("fixed", "float")}
         row = {"scenario": name, "fixed_vs_float_m_deg": builds_differ(results)}
         for arithmetic, result in results.items():
-            e = errors(traj, result)
+            e = nav.errors(result, traj)
             t = (result.timestamp_us - result.timestamp_us[0]) / 1e6
             settled = t >= 60.0
             row[arithmetic] = {"horizontal_rmse_m": rms(e["horizontal"][settled]),
@@ -144,7 +129,7 @@ def accuracy(progress=lambda _m: None) -> list[dict]:
     results = {a: nav.run(inp, a) for a in ("fixed", "float")}
     row = {"scenario": "drone flight, 10 min, GNSS and the barometer", "fixed_vs_float_m_deg": builds_differ(results)}
     for arithmetic, result in results.items():
-        e = errors(drone, result)
+        e = nav.errors(result, drone)
         settled = (result.timestamp_us - result.timestamp_us[0]) >= 60e6
         row[arithmetic] = {"horizontal_rmse_m": rms(e["horizontal"][settled]),
                            "vertical_rmse_m": rms(e["vertical"][settled]),
@@ -160,7 +145,7 @@ def accuracy(progress=lambda _m: None) -> list[dict]:
     row = {"scenario": f"foot-mounted walk, 5 min ({walked:.0f} m), no GNSS, zero velocity",
            "fixed_vs_float_m_deg": builds_differ(results)}
     for arithmetic, result in results.items():
-        end = float(errors(walk, result)["horizontal"][-1])
+        end = float(nav.errors(result, walk)["horizontal"][-1])
         row[arithmetic] = {"end_error_m": end, "end_error_percent": 100.0 * end / walked}
     rows.append(row)
     progress("foot walk: done")
@@ -172,7 +157,7 @@ def accuracy(progress=lambda _m: None) -> list[dict]:
     row = {"scenario": "handheld walk indoors, 10 min, a marker (0.1 m) each minute",
            "fixed_vs_float_m_deg": builds_differ(results)}
     for arithmetic, result in results.items():
-        before = errors(hand, result)["horizontal"][markers.index - 1]
+        before = nav.errors(result, hand)["horizontal"][markers.index - 1]
         row[arithmetic] = {"error_before_each_marker_m": [round(float(x), 1) for x in before]}
     rows.append(row)
     progress("handheld walk: done")

@@ -132,6 +132,24 @@ def write_csv(result: NavResult, path, inputs=()) -> None:
     write_replacing(path, write, inputs=inputs)
 
 
+def errors(result: NavResult, traj) -> dict[str, np.ndarray]:
+    """The estimate against a simulated truth (imulink.sim.navigation.NavTrajectory of the same
+    samples), per sample from the start: horizontal and vertical position error (m), velocity
+    error (m/s) and heading error (deg; the sensor's forward axis, y, in the horizontal)."""
+    from .sim import navigation as nv
+    from .sim import quat as Q
+
+    k = slice(result.start, None)
+    e = nv.local_offsets(result.lat_deg, result.lon_deg, result.height_m, traj.lat_deg[k], traj.lon_deg[k],
+                         traj.height_m[k])
+    forward_true = Q.rotate(traj.quat[k], [0.0, 1.0, 0.0])
+    forward = Q.rotate(result.quat, [0.0, 1.0, 0.0])
+    heading = np.arctan2(forward[:, 0], forward[:, 1]) - np.arctan2(forward_true[:, 0], forward_true[:, 1])
+    return {"horizontal": np.hypot(e[:, 0], e[:, 1]), "vertical": np.abs(e[:, 2]),
+            "velocity": np.linalg.norm(result.vel_enu - traj.vel_enu[k], axis=1),
+            "heading": np.degrees(np.abs(np.angle(np.exp(1j * heading))))}
+
+
 def sample_rate_hz(timestamp_us: np.ndarray) -> float:
     """The rate of a sample stream from its timestamps (the median interval)."""
     intervals = np.diff(np.asarray(timestamp_us, dtype=np.float64))
