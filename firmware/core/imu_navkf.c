@@ -51,6 +51,9 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12, BARO_BIAS = 15 }
 #define REST_GYRO IMU_QCONST(0.05, 24)
 #define REST_ACC IMU_QCONST(0.3, 16)
 #define REST_SPEED IMU_QCONST(0.3, 20)
+/** Below SLOW_SPEED (m/s, Q20) the GNSS velocity's direction is too uncertain to show the
+ *  heading: the magnetometer gives it, every covariance interval. */
+#define SLOW_SPEED IMU_QCONST(2.0, 20)
 /* ... and, with GNSS, weighted by how steady the specific force is: its low-passes over
  * 0.1 s and 1 s (weights per sample dt / tau) apart by 0.02 m/s^2 (Q24) on an axis weigh a
  * quarter (imu_deviation_weight: continuous, so that the fixed and float builds never take
@@ -62,7 +65,7 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12, BARO_BIAS = 15 }
 /** Zero velocity's standard deviation: 0.02 m/s in units of 64 m/s, Q30 (zero rate's: the
  *  gyroscope's noise, NOISE_ATT over a sample). */
 #define ZERO_VELOCITY_SIGMA IMU_QCONST(0.02 / 64.0, 30)
-/** The magnetometer's heading at rest: the standard deviation of the unit field's east
+/** The magnetometer's heading: the standard deviation of the unit field's east
  *  component (about the sine of the heading error times the field's horizontal share),
  *  Q30: 0.02, a microtesla of noise and disturbance in a 50 uT field. */
 #define FIELD_EAST_SIGMA IMU_QCONST(0.02, 30)
@@ -531,6 +534,7 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     }
     f->since_fix = fix->source == IMU_NAVKF_GNSS ? 0 : f->longest_steps;
     f->fix_stood = 1;
+    f->fix_slow = 1;
     f->rejecting = -1;
     f->rejected = 0;
     f->zero_velocity = 0;
@@ -586,11 +590,14 @@ void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc
          * sensors alone decide */
         const int with_gnss = f->since_fix < f->longest_steps;
         const imu_q30_t w = with_gnss ? steadiness : IMU_ONE_Q30;
-        if (f->still >= f->rest_steps && (with_gnss ? f->fix_stood : 1) && w > 0) {
+        const int at_rest_now = f->still >= f->rest_steps && (with_gnss ? f->fix_stood : 1) && w > 0;
+        if (at_rest_now) {
             at_rest(f, gyr, w);
-            if (mag != 0 && with_gnss) {
-                field_heading(f, mag, w); /* with GNSS only: a walker indoors meets iron everywhere */
-            }
+        }
+        if (mag != 0 && with_gnss && f->fix_slow) {
+            /* the heading from the field while GNSS is too slow to show it (with GNSS only: a
+             * walker indoors meets iron everywhere); at rest weighed as the rest updates are */
+            field_heading(f, mag, at_rest_now ? w : IMU_ONE_Q30);
         }
     }
 }
@@ -655,6 +662,7 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
             speed2 += IMU_WMUL(fix->vel[k], fix->vel[k]);
         }
         f->fix_stood = speed2 < IMU_WMUL(REST_SPEED, REST_SPEED);
+        f->fix_slow = speed2 < IMU_WMUL(SLOW_SPEED, SLOW_SPEED);
         f->since_fix = 0;
     }
     if (nis > GATE_3) {

@@ -35,8 +35,8 @@
  * still for `rest_steps`; with GNSS, only while the last fix said the board stood,
  * weighted by how steady the force is, through an outage too; after a minute without
  * GNSS, or from a start without it, on the sensors alone), zero velocity and zero rate
- * (the gyroscope reads its bias), and with GNSS the magnetometer's heading (which GNSS
- * cannot observe while the board stands).
+ * (the gyroscope reads its bias). With GNSS, while the last fix's speed is too low to
+ * show the heading (below 2 m/s), the magnetometer's heading every interval.
  *
  * Fixed build formats are written where each value is declared; the float build holds the
  * same quantities in the same units (one source).
@@ -93,6 +93,7 @@ typedef struct {
     imu_q30_t slow_weight;
     int32_t since_fix;          /**< samples since the last GNSS fix (stops counting at a minute) */
     int fix_stood;              /**< 1 when the last GNSS fix's speed was below REST_SPEED */
+    int fix_slow;               /**< 1 when it was below SLOW_SPEED: the magnetometer gives the heading */
     int32_t rejecting;          /**< samples since the first of the current run of rejected fixes; -1: none */
     uint32_t rejected;          /**< GNSS fixes rejected by the gate, in all */
     uint32_t zero_velocity;     /**< zero-velocity (and zero-rate) updates, in all */
@@ -118,8 +119,8 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
                              const imu_navkf_fix_t *fix, const imu_real_t lever_arm[3]);
 
 /**
- * @brief One IMU sample: propagation, and at the end of an interval the covariance and, at
- *        rest, zero velocity and (with GNSS) the magnetometer's heading.
+ * @brief One IMU sample: propagation, and at the end of an interval the covariance, at rest
+ *        zero velocity and zero rate, and (GNSS too slow to show it) the magnetometer's heading.
  * @param gyr rad/s, Q24; @param acc specific force, m/s^2, Q16
  * @param mag field in the sensor frame, any unit (Q16 uT on the wire), or NULL / zero: none
  */
