@@ -368,3 +368,48 @@ def test_imulink_nav_refuses_bad_input_in_one_line(drive_csv, tmp_path, capsys):
     assert code == 2 and "--gnss-latency is for a recording" in err
     code, _, err = nav_cli(capsys, path, "--csv", path)
     assert code == 2 and "is an input of this command" in err
+
+
+def test_extreme_input_saturates_without_undefined_behaviour(drivers):
+    """Inputs no sensor gives but the interfaces take: rates of 100 rad/s and specific forces
+    of 20 000 m/s^2 in every direction, fixes across the world and at 85 deg, speeds of
+    1 000 m/s, accuracies of 1 mm and of 1 000 km, a second's age, pressures at and beyond
+    the barometer's limits, markers far off. The core, under the sanitizers and with every
+    narrowing checked, saturates (and counts it) and never overflows; the start refuses what
+    is out of its range."""
+    rng = np.random.default_rng(7)
+
+    def fix_line(kind, lat, lon, h, vel, h_acc, v_acc, s_acc, has_vel, age):
+        return f"{kind} " + " ".join(repr(float(x)) for x in (lat, lon, h, *vel, h_acc, v_acc, s_acc)) \
+            + f" {has_vel} {float(age)!r}"
+
+    lines = [repr(RATE), "b 85.0 180.0 9999.0 0 0 0 1000000 1000000 1000 1 0.0 0.0 9.81 0.0 0.0 0.0"]
+    for k in range(3000):
+        scale = rng.choice([1e-3, 1.0, 100.0])
+        gyr = rng.uniform(-1.0, 1.0, 3) * scale
+        acc = rng.uniform(-1.0, 1.0, 3) * scale * 200.0
+        mag = rng.uniform(-1.0, 1.0, 3) * rng.choice([0.0, 50.0, 30000.0])
+        lines.append("s " + " ".join(repr(float(x)) for x in (*gyr, *acc, *mag)))
+        if k % 7 == 0:
+            lines.append(f"p {float(rng.choice([-5.0, 0.0, 9999.0, 10000.0, 101325.0, 120000.0, 1e7]))!r}")
+        if k % 50 == 0:
+            lat, lon = rng.uniform(-85.0, 85.0), rng.uniform(-180.0, 180.0)
+            vel = rng.uniform(-1000.0, 1000.0, 3)
+            acc_m = rng.choice([0.001, 1.0, 1e6])
+            lines.append(fix_line("f", lat, lon, rng.uniform(-9000.0, 9000.0), vel, acc_m, acc_m, acc_m, 1,
+                                  rng.choice([0.0, 1.0])))
+        if k % 300 == 0:
+            lines.append(fix_line("m", rng.uniform(-85.0, 85.0), rng.uniform(-180.0, 180.0), 0.0, (0, 0, 0), 0.001,
+                                  0.001, 1.0, 0, 0.0))
+    for build in ("fixed", "float"):
+        rows, tail = run_driver(drivers[build], "\n".join(lines) + "\n")
+        assert len(rows) == 3000
+        if build == "fixed":
+            assert not tail.endswith("saturations 0"), tail  # it did saturate, and said so
+    # out of the start's range: a latitude beyond 85 deg, an accuracy of 0, a rate of 5 Hz
+    for start in ("b 86.0 0 0 0 0 0 1 1 1 1 0 0 9.81 1 0 0", "b 45.0 0 0 0 0 0 0 1 1 1 0 0 9.81 1 0 0"):
+        proc = subprocess.run([str(drivers["fixed"])], input=f"{RATE!r}\n{start}\n", capture_output=True, text=True)
+        assert proc.returncode == 3, proc.stderr
+    proc = subprocess.run([str(drivers["fixed"])], input="5.0\nb 45.0 0 0 0 0 0 1 1 1 1 0 0 9.81 1 0 0\n",
+                          capture_output=True, text=True)
+    assert proc.returncode == 3, proc.stderr

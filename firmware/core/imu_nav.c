@@ -28,6 +28,10 @@
  *  |h / a| < 0.16 keeps the free-air factor in [0.7, 1.4] and (M + h) / a above 0.8. */
 #define MAX_GEOMETRY_HEIGHT_MM IMU_QCONST(1000000000.0, 0)
 #define MAX_SPEED IMU_QCONST(IMU_NAV_MAX_SPEED, 20)
+/** The largest specific force the step takes, m/s^2, Q16 (2^29: 8 192 m/s^2, fifty times a
+ *  +-16 g accelerometer's range): turned by up to a radian (theta / 2, theta saturated at
+ *  2 rad), it stays within int32. */
+#define MAX_FORCE IMU_QCONST(8192.0, 16)
 
 /**
  * The ellipsoid at a latitude (sine and cosine, Q30) and a height (mm): (M + h) / a and
@@ -136,8 +140,13 @@ imu_status_t imu_nav_start(imu_nav_t *n, const imu_nav_origin_t *origin, imu_rea
     return IMU_OK;
 }
 
-/** The position moved by `step` (ENU, mm, Q15; below 2^61 / 2 in magnitude), the offsets
- *  scaled to the origin's radii, each rounding carried to the next. */
+/** A horizontal step's largest part scaled at once: 65.5 m in Q15 mm (2^31), so that the
+ *  part times a scale (below 2^31) stays below 2^62. A propagation step is at most 51.2 m;
+ *  a correction (up to 2 km) is moved in parts. */
+#define MOVE_PART ((imu_wide_t)IMU_QCONST(32768.0, 15) * 2)
+
+/** The position moved by `step` (ENU, mm, Q15), the offsets scaled to the origin's radii,
+ *  each rounding carried to the next. */
 static void move(imu_nav_t *n, const imu_wide_t step[3])
 {
     uint32_t *sat = &n->saturations;
@@ -146,9 +155,15 @@ static void move(imu_nav_t *n, const imu_wide_t step[3])
         if (k == 2) {
             n->pos[2] = IMU_ADD_SAT(n->pos[2], IMU_WSHR_FEEDBACK_SAT(step[2], 15, &n->pos_carry[2], sat), sat);
         } else {
-            /* Q15 mm * Q30 scale (below 2) = Q45 mm below 2^61.7 >> 45 -> mm */
+            /* Q15 mm * Q30 scale (below 2) = Q45 mm, below 2^62 a part, >> 45 -> mm */
             const imu_q30_t scale = k == 0 ? n->scale_east : n->scale_north;
-            n->pos[k] = IMU_ADD_SAT(n->pos[k], IMU_WSHR_FEEDBACK_SAT(step[k] * scale, 45, &n->pos_carry[k], sat), sat);
+            imu_wide_t left = step[k];
+            do {
+                const imu_wide_t part = left > MOVE_PART ? MOVE_PART : (left < -MOVE_PART ? -MOVE_PART : left);
+                n->pos[k] = IMU_ADD_SAT(n->pos[k], IMU_WSHR_FEEDBACK_SAT(part * scale, 45, &n->pos_carry[k], sat),
+                                        sat);
+                left -= part;
+            } while (left != 0);
         }
     }
 }
@@ -182,11 +197,15 @@ void imu_nav_propagate(imu_nav_t *n, const imu_rate_t gyr[3], const imu_q16_t ac
         theta[k] = IMU_MUL_SAT(IMU_SUB_SAT(gyr[k], n->gyro_bias[k], sat), n->dt, 24, sat);
         half_back[k] = IMU_NEG_SAT(IMU_HALF(theta[k]), sat);
         f[k] = IMU_SUB_SAT(acc[k], n->acc_bias[k], sat);
+        if (f[k] > MAX_FORCE || f[k] < -MAX_FORCE) {
+            f[k] = f[k] > 0 ? MAX_FORCE : -MAX_FORCE; /* no accelerometer's: held, counted */
+            ++*sat;
+        }
     }
     /* The sample is the specific force's mean over the turn, in the turning frame: seen
      * from the frame at the interval's start it is, to first order, the force at the
      * middle of the turn, f + (theta / 2) x f (an accelerometer sampled at the end of a
-     * steady turn would read the force turned by theta / 2 short). |f| below 2^30. */
+     * steady turn would read the force turned by theta / 2 short). |f| below 2^29. */
     imu_vec3_turn_back(f, half_back);
     for (k = 0; k < 3; ++k) {
         /* rows of R (Q30, unit) times f (Q16) >> 30 -> Q16 */

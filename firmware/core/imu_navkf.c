@@ -157,7 +157,13 @@ static void covariance_step(imu_navkf_t *f)
     matrix(f->nav.q, r1);
     for (k = 0; k < 3; ++k) {
         dvu[k] = IMU_WIDE_SAT(IMU_WSHR(f->dv[k], 22), sat); /* Q52 -> Q30, units of 64 m/s */
-        pu[k] = IMU_MUL(dvu[k], t32, 30);                   /* dv T / 2 in units of 1024 m */
+        if (dvu[k] > IMU_ONE_Q30 || dvu[k] < -IMU_ONE_Q30) {
+            /* 64 m/s in 50 ms (1 300 m/s^2) is no accelerometer's: held at one unit, counted,
+             * so that the cross products below stay within Q30 */
+            dvu[k] = dvu[k] > 0 ? IMU_ONE_Q30 : -IMU_ONE_Q30;
+            ++*sat;
+        }
+        pu[k] = IMU_MUL(dvu[k], t32, 30); /* dv T / 2 in units of 1024 m */
     }
     for (i = 0; i < 3; ++i) {
         for (j = 0; j < 3; ++j) {
