@@ -158,6 +158,22 @@ def test_a_multipath_jump_is_rejected_and_counted(drive):
         assert nav.errors(result, traj)["horizontal"][during].max() < 3.0
 
 
+def test_a_receivers_fix_without_velocity_is_gated_a_markers_is_not(drive):
+    """An NMEA receiver's fixes (GGA: no velocity) with the multipath jump: gated as the
+    receiver's they are; taken as markers' (a CSV's row without velocity) they are not."""
+    traj, imu = drive
+    inp = simulated_input(imu, nv.gnss_fixes(traj, nv.GnssModel(multipath=((420.0, 430.0, 15.0, -10.0, 5.0),)),
+                                             seed=0))
+    inp.fix_vel_enu = np.full_like(inp.fix_vel_enu, np.nan)
+    inp.fix_s_acc_m_s = np.full_like(inp.fix_s_acc_m_s, np.nan)
+    inp.fix_is_marker = np.zeros(len(inp.fix_index), bool)
+    receiver = nav.run(inp, "fixed")
+    assert receiver.rejected >= 9
+    assert nav.errors(receiver, traj)["horizontal"][42000:44000].max() < 5.0
+    inp.fix_is_marker = None
+    assert nav.run(inp, "fixed").rejected == 0
+
+
 def test_foot_walk_with_zero_velocity_returns_within_two_percent():
     """5 min of laps with a foot-mounted sensor, no GNSS, a start at a known place: zero
     velocity in every stance keeps the return-to-start error within 2 % of the distance."""

@@ -8,7 +8,7 @@ biases (`imulink.sim.navigation.datasheet_sensors`), seed 0, 100 Hz:
 - car drive, 20 min, GNSS at 1 Hz with white errors of 2.5 m horizontal, 5 m vertical,
   0.1 m/s; the same with the barometer (the MS5611 at 50 Hz: noise, temperature drift,
   weather); with two 30 s outages; with the antenna 1.5 m forward and 1.2 m up (its lever
-  arm set); with time-correlated errors (2 m horizontal,
+  arm set); with positions only (NMEA's GGA); with time-correlated errors (2 m horizontal,
   3 m vertical, 100 s) and a multipath jump of 19 m for 10 s; with 0.2 s latency;
 - drone flight, 10 min (climbs, hovers, legs at up to 12 m/s), GNSS and the barometer;
 - foot-mounted walk, 5 min of laps, no GNSS, zero velocity in the stances: the error at
@@ -97,6 +97,7 @@ def accuracy(progress=lambda _m: None) -> list[dict]:
             nv.GnssModel(correlated_h_m=2.0, correlated_v_m=3.0, multipath=MULTIPATH), None),
         "the same, white errors, fixes 0.2 s late": (nv.GnssModel(latency_s=0.2), "late"),
         f"the same, the antenna at {ANTENNA} m from the sensor, its lever arm set": (nv.GnssModel(), "antenna"),
+        "the same, position only (an NMEA receiver's GGA)": (nv.GnssModel(), "position"),
     }
     for name, (model, option) in car.items():
         fixes = nv.gnss_fixes(traj, model, seed=SEED)
@@ -104,6 +105,10 @@ def accuracy(progress=lambda _m: None) -> list[dict]:
             fixes = nv.antenna_fixes(traj, fixes, ANTENNA)
         baro = nv.baro_samples(traj, seed=SEED) if option == "baro" else None
         inp = simulated_input(imu, fixes, at_arrival=option == "late", baro=baro)
+        if option == "position":
+            inp.fix_vel_enu = np.full_like(inp.fix_vel_enu, np.nan)
+            inp.fix_s_acc_m_s = np.full_like(inp.fix_s_acc_m_s, np.nan)
+            inp.fix_is_marker = np.zeros(len(inp.fix_index), bool)
         arm = ANTENNA if option == "antenna" else None
         results = {a: nav.run(inp, a, lever_arm_m=arm) for a in ("fixed", "float")}
         row = {"scenario": name, "fixed_vs_float_m_deg": builds_differ(results)}

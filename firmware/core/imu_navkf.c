@@ -661,14 +661,16 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
     for (k = 0; k < 3 && fix->source == IMU_NAVKF_GNSS; ++k) {
         nis = IMU_ADD_SAT(nis, normalised_square(f, k, z[k], r[k]), sat);
     }
-    if (fix->has_vel && fix->source == IMU_NAVKF_GNSS) {
-        /* whether the board stands, from any fix: a rejected one's position is in doubt, not its speed */
+    if (fix->source == IMU_NAVKF_GNSS) {
+        /* whether the board stands, from any fix: a rejected one's position is in doubt, not
+         * its speed; a fix without velocity (NMEA's GGA) does not say: no rest from GNSS then,
+         * and the heading from the field */
         imu_wide_t speed2 = 0; /* Q40 */
-        for (k = 0; k < 3; ++k) {
+        for (k = 0; k < 3 && fix->has_vel; ++k) {
             speed2 += IMU_WMUL(fix->vel[k], fix->vel[k]);
         }
-        f->fix_stood = speed2 < IMU_WMUL(REST_SPEED, REST_SPEED);
-        f->fix_slow = speed2 < IMU_WMUL(SLOW_SPEED, SLOW_SPEED);
+        f->fix_stood = fix->has_vel && speed2 < IMU_WMUL(REST_SPEED, REST_SPEED);
+        f->fix_slow = !fix->has_vel || speed2 < IMU_WMUL(SLOW_SPEED, SLOW_SPEED);
         f->since_fix = 0;
     }
     if (nis > GATE_3) {

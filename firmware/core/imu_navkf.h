@@ -91,9 +91,9 @@ typedef struct {
     imu_q16_t force_slow[3];    /**< ... over 1 s */
     imu_q30_t fast_weight;      /**< their weights per sample, dt / tau, Q30 */
     imu_q30_t slow_weight;
-    int32_t since_fix;          /**< samples since the last GNSS fix (stops counting at a minute) */
-    int fix_stood;              /**< 1 when the last GNSS fix's speed was below REST_SPEED */
-    int fix_slow;               /**< 1 when it was below SLOW_SPEED: the magnetometer gives the heading */
+    int32_t since_fix;          /**< samples since the last GNSS fix, used or not (stops counting at a minute) */
+    int fix_stood;              /**< 1 when the last GNSS fix's speed was below REST_SPEED (0: no velocity) */
+    int fix_slow;               /**< 1 when it was below SLOW_SPEED or unknown: the magnetometer gives the heading */
     int32_t rejecting;          /**< samples since the first of the current run of rejected fixes; -1: none */
     uint32_t rejected;          /**< GNSS fixes rejected by the gate, in all */
     uint32_t zero_velocity;     /**< zero-velocity (and zero-rate) updates, in all */

@@ -5,8 +5,8 @@ The filter starts at the first fix (a GNSS fix with velocity; a fix without one 
 marker's, at a known place) with the attitude from the accelerometer and magnetometer of
 that sample, at rest; every later sample is propagated, and each fix is used right after
 the sample of its row (with its age, when the input says how late it arrived: the filter
-takes the estimate back that far). A fix without a velocity is a marker's: trusted as its
-accuracy says, never gated.
+takes the estimate back that far). A marker's fix (in a CSV, one without velocity) is
+trusted as its accuracy says, never gated; a receiver's is gated.
 """
 from __future__ import annotations
 
@@ -96,7 +96,7 @@ def input_from_recording(recording, latency_s: float = 0.0) -> NavInput:
         fix_v_acc_m=np.maximum(g.v_acc_mm[usable][order], 1) * 1e-3,
         fix_vel_enu=np.where(has_vel[:, None], np.c_[vel_ned[:, 1], vel_ned[:, 0], -vel_ned[:, 2]], math.nan),
         fix_s_acc_m_s=np.where(has_vel, np.maximum(g.s_acc_mm_s[usable][order], 1) * 1e-3, nan),
-        fix_age_s=np.full(int(usable.sum()), float(latency_s)))
+        fix_age_s=np.full(int(usable.sum()), float(latency_s)), fix_is_marker=np.zeros(int(usable.sum()), bool))
 
 
 #: Columns of the CSV `imulink nav` writes (write_csv), after timestamp_us.
@@ -201,7 +201,8 @@ def run(inp: NavInput, arithmetic: str = "fixed", lever_arm_m=None) -> NavResult
     for j in range(len(inp.fix_index)):
         f = fixes[j]
         has_vel = not math.isnan(float(inp.fix_s_acc_m_s[j]))
-        f.source = lib.IMU_NAVKF_GNSS if has_vel else lib.IMU_NAVKF_MARKER
+        marker = not has_vel if inp.fix_is_marker is None else bool(inp.fix_is_marker[j])
+        f.source = lib.IMU_NAVKF_MARKER if marker else lib.IMU_NAVKF_GNSS
         f.has_vel = int(has_vel)
         lat, lon = math.radians(float(inp.fix_lat_deg[j])), math.radians(float(inp.fix_lon_deg[j]))
         if fixed:

@@ -46,7 +46,9 @@ class NavInput:
     `fix_height_m`, `fix_h_acc_m`, `fix_v_acc_m`, and `fix_vel_enu` (M,3) and
     `fix_s_acc_m_s` NaN where a fix has no velocity; `fix_age_s`, when given, how long before
     the sample of its row each fix was valid: a CSV puts a fix in the row it was measured at,
-    a recording in the row it arrived with)."""
+    a recording in the row it arrived with; `fix_is_marker`, when given, which fixes are a
+    marker's (else those without velocity: a CSV's convention; a receiver's fix without
+    velocity, NMEA's GGA, is still a receiver's)."""
     timestamp_us: np.ndarray
     gyr: np.ndarray
     acc: np.ndarray
@@ -63,6 +65,7 @@ class NavInput:
     fix_vel_enu: np.ndarray
     fix_s_acc_m_s: np.ndarray
     fix_age_s: np.ndarray | None = None  # how long before its row each fix was valid (a receiver's latency)
+    fix_is_marker: np.ndarray | None = None  # per fix; None: the fixes without velocity are markers
 
     def __len__(self) -> int:
         return len(self.timestamp_us)
