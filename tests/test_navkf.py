@@ -208,6 +208,28 @@ def test_handheld_walk_is_pulled_back_by_each_marker():
         assert h[markers.index - 1].max() > 2.0  # between markers it drifts: the markers do the work
 
 
+@pytest.mark.parametrize("scenario", ["car", "handheld"])
+def test_without_gnss_the_attitude_is_at_least_the_eskfs(scenario):
+    """No GNSS and no fixes after a start at a known place: the accelerometer's tilt and the
+    magnetometer's heading keep the attitude at least as well as the attitude ESKF (default
+    settings) on the same samples."""
+    from imulink import core
+
+    make = {"car": lambda: nv.car_drive(300.0, RATE, seed=3), "handheld": lambda: nv.handheld_walk(300.0, RATE, seed=3)}
+    traj = make[scenario]()
+    imu = simulate(traj, sensors(), seed=3)
+    start = nv.MarkerFixes(index=np.array([0]), lat_deg=traj.lat_deg[:1], lon_deg=traj.lon_deg[:1],
+                           height_m=traj.height_m[:1], accuracy_m=1.0, truth_pos_enu=traj.pos_enu[:1])
+    estimate = nav.run(simulated_input(imu, start), "fixed").quat
+    eskf = core.run("eskf", imu.gyr, imu.acc, imu.mag, rate_hz=RATE, arithmetic="fixed").quat
+
+    def attitude_rmse(q):
+        dot = np.minimum(np.abs(np.sum(q * traj.quat, axis=1)) / np.linalg.norm(q, axis=1), 1.0)
+        return rms(np.degrees(2.0 * np.arccos(dot))[6000:])
+
+    assert attitude_rmse(estimate) <= attitude_rmse(eskf)
+
+
 def test_a_run_needs_a_fix_and_a_rate_the_filter_takes(drive):
     traj, imu = drive
     inp = simulated_input(imu, None)

@@ -17,7 +17,8 @@ biases (`imulink.sim.navigation.datasheet_sensors`), seed 0, 100 Hz:
   just before each.
 
 Errors after the first minute (the car's start). Fixed vs float: the largest position
-difference and attitude difference over each run.
+difference and attitude difference over each run. Without GNSS or fixes: the attitude of
+the nav filter and of the attitude ESKF on the car drive, the drone flight and both walks.
 
 Cost: the fixed-point core built for the Cortex-M4 as tools/bench_arm.py builds it (same
 flags, same harness ELF), run in the unicorn emulator over the first `--seconds` of the car
@@ -166,7 +167,32 @@ def accuracy(progress=lambda _m: None) -> list[dict]:
         row[arithmetic] = {"error_before_each_marker_m": [round(float(x), 1) for x in before]}
     rows.append(row)
     progress("handheld walk: done")
+    rows.append(without_gnss(progress))
     return rows
+
+
+def without_gnss(progress=lambda _m: None) -> dict:
+    """The attitude without GNSS or fixes (a start at a known place), the nav filter's against
+    the attitude ESKF's (default settings) on the same samples: RMSE (deg) after the first
+    minute."""
+    from imulink import core
+
+    row = {"scenario": "no GNSS, no fixes: attitude RMSE, nav filter (fixed) vs attitude ESKF (fixed)",
+           "fixed_vs_float_m_deg": None}
+    for name, traj in (("car drive 20 min", nv.car_drive(1200.0, RATE_HZ, seed=SEED)),
+                       ("drone flight 10 min", nv.drone_flight(600.0, RATE_HZ, seed=SEED)),
+                       ("handheld walk 10 min", nv.handheld_walk(600.0, RATE_HZ, seed=SEED)),
+                       ("foot walk 5 min", nv.foot_walk(300.0, RATE_HZ, seed=SEED))):
+        imu = simulate(traj, nv.datasheet_sensors(RATE_HZ), seed=SEED)
+        estimate = nav.run(simulated_input(imu, start_marker(traj, 1.0)), "fixed").quat
+        eskf = core.run("eskf", imu.gyr, imu.acc, imu.mag, rate_hz=RATE_HZ, arithmetic="fixed").quat
+        errors_deg = []
+        for q in (estimate, eskf):
+            dot = np.minimum(np.abs(np.sum(q * traj.quat, axis=1)) / np.linalg.norm(q, axis=1), 1.0)
+            errors_deg.append(rms(np.degrees(2.0 * np.arccos(dot))[int(60 * RATE_HZ):]))
+        row[name] = {"nav_deg": errors_deg[0], "eskf_deg": errors_deg[1]}
+        progress(f"without GNSS, {name}: done")
+    return row
 
 
 def to_words(values, q: int) -> list[int]:
@@ -280,11 +306,11 @@ def main() -> int:
         return 0
     for row in out.get("accuracy", []):
         print(f"{row['scenario']}:")
-        for arithmetic in ("fixed", "float"):
-            values = ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}"
-                               for k, v in row[arithmetic].items())
-            print(f"  {arithmetic}: {values}")
-        print(f"  fixed vs float: {row['fixed_vs_float_m_deg'][0]:.3f} m, {row['fixed_vs_float_m_deg'][1]:.4f} deg")
+        for key in (k for k in row if k not in ("scenario", "fixed_vs_float_m_deg")):
+            values = ", ".join(f"{k} {v:.3g}" if isinstance(v, float) else f"{k} {v}" for k, v in row[key].items())
+            print(f"  {key}: {values}")
+        if row["fixed_vs_float_m_deg"] is not None:
+            print(f"  fixed vs float: {row['fixed_vs_float_m_deg'][0]:.3f} m, {row['fixed_vs_float_m_deg'][1]:.4f} deg")
     if "arm" in out:
         r = out["arm"]
         print(f"\nCortex-M4 ({r['compiler']}), the car drive's {r['samples']} samples, {r['fixes']} fixes and its "

@@ -69,6 +69,14 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12, BARO_BIAS = 15 }
  *  component (about the sine of the heading error times the field's horizontal share),
  *  Q30: 0.02, a microtesla of noise and disturbance in a 50 uT field. */
 #define FIELD_EAST_SIGMA IMU_QCONST(0.02, 30)
+/** ... weighed by the field's strength: 10 % from the start's weighs a quarter (Q24). */
+#define FIELD_TOLERANCE IMU_QCONST(0.1, 24)
+/** Without GNSS, the tilt from the accelerometer: the standard deviation of the force
+ *  direction's horizontal components (Q30: 0.05, some 3 deg: the board's own accelerations
+ *  between the samples the weight lets through), the weight a quarter 0.2 m/s^2 (Q24) from
+ *  gravity's strength. */
+#define GRAVITY_SIGMA IMU_QCONST(0.05, 30)
+#define GRAVITY_TOLERANCE IMU_QCONST(0.2, 24)
 
 /* The gate on the position's normalised innovation squared (each axis against its own
  * variance: the correlations between the axes are small beside the fix's noise), Q16:
@@ -330,35 +338,73 @@ static void at_rest(imu_navkf_t *f, const imu_rate_t gyr[3], imu_q30_t w)
 }
 
 /**
- * The magnetometer's heading: the field has no east component (the magnetic north is the
- * north here), so the estimate's east component e = r0 . m (r0: R's east row, m the unit
- * field in the sensor frame) is the innovation's negative. With R = R^ (I + [dtheta x]),
- * e = r0 . m + r0 . (dtheta x m) = r0 . m + dtheta . (m x r0): h = m x r0, z = -r0 . m.
- * Only the heading moves: h is perpendicular to the field, and the tilt it could also
- * reach is held by the accelerometer and GNSS far more tightly.
+ * An update that the ENU component `row` of a sensor-frame unit vector u (Q30), turned into
+ * ENU, is zero. With R = R^ (I + [dtheta x]), (R u)_row = r . u + r . (dtheta x u) = r . u +
+ * dtheta . (u x r), r the row of R^: h = u x r on the attitude error, z = -r . u; variance
+ * sigma^2 / w (sigma Q30, w Q30 in [0, 1]). Only the attitude moves (through P the rest too).
  */
+static void zero_component(imu_navkf_t *f, const imu_q30_t u[3], int row, imu_q30_t sigma, imu_q30_t w,
+                           imu_q30_t dx[IMU_NAVKF_STATES])
+{
+    uint32_t *sat = &f->nav.saturations;
+    imu_q30_t r[3], h[IMU_NAVKF_STATES];
+    imu_real_t z = 0; /* Q30 */
+    int k;
+    imu_quat_matrix_row(f->nav.q, row, r);
+    clear(h);
+    imu_vec3_cross(u, r, &h[ATT]);
+    for (k = 0; k < 3; ++k) {
+        z = IMU_SUB_SAT(z, IMU_MUL(r[k], u[k], 30), sat);
+    }
+    measure_row(f, h, z, IMU_WMUL(sigma, sigma), w, dx);
+}
+
+/** The magnetometer's heading: the field has no east component (the magnetic north is the
+ *  north here); weight w (Q30), times how far the field's strength is from the start's. */
 static void field_heading(imu_navkf_t *f, const imu_real_t mag[3], imu_q30_t w)
 {
     uint32_t *sat = &f->nav.saturations;
-    imu_q30_t unit[3], r0[3], h[IMU_NAVKF_STATES], dx[IMU_NAVKF_STATES];
+    imu_q30_t unit[3], dx[IMU_NAVKF_STATES];
     imu_real_t norm;
-    int k;
-    if (!imu_vec3_normalize(mag, unit, &norm)) {
+    if (f->field_reference <= 0 || !imu_vec3_normalize(mag, unit, &norm)) {
         return;
     }
-    imu_quat_matrix_row(f->nav.q, 0, r0);
-    clear(h);
-    clear(dx);
-    imu_vec3_cross(unit, r0, &h[ATT]);
-    {
-        /* -r0 . m, Q30 */
-        imu_real_t east = 0;
-        for (k = 0; k < 3; ++k) {
-            east = IMU_SUB_SAT(east, IMU_MUL(r0[k], unit[k], 30), sat);
-        }
-        (void)imu_navcov_update(&f->cov, h, IMU_WMUL(FIELD_EAST_SIGMA, FIELD_EAST_SIGMA), 60, east, w, NULL, dx,
-                                sat);
+    /* relative change of the strength, Q24: iron nearby changes it */
+    w = IMU_MUL(w, imu_deviation_weight(IMU_DIV_SAT(IMU_SUB_SAT(norm, f->field_reference, sat), f->field_reference,
+                                                    24, sat), FIELD_TOLERANCE, sat), 30);
+    if (w <= 0) {
+        return;
     }
+    clear(dx);
+    zero_component(f, unit, 0, FIELD_EAST_SIGMA, w, dx);
+    apply(f, dx);
+}
+
+/** The tilt from the accelerometer (without GNSS: an inertial solution alone would let the
+ *  tilt drift with the gyro bias): the bias-corrected specific force points up, its east and
+ *  north components zero; weighted by how far its strength is from gravity's. */
+static void gravity_tilt(imu_navkf_t *f, const imu_q16_t acc[3])
+{
+    uint32_t *sat = &f->nav.saturations;
+    imu_q16_t force[3];
+    imu_q30_t unit[3], dx[IMU_NAVKF_STATES], w;
+    imu_real_t norm; /* m/s^2, Q16 */
+    int k;
+    for (k = 0; k < 3; ++k) {
+        force[k] = IMU_SUB_SAT(acc[k], f->nav.acc_bias[k], sat);
+    }
+    if (!imu_vec3_normalize(force, unit, &norm)) {
+        return;
+    }
+    /* Q16 -> Q24 (the difference from gravity, below 2^23 for a force below 2^29) */
+    w = imu_deviation_weight(IMU_SHL_SAT(IMU_SUB_SAT(norm, IMU_SHR(f->nav.gravity, 8), sat), 8, sat),
+                             GRAVITY_TOLERANCE, sat);
+    if (w <= 0) {
+        return;
+    }
+    clear(dx);
+    zero_component(f, unit, 0, GRAVITY_SIGMA, w, dx);
+    zero_component(f, unit, 1, GRAVITY_SIGMA, w, dx);
     apply(f, dx);
 }
 
@@ -541,6 +587,11 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     f->since_fix = fix->source == IMU_NAVKF_GNSS ? 0 : f->longest_steps;
     f->fix_stood = 1;
     f->fix_slow = 1;
+    {
+        imu_q30_t unit[3];
+        imu_real_t norm = 0;
+        f->field_reference = imu_vec3_normalize(mag, unit, &norm) ? norm : 0;
+    }
     f->rejecting = -1;
     f->rejected = 0;
     f->zero_velocity = 0;
@@ -600,9 +651,12 @@ void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc
         if (at_rest_now) {
             at_rest(f, gyr, w);
         }
-        if (mag != 0 && with_gnss && f->fix_slow) {
-            /* the heading from the field while GNSS is too slow to show it (with GNSS only: a
-             * walker indoors meets iron everywhere); at rest weighed as the rest updates are */
+        if (!with_gnss) {
+            gravity_tilt(f, acc); /* the attitude as an attitude filter keeps it */
+        }
+        if (mag != 0 && (!with_gnss || f->fix_slow)) {
+            /* the heading from the field, while GNSS is too slow to show it or absent; at rest
+             * weighed as the rest updates are */
             field_heading(f, mag, at_rest_now ? w : IMU_ONE_Q30);
         }
     }
