@@ -316,9 +316,9 @@ static imu_q30_t velocity_units(imu_real_t v, uint32_t *sat)
     return IMU_MUL_SAT(v, Q20_TO_VEL, 26, sat);
 }
 
-/** At rest: zero velocity, and zero rate (the gyroscope reads its bias: the bias-corrected
- *  rate `gyr` - bias, one sample's, is the gyro bias error's innovation); weight w (Q30). */
-static void at_rest(imu_navkf_t *f, const imu_rate_t gyr[3], imu_q30_t w)
+/** At rest: zero velocity, and zero rate (the gyroscope reads its bias: the sample's
+ *  bias-corrected rate is the gyro bias error's innovation); weight w (Q30). */
+static void at_rest(imu_navkf_t *f, imu_q30_t w)
 {
     uint32_t *sat = &f->nav.saturations;
     imu_q30_t dx[IMU_NAVKF_STATES];
@@ -330,8 +330,7 @@ static void at_rest(imu_navkf_t *f, const imu_rate_t gyr[3], imu_q30_t w)
     }
     for (k = 0; k < 3; ++k) {
         /* rad/s Q24 -> Q30 (|rate| below 2 rad/s at rest) */
-        measure(f, GYRO_BIAS + k, IMU_SHL_SAT(IMU_SUB_SAT(gyr[k], f->nav.gyro_bias[k], sat), 6, sat),
-                f->zero_rate_var, w, dx);
+        measure(f, GYRO_BIAS + k, IMU_SHL_SAT(f->rate[k], 6, sat), f->zero_rate_var, w, dx);
     }
     apply(f, dx);
     ++f->zero_velocity;
@@ -408,18 +407,17 @@ static void gravity_tilt(imu_navkf_t *f, const imu_q16_t acc[3])
     apply(f, dx);
 }
 
-/** Whether the sample looks like rest: the bias-corrected rate and specific force. */
-static int still_sample(const imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc[3])
+/** Whether the sample looks like rest: the bias-corrected rate (f->rate) and specific force. */
+static int still_sample(const imu_navkf_t *f, const imu_q16_t acc[3])
 {
     const imu_nav_t *n = &f->nav;
     const imu_q16_t g = IMU_SHR(n->gravity, 8); /* Q24 -> Q16 */
     imu_wide_t w2 = 0, f2 = 0;                  /* Q48 (rad/s)^2, Q32 (m/s^2)^2 */
     int k;
     for (k = 0; k < 3; ++k) {
-        /* |gyr|, |bias| below 2^30 (Q24: 64 rad/s), |acc|, |bias| below 2^30 (Q16) */
-        const imu_wide_t w = (imu_wide_t)gyr[k] - n->gyro_bias[k];
+        /* |acc|, |bias| below 2^30 (Q16) */
         const imu_wide_t a = (imu_wide_t)acc[k] - n->acc_bias[k];
-        w2 += w * w;
+        w2 += IMU_WMUL(f->rate[k], f->rate[k]);
         f2 += a * a;
     }
     return w2 < IMU_WMUL(REST_GYRO, REST_GYRO) && f2 > IMU_WMUL(g - REST_ACC, g - REST_ACC) &&
@@ -434,16 +432,14 @@ static int32_t seconds_in_steps(imu_navkf_t *f, imu_real_t seconds)
     return steps < 1 ? 1 : steps;
 }
 
-/** The antenna's offset from the sensor in ENU, R l, mm. */
-static void antenna_offset(const imu_navkf_t *f, imu_real_t out[3])
+/** The antenna's offset from the sensor in ENU, R l, mm (r: the attitude's matrix, Q30). */
+static void antenna_offset(const imu_navkf_t *f, imu_q30_t r[3][3], imu_real_t out[3])
 {
-    imu_q30_t row[3];
     int k;
     for (k = 0; k < 3; ++k) {
-        imu_quat_matrix_row(f->nav.q, k, row);
         /* Q30 * m Q20 >> 30 -> m Q20 (|l| <= 10 m), * 1000 -> mm */
-        out[k] = IMU_MUL(IMU_ADD(IMU_ADD(IMU_MUL(row[0], f->lever_arm[0], 30), IMU_MUL(row[1], f->lever_arm[1], 30)),
-                                 IMU_MUL(row[2], f->lever_arm[2], 30)),
+        out[k] = IMU_MUL(IMU_ADD(IMU_ADD(IMU_MUL(r[k][0], f->lever_arm[0], 30), IMU_MUL(r[k][1], f->lever_arm[1], 30)),
+                                 IMU_MUL(r[k][2], f->lever_arm[2], 30)),
                          IMU_QCONST(1000.0, 20), 40);
     }
 }
@@ -459,12 +455,10 @@ static void cross_arm(const imu_q30_t r[3], const imu_real_t l[3], imu_real_t ou
 /** The antenna position's sensitivity to the attitude error, axis k (ENU): R (I + [dtheta x]) l
  *  = R l - R [l x] dtheta, so its row is -(R [l x])_k = -(r_k x l) (r_k: row k of R), in units
  *  of 1024 m per rad (Q30): m Q20 is the same integer; the float build divides by 1024. */
-static void lever_arm_row(const imu_navkf_t *f, int k, imu_q30_t out[3])
+static void lever_arm_row(const imu_navkf_t *f, const imu_q30_t row[3], imu_q30_t out[3])
 {
-    imu_q30_t row[3];
     imu_real_t c[3];
     int j;
-    imu_quat_matrix_row(f->nav.q, k, row);
     cross_arm(row, f->lever_arm, c);
     for (j = 0; j < 3; ++j) {
         out[j] = -IMU_MUL(c[j], IMU_QCONST(1.0 / 1024.0, 40), 30);
@@ -473,10 +467,9 @@ static void lever_arm_row(const imu_navkf_t *f, int k, imu_q30_t out[3])
 
 /** The antenna's velocity beside the sensor's, R (w x l), w the bias-corrected rate: m/s, Q20
  *  (its sensitivity to the attitude and gyro bias errors is left out: below a cm/s). */
-static void antenna_velocity(const imu_navkf_t *f, imu_real_t out[3])
+static void antenna_velocity(const imu_navkf_t *f, imu_q30_t r[3][3], imu_real_t out[3])
 {
     imu_real_t turn[3]; /* w x l, m/s, Q20: rad/s Q24 * m Q20 >> 24 */
-    imu_q30_t row[3];
     const imu_real_t *l = f->lever_arm;
     const imu_rate_t *w = f->rate;
     int k;
@@ -484,9 +477,8 @@ static void antenna_velocity(const imu_navkf_t *f, imu_real_t out[3])
     turn[1] = IMU_SUB(IMU_MUL(w[2], l[0], 24), IMU_MUL(w[0], l[2], 24));
     turn[2] = IMU_SUB(IMU_MUL(w[0], l[1], 24), IMU_MUL(w[1], l[0], 24));
     for (k = 0; k < 3; ++k) {
-        imu_quat_matrix_row(f->nav.q, k, row);
-        out[k] = IMU_ADD(IMU_ADD(IMU_MUL(row[0], turn[0], 30), IMU_MUL(row[1], turn[1], 30)),
-                         IMU_MUL(row[2], turn[2], 30));
+        out[k] = IMU_ADD(IMU_ADD(IMU_MUL(r[k][0], turn[0], 30), IMU_MUL(r[k][1], turn[1], 30)),
+                         IMU_MUL(r[k][2], turn[2], 30));
     }
 }
 
@@ -543,7 +535,9 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
         /* the fix is the antenna's: the sensor is R l below it */
         imu_real_t arm_enu[3];
         imu_wide_t step[3];
-        antenna_offset(f, arm_enu);
+        imu_q30_t r[3][3];
+        matrix(f->nav.q, r);
+        antenna_offset(f, r, arm_enu);
         for (k = 0; k < 3; ++k) {
             step[k] = IMU_WMUL(IMU_NEG_SAT(arm_enu[k], sat), IMU_QCONST(1.0, 15)); /* mm -> Q15 */
         }
@@ -623,10 +617,10 @@ void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc
 {
     const imu_q30_t steadiness = force_steadiness(f, acc);
     int k;
-    f->still = still_sample(f, gyr, acc) ? (f->still < f->rest_steps ? f->still + 1 : f->still) : 0;
     for (k = 0; k < 3; ++k) {
         f->rate[k] = IMU_SUB_SAT(gyr[k], f->nav.gyro_bias[k], &f->nav.saturations);
     }
+    f->still = still_sample(f, acc) ? (f->still < f->rest_steps ? f->still + 1 : f->still) : 0;
     f->since_fix += f->since_fix < f->longest_steps;
     f->since_baro += f->since_baro < f->baro_steps;
     f->rejecting += f->rejecting >= 0 && f->rejecting < f->reject_steps;
@@ -649,7 +643,7 @@ void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc
         const imu_q30_t w = with_gnss ? steadiness : IMU_ONE_Q30;
         const int at_rest_now = f->still >= f->rest_steps && (with_gnss ? f->fix_stood : 1) && w > 0;
         if (at_rest_now) {
-            at_rest(f, gyr, w);
+            at_rest(f, w);
         }
         if (!with_gnss) {
             gravity_tilt(f, acc); /* the attitude as an attitude filter keeps it */
@@ -679,8 +673,8 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
     uint32_t *sat = &f->nav.saturations;
     imu_nav_t *n = &f->nav;
     imu_real_t at_fix[3], arm_enu[3], arm_vel[3]; /* offsets mm; the antenna's velocity beside the sensor's, Q20 */
-    imu_q30_t z[6], dx[IMU_NAVKF_STATES];
-    imu_wide_t r[6];
+    imu_q30_t z[6], dx[IMU_NAVKF_STATES], r[3][3];
+    imu_wide_t var[6]; /* the measurements' variances, Q60 */
     imu_real_t nis = 0; /* Q16 */
     const int count = fix->has_vel ? 6 : 3;
     /* standard deviations in the states' units, Q30: horizontal (each axis), vertical, speed */
@@ -693,8 +687,9 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
     }
     flush(f);
     imu_nav_offsets(n, fix->lat, fix->lon, fix->height, at_fix);
-    antenna_offset(f, arm_enu);
-    antenna_velocity(f, arm_vel);
+    matrix(n->q, r); /* the attitude until the corrections are applied */
+    antenna_offset(f, r, arm_enu);
+    antenna_velocity(f, r, arm_vel);
     for (k = 0; k < 3; ++k) {
         /* where the estimate was when the fix was valid: back by v age (Q20 * Q30 >> 20 -> m
          * Q30, * 1000 >> 30 -> mm) and by a age for the velocity (Q16 * Q30 >> 26 -> Q20) */
@@ -704,16 +699,16 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
             d = IMU_DIV_SAT(d, k == 0 ? n->scale_east : n->scale_north, 30, sat); /* offset mm -> mm */
         }
         z[k] = IMU_MUL_SAT(IMU_SUB_SAT(d, arm_enu[k], sat), MM_TO_POS, 20, sat);
-        r[k] = IMU_WMUL(sigma_pos[k < 2 ? 0 : 1], sigma_pos[k < 2 ? 0 : 1]);
+        var[k] = IMU_WMUL(sigma_pos[k < 2 ? 0 : 1], sigma_pos[k < 2 ? 0 : 1]);
         if (fix->has_vel) {
             const imu_real_t back_vel = IMU_WIDE_SAT(IMU_WSHR(IMU_WMUL(n->acc[k], fix->age), 26), sat);
             const imu_real_t was = IMU_ADD_SAT(IMU_SUB_SAT(n->vel[k], back_vel, sat), arm_vel[k], sat);
             z[3 + k] = velocity_units(IMU_SUB_SAT(fix->vel[k], was, sat), sat);
-            r[3 + k] = IMU_WMUL(sigma_vel, sigma_vel);
+            var[3 + k] = IMU_WMUL(sigma_vel, sigma_vel);
         }
     }
     for (k = 0; k < 3 && fix->source == IMU_NAVKF_GNSS; ++k) {
-        nis = IMU_ADD_SAT(nis, normalised_square(f, k, z[k], r[k]), sat);
+        nis = IMU_ADD_SAT(nis, normalised_square(f, k, z[k], var[k]), sat);
     }
     if (fix->source == IMU_NAVKF_GNSS) {
         /* whether the board stands, from any fix: a rejected one's position is in doubt, not
@@ -743,9 +738,9 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
         clear(h);
         h[k] = IMU_ONE_Q30;
         if (k < 3) {
-            lever_arm_row(f, k, &h[ATT]);
+            lever_arm_row(f, r[k], &h[ATT]);
         }
-        measure_row(f, h, z[k], r[k], IMU_ONE_Q30, dx);
+        measure_row(f, h, z[k], var[k], IMU_ONE_Q30, dx);
     }
     apply(f, dx);
     return 1;
