@@ -698,13 +698,15 @@ def _profile(name: str):
 
 
 def _lever_arm(text: str) -> tuple[float, float, float]:
-    """X,Y,Z in metres, each finite and within +-10."""
+    """X,Y,Z in metres, each finite and within the nav filter's limit."""
+    from .nav import MAX_LEVER_ARM_M
+
     try:
         values = tuple(float(part) for part in text.split(","))
     except ValueError:
         values = ()
-    if len(values) != 3 or not all(math.isfinite(v) and abs(v) <= 10.0 for v in values):
-        raise argparse.ArgumentTypeError(f"{text!r} is not X,Y,Z in metres, each within +-10")
+    if len(values) != 3 or not all(math.isfinite(v) and abs(v) <= MAX_LEVER_ARM_M for v in values):
+        raise argparse.ArgumentTypeError(f"{text!r} is not X,Y,Z in metres, each within +-{MAX_LEVER_ARM_M:g}")
     return values
 
 
