@@ -73,7 +73,7 @@ def test_hello_describes_the_board(board, link):
     hello = link.hello
     assert hello["board"] == BOARD_NAMES[board.target]
     assert hello["schema_hash"] == protocol.SCHEMA_HASH and hello["protocol_version"] == protocol.PROTOCOL_VERSION
-    assert hello["filters"] == sum(1 << fid for fid, _ in core.FILTERS.values())
+    assert hello["filters"] == sum(1 << fid for fid, _ in core.BOARD_FILTERS.values())
     firmware = f"{hello['firmware_major']}.{hello['firmware_minor']}.{hello['firmware_patch']}"
     assert firmware == __version__  # firmware/app/app.h APP_VERSION_* and the host package move together
 
@@ -88,8 +88,8 @@ def test_status_reports_the_configuration(board, link):
 
 
 def test_settings_read_back_as_the_core_declares_them(link):
-    for name in core.FILTERS:
-        link.command("SELECT_FILTER", filter_id=core.FILTERS[name][0])
+    for name in core.BOARD_FILTERS:
+        link.command("SELECT_FILTER", filter_id=core.BOARD_FILTERS[name][0])
         fields = core.settings_fields(name)
         defaults = FirmwareFilter.default_raw_settings(name, 100.0)
         for index, field in enumerate(fields):
@@ -132,9 +132,9 @@ def test_select_filter_switches_and_keeps_each_filters_settings(link):
     assert error.value.reason == "UNKNOWN_FILTER"
 
 
-@pytest.mark.parametrize("filter_name", list(core.FILTERS))
+@pytest.mark.parametrize("filter_name", list(core.BOARD_FILTERS))
 def test_stream_is_the_fixed_point_core_sample_by_sample(board, link, filter_name):
-    link.command("SELECT_FILTER", filter_id=core.FILTERS[filter_name][0])
+    link.command("SELECT_FILTER", filter_id=core.BOARD_FILTERS[filter_name][0])
     messages = stream(link, 300)
     samples = [m.fields for m in messages if m.name == "SAMPLE"]
     estimates = [m.fields for m in messages if m.name == "ESTIMATE"]
@@ -285,8 +285,8 @@ def test_start_up_options_are_checked():
 def test_rate_option_sets_every_filters_sample_rate():
     with EmulatedBoard(duration_s=1.0, rate_hz=285.714) as emulated, Link(emulated.address) as link:
         link.connect()
-        for name in core.FILTERS:
-            link.command("SELECT_FILTER", filter_id=core.FILTERS[name][0])
+        for name in core.BOARD_FILTERS:
+            link.command("SELECT_FILTER", filter_id=core.BOARD_FILTERS[name][0])
             assert link.command("GET_SETTING", index=0).data.fields["value"] == core.to_fixed(285.714, 16)
         assert link.command("GET_STATUS").data.fields["sample_rate_mhz"] == 285_714
 

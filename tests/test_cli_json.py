@@ -53,7 +53,7 @@ def test_filters_json_lists_what_the_table_shows(capsys):
             continue
         name, value, unit, frac_bits = re.fullmatch(r"\s+(\S+)\s+(\S+)\s+(\S+)\s+\(fixed: Q(\d+)\)", text).groups()
         table[current].append((name, float(value), unit, int(frac_bits)))
-    assert [f["filter"] for f in report["filters"]] == list(table) == list(core.FILTERS)
+    assert [f["filter"] for f in report["filters"]] == list(table) == list(core.BOARD_FILTERS)
     for entry in report["filters"]:
         rows = table[entry["filter"]]
         assert [(s["name"], s["unit"], s["frac_bits"]) for s in entry["settings"]] == [(r[0], r[2], r[3]) for r in rows]

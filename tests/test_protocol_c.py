@@ -134,7 +134,7 @@ def test_ids_codes_and_sizes_agree():
 
 def test_protocol_filter_ids_are_the_core_filter_ids():
     assert {name.lower(): value for name, value in protocol.FILTER_IDS.items()} == \
-        {name: filter_id for name, (filter_id, _) in core.FILTERS.items()}
+        {name: filter_id for name, (filter_id, _) in core.BOARD_FILTERS.items()}
 
 
 # --------------------------------------------------------------------------- messages both ways

@@ -196,7 +196,7 @@ def test_starts_without_hanging_and_says_what_failed(board):
     hello = messages[0]
     assert hello.seq == 0 and hello.fields["board"] == BOARD_NAME
     assert hello.fields["schema_hash"] == protocol.SCHEMA_HASH
-    assert hello.fields["filters"] == sum(1 << fid for fid, _ in core.FILTERS.values())
+    assert hello.fields["filters"] == sum(1 << fid for fid, _ in core.BOARD_FILTERS.values())
     warning, = _logs(messages, "WARNING")
     # QEMU models no RCC: no HSERDY, no PLLRDY; SWS reads HSI. The baud rate that follows is named.
     assert warning.startswith("clock: the 8 MHz crystal (HSE) did not start and the PLL did not lock: "

@@ -11,9 +11,12 @@
 #define SAMPLE_WIRE_BYTES                                                                         \
     (2u * (IMU_PROTO_COBS_MAX(IMU_PROTO_HEADER_SIZE + IMU_PROTO_ESTIMATE_SIZE + IMU_PROTO_CRC_SIZE) + 1u))
 
-/** Bytes of a BARO and of a GNSS frame on the wire, at their largest. */
-#define BARO_WIRE_BYTES (IMU_PROTO_COBS_MAX(IMU_PROTO_HEADER_SIZE + IMU_PROTO_BARO_SIZE + IMU_PROTO_CRC_SIZE) + 1u)
-#define GNSS_WIRE_BYTES (IMU_PROTO_COBS_MAX(IMU_PROTO_HEADER_SIZE + IMU_PROTO_GNSS_SIZE + IMU_PROTO_CRC_SIZE) + 1u)
+/** Bytes of a frame with a payload of `size` on the wire, at its largest. */
+#define WIRE_BYTES(size) (IMU_PROTO_COBS_MAX(IMU_PROTO_HEADER_SIZE + (size) + IMU_PROTO_CRC_SIZE) + 1u)
+#define BARO_WIRE_BYTES WIRE_BYTES(IMU_PROTO_BARO_SIZE)
+#define GNSS_WIRE_BYTES WIRE_BYTES(IMU_PROTO_GNSS_SIZE)
+/** What the NAV filter adds to a sample: its NAV_STATE, and a MARKER when a POSITION_FIX waits. */
+#define NAV_WIRE_BYTES (WIRE_BYTES(IMU_PROTO_NAV_STATE_SIZE) + WIRE_BYTES(IMU_PROTO_MARKER_SIZE))
 
 /** Sensor failures are reported at most once per this many microseconds, and the sensors set up
  *  again at most as often, so a dead sensor costs little and does not flood the link. */
@@ -41,6 +44,8 @@ static const filter_info_t filters[] = {
      &imu_kf1d_default_settings, sizeof(imu_kf1d_settings_t)},
     {IMU_FILTER_ESKF, imu_eskf_setting_descs, &imu_eskf_setting_count, offsetof(app_settings_t, eskf),
      &imu_eskf_default_settings, sizeof(imu_eskf_settings_t)},
+    {IMU_FILTER_NAV, imu_navfilter_setting_descs, &imu_navfilter_setting_count, offsetof(app_settings_t, nav),
+     &imu_navfilter_default_settings, sizeof(imu_navfilter_settings_t)},
 };
 #define FILTER_COUNT (sizeof filters / sizeof filters[0])
 
@@ -85,6 +90,7 @@ static void restart_filter(app_t *app, int id)
     (void)imu_filter_set_calibration(&app->filter, &app->calibration); /* checked when it was set */
     (void)imu_filter_set_settings(&app->filter, settings_of(&app->settings, info));
     app->index = 0;
+    app->marker_waiting = 0;
 }
 
 /** The active filter's sample rate, mHz (the live tick); its setting is in Hz, Q16. */
@@ -187,15 +193,60 @@ static void send_answer(app_t *app, const imu_proto_command_t *command, uint8_t 
     }
 }
 
-/** Run the active filter on one sample and send its ESTIMATE under `index`. */
-static void run_filter(app_t *app, const imu_raw_sample_t *raw, uint32_t index)
+/** A waiting POSITION_FIX given to the NAV filter after the sample `index` (read at
+ *  `timestamp_us`), reported in a MARKER frame when `send`. */
+static void apply_marker(app_t *app, imu_navfilter_t *nav, uint32_t timestamp_us, uint32_t index, int send)
+{
+    const imu_proto_cmd_position_fix_t *fix = &app->marker;
+    imu_proto_marker_t m;
+    m.timestamp_us = timestamp_us;
+    m.index = index;
+    m.lat_1e7deg = fix->lat_1e7deg;
+    m.lon_1e7deg = fix->lon_1e7deg;
+    m.height_mm = fix->height_mm;
+    m.h_acc_mm = fix->h_acc_mm;
+    m.v_acc_mm = fix->v_acc_mm;
+    m.used = (uint8_t)imu_navfilter_marker(nav, fix->lat_1e7deg, fix->lon_1e7deg, fix->height_mm, fix->h_acc_mm,
+                                           fix->v_acc_mm);
+    app->marker_waiting = 0;
+    if (send) {
+        send_wire(app, imu_proto_marker_encode(&m, app->tx_seq, app->wire, sizeof app->wire));
+    }
+}
+
+/** Update the active filter with one sample (read at `timestamp_us`, index `index`); the
+ *  NAV filter then takes the barometer's reading and the receiver's fix that came with it
+ *  (NULL: none) and a waiting POSITION_FIX (its MARKER frame sent when `send`). */
+static void update_filter(app_t *app, const imu_raw_sample_t *raw, uint32_t timestamp_us, uint32_t index,
+                          const board_baro_t *baro, const imu_proto_gnss_t *gnss, int send)
+{
+    imu_navfilter_t *nav = imu_filter_nav(&app->filter);
+    imu_filter_update_raw(&app->filter, raw);
+    if (nav == 0) {
+        return;
+    }
+    if (baro != 0) {
+        imu_navfilter_baro(nav, baro->pressure_pa);
+    }
+    if (gnss != 0) {
+        (void)imu_navfilter_gnss(nav, gnss);
+    }
+    if (app->marker_waiting) {
+        apply_marker(app, nav, timestamp_us, index, send);
+    }
+}
+
+/** Run the active filter on one sample and send its ESTIMATE (and the NAV filter's NAV_STATE) under `index`. */
+static void run_filter(app_t *app, const imu_raw_sample_t *raw, uint32_t timestamp_us, uint32_t index,
+                       const board_baro_t *baro, const imu_proto_gnss_t *gnss)
 {
     imu_proto_estimate_t e;
     imu_output_t out;
     const imu_eskf_t *eskf;
+    const imu_navfilter_t *nav;
     const uint32_t started = board_cycles();
     int i;
-    imu_filter_update_raw(&app->filter, raw);
+    update_filter(app, raw, timestamp_us, index, baro, gnss, 1);
     imu_filter_get(&app->filter, &out);
     app->filter_cycles = board_cycles() - started;
 
@@ -225,6 +276,12 @@ static void run_filter(app_t *app, const imu_raw_sample_t *raw, uint32_t index)
     }
     e.saturations = imu_filter_saturations(&app->filter);
     send_wire(app, imu_proto_estimate_encode(&e, app->tx_seq, app->wire, sizeof app->wire));
+    nav = imu_filter_nav(&app->filter);
+    if (nav != 0) {
+        imu_proto_nav_state_t state;
+        imu_navfilter_nav_state(nav, index, &state);
+        send_wire(app, imu_proto_nav_state_encode(&state, app->tx_seq, app->wire, sizeof app->wire));
+    }
 }
 
 /* --------------------------------------------------------------------------- live samples */
@@ -357,11 +414,12 @@ static void live_sample(app_t *app)
     have_baro = board_baro_read(read_at, &baro);
     have_gnss = board_gnss_read(read_at, &gnss);
 
-    if (board_link_space() <
-        SAMPLE_WIRE_BYTES + (have_baro ? BARO_WIRE_BYTES : 0u) + (have_gnss ? GNSS_WIRE_BYTES : 0u)) {
+    if (board_link_space() < SAMPLE_WIRE_BYTES + (have_baro ? BARO_WIRE_BYTES : 0u) +
+                                 (have_gnss ? GNSS_WIRE_BYTES : 0u) +
+                                 (imu_filter_nav(&app->filter) != 0 ? NAV_WIRE_BYTES : 0u)) {
         /* The host does not keep up: the filter still runs (its state must follow the sensor),
          * the frames are dropped like a full UART buffer would drop them. */
-        imu_filter_update_raw(&app->filter, &raw);
+        update_filter(app, &raw, (uint32_t)read_at, app->index, have_baro ? &baro : 0, have_gnss ? &gnss : 0, 0);
         ++app->dropped_samples;
     } else {
         s.timestamp_us = (uint32_t)read_at;
@@ -381,7 +439,7 @@ static void live_sample(app_t *app)
             gnss.index = app->index;
             send_wire(app, imu_proto_gnss_encode(&gnss, app->tx_seq, app->wire, sizeof app->wire));
         }
-        run_filter(app, &raw, app->index);
+        run_filter(app, &raw, (uint32_t)read_at, app->index, have_baro ? &baro : 0, have_gnss ? &gnss : 0);
     }
     ++app->index;
     update_load(app, board_cycles() - started);
@@ -557,8 +615,36 @@ static outcome_t cmd_inject_sample(app_t *app, const imu_proto_command_t *c)
         raw.acc[i] = s.acc[i];
         raw.mag[i] = s.mag[i];
     }
-    run_filter(app, &raw, s.index);
+    run_filter(app, &raw, 0, s.index, 0, 0);
     ++app->index;
+    return ok();
+}
+
+/** Latitude, longitude and height a position fix may have (imu_nav's origin): 1e-7 deg, mm. */
+#define MARKER_MAX_LAT_1E7DEG 850000000
+#define MARKER_MAX_LON_1E7DEG 1800000000
+#define MARKER_MAX_HEIGHT_MM 10000000
+/** Accuracies a position fix may have, mm (imu_navkf_fix_t). */
+#define MARKER_MAX_ACC_MM 0x40000000u
+
+static outcome_t cmd_position_fix(app_t *app, const imu_proto_command_t *c)
+{
+    imu_proto_cmd_position_fix_t a;
+    (void)imu_proto_cmd_position_fix_unpack(&a, c->args, c->args_len);
+    if (imu_filter_nav(&app->filter) == 0) {
+        return refuse(IMU_PROTO_REASON_NOT_NAV);
+    }
+    if (a.lat_1e7deg > MARKER_MAX_LAT_1E7DEG || a.lat_1e7deg < -MARKER_MAX_LAT_1E7DEG ||
+        a.lon_1e7deg > MARKER_MAX_LON_1E7DEG || a.lon_1e7deg < -MARKER_MAX_LON_1E7DEG ||
+        a.height_mm > MARKER_MAX_HEIGHT_MM || a.height_mm < -MARKER_MAX_HEIGHT_MM || a.h_acc_mm == 0 ||
+        a.h_acc_mm > MARKER_MAX_ACC_MM || a.v_acc_mm == 0 || a.v_acc_mm > MARKER_MAX_ACC_MM) {
+        return refuse(IMU_PROTO_REASON_OUT_OF_RANGE);
+    }
+    if (app->marker_waiting) {
+        return refuse(IMU_PROTO_REASON_BUSY); /* one at a time: the last is not applied yet */
+    }
+    app->marker = a;
+    app->marker_waiting = 1;
     return ok();
 }
 
@@ -628,6 +714,8 @@ static outcome_t run_command(app_t *app, const imu_proto_command_t *c)
         return cmd_set_calibration(app, c);
     case IMU_PROTO_CMD_GET_CALIBRATION:
         return cmd_get_calibration(app, c);
+    case IMU_PROTO_CMD_POSITION_FIX:
+        return cmd_position_fix(app, c);
     default:
         return refuse(IMU_PROTO_REASON_UNKNOWN_COMMAND);
     }
@@ -675,6 +763,7 @@ void app_init(app_t *app, const app_config_t *config)
     app->failures_since_log = 0;
     app->error_log_us = 0;
     app->samples_until_status = 0;
+    app->marker_waiting = 0;
     board_sample_clock_stop();
     app_send_hello(app);
     if (board_start_up_problem() != 0) {

@@ -25,7 +25,10 @@
  *   and counted, never queued without bound; a failed sensor read is a dropped
  *   sample, a LOG line (at most one per second) and a retry of the sensor set-up
  *   once per second; an emulated feed that ends stops the stream (LOG + STATUS);
- * - injection mode: INJECT_SAMPLE runs the filter on the host's sample instead.
+ * - injection mode: INJECT_SAMPLE runs the filter on the host's sample instead;
+ * - the NAV filter also takes the barometer's and the receiver's readings that came with
+ *   each live sample, and a POSITION_FIX after the next sample (a MARKER frame says so);
+ *   a NAV_STATE follows each of its ESTIMATEs.
  * The filters are the fixed-point core (firmware/core); each keeps its settings
  * until RESET, and every change of filter, settings or mode restarts the active
  * filter at sample index 0.
@@ -64,6 +67,7 @@ typedef struct {
     imu_eecf_settings_t eecf;
     imu_kf1d_settings_t kf1d;
     imu_eskf_settings_t eskf;
+    imu_navfilter_settings_t nav;
 } app_settings_t;
 
 /** Application state. All members are private. */
@@ -89,6 +93,8 @@ typedef struct {
     uint32_t filter_cycles;       /**< STATUS.filter_cycles */
     uint32_t load_permille_q8;    /**< smoothed CPU load, per mille, Q8 */
     uint32_t samples_until_status; /**< live samples left before the next periodic STATUS */
+    int marker_waiting;           /**< 1 while a POSITION_FIX waits for the next sample */
+    imu_proto_cmd_position_fix_t marker; /**< that fix */
 } app_t;
 
 /** @brief Start the application: defaults for every filter, HELLO, sensor set-up. */

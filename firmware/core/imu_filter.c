@@ -18,6 +18,9 @@ imu_status_t imu_filter_init(imu_filter_t *f, int id)
     case IMU_FILTER_ESKF:
         imu_eskf_init(&f->u.eskf);
         break;
+    case IMU_FILTER_NAV:
+        imu_navfilter_init(&f->u.nav);
+        break;
     default:
         return IMU_ERR_UNKNOWN;
     }
@@ -34,6 +37,8 @@ imu_status_t imu_filter_set_settings(imu_filter_t *f, const void *settings)
         return imu_kf1d_set_settings(&f->u.kf1d, (const imu_kf1d_settings_t *)settings);
     case IMU_FILTER_ESKF:
         return imu_eskf_set_settings(&f->u.eskf, (const imu_eskf_settings_t *)settings);
+    case IMU_FILTER_NAV:
+        return imu_navfilter_set_settings(&f->u.nav, (const imu_navfilter_settings_t *)settings);
     }
     return IMU_ERR_UNKNOWN;
 }
@@ -61,6 +66,8 @@ static uint32_t *saturation_counter(imu_filter_t *f)
         return &f->u.kf1d.saturations;
     case IMU_FILTER_ESKF:
         return &f->u.eskf.saturations;
+    case IMU_FILTER_NAV:
+        return &f->u.nav.saturations;
     }
     return &f->u.eecf.saturations; /* unreachable: the id is checked at initialisation */
 }
@@ -79,6 +86,9 @@ void imu_filter_update_raw(imu_filter_t *f, const imu_raw_sample_t *raw)
     case IMU_FILTER_ESKF:
         imu_eskf_update(&f->u.eskf, &sample);
         break;
+    case IMU_FILTER_NAV:
+        imu_navfilter_update(&f->u.nav, &sample);
+        break;
     }
 }
 
@@ -94,11 +104,17 @@ void imu_filter_get(const imu_filter_t *f, imu_output_t *out)
     case IMU_FILTER_ESKF:
         imu_eskf_get(&f->u.eskf, out);
         break;
+    case IMU_FILTER_NAV:
+        imu_navfilter_get(&f->u.nav, out);
+        break;
     }
 }
 
 uint32_t imu_filter_saturations(const imu_filter_t *f)
 {
+    if (f->id == IMU_FILTER_NAV) {
+        return imu_navfilter_saturations(&f->u.nav); /* the conversions' and the filter's */
+    }
     return *saturation_counter((imu_filter_t *)f);
 }
 
@@ -133,4 +149,9 @@ void imu_filter_run(imu_filter_t *f, const int16_t *gyr, const int16_t *acc, con
 const imu_eskf_t *imu_filter_eskf(const imu_filter_t *f)
 {
     return f->id == IMU_FILTER_ESKF ? &f->u.eskf : 0;
+}
+
+imu_navfilter_t *imu_filter_nav(imu_filter_t *f)
+{
+    return f->id == IMU_FILTER_NAV ? &f->u.nav : 0;
 }

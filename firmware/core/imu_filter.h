@@ -12,6 +12,7 @@
 #include "imu_eecf.h"
 #include "imu_eskf.h"
 #include "imu_kf1d.h"
+#include "imu_navfilter.h"
 #include "imu_sensor.h"
 
 /** Filter identifiers (stable: they travel in the frame protocol). */
@@ -19,6 +20,7 @@ typedef enum {
     IMU_FILTER_EECF = 1,
     IMU_FILTER_KF1D = 2,
     IMU_FILTER_ESKF = 3,
+    IMU_FILTER_NAV = 4, /**< navigation (imu_navfilter.h): position and velocity besides the attitude */
 } imu_filter_id_t;
 
 /** A filter of any kind. All members are private. */
@@ -30,6 +32,7 @@ typedef struct {
         imu_eecf_t eecf;
         imu_kf1d_t kf1d;
         imu_eskf_t eskf;
+        imu_navfilter_t nav;
     } u;
 } imu_filter_t;
 
@@ -58,6 +61,9 @@ uint32_t imu_filter_saturations(const imu_filter_t *f);
 
 /** @brief The ESKF state of a filter handle (for its covariance and accelerometer bias), NULL for another filter. */
 const imu_eskf_t *imu_filter_eskf(const imu_filter_t *f);
+
+/** @brief The nav filter of a handle (for its fixes, barometer and state), NULL for another filter. */
+imu_navfilter_t *imu_filter_nav(imu_filter_t *f);
 
 /**
  * @brief Run n samples (int16 counts, n x 3 arrays row-major) and store each output.

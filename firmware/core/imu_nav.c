@@ -97,16 +97,18 @@ static void update_geometry(imu_nav_t *n)
     n->scale_east = IMU_DIV_SAT(n->origin_rn_cos, rn_cos, 30, &n->saturations);
 }
 
+static int origin_in_range(const imu_nav_origin_t *origin)
+{
+    return origin->lat <= MAX_LATITUDE && origin->lat >= -MAX_LATITUDE && origin->lon <= MAX_LONGITUDE &&
+           origin->lon >= -MAX_LONGITUDE && origin->height <= MAX_ORIGIN_HEIGHT_MM &&
+           origin->height >= -MAX_ORIGIN_HEIGHT_MM;
+}
+
 imu_status_t imu_nav_start(imu_nav_t *n, const imu_nav_origin_t *origin, imu_real_t rate, const imu_q30_t q[4],
                            const imu_real_t vel[3])
 {
-    imu_q30_t s, c;
-    imu_real_t gravity;
     int k;
-    if (!(rate >= IMU_QCONST(10.0, 16) && rate <= IMU_QCONST(IMU_Q16_LARGEST, 16)) ||
-        !(origin->lat <= MAX_LATITUDE && origin->lat >= -MAX_LATITUDE) ||
-        !(origin->lon <= MAX_LONGITUDE && origin->lon >= -MAX_LONGITUDE) ||
-        !(origin->height <= MAX_ORIGIN_HEIGHT_MM && origin->height >= -MAX_ORIGIN_HEIGHT_MM)) {
+    if (!(rate >= IMU_QCONST(10.0, 16) && rate <= IMU_QCONST(IMU_Q16_LARGEST, 16)) || !origin_in_range(origin)) {
         return IMU_ERR_RANGE;
     }
     for (k = 0; k < 3; ++k) {
@@ -115,12 +117,6 @@ imu_status_t imu_nav_start(imu_nav_t *n, const imu_nav_origin_t *origin, imu_rea
         }
     }
     n->saturations = 0;
-    n->origin = *origin;
-    imu_sincos(origin->lat, &s, &c);
-    ellipsoid(s, c, origin->height, &n->origin_rm, &n->origin_rn_cos, &gravity);
-    /* rad per mm: (1 / a) / ((M0 + h0) / a), Q59 * 2^30 / Q30 -> Q59 */
-    n->lat_per_mm = IMU_DIV_SAT(INV_A_MM_Q59, n->origin_rm, 30, &n->saturations);
-    n->lon_per_mm = IMU_DIV_SAT(INV_A_MM_Q59, n->origin_rn_cos, 30, &n->saturations);
     /* 2^46 / rate (Q16): below 2^31 from 10 Hz on */
     n->dt = IMU_DIV_SAT(IMU_QCONST(1.0, 16), rate, 30, &n->saturations);
     for (k = 0; k < 4; ++k) {
@@ -129,11 +125,30 @@ imu_status_t imu_nav_start(imu_nav_t *n, const imu_nav_origin_t *origin, imu_rea
     imu_quat_normalize(n->q);
     for (k = 0; k < 3; ++k) {
         n->vel[k] = vel[k];
-        n->pos[k] = 0;
         n->gyro_bias[k] = 0;
         n->acc_bias[k] = 0;
         n->acc[k] = 0;
         n->vel_carry[k] = 0;
+    }
+    return imu_nav_anchor(n, origin);
+}
+
+imu_status_t imu_nav_anchor(imu_nav_t *n, const imu_nav_origin_t *origin)
+{
+    imu_q30_t s, c;
+    imu_real_t gravity;
+    int k;
+    if (!origin_in_range(origin)) {
+        return IMU_ERR_RANGE;
+    }
+    n->origin = *origin;
+    imu_sincos(origin->lat, &s, &c);
+    ellipsoid(s, c, origin->height, &n->origin_rm, &n->origin_rn_cos, &gravity);
+    /* rad per mm: (1 / a) / ((M0 + h0) / a), Q59 * 2^30 / Q30 -> Q59 */
+    n->lat_per_mm = IMU_DIV_SAT(INV_A_MM_Q59, n->origin_rm, 30, &n->saturations);
+    n->lon_per_mm = IMU_DIV_SAT(INV_A_MM_Q59, n->origin_rn_cos, 30, &n->saturations);
+    for (k = 0; k < 3; ++k) {
+        n->pos[k] = 0;
         n->pos_carry[k] = 0;
     }
     update_geometry(n);

@@ -69,6 +69,13 @@ imu_status_t imu_nav_start(imu_nav_t *n, const imu_nav_origin_t *origin, imu_rea
                            const imu_real_t vel[3]);
 
 /**
+ * @brief Move the origin to another place, the position onto it (offsets zero); the
+ *        attitude, velocity and biases stay.
+ * @return IMU_ERR_RANGE for an origin out of range (nothing changed), else IMU_OK.
+ */
+imu_status_t imu_nav_anchor(imu_nav_t *n, const imu_nav_origin_t *origin);
+
+/**
  * @brief One sample: the attitude turned by the gyroscope, the velocity and the position
  *        moved by the specific force and normal gravity.
  * @param gyr angular rate, rad/s, Q24

@@ -28,6 +28,11 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12, BARO_BIAS = 15 }
 #define START_GYRO_BIAS IMU_QCONST(0.026179939, 30)
 #define START_ACC_BIAS IMU_QCONST(0.5, 30)
 #define START_BARO_BIAS IMU_QCONST(20.0 / 1024.0, 30) /* 20 m: the first sample's height is the estimate's */
+/* Before the first fix (a start without one) the position is nowhere: its standard deviation
+ * 1024 m (nothing measures it; the first fix replaces it), normal gravity and the radii
+ * those of latitude 45 deg (within 0.03 m/s^2 of anywhere's). */
+#define UNANCHORED_POS IMU_QCONST(1.0, 30)
+#define UNANCHORED_LAT IMU_QCONST(0.78539816339744831, 29)
 
 /* The barometer: a height every BARO_INTERVAL at most (s, Q16; a sample's noise is 0.1 m,
  * what limits it is slower), each of standard deviation BARO_SIGMA (0.3 m, in units of
@@ -415,8 +420,11 @@ static int still_sample(const imu_navkf_t *f, const imu_q16_t acc[3])
     imu_wide_t w2 = 0, f2 = 0;                  /* Q48 (rad/s)^2, Q32 (m/s^2)^2 */
     int k;
     for (k = 0; k < 3; ++k) {
-        /* |acc|, |bias| below 2^30 (Q16) */
-        const imu_wide_t a = (imu_wide_t)acc[k] - n->acc_bias[k];
+        const imu_wide_t a = (imu_wide_t)acc[k] - n->acc_bias[k]; /* Q16, within 2^32 */
+        /* an axis beyond the bounds is not still (and the squares below then stay far from overflow) */
+        if (f->rate[k] > REST_GYRO || f->rate[k] < -REST_GYRO || a > g + REST_ACC || a < -(g + REST_ACC)) {
+            return 0;
+        }
         w2 += IMU_WMUL(f->rate[k], f->rate[k]);
         f2 += a * a;
     }
@@ -489,14 +497,81 @@ static int accuracies_in_range(const imu_navkf_fix_t *fix)
            fix->s_acc >= 1 && fix->s_acc <= (1 << 30);
 }
 
+/** Whether the board stands and moves slowly, from a GNSS fix's speed: a fix without velocity
+ *  (NMEA's GGA) does not say: no rest from GNSS then, and the heading from the field. */
+static void note_speed(imu_navkf_t *f, const imu_navkf_fix_t *fix)
+{
+    imu_wide_t speed2 = 0; /* Q40 */
+    int k;
+    for (k = 0; k < 3 && fix->has_vel; ++k) {
+        speed2 += IMU_WMUL(fix->vel[k], fix->vel[k]);
+    }
+    f->fix_stood = fix->has_vel && speed2 < IMU_WMUL(REST_SPEED, REST_SPEED);
+    f->fix_slow = !fix->has_vel || speed2 < IMU_WMUL(SLOW_SPEED, SLOW_SPEED);
+}
+
+/** The position (and the velocity, when the fix has one) taken from `fix` at the origin it
+ *  makes, their covariance the fix's (velocity: START_VEL) with nothing shared with the
+ *  other states; the barometer starts again from there. 0 for a fix out of range. */
+static int anchor(imu_navkf_t *f, const imu_navkf_fix_t *fix)
+{
+    uint32_t *sat = &f->nav.saturations;
+    imu_nav_origin_t origin;
+    imu_q30_t r[3][3];
+    imu_real_t arm_enu[3];
+    imu_wide_t step[3];
+    const imu_q30_t sigma_h = IMU_MUL_SAT(fix->h_acc, MM_TO_POS_AXIS, 20, sat);
+    const imu_q30_t sigma_v = IMU_MUL_SAT(fix->v_acc, MM_TO_POS, 20, sat);
+    int k;
+    origin.lat = fix->lat;
+    origin.lon = fix->lon;
+    origin.height = fix->height;
+    for (k = 0; k < 3 && fix->has_vel; ++k) {
+        if (!(fix->vel[k] <= IMU_QCONST(IMU_NAV_MAX_SPEED, 20) && fix->vel[k] >= -IMU_QCONST(IMU_NAV_MAX_SPEED, 20))) {
+            return 0;
+        }
+    }
+    if (!accuracies_in_range(fix) || imu_nav_anchor(&f->nav, &origin) != IMU_OK) {
+        return 0;
+    }
+    flush(f);
+    /* the fix is the antenna's: the sensor is R l below it */
+    matrix(f->nav.q, r);
+    antenna_offset(f, r, arm_enu);
+    for (k = 0; k < 3; ++k) {
+        step[k] = IMU_WMUL(IMU_NEG_SAT(arm_enu[k], sat), IMU_QCONST(1.0, 15)); /* mm -> Q15 */
+    }
+    imu_nav_move(&f->nav, step);
+    for (k = 0; k < 3; ++k) {
+        const imu_q30_t sigma = k < 2 ? sigma_h : sigma_v;
+        imu_navcov_reset_state(&f->cov, POS + k, IMU_WMUL(sigma, sigma), 60, sat);
+        f->carry[POS + k] = 0;
+        if (fix->has_vel) {
+            f->nav.vel[k] = fix->vel[k];
+            imu_navcov_reset_state(&f->cov, VEL + k, IMU_WMUL(START_VEL, START_VEL), 60, sat);
+            f->carry[VEL + k] = 0;
+        }
+    }
+    imu_navcov_reset_state(&f->cov, BARO_BIAS, IMU_WMUL(START_BARO_BIAS, START_BARO_BIAS), 60, sat);
+    f->carry[BARO_BIAS] = 0;
+    f->baro_bias = 0;
+    f->baro_reference = 0;
+    if (fix->source == IMU_NAVKF_GNSS) {
+        note_speed(f, fix);
+        f->since_fix = 0;
+    }
+    f->anchored = 1;
+    return 1;
+}
+
 imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t acc[3], const imu_real_t mag[3],
                              const imu_navkf_fix_t *fix, const imu_real_t lever_arm[3])
 {
     uint32_t *sat;
-    imu_nav_origin_t origin;
+    const imu_nav_origin_t nowhere = {UNANCHORED_LAT, 0, 0};
     imu_angle_t euler[3] = {0, 0, 0};
     imu_q30_t q[4];
-    imu_real_t vel[3] = {0, 0, 0};
+    const imu_real_t still[3] = {0, 0, 0};
     imu_wide_t var[IMU_NAVKF_STATES];
     imu_q30_t sigma[IMU_NAVKF_STATES];
     int k;
@@ -504,7 +579,7 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
         !imu_tilt_from_acc(acc, &euler[0], &euler[1])) {
         return IMU_ERR_RANGE;
     }
-    if (!accuracies_in_range(fix)) {
+    if (fix != 0 && !accuracies_in_range(fix)) {
         return IMU_ERR_RANGE;
     }
     for (k = 0; k < 3 && lever_arm != 0; ++k) {
@@ -514,15 +589,7 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     }
     euler[2] = imu_heading_from_mag(mag, euler[0], euler[1]);
     imu_euler_to_quat(euler, q);
-    origin.lat = fix->lat;
-    origin.lon = fix->lon;
-    origin.height = fix->height;
-    if (fix->has_vel) {
-        for (k = 0; k < 3; ++k) {
-            vel[k] = fix->vel[k];
-        }
-    }
-    if (imu_nav_start(&f->nav, &origin, rate, q, vel) != IMU_OK) {
+    if (imu_nav_start(&f->nav, &nowhere, rate, q, still) != IMU_OK) {
         return IMU_ERR_RANGE;
     }
     sat = &f->nav.saturations;
@@ -531,21 +598,8 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
         f->lever_arm[k] = lever_arm != 0 ? IMU_MUL(lever_arm[k], IMU_QCONST(0.001, 40), 20) : 0;
         f->rate[k] = 0;
     }
-    {
-        /* the fix is the antenna's: the sensor is R l below it */
-        imu_real_t arm_enu[3];
-        imu_wide_t step[3];
-        imu_q30_t r[3][3];
-        matrix(f->nav.q, r);
-        antenna_offset(f, r, arm_enu);
-        for (k = 0; k < 3; ++k) {
-            step[k] = IMU_WMUL(IMU_NEG_SAT(arm_enu[k], sat), IMU_QCONST(1.0, 15)); /* mm -> Q15 */
-        }
-        imu_nav_move(&f->nav, step);
-    }
-    sigma[POS] = sigma[POS + 1] = IMU_MUL_SAT(fix->h_acc, MM_TO_POS_AXIS, 20, sat);
-    sigma[POS + 2] = IMU_MUL_SAT(fix->v_acc, MM_TO_POS, 20, sat);
     for (k = 0; k < 3; ++k) {
+        sigma[POS + k] = UNANCHORED_POS;
         sigma[VEL + k] = START_VEL;
         sigma[ATT + k] = k == 2 ? START_HEADING : START_TILT;
         sigma[GYRO_BIAS + k] = START_GYRO_BIAS;
@@ -578,7 +632,7 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     for (k = 0; k < 3; ++k) {
         f->force_fast[k] = f->force_slow[k] = acc[k];
     }
-    f->since_fix = fix->source == IMU_NAVKF_GNSS ? 0 : f->longest_steps;
+    f->since_fix = f->longest_steps; /* no GNSS yet: rest is the sensors' */
     f->fix_stood = 1;
     f->fix_slow = 1;
     {
@@ -589,7 +643,11 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     f->rejecting = -1;
     f->rejected = 0;
     f->zero_velocity = 0;
+    f->anchored = 0;
     restart_interval(f);
+    if (fix != 0 && !anchor(f, fix)) {
+        return IMU_ERR_RANGE;
+    }
     return IMU_OK;
 }
 
@@ -682,6 +740,9 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
                                     IMU_MUL_SAT(fix->v_acc, MM_TO_POS, 20, sat)};
     const imu_q30_t sigma_vel = IMU_MUL_SAT(fix->s_acc, MM_S_TO_VEL, 16, sat);
     int k;
+    if (!f->anchored) {
+        return anchor(f, fix);
+    }
     if (!accuracies_in_range(fix)) {
         return 0;
     }
@@ -712,14 +773,8 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
     }
     if (fix->source == IMU_NAVKF_GNSS) {
         /* whether the board stands, from any fix: a rejected one's position is in doubt, not
-         * its speed; a fix without velocity (NMEA's GGA) does not say: no rest from GNSS then,
-         * and the heading from the field */
-        imu_wide_t speed2 = 0; /* Q40 */
-        for (k = 0; k < 3 && fix->has_vel; ++k) {
-            speed2 += IMU_WMUL(fix->vel[k], fix->vel[k]);
-        }
-        f->fix_stood = fix->has_vel && speed2 < IMU_WMUL(REST_SPEED, REST_SPEED);
-        f->fix_slow = !fix->has_vel || speed2 < IMU_WMUL(SLOW_SPEED, SLOW_SPEED);
+         * its speed */
+        note_speed(f, fix);
         f->since_fix = 0;
     }
     if (nis > GATE_3) {
@@ -771,7 +826,7 @@ void imu_navkf_baro(imu_navkf_t *f, imu_real_t pressure)
     imu_nav_t *n = &f->nav;
     const imu_real_t estimate = IMU_ADD_SAT(n->origin.height, n->pos[2], sat); /* mm */
     imu_real_t height;
-    if (!(pressure >= BARO_MIN_PA && pressure <= BARO_MAX_PA)) {
+    if (!f->anchored || !(pressure >= BARO_MIN_PA && pressure <= BARO_MAX_PA)) {
         return;
     }
     if (f->baro_reference == 0) {

@@ -104,6 +104,7 @@ typedef struct {
     imu_real_t baro_reference_height; /**< the reference's height, mm */
     int32_t baro_steps;         /**< samples between barometer updates */
     int32_t since_baro;         /**< samples since the last (stops counting at baro_steps) */
+    int anchored;               /**< 0 until a fix gave the position (a start without one) */
 } imu_navkf_t;
 
 /**

@@ -913,6 +913,110 @@ size_t imu_proto_gnss_encode(const imu_proto_gnss_t *m, uint16_t seq, uint8_t *w
     return frame_seal(IMU_PROTO_MSG_GNSS, seq, IMU_PROTO_GNSS_SIZE, wire);
 }
 
+size_t imu_proto_nav_state_pack(const imu_proto_nav_state_t *m, uint8_t *payload)
+{
+    size_t i;
+    put_u32(payload + 0, (uint32_t)m->index);
+    payload[4] = (uint8_t)m->mode;
+    put_u32(payload + 5, (uint32_t)m->lat);
+    put_u32(payload + 9, (uint32_t)m->lon);
+    put_u32(payload + 13, (uint32_t)m->height_mm);
+    for (i = 0; i < 3; ++i) {
+        put_u32(payload + 17 + 4 * i, (uint32_t)m->vel[i]);
+    }
+    for (i = 0; i < 3; ++i) {
+        put_u32(payload + 29 + 4 * i, (uint32_t)m->acc_bias[i]);
+    }
+    put_u32(payload + 41, (uint32_t)m->baro_bias_mm);
+    for (i = 0; i < 16; ++i) {
+        put_u32(payload + 45 + 4 * i, (uint32_t)m->var_mantissa[i]);
+    }
+    for (i = 0; i < 16; ++i) {
+        payload[109 + i] = (uint8_t)m->var_exponent[i];
+    }
+    put_u32(payload + 125, (uint32_t)m->since_fix);
+    put_u32(payload + 129, (uint32_t)m->rejected);
+    put_u32(payload + 133, (uint32_t)m->zero_velocity);
+    return IMU_PROTO_NAV_STATE_SIZE;
+}
+
+imu_proto_result_t imu_proto_nav_state_unpack(imu_proto_nav_state_t *m, const uint8_t *payload, size_t len)
+{
+    size_t i;
+    if (len != IMU_PROTO_NAV_STATE_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    m->index = get_u32(payload + 0);
+    m->mode = payload[4];
+    m->lat = to_i32(get_u32(payload + 5));
+    m->lon = to_i32(get_u32(payload + 9));
+    m->height_mm = to_i32(get_u32(payload + 13));
+    for (i = 0; i < 3; ++i) {
+        m->vel[i] = to_i32(get_u32(payload + 17 + 4 * i));
+    }
+    for (i = 0; i < 3; ++i) {
+        m->acc_bias[i] = to_i32(get_u32(payload + 29 + 4 * i));
+    }
+    m->baro_bias_mm = to_i32(get_u32(payload + 41));
+    for (i = 0; i < 16; ++i) {
+        m->var_mantissa[i] = to_i32(get_u32(payload + 45 + 4 * i));
+    }
+    for (i = 0; i < 16; ++i) {
+        m->var_exponent[i] = to_i8(payload[109 + i]);
+    }
+    m->since_fix = get_u32(payload + 125);
+    m->rejected = get_u32(payload + 129);
+    m->zero_velocity = get_u32(payload + 133);
+    return IMU_PROTO_OK;
+}
+
+size_t imu_proto_nav_state_encode(const imu_proto_nav_state_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
+{
+    if (wire_cap < IMU_PROTO_NAV_STATE_SIZE + IMU_PROTO_MIN_FRAME + 2u) {
+        return 0;
+    }
+    (void)imu_proto_nav_state_pack(m, wire + FRAME_PAYLOAD_OFFSET);
+    return frame_seal(IMU_PROTO_MSG_NAV_STATE, seq, IMU_PROTO_NAV_STATE_SIZE, wire);
+}
+
+size_t imu_proto_marker_pack(const imu_proto_marker_t *m, uint8_t *payload)
+{
+    put_u32(payload + 0, (uint32_t)m->timestamp_us);
+    put_u32(payload + 4, (uint32_t)m->index);
+    put_u32(payload + 8, (uint32_t)m->lat_1e7deg);
+    put_u32(payload + 12, (uint32_t)m->lon_1e7deg);
+    put_u32(payload + 16, (uint32_t)m->height_mm);
+    put_u32(payload + 20, (uint32_t)m->h_acc_mm);
+    put_u32(payload + 24, (uint32_t)m->v_acc_mm);
+    payload[28] = (uint8_t)m->used;
+    return IMU_PROTO_MARKER_SIZE;
+}
+
+imu_proto_result_t imu_proto_marker_unpack(imu_proto_marker_t *m, const uint8_t *payload, size_t len)
+{
+    if (len != IMU_PROTO_MARKER_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    m->timestamp_us = get_u32(payload + 0);
+    m->index = get_u32(payload + 4);
+    m->lat_1e7deg = to_i32(get_u32(payload + 8));
+    m->lon_1e7deg = to_i32(get_u32(payload + 12));
+    m->height_mm = to_i32(get_u32(payload + 16));
+    m->h_acc_mm = get_u32(payload + 20);
+    m->v_acc_mm = get_u32(payload + 24);
+    m->used = payload[28];
+    return IMU_PROTO_OK;
+}
+
+size_t imu_proto_marker_encode(const imu_proto_marker_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
+{
+    if (wire_cap < IMU_PROTO_MARKER_SIZE + IMU_PROTO_MIN_FRAME + 2u) {
+        return 0;
+    }
+    (void)imu_proto_marker_pack(m, wire + FRAME_PAYLOAD_OFFSET);
+    return frame_seal(IMU_PROTO_MSG_MARKER, seq, IMU_PROTO_MARKER_SIZE, wire);
+}
+
 size_t imu_proto_command_pack(const imu_proto_command_t *m, uint8_t *payload)
 {
     size_t i;
@@ -1068,6 +1172,29 @@ imu_proto_result_t imu_proto_cmd_get_calibration_unpack(imu_proto_cmd_get_calibr
     return IMU_PROTO_OK;
 }
 
+size_t imu_proto_cmd_position_fix_pack(const imu_proto_cmd_position_fix_t *a, uint8_t *args)
+{
+    put_u32(args + 0, (uint32_t)a->lat_1e7deg);
+    put_u32(args + 4, (uint32_t)a->lon_1e7deg);
+    put_u32(args + 8, (uint32_t)a->height_mm);
+    put_u32(args + 12, (uint32_t)a->h_acc_mm);
+    put_u32(args + 16, (uint32_t)a->v_acc_mm);
+    return IMU_PROTO_CMD_POSITION_FIX_SIZE;
+}
+
+imu_proto_result_t imu_proto_cmd_position_fix_unpack(imu_proto_cmd_position_fix_t *a, const uint8_t *args, size_t len)
+{
+    if (len != IMU_PROTO_CMD_POSITION_FIX_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    a->lat_1e7deg = to_i32(get_u32(args + 0));
+    a->lon_1e7deg = to_i32(get_u32(args + 4));
+    a->height_mm = to_i32(get_u32(args + 8));
+    a->h_acc_mm = get_u32(args + 12);
+    a->v_acc_mm = get_u32(args + 16);
+    return IMU_PROTO_OK;
+}
+
 int imu_proto_command_args_size(uint8_t command)
 {
     switch (command) {
@@ -1097,6 +1224,8 @@ int imu_proto_command_args_size(uint8_t command)
         return IMU_PROTO_CMD_SET_CALIBRATION_SIZE;
     case IMU_PROTO_CMD_GET_CALIBRATION:
         return IMU_PROTO_CMD_GET_CALIBRATION_SIZE;
+    case IMU_PROTO_CMD_POSITION_FIX:
+        return IMU_PROTO_CMD_POSITION_FIX_SIZE;
     default:
         return -1;
     }

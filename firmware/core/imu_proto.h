@@ -130,7 +130,7 @@ int imu_proto_decoder_push(imu_proto_decoder_t *d, uint8_t byte, imu_proto_frame
 /** Protocol version ([protocol] version), sent in HELLO. */
 #define IMU_PROTO_VERSION 1u
 /** Schema hash of shared/protocol.toml (CRC-32 of its canonical form), sent in HELLO. */
-#define IMU_PROTO_SCHEMA_HASH 0xB5437FCEu
+#define IMU_PROTO_SCHEMA_HASH 0x9C50E996u
 /** Largest payload of any message, bytes. */
 #define IMU_PROTO_MAX_PAYLOAD 201u
 
@@ -147,6 +147,8 @@ typedef enum {
     IMU_PROTO_MSG_ESTIMATE = 17, /**< The filter output after sample `index`, exactly as the fixed-point core computed it */
     IMU_PROTO_MSG_BARO = 18, /**< One barometer measurement (the GY-86's MS5611): the raw conversions and the data sheet's compensation of them with the chip's PROM, as the board's driver computed it */
     IMU_PROTO_MSG_GNSS = 19, /**< One fix of the GNSS receiver, in its own units (u-blox NAV-PVT's), as the board received it */
+    IMU_PROTO_MSG_NAV_STATE = 20, /**< The navigation filter's state after a sample, following its ESTIMATE (which carries the attitude and the gyroscope bias) while NAV is the active filter */
+    IMU_PROTO_MSG_MARKER = 21, /**< A position fix from a known place (POSITION_FIX), as the board applied it: after the SAMPLE (or injected sample) it follows, before that sample's ESTIMATE */
     IMU_PROTO_MSG_COMMAND = 32, /**< A request to the board */
 } imu_proto_msg_id_t;
 
@@ -165,6 +167,7 @@ typedef enum {
     IMU_PROTO_CMD_SET_INJECTION_MODE = 11, /**< 1: the filter runs on INJECT_SAMPLE data and the sensors are ignored; 0: back to the sensors */
     IMU_PROTO_CMD_SET_CALIBRATION = 12, /**< Set one axis of a sensor's calibration (the offset of that axis and its row of the correction matrix, Q formats as CALIBRATION reports them); the active filter restarts with it */
     IMU_PROTO_CMD_GET_CALIBRATION = 13, /**< Read one axis of a sensor's calibration */
+    IMU_PROTO_CMD_POSITION_FIX = 14, /**< A position fix from a known place (seed 003's markers) for the NAV filter: trusted as its accuracy says, never gated */
 } imu_proto_command_id_t;
 
 /** Filter ids (the same values as imu_filter_id_t in firmware/core/imu_filter.h). */
@@ -172,6 +175,7 @@ typedef enum {
     IMU_PROTO_FILTER_EECF = 1, /**< enhanced explicit complementary filter (seed 004) */
     IMU_PROTO_FILTER_KF1D = 2, /**< per-axis angle/bias Kalman filter (seeds 002, 003) */
     IMU_PROTO_FILTER_ESKF = 3, /**< 9-state error-state Kalman filter (seed 000) */
+    IMU_PROTO_FILTER_NAV = 4, /**< loosely coupled GNSS/INS navigation, 16-state error-state Kalman filter (seeds 002, 003): NAV_STATE besides ESTIMATE */
 } imu_proto_filter_t;
 
 /** Reason code of an ACK (always OK) or a NACK (why the command was refused). */
@@ -186,6 +190,7 @@ typedef enum {
     IMU_PROTO_REASON_UNKNOWN_FILTER = 7, /**< a filter id the board does not have */
     IMU_PROTO_REASON_UNKNOWN_SETTING = 8, /**< a setting index past the active filter's last setting */
     IMU_PROTO_REASON_NOT_SUPPORTED = 9, /**< a known command this board does not implement (e.g. ENTER_BOOTLOADER in QEMU) */
+    IMU_PROTO_REASON_NOT_NAV = 10, /**< a navigation command (POSITION_FIX) while the active filter is not NAV */
 } imu_proto_reason_t;
 
 /** The sensors of a calibration (the order of imu_calibration_t in firmware/core/imu_sensor.h). */
@@ -460,6 +465,59 @@ imu_proto_result_t imu_proto_gnss_unpack(imu_proto_gnss_t *m, const uint8_t *pay
 /** @brief Wire bytes of a GNSS frame (delimiter included); 0 when they do not fit or pack fails. */
 size_t imu_proto_gnss_encode(const imu_proto_gnss_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 
+/** NAV_STATE payload bytes. */
+#define IMU_PROTO_NAV_STATE_SIZE 137u
+
+/** NAV_STATE (id 0x14, to_host): The navigation filter's state after a sample, following its
+ *  ESTIMATE (which carries the attitude and the gyroscope bias) while NAV is the active filter.
+ */
+typedef struct {
+    uint32_t index; /**< index of the SAMPLE (or injected sample) it follows */
+    uint8_t mode; /**< 0 not started (no sample with a force yet: everything else zero), 1 attitude only (no fix yet: the position is nowhere), 2 navigating */
+    int32_t lat; /**< latitude, rad, Q29 */
+    int32_t lon; /**< longitude, rad, Q29 */
+    int32_t height_mm; /**< height above the WGS-84 ellipsoid, mm */
+    int32_t vel[3]; /**< velocity east, north, up, m/s, Q20 */
+    int32_t acc_bias[3]; /**< accelerometer bias estimate x, y, z, m/s^2, Q16 */
+    int32_t baro_bias_mm; /**< the barometer's height minus the true height, mm */
+    int32_t var_mantissa[16]; /**< error-state variances P_ii = var_mantissa[i] * 2^(var_exponent[i] - 30) in the states' units squared: position east, north, up (1024 m), velocity (64 m/s), attitude error x, y, z (rad), gyro bias (rad/s), accelerometer bias (m/s^2), barometer bias (1024 m) */
+    int8_t var_exponent[16]; /**< exponents of the variances */
+    uint32_t since_fix; /**< samples since the last GNSS fix, used or not (stops counting at a minute's) */
+    uint32_t rejected; /**< GNSS fixes the gate rejected since the filter started */
+    uint32_t zero_velocity; /**< zero-velocity updates since the filter started */
+} imu_proto_nav_state_t;
+
+/** @brief Payload bytes of NAV_STATE into `payload` (IMU_PROTO_NAV_STATE_SIZE bytes); returns IMU_PROTO_NAV_STATE_SIZE. */
+size_t imu_proto_nav_state_pack(const imu_proto_nav_state_t *m, uint8_t *payload);
+/** @brief Fields of a NAV_STATE payload; IMU_PROTO_ERR_LENGTH when `len` is not a NAV_STATE payload length. */
+imu_proto_result_t imu_proto_nav_state_unpack(imu_proto_nav_state_t *m, const uint8_t *payload, size_t len);
+/** @brief Wire bytes of a NAV_STATE frame (delimiter included); 0 when they do not fit or pack fails. */
+size_t imu_proto_nav_state_encode(const imu_proto_nav_state_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
+
+/** MARKER payload bytes. */
+#define IMU_PROTO_MARKER_SIZE 29u
+
+/** MARKER (id 0x15, to_host): A position fix from a known place (POSITION_FIX), as the board
+ *  applied it: after the SAMPLE (or injected sample) it follows, before that sample's ESTIMATE.
+ */
+typedef struct {
+    uint32_t timestamp_us; /**< board time of that SAMPLE (its timestamp_us; 0 for an injected sample), us */
+    uint32_t index; /**< index of that SAMPLE */
+    int32_t lat_1e7deg; /**< latitude, 1e-7 deg */
+    int32_t lon_1e7deg; /**< longitude, 1e-7 deg */
+    int32_t height_mm; /**< height above the WGS-84 ellipsoid, mm */
+    uint32_t h_acc_mm; /**< horizontal accuracy, mm */
+    uint32_t v_acc_mm; /**< vertical accuracy, mm */
+    uint8_t used; /**< 1: the filter took it (0: the filter had not started) */
+} imu_proto_marker_t;
+
+/** @brief Payload bytes of MARKER into `payload` (IMU_PROTO_MARKER_SIZE bytes); returns IMU_PROTO_MARKER_SIZE. */
+size_t imu_proto_marker_pack(const imu_proto_marker_t *m, uint8_t *payload);
+/** @brief Fields of a MARKER payload; IMU_PROTO_ERR_LENGTH when `len` is not a MARKER payload length. */
+imu_proto_result_t imu_proto_marker_unpack(imu_proto_marker_t *m, const uint8_t *payload, size_t len);
+/** @brief Wire bytes of a MARKER frame (delimiter included); 0 when they do not fit or pack fails. */
+size_t imu_proto_marker_encode(const imu_proto_marker_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
+
 /** COMMAND maximum payload bytes. */
 #define IMU_PROTO_COMMAND_SIZE 31u
 /** COMMAND payload bytes with an empty args. */
@@ -565,6 +623,22 @@ typedef struct {
 size_t imu_proto_cmd_get_calibration_pack(const imu_proto_cmd_get_calibration_t *a, uint8_t *args);
 /** @brief Arguments of GET_CALIBRATION; IMU_PROTO_ERR_LENGTH when `len` is not IMU_PROTO_CMD_GET_CALIBRATION_SIZE. */
 imu_proto_result_t imu_proto_cmd_get_calibration_unpack(imu_proto_cmd_get_calibration_t *a, const uint8_t *args, size_t len);
+
+/** POSITION_FIX argument bytes. */
+#define IMU_PROTO_CMD_POSITION_FIX_SIZE 20u
+/** Arguments of POSITION_FIX. */
+typedef struct {
+    int32_t lat_1e7deg; /**< latitude, 1e-7 deg, within +-85 deg */
+    int32_t lon_1e7deg; /**< longitude, 1e-7 deg, within +-180 deg */
+    int32_t height_mm; /**< height above the WGS-84 ellipsoid, mm, within +-10 km */
+    uint32_t h_acc_mm; /**< horizontal accuracy, mm, 1 .. 2^30 */
+    uint32_t v_acc_mm; /**< vertical accuracy, mm, 1 .. 2^30 */
+} imu_proto_cmd_position_fix_t;
+
+/** @brief Argument bytes of POSITION_FIX into `args` (IMU_PROTO_CMD_POSITION_FIX_SIZE bytes); returns that size. */
+size_t imu_proto_cmd_position_fix_pack(const imu_proto_cmd_position_fix_t *a, uint8_t *args);
+/** @brief Arguments of POSITION_FIX; IMU_PROTO_ERR_LENGTH when `len` is not IMU_PROTO_CMD_POSITION_FIX_SIZE. */
+imu_proto_result_t imu_proto_cmd_position_fix_unpack(imu_proto_cmd_position_fix_t *a, const uint8_t *args, size_t len);
 
 /** @brief Argument bytes of a command; -1 for an id that is not a command (NACK UNKNOWN_COMMAND). */
 int imu_proto_command_args_size(uint8_t command);

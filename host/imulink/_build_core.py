@@ -12,7 +12,7 @@ from cffi import FFI
 ROOT = Path(__file__).resolve().parents[2]
 CORE_DIR = ROOT / "firmware" / "core"
 CORE_SOURCES = ["imu_math.c", "imu_settings.c", "imu_sensor.c", "imu_cov.c", "imu_rest.c", "imu_eecf.c", "imu_kf1d.c",
-                "imu_eskf.c", "imu_filter.c", "imu_proto.c", "imu_nav.c", "imu_navcov.c", "imu_navkf.c"]
+                "imu_eskf.c", "imu_filter.c", "imu_proto.c", "imu_nav.c", "imu_navcov.c", "imu_navkf.c", "imu_navfilter.c"]
 
 _TYPEDEFS = {
     "fixed": """
@@ -40,6 +40,7 @@ _DECLARATIONS = """
     typedef struct { ...; } imu_eecf_settings_t;
     typedef struct { ...; } imu_kf1d_settings_t;
     typedef struct { ...; } imu_eskf_settings_t;
+    typedef struct { ...; } imu_navfilter_settings_t;
     typedef struct { ...; } imu_eskf_t;
     typedef struct { imu_filter_id_t id; ...; } imu_filter_t;
 
@@ -54,6 +55,9 @@ _DECLARATIONS = """
     extern const imu_eskf_settings_t imu_eskf_default_settings;
     extern const imu_setting_desc_t imu_eskf_setting_descs[];
     extern const int imu_eskf_setting_count;
+    extern const imu_navfilter_settings_t imu_navfilter_default_settings;
+    extern const imu_setting_desc_t imu_navfilter_setting_descs[];
+    extern const int imu_navfilter_setting_count;
 
     imu_status_t imu_filter_init(imu_filter_t *f, int id);
     imu_status_t imu_filter_set_settings(imu_filter_t *f, const void *settings);
@@ -119,6 +123,13 @@ _DECLARATIONS = """
 """
 # The message structs and functions of imu_proto.h, generated from shared/protocol.toml.
 _DECLARATIONS += runpy.run_path(str(Path(__file__).with_name("_protocol_schema.py")))["CFFI_DECLARATIONS"]
+_DECLARATIONS += """
+    void navfilter_run(imu_filter_t *f, size_t n, const int16_t *gyr, const int16_t *acc, const int16_t *mag,
+                       const int32_t *baro_after, size_t baro_count, const int32_t *baro_pa,
+                       const int32_t *gnss_after, size_t gnss_count, const imu_proto_gnss_t *gnss,
+                       const int32_t *marker_after, size_t marker_count, const imu_proto_marker_t *markers,
+                       imu_output_t *out, uint32_t *saturations, imu_real_t *position, void *nav_states);
+"""
 
 
 # The nav filter over a whole recording in one call (the per-sample loop in C): after the
@@ -156,13 +167,72 @@ static void navkf_run(imu_navkf_t *f, size_t n, const imu_rate_t *gyr, const imu
 """
 
 
+# The nav filter as the board runs it (firmware/app/app.c) over a recorded run, in one
+# call: sample k's counts, then its barometer reading, its receiver's fix and a marker
+# (those whose *_after is k, ascending), then the outputs: the ESTIMATE's attitude and
+# saturations, the position (lat, lon, height, velocity: n x 6) and, in the fixed build,
+# the NAV_STATE (NULL: not wanted).
+_NAVFILTER_RUN = """
+static void navfilter_run(imu_filter_t *f, size_t n, const int16_t *gyr, const int16_t *acc, const int16_t *mag,
+                          const int32_t *baro_after, size_t baro_count, const int32_t *baro_pa,
+                          const int32_t *gnss_after, size_t gnss_count, const imu_proto_gnss_t *gnss,
+                          const int32_t *marker_after, size_t marker_count, const imu_proto_marker_t *markers,
+                          imu_output_t *out, uint32_t *saturations, imu_real_t *position, void *nav_states)
+{
+    imu_navfilter_t *nav = imu_filter_nav(f);
+    size_t k, b = 0, g = 0, m = 0;
+    int i;
+    for (k = 0; k < n; ++k) {
+        imu_raw_sample_t raw;
+        const imu_navkf_t *state;
+        for (i = 0; i < 3; ++i) {
+            raw.gyr[i] = gyr[3 * k + i];
+            raw.acc[i] = acc[3 * k + i];
+            raw.mag[i] = mag[3 * k + i];
+        }
+        imu_filter_update_raw(f, &raw);
+        for (; b < baro_count && baro_after[b] == (int32_t)k; ++b) {
+            imu_navfilter_baro(nav, baro_pa[b]);
+        }
+        for (; g < gnss_count && gnss_after[g] == (int32_t)k; ++g) {
+            (void)imu_navfilter_gnss(nav, &gnss[g]);
+        }
+        for (; m < marker_count && marker_after[m] == (int32_t)k; ++m) {
+            const imu_proto_marker_t *a = &markers[m];
+            (void)imu_navfilter_marker(nav, a->lat_1e7deg, a->lon_1e7deg, a->height_mm, a->h_acc_mm, a->v_acc_mm);
+        }
+        imu_filter_get(f, &out[k]);
+        saturations[k] = imu_filter_saturations(f);
+        state = imu_navfilter_state(nav);
+        for (i = 0; i < 6; ++i) {
+            position[6 * k + i] = 0;
+        }
+        if (state != 0) {
+            imu_navkf_position(state, &position[6 * k], &position[6 * k + 1], &position[6 * k + 2]);
+            for (i = 0; i < 3; ++i) {
+                position[6 * k + 3 + i] = state->nav.vel[i];
+            }
+        }
+#ifdef IMU_FIXED
+        if (nav_states != 0) {
+            imu_navfilter_nav_state(nav, (uint32_t)k, (imu_proto_nav_state_t *)nav_states + k);
+        }
+#else
+        (void)nav_states;
+#endif
+    }
+}
+"""
+
+
 def _make(arithmetic: str) -> FFI:
     ffi = FFI()
     ffi.cdef(_TYPEDEFS[arithmetic] + _DECLARATIONS)
     rel = Path(__file__).resolve().parents[2]
     ffi.set_source(
         f"imulink._core_{arithmetic}",
-        '#include "imu_filter.h"\n#include "imu_math.h"\n#include "imu_proto.h"\n#include "imu_navkf.h"\n' + _NAVKF_RUN,
+        '#include "imu_filter.h"\n#include "imu_math.h"\n#include "imu_proto.h"\n#include "imu_navkf.h"\n'
+        + _NAVKF_RUN + _NAVFILTER_RUN,
         sources=[str((CORE_DIR / s).relative_to(rel)) for s in CORE_SOURCES],
         include_dirs=[str(CORE_DIR.relative_to(rel))],
         define_macros=[("IMU_FIXED" if arithmetic == "fixed" else "IMU_FLOAT", "1")],

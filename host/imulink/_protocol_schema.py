@@ -7,7 +7,7 @@ the last field only, text / bytes (length: the maximum, variable on the wire).
 """
 
 PROTOCOL_VERSION = 1
-SCHEMA_HASH = 0xB5437FCE
+SCHEMA_HASH = 0x9C50E996
 HEADER_SIZE = 3
 CRC_SIZE = 4
 MAX_PAYLOAD = 201
@@ -116,6 +116,31 @@ MESSAGES = {
         ('vel_ned_mm_s', 'i32', 3),
         ('s_acc_mm_s', 'u32', None),
     )},
+    'NAV_STATE': {'id': 0x14, 'direction': 'to_host', 'fields': (
+        ('index', 'u32', None),
+        ('mode', 'u8', None),
+        ('lat', 'i32', None),
+        ('lon', 'i32', None),
+        ('height_mm', 'i32', None),
+        ('vel', 'i32', 3),
+        ('acc_bias', 'i32', 3),
+        ('baro_bias_mm', 'i32', None),
+        ('var_mantissa', 'i32', 16),
+        ('var_exponent', 'i8', 16),
+        ('since_fix', 'u32', None),
+        ('rejected', 'u32', None),
+        ('zero_velocity', 'u32', None),
+    )},
+    'MARKER': {'id': 0x15, 'direction': 'to_host', 'fields': (
+        ('timestamp_us', 'u32', None),
+        ('index', 'u32', None),
+        ('lat_1e7deg', 'i32', None),
+        ('lon_1e7deg', 'i32', None),
+        ('height_mm', 'i32', None),
+        ('h_acc_mm', 'u32', None),
+        ('v_acc_mm', 'u32', None),
+        ('used', 'u8', None),
+    )},
     'COMMAND': {'id': 0x20, 'direction': 'to_board', 'fields': (
         ('command', 'u8', None),
         ('command_seq', 'u16', None),
@@ -162,12 +187,19 @@ COMMANDS = {
         ('sensor', 'u8', None),
         ('axis', 'u8', None),
     )},
+    'POSITION_FIX': {'id': 14, 'args': (
+        ('lat_1e7deg', 'i32', None),
+        ('lon_1e7deg', 'i32', None),
+        ('height_mm', 'i32', None),
+        ('h_acc_mm', 'u32', None),
+        ('v_acc_mm', 'u32', None),
+    )},
 }
 
 #: code table name -> code name -> value
 ENUMS = {
-    'filter': {'EECF': 1, 'KF1D': 2, 'ESKF': 3},
-    'reason': {'OK': 0, 'UNKNOWN_COMMAND': 1, 'BAD_LENGTH': 2, 'BAD_ARGUMENT': 3, 'OUT_OF_RANGE': 4, 'BUSY': 5, 'NOT_IN_INJECTION_MODE': 6, 'UNKNOWN_FILTER': 7, 'UNKNOWN_SETTING': 8, 'NOT_SUPPORTED': 9},
+    'filter': {'EECF': 1, 'KF1D': 2, 'ESKF': 3, 'NAV': 4},
+    'reason': {'OK': 0, 'UNKNOWN_COMMAND': 1, 'BAD_LENGTH': 2, 'BAD_ARGUMENT': 3, 'OUT_OF_RANGE': 4, 'BUSY': 5, 'NOT_IN_INJECTION_MODE': 6, 'UNKNOWN_FILTER': 7, 'UNKNOWN_SETTING': 8, 'NOT_SUPPORTED': 9, 'NOT_NAV': 10},
     'sensor': {'GYROSCOPE': 0, 'ACCELEROMETER': 1, 'MAGNETOMETER': 2},
     'log_level': {'DEBUG': 10, 'INFO': 20, 'WARNING': 30, 'ERROR': 40},
 }
@@ -177,10 +209,10 @@ CFFI_DECLARATIONS = """
 #define IMU_PROTO_VERSION ...
 #define IMU_PROTO_SCHEMA_HASH ...
 #define IMU_PROTO_MAX_PAYLOAD ...
-typedef enum { IMU_PROTO_MSG_HELLO = 1, IMU_PROTO_MSG_STATUS = 2, IMU_PROTO_MSG_LOG = 3, IMU_PROTO_MSG_ACK = 4, IMU_PROTO_MSG_NACK = 5, IMU_PROTO_MSG_SETTING = 6, IMU_PROTO_MSG_CALIBRATION = 7, IMU_PROTO_MSG_SAMPLE = 16, IMU_PROTO_MSG_ESTIMATE = 17, IMU_PROTO_MSG_BARO = 18, IMU_PROTO_MSG_GNSS = 19, IMU_PROTO_MSG_COMMAND = 32 } imu_proto_msg_id_t;
-typedef enum { IMU_PROTO_CMD_START_STREAM = 1, IMU_PROTO_CMD_STOP_STREAM = 2, IMU_PROTO_CMD_SELECT_FILTER = 3, IMU_PROTO_CMD_GET_SETTING = 4, IMU_PROTO_CMD_SET_SETTING = 5, IMU_PROTO_CMD_INJECT_SAMPLE = 6, IMU_PROTO_CMD_RESET = 7, IMU_PROTO_CMD_ENTER_BOOTLOADER = 8, IMU_PROTO_CMD_GET_VERSION = 9, IMU_PROTO_CMD_GET_STATUS = 10, IMU_PROTO_CMD_SET_INJECTION_MODE = 11, IMU_PROTO_CMD_SET_CALIBRATION = 12, IMU_PROTO_CMD_GET_CALIBRATION = 13 } imu_proto_command_id_t;
-typedef enum { IMU_PROTO_FILTER_EECF = 1, IMU_PROTO_FILTER_KF1D = 2, IMU_PROTO_FILTER_ESKF = 3 } imu_proto_filter_t;
-typedef enum { IMU_PROTO_REASON_OK = 0, IMU_PROTO_REASON_UNKNOWN_COMMAND = 1, IMU_PROTO_REASON_BAD_LENGTH = 2, IMU_PROTO_REASON_BAD_ARGUMENT = 3, IMU_PROTO_REASON_OUT_OF_RANGE = 4, IMU_PROTO_REASON_BUSY = 5, IMU_PROTO_REASON_NOT_IN_INJECTION_MODE = 6, IMU_PROTO_REASON_UNKNOWN_FILTER = 7, IMU_PROTO_REASON_UNKNOWN_SETTING = 8, IMU_PROTO_REASON_NOT_SUPPORTED = 9 } imu_proto_reason_t;
+typedef enum { IMU_PROTO_MSG_HELLO = 1, IMU_PROTO_MSG_STATUS = 2, IMU_PROTO_MSG_LOG = 3, IMU_PROTO_MSG_ACK = 4, IMU_PROTO_MSG_NACK = 5, IMU_PROTO_MSG_SETTING = 6, IMU_PROTO_MSG_CALIBRATION = 7, IMU_PROTO_MSG_SAMPLE = 16, IMU_PROTO_MSG_ESTIMATE = 17, IMU_PROTO_MSG_BARO = 18, IMU_PROTO_MSG_GNSS = 19, IMU_PROTO_MSG_NAV_STATE = 20, IMU_PROTO_MSG_MARKER = 21, IMU_PROTO_MSG_COMMAND = 32 } imu_proto_msg_id_t;
+typedef enum { IMU_PROTO_CMD_START_STREAM = 1, IMU_PROTO_CMD_STOP_STREAM = 2, IMU_PROTO_CMD_SELECT_FILTER = 3, IMU_PROTO_CMD_GET_SETTING = 4, IMU_PROTO_CMD_SET_SETTING = 5, IMU_PROTO_CMD_INJECT_SAMPLE = 6, IMU_PROTO_CMD_RESET = 7, IMU_PROTO_CMD_ENTER_BOOTLOADER = 8, IMU_PROTO_CMD_GET_VERSION = 9, IMU_PROTO_CMD_GET_STATUS = 10, IMU_PROTO_CMD_SET_INJECTION_MODE = 11, IMU_PROTO_CMD_SET_CALIBRATION = 12, IMU_PROTO_CMD_GET_CALIBRATION = 13, IMU_PROTO_CMD_POSITION_FIX = 14 } imu_proto_command_id_t;
+typedef enum { IMU_PROTO_FILTER_EECF = 1, IMU_PROTO_FILTER_KF1D = 2, IMU_PROTO_FILTER_ESKF = 3, IMU_PROTO_FILTER_NAV = 4 } imu_proto_filter_t;
+typedef enum { IMU_PROTO_REASON_OK = 0, IMU_PROTO_REASON_UNKNOWN_COMMAND = 1, IMU_PROTO_REASON_BAD_LENGTH = 2, IMU_PROTO_REASON_BAD_ARGUMENT = 3, IMU_PROTO_REASON_OUT_OF_RANGE = 4, IMU_PROTO_REASON_BUSY = 5, IMU_PROTO_REASON_NOT_IN_INJECTION_MODE = 6, IMU_PROTO_REASON_UNKNOWN_FILTER = 7, IMU_PROTO_REASON_UNKNOWN_SETTING = 8, IMU_PROTO_REASON_NOT_SUPPORTED = 9, IMU_PROTO_REASON_NOT_NAV = 10 } imu_proto_reason_t;
 typedef enum { IMU_PROTO_SENSOR_GYROSCOPE = 0, IMU_PROTO_SENSOR_ACCELEROMETER = 1, IMU_PROTO_SENSOR_MAGNETOMETER = 2 } imu_proto_sensor_t;
 typedef enum { IMU_PROTO_LOG_LEVEL_DEBUG = 10, IMU_PROTO_LOG_LEVEL_INFO = 20, IMU_PROTO_LOG_LEVEL_WARNING = 30, IMU_PROTO_LOG_LEVEL_ERROR = 40 } imu_proto_log_level_t;
 #define IMU_PROTO_HELLO_SIZE ...
@@ -238,6 +270,16 @@ typedef struct { uint32_t timestamp_us; uint32_t index; uint32_t time_ms; uint8_
 size_t imu_proto_gnss_pack(const imu_proto_gnss_t *m, uint8_t *payload);
 imu_proto_result_t imu_proto_gnss_unpack(imu_proto_gnss_t *m, const uint8_t *payload, size_t len);
 size_t imu_proto_gnss_encode(const imu_proto_gnss_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
+#define IMU_PROTO_NAV_STATE_SIZE ...
+typedef struct { uint32_t index; uint8_t mode; int32_t lat; int32_t lon; int32_t height_mm; int32_t vel[3]; int32_t acc_bias[3]; int32_t baro_bias_mm; int32_t var_mantissa[16]; int8_t var_exponent[16]; uint32_t since_fix; uint32_t rejected; uint32_t zero_velocity; } imu_proto_nav_state_t;
+size_t imu_proto_nav_state_pack(const imu_proto_nav_state_t *m, uint8_t *payload);
+imu_proto_result_t imu_proto_nav_state_unpack(imu_proto_nav_state_t *m, const uint8_t *payload, size_t len);
+size_t imu_proto_nav_state_encode(const imu_proto_nav_state_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
+#define IMU_PROTO_MARKER_SIZE ...
+typedef struct { uint32_t timestamp_us; uint32_t index; int32_t lat_1e7deg; int32_t lon_1e7deg; int32_t height_mm; uint32_t h_acc_mm; uint32_t v_acc_mm; uint8_t used; } imu_proto_marker_t;
+size_t imu_proto_marker_pack(const imu_proto_marker_t *m, uint8_t *payload);
+imu_proto_result_t imu_proto_marker_unpack(imu_proto_marker_t *m, const uint8_t *payload, size_t len);
+size_t imu_proto_marker_encode(const imu_proto_marker_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 #define IMU_PROTO_COMMAND_SIZE ...
 typedef struct { uint8_t command; uint16_t command_seq; uint8_t args[28]; size_t args_len; } imu_proto_command_t;
 size_t imu_proto_command_pack(const imu_proto_command_t *m, uint8_t *payload);
@@ -270,5 +312,9 @@ imu_proto_result_t imu_proto_cmd_set_calibration_unpack(imu_proto_cmd_set_calibr
 typedef struct { uint8_t sensor; uint8_t axis; } imu_proto_cmd_get_calibration_t;
 size_t imu_proto_cmd_get_calibration_pack(const imu_proto_cmd_get_calibration_t *a, uint8_t *args);
 imu_proto_result_t imu_proto_cmd_get_calibration_unpack(imu_proto_cmd_get_calibration_t *a, const uint8_t *args, size_t len);
+#define IMU_PROTO_CMD_POSITION_FIX_SIZE ...
+typedef struct { int32_t lat_1e7deg; int32_t lon_1e7deg; int32_t height_mm; uint32_t h_acc_mm; uint32_t v_acc_mm; } imu_proto_cmd_position_fix_t;
+size_t imu_proto_cmd_position_fix_pack(const imu_proto_cmd_position_fix_t *a, uint8_t *args);
+imu_proto_result_t imu_proto_cmd_position_fix_unpack(imu_proto_cmd_position_fix_t *a, const uint8_t *args, size_t len);
 int imu_proto_command_args_size(uint8_t command);
 """

@@ -147,7 +147,7 @@ def _cmd_filters(args) -> int:
     from . import core
 
     report = {"filters": []}
-    for name in _parse_filters(args.filters):
+    for name in _parse_filters(args.filters, core.BOARD_FILTERS):
         defaults = core.default_settings(name)
         fields = core.settings_fields(name)
         report["filters"].append({"filter": name, "settings": [
@@ -202,7 +202,7 @@ def _cmd_settings(args) -> int:
             hil.apply_settings(link, loaded)
             changed |= set(loaded.values)
         elif args.filter is not None:
-            link.command("SELECT_FILTER", filter_id=core.FILTERS[args.filter][0])
+            link.command("SELECT_FILTER", filter_id=core.BOARD_FILTERS[args.filter][0])
         filter_id, board = hil.read_settings(link)
         by_name = {s["name"]: (index, s) for index, s in board.items()}
         unknown = [name for name in wanted if name not in by_name]
@@ -483,14 +483,16 @@ def _cmd_calibrate(args) -> int:
     return 0
 
 
-def _parse_filters(text: str) -> list[str]:
+def _parse_filters(text: str, known=None) -> list[str]:
+    """Filter names (comma-separated, or all) among `known` (default: the attitude filters)."""
     from . import core
 
-    names = [n.strip() for n in text.split(",") if n.strip()] if text != "all" else list(core.FILTERS)
-    unknown = [n for n in names if n not in core.FILTERS]
+    known = core.FILTERS if known is None else known
+    names = [n.strip() for n in text.split(",") if n.strip()] if text != "all" else list(known)
+    unknown = [n for n in names if n not in known]
     if unknown or not names:
         raise UsageError(f"unknown filter(s) {', '.join(unknown) or repr(text)}; choose from "
-                         f"{', '.join(core.FILTERS)} (comma-separated) or all")
+                         f"{', '.join(known)} (comma-separated) or all")
     return names
 
 
@@ -907,7 +909,8 @@ def _cmd_inject(args) -> int:
 def _cmd_demo(args) -> int:
     from . import hil
 
-    report = hil.demo(target=args.target, transport=args.transport, scenario=args.scenario, duration_s=args.duration,
+    scenario = args.scenario or (hil.NAV_SCENARIO if args.filter == "nav" else "rests")
+    report = hil.demo(target=args.target, transport=args.transport, scenario=scenario, duration_s=args.duration,
                       rate_hz=args.rate, seed=args.seed, filter_name=args.filter, output=args.output,
                       force=args.force, progress=hil.Progress(), min_verified=args.min_verified)
     if args.json:
@@ -1065,14 +1068,15 @@ def _add_hil_commands(sub) -> None:
         p.add_argument("--baud", type=_baud, default=DEFAULT_BAUD,
                        help=f"line rate of a real serial port (default: {DEFAULT_BAUD}; ignored by sockets and ptys)")
 
-    def simulation_arguments(p, duration: float, scenario: str = "rests"):
-        p.add_argument("--scenario", default=scenario, choices=sim.SCENARIOS,
-                       help=f"simulated trajectory (default: {scenario})")
+    def simulation_arguments(p, duration: float, scenario: str = "rests", scenarios=sim.SCENARIOS,
+                             scenario_help: str | None = None):
+        p.add_argument("--scenario", default=scenario, choices=scenarios,
+                       help=scenario_help or f"simulated trajectory (default: {scenario})")
         p.add_argument("--duration", type=_positive_float, default=duration,
                        help=f"seconds of simulated data (default: {duration:g})")
         p.add_argument("--rate", type=_positive_float, default=100.0, help="sample rate in Hz (default: 100)")
         p.add_argument("--seed", type=_seed, default=0, help="seed of the simulation (default: 0)")
-        p.add_argument("--filter", default="eskf", choices=list(core.FILTERS),
+        p.add_argument("--filter", default="eskf", choices=list(core.BOARD_FILTERS),
                        help="filter active at start-up (default: eskf)")
 
     def target_arguments(p):
@@ -1121,7 +1125,9 @@ def _add_hil_commands(sub) -> None:
                     "of the same C, and report: frames and losses, bit-exactness, the fixed-vs-float difference, "
                     "and the accuracy against the simulated truth. Exit status 0 when every verified estimate is "
                     "bit-exact and at least --min-verified of them were verified, 1 otherwise.")
-    simulation_arguments(p, 60.0)
+    simulation_arguments(p, 60.0, None, hil.DEMO_SCENARIOS,
+                         f"simulated run (default: {hil.NAV_SCENARIO} for --filter nav, rests for the others); "
+                         f"{hil.NAV_SCENARIO}: a drive with a GNSS receiver at 1 Hz and the barometer")
     target_arguments(p)
     p.add_argument("--transport", choices=("tcp", "pty"), default="tcp", help="link to the board (default: tcp)")
     p.add_argument("--output", "-o", metavar="FILE", help="keep the recording here (default: not kept)")
@@ -1213,7 +1219,7 @@ def _add_hil_commands(sub) -> None:
                     "reason; the settings set before it stay.")
     p.add_argument("port", metavar="PORT", help="serial device or pyserial URL of the board")
     p.add_argument("assignments", metavar="NAME=VALUE", nargs="*", help="settings to set, in SI units")
-    p.add_argument("--filter", choices=list(core.FILTERS), help="make this filter active first")
+    p.add_argument("--filter", choices=list(core.BOARD_FILTERS), help="make this filter active first")
     p.add_argument("--load", metavar="FILE", help="give the board the settings of FILE (and make its filter active)")
     p.add_argument("--save", metavar="FILE", help="write the board's settings to FILE (a settings file)")
     p.add_argument("--baud", type=_baud, default=DEFAULT_BAUD,

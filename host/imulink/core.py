@@ -16,8 +16,11 @@ from .counts import DEFAULT_PROFILE, SCALE_FRAC_BITS, SensorProfile, check_count
 
 ARITHMETICS = ("fixed", "float")
 
-#: filter name -> (id in imu_filter_id_t, C prefix of its settings symbols)
+#: attitude filter name -> (id in imu_filter_id_t, C prefix of its settings symbols)
 FILTERS = {"eecf": (1, "imu_eecf"), "kf1d": (2, "imu_kf1d"), "eskf": (3, "imu_eskf")}
+#: every filter the board runs: the attitude filters and the navigation filter (imu_navfilter.h:
+#: position and velocity besides the attitude; Filter.run_nav_counts feeds it what it measures)
+BOARD_FILTERS = {**FILTERS, "nav": (4, "imu_navfilter")}
 
 #: Q formats of the fixed-build outputs.
 QUAT_FRAC_BITS = 30
@@ -39,9 +42,9 @@ def _module(arithmetic: str):
 
 def _check_filter(name: str) -> tuple[int, str]:
     try:
-        return FILTERS[name]
+        return BOARD_FILTERS[name]
     except KeyError:
-        raise ValueError(f"unknown filter {name!r}; choose one of {sorted(FILTERS)}") from None
+        raise ValueError(f"unknown filter {name!r}; choose one of {sorted(BOARD_FILTERS)}") from None
 
 
 @dataclass(frozen=True)
@@ -186,6 +189,26 @@ class RunResult:
     raw: dict | None = None
 
 
+@dataclass
+class NavBoardRun:
+    """The nav filter's outputs for every sample as the board runs it (Filter.run_nav_counts):
+    the ESTIMATE's attitude (quaternion, Euler angles, gyro bias: SI; raw: the fixed build's
+    integers, None for float) and saturation count after each sample, the position (deg, m)
+    and ENU velocity (m/s; zero before the first fix), and in the fixed build the NAV_STATE
+    fields (name -> array, one row per sample)."""
+
+    quat: np.ndarray
+    euler: np.ndarray
+    gyro_bias: np.ndarray
+    raw: dict | None
+    saturations: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    height_m: np.ndarray
+    vel_enu: np.ndarray
+    nav_states: dict | None
+
+
 class Filter:
     """A filter instance of the C core: feed count arrays batch after batch."""
 
@@ -247,6 +270,66 @@ class Filter:
         return RunResult(self.filter_name, self.arithmetic, quat_f, euler_f, bias_f,
                          int(lib.imu_filter_saturations(self._handle)), dict(self.settings), raw)
 
+
+    def run_nav_counts(self, gyr_counts, acc_counts, mag_counts, baro_after=(), baro_pa=(), gnss_after=(),
+                       gnss=(), marker_after=(), markers=()) -> NavBoardRun:
+        """Run the nav filter as the board runs it: after sample k its barometer readings
+        (compensated Pa), its receiver's fixes (GNSS frame fields) and its markers (MARKER
+        frame fields) whose *_after is k (each list ascending). Only for filter "nav"."""
+        if self.filter_name != "nav":
+            raise ValueError(f"run_nav_counts runs the nav filter, not {self.filter_name!r}")
+        ffi, lib = self.mod.ffi, self.mod.lib
+        arrays = [check_counts(name, a) for name, a in (("gyr", gyr_counts), ("acc", acc_counts),
+                                                         ("mag", mag_counts))]
+        n = arrays[0].shape[0]
+        fixed = self.arithmetic == "fixed"
+
+        def structs(ctype: str, rows):
+            out = ffi.new(f"{ctype}[]", max(1, len(rows)))
+            for k, row in enumerate(rows):
+                for name, value in row.items():
+                    if hasattr(out[k], name) and name not in ("timestamp_us", "index"):
+                        setattr(out[k], name, value)
+            return out
+
+        def indices(values):
+            return np.ascontiguousarray(np.asarray(values, dtype=np.int32).reshape(-1))
+
+        baro_at, gnss_at, marker_at = indices(baro_after), indices(gnss_after), indices(marker_after)
+        pressures = indices(baro_pa)
+        outputs = ffi.new("imu_output_t[]", max(1, n))
+        saturations = np.zeros(n, np.uint32)
+        position = np.zeros((n, 6), np.int32 if fixed else np.float64)
+        states = ffi.new("imu_proto_nav_state_t[]", max(1, n)) if fixed else ffi.NULL
+        lib.navfilter_run(self._handle, n, *(ffi.cast("int16_t *", ffi.from_buffer(a)) for a in arrays),
+                          ffi.cast("int32_t *", ffi.from_buffer(baro_at)), len(baro_at),
+                          ffi.cast("int32_t *", ffi.from_buffer(pressures)),
+                          ffi.cast("int32_t *", ffi.from_buffer(gnss_at)), len(gnss_at),
+                          structs("imu_proto_gnss_t", list(gnss)),
+                          ffi.cast("int32_t *", ffi.from_buffer(marker_at)), len(marker_at),
+                          structs("imu_proto_marker_t", list(markers)), outputs,
+                          ffi.cast("uint32_t *", ffi.from_buffer(saturations)),
+                          ffi.cast("int32_t *" if fixed else "double *", ffi.from_buffer(position)),
+                          states)
+        raw_out = {name: np.array([list(getattr(outputs[k], name)) for k in range(n)]).reshape(n, width)
+                   for name, width in (("quat", 4), ("euler", 3), ("gyro_bias", 3))}
+        scale = {"quat": QUAT_FRAC_BITS, "euler": EULER_FRAC_BITS, "gyro_bias": RATE_FRAC_BITS}
+        si = {name: values / 2.0**scale[name] if fixed else values.astype(np.float64)
+              for name, values in raw_out.items()}
+        nav_states = None
+        if fixed:
+            from .protocol import message_fields
+
+            nav_states = {}
+            for name, _, length in message_fields("NAV_STATE"):
+                column = [getattr(states[k], name) for k in range(n)]
+                nav_states[name] = (np.array([list(v) for v in column], np.int64).reshape(n, length) if length
+                                    else np.array(column, np.int64))
+        lat_lon_scale, vel_scale = (2.0**-29, 2.0**-20) if fixed else (1.0, 1.0)
+        return NavBoardRun(si["quat"], si["euler"], si["gyro_bias"], raw_out if fixed else None,
+                           saturations.astype(np.int64), np.degrees(position[:, 0] * lat_lon_scale),
+                           np.degrees(position[:, 1] * lat_lon_scale), position[:, 2] / 1000.0,
+                           position[:, 3:] * vel_scale, nav_states)
 
     def _eskf(self):
         state = self.mod.lib.imu_filter_eskf(self._handle)

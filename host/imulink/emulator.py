@@ -263,8 +263,8 @@ class EmulatedBoard:
                  image: str | os.PathLike | None = None, baud: int = 921600,
                  simulation: sim.SimResult | None = None, gnss: navigation.GnssFixes | None = None,
                  baro: navigation.BaroSamples | None = None):
-        if filter_name not in core.FILTERS:
-            raise EmulatorError(f"unknown filter {filter_name!r}; choose one of {', '.join(core.FILTERS)}")
+        if filter_name not in core.BOARD_FILTERS:
+            raise EmulatorError(f"unknown filter {filter_name!r}; choose one of {', '.join(core.BOARD_FILTERS)}")
         core.Filter(filter_name, rate_hz)  # SettingsError for a rate the filter is not made for (nor the host's replay)
         # the profiles the firmware's --profile option knows (boards/emulated/options.c)
         if profile.name not in PROFILES or PROFILES[profile.name] != profile:

@@ -43,7 +43,7 @@ from .reference import FirmwareFilter
 
 #: Seconds excluded from accuracy statistics (alignment and convergence).
 SETTLE_S = 10.0
-_FILTER_NAMES = {filter_id: name for name, (filter_id, _) in core.FILTERS.items()}
+_FILTER_NAMES = {filter_id: name for name, (filter_id, _) in core.BOARD_FILTERS.items()}
 
 
 def name_of_filter(filter_id: int) -> str:
@@ -172,7 +172,7 @@ def apply_settings(link: Link, settings) -> None:
     give it the file's settings (SET_SETTING, raw); the others keep the board's values.
     HilError naming the setting the board refuses."""
     fields = core.settings_fields(settings.filter_name)
-    link.command("SELECT_FILTER", filter_id=core.FILTERS[settings.filter_name][0])
+    link.command("SELECT_FILTER", filter_id=core.BOARD_FILTERS[settings.filter_name][0])
     raw = settings.raw()
     for index, f in enumerate(fields):
         if f.name in raw:
@@ -627,29 +627,82 @@ class HostRun:
     float_euler: np.ndarray
     float_gyro_bias: np.ndarray
     verifiable: np.ndarray
+    #: where the nav filter ran: the NAV_STATE fields of the fixed build (name -> array over
+    #: the recorded samples; rows of other filters zero), and the float twin's position
+    #: (lat, lon deg, height m; NaN elsewhere and before its first fix)
+    nav: dict[str, np.ndarray] | None = None
+    nav_rows: np.ndarray | None = None
+    float_position: np.ndarray | None = None
+
+
+def _events_after(recording: Recording, table, segment: int, sample_index: np.ndarray) -> np.ndarray:
+    """Per row of `table` (BARO, GNSS, MARKER), the position in `sample_index` (a segment's
+    recorded samples) of the sample it came after; -1 for another segment or a lost sample."""
+    where = np.full(len(table), -1, np.int64)
+    mine = np.flatnonzero(table.segment == segment)
+    at = np.searchsorted(sample_index, table.index[mine])
+    found = (at < len(sample_index)) & (sample_index[np.minimum(at, len(sample_index) - 1)] == table.index[mine])
+    where[mine[found]] = at[found]
+    return where
+
+
+def nav_inputs(recording: Recording, segment: int, sample_index: np.ndarray) -> dict:
+    """What the board's nav filter took besides the samples of a segment, for
+    core.Filter.run_nav_counts: its barometer readings, receiver's fixes and markers, each
+    at the position of its sample among `sample_index` (the segment's recorded indices)."""
+    baro, gnss, markers = recording.baro, recording.gnss, recording.markers
+    b = _events_after(recording, baro, segment, sample_index)
+    g = _events_after(recording, gnss, segment, sample_index)
+    m = _events_after(recording, markers, segment, sample_index)
+    gnss_fields = [name for name, _, _ in protocol.message_fields("GNSS") if name not in ("timestamp_us", "index")]
+    fixes = [{name: (getattr(gnss, name)[k].tolist()) for name in gnss_fields} for k in np.flatnonzero(g >= 0)]
+    marker_rows = markers.rows()
+    return {"baro_after": b[b >= 0], "baro_pa": baro.pressure_pa[b >= 0], "gnss_after": g[g >= 0], "gnss": fixes,
+            "marker_after": m[m >= 0], "markers": [marker_rows[k] for k in np.flatnonzero(m >= 0)]}
 
 
 def host_run(recording: Recording) -> HostRun:
-    """Re-run the recorded samples through both builds of the filter the board ran."""
+    """Re-run the recorded samples through both builds of the filter the board ran (the
+    nav filter with the barometer readings, fixes and markers the board gave it)."""
     samples = recording.samples
     n = len(samples)
     fixed = {name: np.zeros((n,) + shape, np.int64) for name, shape in _ESTIMATE_SHAPES.items()}
     float_quat, float_euler, float_bias = np.full((n, 4), np.nan), np.full((n, 3), np.nan), np.full((n, 3), np.nan)
     verifiable = np.zeros(n, bool)
+    nav = nav_rows = float_position = None
     for segment in np.unique(samples.segment).tolist():
         rows = np.flatnonzero(samples.segment == segment)
         name, raw_settings = recording.filter_settings(_segment_filter(recording, segment), segment)
         counts = samples.gyr[rows], samples.acc[rows], samples.mag[rows]
         calibration = recording.calibration(segment)
-        for key, values in fixed_outputs(name, raw_settings, recording.profile, *counts, calibration).items():
-            fixed[key][rows] = values
         reference = FirmwareFilter(name, raw_settings, recording.profile, calibration)
         twin = core.Filter(name, reference.si_settings["sample_rate"], "float", reference.si_settings,
-                           recording.profile, calibration).run_counts(*counts)
-        float_quat[rows], float_euler[rows], float_bias[rows] = twin.quat, twin.euler, twin.gyro_bias
+                           recording.profile, calibration)
+        if name == "nav":
+            inputs = nav_inputs(recording, segment, samples.index[rows])
+            board = reference.core.run_nav_counts(*counts, **inputs)
+            fixed["filter_id"][rows] = reference.filter_id
+            for key in ("quat", "gyro_bias", "euler"):
+                fixed[key][rows] = board.raw[key]
+            fixed["saturations"][rows] = board.saturations
+            if nav is None:
+                nav = {key: np.zeros((n,) + values.shape[1:], np.int64) for key, values in board.nav_states.items()}
+                nav_rows, float_position = np.zeros(n, bool), np.full((n, 3), np.nan)
+            for key, values in board.nav_states.items():
+                nav[key][rows] = values
+            nav["index"][rows] = samples.index[rows]
+            nav_rows[rows] = True
+            result = twin.run_nav_counts(*counts, **inputs)
+            anchored = board.nav_states["mode"] == 2
+            float_position[rows[anchored]] = np.c_[result.lat_deg, result.lon_deg, result.height_m][anchored]
+        else:
+            for key, values in fixed_outputs(name, raw_settings, recording.profile, *counts, calibration).items():
+                fixed[key][rows] = values
+            result = twin.run_counts(*counts)
+        float_quat[rows], float_euler[rows], float_bias[rows] = result.quat, result.euler, result.gyro_bias
         complete = samples.index[rows] == np.arange(len(rows))
         verifiable[rows] = np.cumprod(complete).astype(bool)
-    return HostRun(fixed, float_quat, float_euler, float_bias, verifiable)
+    return HostRun(fixed, float_quat, float_euler, float_bias, verifiable, nav, nav_rows, float_position)
 
 
 def fixed_outputs(filter_name: str, raw_settings: dict[str, int], profile: SensorProfile, gyr, acc, mag,
@@ -825,6 +878,13 @@ def _sample_rows(recording: Recording) -> np.ndarray:
     return np.array([rows.get((int(s), int(i)), -1) for s, i in zip(estimates.segment, estimates.index)], np.int64)
 
 
+def _nav_state_rows(recording: Recording) -> np.ndarray:
+    """Per estimate, the row of the NAV_STATE with the same segment and index (-1: none)."""
+    states, estimates = recording.nav_states, recording.estimates
+    rows = {(int(s), int(i)): r for r, (s, i) in enumerate(zip(states.segment, states.index))}
+    return np.array([rows.get((int(s), int(i)), -1) for s, i in zip(estimates.segment, estimates.index)], np.int64)
+
+
 def compare(recording: Recording, run: HostRun | None = None, min_verified: float = MIN_VERIFIED) -> Comparison:
     """Compare every verifiable board estimate with the host fixed-point build, bit for bit;
     its verdict passes with at least `min_verified` of the recorded estimates verified."""
@@ -833,27 +893,79 @@ def compare(recording: Recording, run: HostRun | None = None, min_verified: floa
     sample_row = _sample_rows(recording)
     verified = sample_row >= 0
     verified[verified] = run.verifiable[sample_row[verified]]
+    state_row = _nav_state_rows(recording)
+    if run.nav_rows is not None:
+        # the nav filter's estimate is verified with its NAV_STATE: both must have arrived
+        nav = verified.copy()
+        nav[verified] = run.nav_rows[sample_row[verified]]
+        verified &= ~nav | (state_row >= 0)
     positions, rows = np.flatnonzero(verified), sample_row[verified]
+
+    def board_and_host(name: str):
+        """A compared field's values at the verified estimates: the board's and the host's
+        (NAV_STATE fields, "nav_state.<name>", only where the nav filter ran)."""
+        if not name.startswith("nav_state."):
+            return getattr(estimates, name)[positions], run.fixed[name][rows]
+        field = name.split(".", 1)[1]
+        states = np.flatnonzero(run.nav_rows[rows])
+        return (recording.nav_states.fields[field][state_row[positions[states]]],
+                run.nav[field][rows[states]])
+
+    compared = list(Estimates.COMPARED)
+    if run.nav is not None:
+        compared += [f"nav_state.{name}" for name, _, _ in protocol.message_fields("NAV_STATE")]
     equal = np.ones(len(positions), bool)
-    for name in Estimates.COMPARED:
-        board, host = getattr(estimates, name)[positions], run.fixed[name][rows]
-        equal &= board == host if board.ndim == 1 else np.all(board == host, axis=1)
+    for name in compared:
+        board, host = board_and_host(name)
+        same = board == host if board.ndim == 1 else np.all(board == host, axis=1)
+        if name.startswith("nav_state."):
+            equal[np.flatnonzero(run.nav_rows[rows])] &= same
+        else:
+            equal &= same
     identical = np.zeros(len(verified), bool)
     identical[positions] = equal
     first = None
     if not equal.all():
         k = int(np.flatnonzero(~equal)[0])
         position, row = int(positions[k]), int(rows[k])
-        name = next(f for f in Estimates.COMPARED if np.any(getattr(estimates, f)[position] != run.fixed[f][row]))
-        first = Difference(position, int(estimates.segment[position]), int(estimates.index[position]), name,
-                           getattr(estimates, name)[position].tolist(), run.fixed[name][row].tolist())
-    return Comparison(sample_row, verified, identical, first,
-                      _fixed_vs_float(estimates, positions, run.float_quat[rows], run.float_euler[rows],
-                                      run.float_gyro_bias[rows]), recording.damaged,
+        for name in compared:
+            if name.startswith("nav_state."):
+                field = name.split(".", 1)[1]
+                board_value = recording.nav_states.fields[field][state_row[position]]
+                host_value = run.nav[field][row]
+            else:
+                board_value, host_value = getattr(estimates, name)[position], run.fixed[name][row]
+            if np.any(board_value != host_value):
+                first = Difference(position, int(estimates.segment[position]), int(estimates.index[position]), name,
+                                   board_value.tolist(), host_value.tolist())
+                break
+    fixed_vs_float = _fixed_vs_float(estimates, positions, run.float_quat[rows], run.float_euler[rows],
+                                     run.float_gyro_bias[rows])
+    if run.nav is not None and len(positions):
+        fixed_vs_float.update(_position_fixed_vs_float(recording, run, state_row[positions], rows))
+    return Comparison(sample_row, verified, identical, first, fixed_vs_float, recording.damaged,
                       np.asarray(estimates.leftover, bool), min_verified)
 
 
+def _position_fixed_vs_float(recording: Recording, run: HostRun, state_rows: np.ndarray, rows: np.ndarray) -> dict:
+    """The largest distance (m) between the board's nav position (its NAV_STATE) and the
+    float twin's, over the verified samples where both have a position."""
+    from .sim.navigation import local_offsets
+
+    states = recording.nav_states.fields
+    usable = (state_rows >= 0) & ~np.isnan(run.float_position[rows, 0])
+    usable[usable] &= states["mode"][state_rows[usable]] == 2
+    if not usable.any():
+        return {}
+    board = state_rows[usable]
+    twin = run.float_position[rows[usable]]
+    d = local_offsets(np.degrees(states["lat"][board] / 2.0**29), np.degrees(states["lon"][board] / 2.0**29),
+                      states["height_mm"][board] / 1000.0, twin[:, 0], twin[:, 1], twin[:, 2])
+    return {"position_max_m": float(np.linalg.norm(d, axis=1).max())}
+
+
 def _fixed_vs_float(estimates: Estimates, positions, float_quat, float_euler, float_bias) -> dict:
+    """Attitude agreement of the board (fixed build) and the float twin over the verified estimates."""
     if not len(positions):
         return {}
     quat = estimates.quat[positions] / 2.0**_Q["quat"]
@@ -1193,7 +1305,7 @@ def _configure_for_injection(link: Link, source: InjectionInput, filter_name: st
     _leave_injection_mode(link)
     wanted_filter = filter_name or (given.filter_name if given is not None else None) or source.filter_name
     if wanted_filter is not None and wanted_filter != _FILTER_NAMES.get(read_settings(link)[0]):
-        link.command("SELECT_FILTER", filter_id=core.FILTERS[wanted_filter][0])
+        link.command("SELECT_FILTER", filter_id=core.BOARD_FILTERS[wanted_filter][0])
     filter_id, settings = read_settings(link)
     name = _FILTER_NAMES[filter_id]
     fields = core.settings_fields(name)
@@ -1247,7 +1359,7 @@ def inject(url: str, source: InjectionInput, *, baud: int = DEFAULT_BAUD, filter
             link.command("SET_INJECTION_MODE", enabled=0)
             for index, value in changed.items():
                 link.command("SET_SETTING", index=index, value=value)
-            if original_filter != core.FILTERS[name][0]:
+            if original_filter != core.BOARD_FILTERS[name][0]:
                 link.command("SELECT_FILTER", filter_id=original_filter)
     return result
 
@@ -1311,6 +1423,13 @@ def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings:
 # ---------------------------------------------------------------------------- demo
 
 
+#: The demo's navigation scenario: a car drive (imulink.sim.navigation.car_drive) with the
+#: MPU6050's data-sheet noise and turn-on biases, a GNSS receiver at 1 Hz and the barometer.
+NAV_SCENARIO = "car"
+#: The scenarios demo() runs: the attitude scenarios and the navigation one.
+DEMO_SCENARIOS = sim.SCENARIOS + (NAV_SCENARIO,)
+
+
 @dataclass
 class DemoReport:
     address: str
@@ -1321,6 +1440,9 @@ class DemoReport:
     accuracy: dict
     duration_s: float
     kept: bool  # whether the recording file was kept (demo(output=...))
+    #: the nav filter's position against the truth (RMS m, m/s after SETTLE_S, from the
+    #: board's NAV_STATE once it has a position); None for the attitude filters
+    nav_accuracy: dict | None = None
 
     def format(self) -> str:
         r, c, rec = self.record, self.comparison, self.recording
@@ -1338,10 +1460,17 @@ class DemoReport:
             ff = c.fixed_vs_float
             lines.append(f"fixed vs float twin: attitude max {ff['angle_max_deg']:.5f} deg, "
                          f"RMS {ff['angle_rms_deg']:.5f} deg")
+        if c.fixed_vs_float.get("position_max_m") is not None:
+            lines.append(f"fixed vs float twin: position max {c.fixed_vs_float['position_max_m']:.4f} m")
         if self.accuracy:
             a = self.accuracy
             lines.append(f"accuracy vs simulated truth (RMS after {SETTLE_S:g} s): total {a['total']:.3f} deg, "
                          f"heading {a['heading']:.3f} deg, inclination {a['inclination']:.3f} deg")
+        if self.nav_accuracy:
+            n = self.nav_accuracy
+            lines.append(f"navigation vs simulated truth (RMS after {SETTLE_S:g} s, {n['samples']} samples): "
+                         f"horizontal {n['horizontal_m']:.2f} m, vertical {n['vertical_m']:.2f} m, "
+                         f"velocity {n['velocity_m_s']:.3f} m/s; GNSS fixes rejected {n['rejected']}")
         lines.append(f"recording: {rec.path}" if self.kept else "recording: not kept (--output FILE keeps it)")
         lines.append(f"demo took {self.duration_s:.1f} s")
         return "\n".join(lines)
@@ -1354,6 +1483,7 @@ class DemoReport:
             record["recording"] = comparison["recording"] = None
         return {"emulated_board": {"address": self.address, "target": self.target}, "record": record,
                 "compare": comparison, "verdict": comparison["verdict"], "accuracy": accuracy_json(self.accuracy),
+                "navigation_accuracy": self.nav_accuracy,
                 "recording": str(self.recording.path) if self.kept else None, "duration_s": self.duration_s}
 
 
@@ -1362,21 +1492,35 @@ def demo(*, target: str = "native", transport: str = "tcp", scenario: str = "res
          progress: Progress | None = None, min_verified: float = MIN_VERIFIED) -> DemoReport:
     """Record an emulated board's simulated run (as fast as the link goes) and verify it.
 
-    `target` is "native" (the firmware as a host process) or "qemu" (the ARM image in
-    QEMU). `output` keeps the recording (an existing file only with `force`); without it
-    the recording lives in a temporary directory that is removed at the end.
+    `target` is "native" (the firmware as a native process) or "qemu" (the ARM image in
+    QEMU). `scenario` is one of DEMO_SCENARIOS: NAV_SCENARIO feeds the board a receiver's
+    fixes and the barometer too. `output` keeps the recording (an existing file only with
+    `force`); without it the recording lives in a temporary directory that is removed at
+    the end.
     """
+    from .sim import navigation
+
     started = time.monotonic()
+    if scenario not in DEMO_SCENARIOS:
+        raise ValueError(f"unknown scenario {scenario!r}; choose one of {', '.join(DEMO_SCENARIOS)}")
     if output is not None:
         check_writable_target(output, replace=force)  # before the board is started
+    feed, traj = {}, None
+    if scenario == NAV_SCENARIO:
+        traj = navigation.car_drive(duration_s, rate_hz, seed=seed)
+        feed = dict(simulation=sim.simulate(traj, navigation.datasheet_sensors(rate_hz), seed=seed),
+                    gnss=navigation.gnss_fixes(traj, navigation.GnssModel(), seed=seed),
+                    baro=navigation.baro_samples(traj, seed=seed))
     with tempfile.TemporaryDirectory(prefix="imulink-demo-") as scratch, \
-            EmulatedBoard(target, front=transport, scenario=scenario, duration_s=duration_s, rate_hz=rate_hz,
-                          seed=seed, filter_name=filter_name) as board:
+            EmulatedBoard(target, front=transport, scenario=scenario if traj is None else "rests",
+                          duration_s=duration_s, rate_hz=rate_hz, seed=seed, filter_name=filter_name,
+                          **feed) as board:
         path = Path(output) if output is not None else Path(scratch) / "demo.imulog"
         result = record(board.address, path, force=force, progress=progress)
         recording = load_recording(path)
         samples = recording.samples
         truth = board.truth(samples.gyr, samples.acc, samples.mag)
+        fed = board.positions(samples.gyr, samples.acc, samples.mag)
     comparison = compare(recording, min_verified=min_verified)
     accuracy = {}
     verified = comparison.verified
@@ -1386,5 +1530,33 @@ def demo(*, target: str = "native", transport: str = "tcp", scenario: str = "res
         settled = rows >= SETTLE_S * rate_hz  # the first samples of the run: alignment and convergence
         usable = settled & ~np.isnan(truth[rows, 0])
         accuracy = rmse(attitude_errors(quat[usable], truth[rows][usable]))
+    nav_accuracy = None
+    if traj is not None and filter_name == "nav":
+        nav_accuracy = _nav_accuracy(recording, fed, traj, rate_hz)
     return DemoReport(board.address, target, result, recording, comparison, accuracy, time.monotonic() - started,
-                      kept=output is not None)
+                      kept=output is not None, nav_accuracy=nav_accuracy)
+
+
+def _nav_accuracy(recording: Recording, fed: np.ndarray, traj, rate_hz: float) -> dict | None:
+    """The board's navigation (its NAV_STATE frames) against the simulated truth: RMS
+    horizontal and vertical position (m) and velocity (m/s) error after SETTLE_S, where
+    the board had a position; the gated fixes. `fed`: the simulated sample of each recorded
+    sample (EmulatedBoard.positions)."""
+    from .sim.navigation import local_offsets
+
+    states = recording.nav_states.fields
+    rows = {(int(s), int(i)): r for r, (s, i) in enumerate(zip(recording.samples.segment, recording.samples.index))}
+    sample = np.array([rows.get((int(s), int(i)), -1) for s, i in zip(recording.nav_states.segment, states["index"])],
+                      np.int64)
+    at = np.where(sample >= 0, fed[np.maximum(sample, 0)], -1)  # the simulated sample of each NAV_STATE
+    usable = (at >= SETTLE_S * rate_hz) & (states["mode"] == 2)
+    if not usable.any():
+        return None
+    k = at[usable]
+    e = local_offsets(np.degrees(states["lat"][usable] / 2.0**29), np.degrees(states["lon"][usable] / 2.0**29),
+                      states["height_mm"][usable] / 1000.0, traj.lat_deg[k], traj.lon_deg[k], traj.height_m[k])
+    velocity = states["vel"][usable] / 2.0**20 - traj.vel_enu[k]
+    return {"horizontal_m": float(np.sqrt(np.mean(np.sum(e[:, :2] ** 2, axis=1)))),
+            "vertical_m": float(np.sqrt(np.mean(e[:, 2] ** 2))),
+            "velocity_m_s": float(np.sqrt(np.mean(np.sum(velocity**2, axis=1)))),
+            "rejected": int(states["rejected"][usable][-1]), "samples": int(usable.sum())}

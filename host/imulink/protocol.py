@@ -251,6 +251,12 @@ def _codec(name: str) -> _MessageCodec:
         raise ValueError(f"unknown message {name!r}; messages: {', '.join(_CODECS)}") from None
 
 
+def message_fields(name: str) -> tuple[tuple[str, str, int | None], ...]:
+    """A message's fields as the schema declares them: (name, type, array length or None)."""
+    _codec(name)  # ProtocolError for an unknown message
+    return _schema.MESSAGES[name]["fields"]
+
+
 def encode(name: str, seq: int, /, **fields) -> bytes:
     """Wire bytes of one frame (COBS-encoded, delimiter included).
 

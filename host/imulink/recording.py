@@ -347,6 +347,45 @@ class Gnss:
 
 
 @dataclass
+class NavStates:
+    """NAV_STATE frames in arrival order (the nav filter's state after each sample): the
+    board's raw integers, one row per frame; `fields` maps each NAV_STATE field name to its
+    array ((n,) or (n, length)), index and segment included."""
+
+    host_time: np.ndarray
+    segment: np.ndarray
+    fields: dict
+
+    @property
+    def index(self) -> np.ndarray:
+        return self.fields["index"]
+
+    def __len__(self) -> int:
+        return len(self.host_time)
+
+
+@dataclass
+class Markers:
+    """MARKER frames in arrival order: the position fixes (POSITION_FIX) the board gave its
+    nav filter, each after the sample `index` (1e-7 deg, mm; used: whether it took it)."""
+
+    host_time: np.ndarray
+    segment: np.ndarray
+    fields: dict
+
+    @property
+    def index(self) -> np.ndarray:
+        return self.fields["index"]
+
+    def rows(self) -> list[dict]:
+        """One dict of MARKER fields per frame."""
+        return [{name: int(values[k]) for name, values in self.fields.items()} for k in range(len(self))]
+
+    def __len__(self) -> int:
+        return len(self.host_time)
+
+
+@dataclass
 class Recording:
     """A decoded recording.
 
@@ -379,6 +418,8 @@ class Recording:
     segment_calibration_frames: dict[int, int] = field(default_factory=dict)
     baro: Baro = field(default_factory=lambda: _baro_table([]))
     gnss: Gnss = field(default_factory=lambda: _gnss_table([]))
+    nav_states: NavStates = field(default_factory=lambda: _message_table(NavStates, "NAV_STATE", []))
+    markers: Markers = field(default_factory=lambda: _message_table(Markers, "MARKER", []))
 
     def calibration(self, segment: int | None = None):
         """The board's calibration (imulink.calibration.Calibration, in this recording's
@@ -412,7 +453,7 @@ class Recording:
         """(filter name, raw settings by name) of a filter, as the board reported them: for
         `segment`, as they stood when it began (a setting not reported by then: its last
         value); None: the last values reported."""
-        names = {fid: name for name, (fid, _) in core.FILTERS.items()}
+        names = {fid: name for name, (fid, _) in core.BOARD_FILTERS.items()}
         if filter_id not in names:
             raise RecordingError(f"{self.path}: unknown filter id {filter_id}")
         name = names[filter_id]
@@ -489,7 +530,7 @@ def load_recording(path, progress: Callable[[int, int], None] | None = None) -> 
     logs, settings, calibration_frames = [], {}, []
     segment_settings, segment_calibration_frames = {}, {}
     hello = status = None
-    samples, estimates, baro, gnss = [], [], [], []
+    samples, estimates, baro, gnss, nav_states, markers = [], [], [], [], [], []
 
     def place(index: int) -> int:
         """The segment of a SAMPLE or ESTIMATE; a segment's first one notes what the board had reported."""
@@ -514,6 +555,10 @@ def load_recording(path, progress: Callable[[int, int], None] | None = None) -> 
                 baro.append((record.time, place(fields["index"]), fields))
             elif name == "GNSS":
                 gnss.append((record.time, place(fields["index"]), fields))
+            elif name == "NAV_STATE":
+                nav_states.append((record.time, place(fields["index"]), fields))
+            elif name == "MARKER":
+                markers.append((record.time, place(fields["index"]), fields))
             elif name == "ACK" and fields["command"] in _RESTARTING_IDS:
                 segmenter.restart()
             elif name == "HELLO":
@@ -536,7 +581,8 @@ def load_recording(path, progress: Callable[[int, int], None] | None = None) -> 
     return Recording(path, header, profile, [event for _, event in events], hello, status, settings, sample_table,
                      estimate_table, logs, decoder.counters(), found.damaged, found.truncated_bytes, segments,
                      calibration_frames, segment_settings, segment_calibration_frames, _baro_table(baro),
-                     _gnss_table(gnss))
+                     _gnss_table(gnss), _message_table(NavStates, "NAV_STATE", nav_states),
+                     _message_table(Markers, "MARKER", markers))
 
 
 def _json_object(path: Path, record: LogRecord, what: str) -> dict:
@@ -622,6 +668,16 @@ def _gnss_table(rows) -> Gnss:
            for name in ("index", "timestamp_us", "time_ms", "fix_type", "fix_ok", "num_sv", "has_velocity",
                         "lat_1e7deg", "lon_1e7deg", "height_mm", "h_acc_mm", "v_acc_mm", "s_acc_mm_s")},
     )
+
+
+def _message_table(kind, message: str, rows):
+    """A NavStates or Markers table of (host time, segment, fields) rows of `message`."""
+    f = [r[2] for r in rows]
+    columns = {}
+    for name, _, length in protocol.message_fields(message):
+        values = np.array([x[name] for x in f], np.int64)
+        columns[name] = values.reshape(-1, length) if length else values
+    return kind(np.array([r[0] for r in rows], np.float64), np.array([r[1] for r in rows], np.int32), columns)
 
 
 def _estimate_table(rows) -> Estimates:

@@ -24,7 +24,7 @@ class FirmwareFilter:
     def __init__(self, filter_name: str, raw_settings: dict[str, int], profile: SensorProfile = DEFAULT_PROFILE,
                  calibration=None):
         self.filter_name = filter_name
-        self.filter_id = core.FILTERS[filter_name][0]
+        self.filter_id = core.BOARD_FILTERS[filter_name][0]
         self.fields = core.settings_fields(filter_name)
         self.raw_settings = dict(raw_settings)
         values = {f.name: raw_settings[f.name] / 2.0**f.frac_bits for f in self.fields}

@@ -44,9 +44,9 @@ class FilterSettings:
 def check(settings: FilterSettings, what: str = "the settings") -> FilterSettings:
     """`settings` if the filter knows every name and accepts every value (both builds'
     range checks); SettingsFileError naming `what` otherwise."""
-    if settings.filter_name not in core.FILTERS:
+    if settings.filter_name not in core.BOARD_FILTERS:
         raise SettingsFileError(f"{what}: unknown filter {settings.filter_name!r}; choose one of "
-                                f"{', '.join(core.FILTERS)}")
+                                f"{', '.join(core.BOARD_FILTERS)}")
     if "sample_rate" in settings.values:
         raise SettingsFileError(f"{what}: sample_rate is not a setting of a settings file (the board's or the "
                                 "input's rate is used)")

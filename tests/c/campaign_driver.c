@@ -1,7 +1,8 @@
 /**
  * @file campaign_driver.c
  * @brief Adversarial campaign of the fixed-point core: every setting of every filter
- *        at its minimum and maximum, times hostile input streams, at 30 Hz and 5 kHz.
+ *        at its minimum and maximum, times hostile input streams, at 30 Hz and 5 kHz (or the
+ *        filter's largest rate).
  *
  * Built by tests/test_campaign.py twice: with gcc, -DIMU_FIXED -DIMU_CHECK_NARROWING
  * and -fsanitize=undefined,address (every unsaturated int64 -> int32 narrowing of the
@@ -22,7 +23,7 @@
  * starting from the default, so the campaign follows the checks as they are edited.
  * The settings variants of a filter are: the defaults; each setting alone at its
  * minimum and at its maximum; all settings at their minimum together and all at
- * their maximum together. Each runs at 30 Hz and 5 kHz (the sample_rate setting
+ * their maximum together. Each runs at 30 Hz and 5 kHz (or the filter's largest rate; the sample_rate setting
  * overridden), except the variants that set sample_rate themselves. The sensor
  * scales (imu_sensor_settings_t, no range check: any int32) are varied at their
  * extremes (INT32_MAX, INT32_MIN, 0) with the default settings, and all at INT32_MAX or
@@ -59,6 +60,7 @@ typedef union {
     imu_eecf_settings_t eecf;
     imu_kf1d_settings_t kf1d;
     imu_eskf_settings_t eskf;
+    imu_navfilter_settings_t nav;
 } settings_t;
 
 typedef struct {
@@ -72,7 +74,7 @@ typedef struct {
     int32_t max[MAX_SETTINGS]; /**< true maximum of each setting (bisection) */
 } filter_info_t;
 
-enum { F_EECF, F_KF1D, F_ESKF, N_FILTERS };
+enum { F_EECF, F_KF1D, F_ESKF, F_NAV, N_FILTERS };
 static filter_info_t filters[N_FILTERS];
 
 static int32_t get_raw(const settings_t *s, const imu_setting_desc_t *d)
@@ -176,6 +178,11 @@ static int setup_filters(int print_ranges)
     filters[F_ESKF].descs = imu_eskf_setting_descs;
     filters[F_ESKF].count = imu_eskf_setting_count;
     filters[F_ESKF].defaults.eskf = imu_eskf_default_settings;
+    filters[F_NAV].name = "nav";
+    filters[F_NAV].id = IMU_FILTER_NAV;
+    filters[F_NAV].descs = imu_navfilter_setting_descs;
+    filters[F_NAV].count = imu_navfilter_setting_count;
+    filters[F_NAV].defaults.nav = imu_navfilter_default_settings;
     quiet = 1;
     for (i = 0; i < N_FILTERS; ++i) {
         filter_info_t *fi = &filters[i];
@@ -511,7 +518,7 @@ static void stream_sample(int stream, long n, long length, double rate_hz, imu_r
 /** Settings variant: VAR_DEFAULT, a setting k at its minimum (VAR_MIN + k) or maximum
  *  (VAR_MAX + k), all settings at their minimum or maximum. */
 enum { VAR_DEFAULT = 0, VAR_ALL_MIN = 1, VAR_ALL_MAX = 2, VAR_MIN = 100, VAR_MAX = 200 };
-/** Sample rate: the variant's own sample_rate, or overridden to 30 Hz / 5 kHz. */
+/** Sample rate: the variant's own sample_rate, or overridden to 30 Hz / 5 kHz (at most the filter's largest). */
 enum { RATE_OWN = 0, RATE_30 = 1, RATE_5K = 2 };
 
 typedef struct {
@@ -597,7 +604,9 @@ static settings_t case_settings(const case_t *c)
     if (c->rate == RATE_30) {
         set_raw(&s, &fi->descs[fi->rate_index], IMU_QCONST(30.0, 16));
     } else if (c->rate == RATE_5K) {
-        set_raw(&s, &fi->descs[fi->rate_index], IMU_QCONST(5000.0, 16));
+        /* 5 kHz, or the filter's largest rate below it (nav: 1 kHz) */
+        const int32_t fast = IMU_QCONST(5000.0, 16);
+        set_raw(&s, &fi->descs[fi->rate_index], fi->max[fi->rate_index] < fast ? fi->max[fi->rate_index] : fast);
     }
     return s;
 }
@@ -626,7 +635,7 @@ static void case_name(const case_t *c, char *out, size_t size)
     if (c->rate == RATE_30) {
         snprintf(rate, sizeof rate, "30Hz");
     } else if (c->rate == RATE_5K) {
-        snprintf(rate, sizeof rate, "5kHz");
+        snprintf(rate, sizeof rate, "%gkHz", case_rate_hz(c) / 1000.0);
     } else {
         snprintf(rate, sizeof rate, "own_rate=%.5gHz", case_rate_hz(c));
     }
@@ -794,7 +803,7 @@ int main(int argc, char **argv)
         } else if (strcmp(argv[i], "--to") == 0 && i + 1 < argc) {
             to = strtol(argv[++i], NULL, 10);
         } else {
-            fprintf(stderr, "usage: %s [--ranges] [--list] [--filter eecf|kf1d|eskf] [--from I] [--to J] "
+            fprintf(stderr, "usage: %s [--ranges] [--list] [--filter eecf|kf1d|eskf|nav] [--from I] [--to J] "
                             "[--case NAME] [--keep-going]\n", argv[0]);
             return 2;
         }

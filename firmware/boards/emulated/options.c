@@ -11,7 +11,7 @@ const char options_usage[] =
     "  --profile NAME   sensor ranges of the fed counts: gy86-default (+-2000 deg/s, +-8 g) or\n"
     "                   gy86-broad (+-2000 deg/s, +-16 g); default gy86-default\n"
     "  --rate HZ        sample rate, Hz (decimal); default 100\n"
-    "  --filter NAME    filter active after start-up: eecf, kf1d or eskf; default eecf\n";
+    "  --filter NAME    filter active after start-up: eecf, kf1d, eskf or nav; default eecf\n";
 
 /** The sensor profiles of host/imulink/counts.py: the reference board's GY-86 configuration
  *  (+-2000 deg/s, 1090 LSB/gauss) with one accelerometer range or the other. */
@@ -32,7 +32,8 @@ static void apply_profile(app_config_t *config, const profile_t *profile)
 static const struct {
     const char *name;
     uint8_t id;
-} filter_names[] = {{"eecf", IMU_FILTER_EECF}, {"kf1d", IMU_FILTER_KF1D}, {"eskf", IMU_FILTER_ESKF}};
+} filter_names[] = {{"eecf", IMU_FILTER_EECF}, {"kf1d", IMU_FILTER_KF1D}, {"eskf", IMU_FILTER_ESKF},
+                    {"nav", IMU_FILTER_NAV}};
 
 /** Decimal "123.456" to Q16, rounded to nearest; 0 when it is not a positive number below 32768. */
 static imu_real_t parse_rate_q16(const char *s)
@@ -97,7 +98,7 @@ int options_apply(app_config_t *config, const char *name, const char *value, con
                 return 1;
             }
         }
-        *error = "--filter must be eecf, kf1d or eskf";
+        *error = "--filter must be eecf, kf1d, eskf or nav";
         return -1;
     }
     return 0;

@@ -4,13 +4,31 @@
  */
 #include "uart.h"
 
+/** BRR for a baud rate, oversampling by 16: pclk / baud rounded (RM0090 section 30.3.4). */
+static uint32_t brr(uint32_t pclk_hz, uint32_t baud)
+{
+    return (pclk_hz + baud / 2u) / baud;
+}
+
 static void configure(usart_t *regs, uint32_t pclk_hz, uint32_t baud, uint32_t interrupts)
 {
     regs->CR1 = 0; /* UE = 0 while configuring */
     regs->CR2 = 0; /* 1 stop bit */
     regs->CR3 = 0; /* no flow control, no DMA */
-    regs->BRR = (pclk_hz + baud / 2u) / baud;
+    regs->BRR = brr(pclk_hz, baud);
     regs->CR1 = USART_CR1_UE | USART_CR1_TE | USART_CR1_RE | interrupts;
+}
+
+void uart_set_baud(uart_t *u, uint32_t pclk_hz, uint32_t baud)
+{
+    uint32_t cr1, primask;
+    uart_flush(u);
+    primask = irq_save(); /* CR1 is also written by the interrupt handler */
+    cr1 = u->regs->CR1;
+    u->regs->CR1 = cr1 & ~USART_CR1_UE;
+    u->regs->BRR = brr(pclk_hz, baud);
+    u->regs->CR1 = cr1;
+    irq_restore(primask);
 }
 
 void uart_init(uart_t *u, usart_t *regs, int irq, uint32_t pclk_hz, uint32_t baud, uint8_t priority)

@@ -40,6 +40,12 @@ typedef struct {
  */
 void uart_init(uart_t *u, usart_t *regs, int irq, uint32_t pclk_hz, uint32_t baud, uint8_t priority);
 
+/**
+ * @brief Another baud rate: waits until what was queued has left (TC), then UE off, BRR,
+ *        UE on (RM0090 section 30.6.3: BRR must not change during a transfer).
+ */
+void uart_set_baud(uart_t *u, uint32_t pclk_hz, uint32_t baud);
+
 /** @brief The USART's interrupt handler calls this. */
 void uart_irq(uart_t *u);
 

@@ -6,6 +6,8 @@
  * - Clocks: clock_stm32f407.c (8 MHz HSE -> PLL -> 168 MHz; fallbacks HSI -> PLL, HSI alone);
  *   every clock below is the one actually in use, and what went wrong is the start-up WARNING.
  * - Host link: USART1 on PA9/PA10 through the ring-buffered driver of boards/stm32f4/uart.h.
+ * - GNSS receiver (optional): USART2 on PA2/PA3, the same driver under drivers/gnss.h
+ *   (gnss_usart2.c); its fixes go to the application each sample.
  * - Sensors: gy86_init / gy86_read (drivers/) over i2c_stm32f4.c on I2C1 (PB8/PB9), polled.
  *   The MPU6050's INT pin is not connected: TIM2 times the samples.
  * - Time: TIM5 counts microseconds (64 bits with its overflow interrupt), TIM2 raises the
@@ -18,6 +20,7 @@
 #include "board.h"
 #include "board_stm32f407.h"
 #include "clock_stm32f407.h"
+#include "gnss_usart2.h"
 #include "gy86.h"
 #include "i2c_stm32f4.h"
 #include "identification.h"
@@ -86,20 +89,20 @@ static void set_field(volatile uint32_t *reg, uint32_t width, uint32_t position,
     *reg = (*reg & ~mask) | (value << (width * position));
 }
 
-/** PA9 USART1_TX (push-pull) and PA10 USART1_RX (pull-up: an unconnected RX reads idle, not
- *  noise), AF7; the alternate function is selected before the mode (RM0090 section 8.3). */
-static void link_pins_init(void)
+/** A USART's TX pin (push-pull) and RX pin (pull-up: an unconnected RX reads idle, not
+ *  noise) on alternate function `af`; the alternate function is selected before the mode
+ *  (RM0090 section 8.3). AFR[0] holds pins 0-7, AFR[1] pins 8-15. */
+static void uart_pins_init(gpio_t *gpio, uint32_t tx, uint32_t rx, uint32_t af)
 {
-    gpio_t *const gpio = BOARD_LINK_GPIO;
-    gpio->OTYPER &= ~(1u << BOARD_LINK_TX_PIN);
-    set_field(&gpio->OSPEEDR, 2u, BOARD_LINK_TX_PIN, GPIO_SPEED_MEDIUM);
-    set_field(&gpio->OSPEEDR, 2u, BOARD_LINK_RX_PIN, GPIO_SPEED_MEDIUM);
-    set_field(&gpio->PUPDR, 2u, BOARD_LINK_TX_PIN, GPIO_PULL_NONE);
-    set_field(&gpio->PUPDR, 2u, BOARD_LINK_RX_PIN, GPIO_PULL_UP);
-    set_field(&gpio->AFR[1], 4u, BOARD_LINK_TX_PIN - 8u, BOARD_LINK_AF);
-    set_field(&gpio->AFR[1], 4u, BOARD_LINK_RX_PIN - 8u, BOARD_LINK_AF);
-    set_field(&gpio->MODER, 2u, BOARD_LINK_TX_PIN, GPIO_MODE_AF);
-    set_field(&gpio->MODER, 2u, BOARD_LINK_RX_PIN, GPIO_MODE_AF);
+    gpio->OTYPER &= ~(1u << tx);
+    set_field(&gpio->OSPEEDR, 2u, tx, GPIO_SPEED_MEDIUM);
+    set_field(&gpio->OSPEEDR, 2u, rx, GPIO_SPEED_MEDIUM);
+    set_field(&gpio->PUPDR, 2u, tx, GPIO_PULL_NONE);
+    set_field(&gpio->PUPDR, 2u, rx, GPIO_PULL_UP);
+    set_field(&gpio->AFR[tx / 8u], 4u, tx % 8u, af);
+    set_field(&gpio->AFR[rx / 8u], 4u, rx % 8u, af);
+    set_field(&gpio->MODER, 2u, tx, GPIO_MODE_AF);
+    set_field(&gpio->MODER, 2u, rx, GPIO_MODE_AF);
 }
 
 /** DWT CYCCNT (ARMv7-M architecture reference manual, C1.8): TRCENA in DEMCR, then CYCCNTENA. */
@@ -242,10 +245,7 @@ board_sensors_result_t board_sensors_read(imu_raw_sample_t *raw, int16_t *temper
 
 int board_gnss_read(uint64_t now_us, imu_proto_gnss_t *fix)
 {
-    /* The receiver on USART2 (docs/firmware.md) is not driven yet: no fixes. */
-    (void)now_us;
-    (void)fix;
-    return 0;
+    return gnss_usart2_poll((uint32_t)(now_us / 1000u), fix); /* ms, wrapping as the driver expects */
 }
 
 const char *board_start_up_problem(void)
@@ -290,14 +290,16 @@ int main(void)
     clocks_init(&clocks);
     cycle_counter_init();
 
-    RCC->AHB1ENR |= BOARD_LINK_GPIO_EN | BOARD_I2C_GPIO_EN;
-    RCC->APB1ENR |= RCC_APB1ENR_TIM2EN | RCC_APB1ENR_TIM5EN;
+    RCC->AHB1ENR |= BOARD_LINK_GPIO_EN | BOARD_I2C_GPIO_EN | BOARD_GNSS_GPIO_EN;
+    RCC->APB1ENR |= RCC_APB1ENR_TIM2EN | RCC_APB1ENR_TIM5EN | RCC_APB1ENR_USART2EN;
     RCC->APB2ENR |= RCC_APB2ENR_USART1EN;
     (void)RCC->APB2ENR; /* the enables take effect before the first access (a read back) */
 
     timers_clock_init(clocks.tim1_hz, BOARD_PRIORITY_TIMERS);
-    link_pins_init();
+    uart_pins_init(BOARD_LINK_GPIO, BOARD_LINK_TX_PIN, BOARD_LINK_RX_PIN, BOARD_LINK_AF);
     link_init(clocks.pclk2_hz, BOARD_LINK_BAUD, BOARD_PRIORITY_LINK);
+    uart_pins_init(BOARD_GNSS_GPIO, BOARD_GNSS_TX_PIN, BOARD_GNSS_RX_PIN, BOARD_GNSS_AF);
+    gnss_usart2_init(clocks.pclk1_hz, BOARD_PRIORITY_GNSS, (uint32_t)(board_time_us() / 1000u));
     lines = i2c_stm32f4_init(&i2c_dev, clocks.pclk1_hz, clocks.hclk_hz, &i2c_bus);
     describe_start_up(lines);
 

@@ -64,6 +64,14 @@
 #define BOARD_LINK_RX_PIN 10u
 #define BOARD_LINK_AF 7u /**< AF7: USART1..3 */
 
+/* --------------------------------------------------------------------------- GNSS receiver: USART2 */
+
+#define BOARD_GNSS_GPIO GPIOA
+#define BOARD_GNSS_GPIO_EN RCC_AHB1ENR_GPIOAEN
+#define BOARD_GNSS_TX_PIN 2u /**< PA2 USART2_TX: to the receiver's RX */
+#define BOARD_GNSS_RX_PIN 3u /**< PA3 USART2_RX: from the receiver's TX */
+#define BOARD_GNSS_AF 7u     /**< AF7: USART1..3 */
+
 /* --------------------------------------------------------------------------- sensors: I2C1 (RM0090 section 27) */
 
 #define BOARD_I2C_GPIO GPIOB
@@ -77,6 +85,7 @@
 
 #define BOARD_PRIORITY_LINK 1u   /**< received bytes must not wait behind the tick */
 #define BOARD_PRIORITY_TIMERS 2u /**< TIM2 sample tick, TIM5 clock wrap */
+#define BOARD_PRIORITY_GNSS 1u   /**< the receiver's bytes, like the host's: a ring each, no wait */
 
 /* --------------------------------------------------------------------------- system bootloader (AN2606) */
 
