@@ -482,3 +482,48 @@ def test_board_view_draws_the_board_in_a_real_window(tmp_path):
     for a in range(3):
         for b in range(a + 1, 3):
             assert np.sum(np.any(shots[a] != shots[b], axis=2)) > 500  # each turn moves the board on screen
+
+
+def test_the_nav_filter_shows_its_track_and_height_and_is_checked_live(qt):
+    """A board running the nav filter on a car drive with GNSS: the navigation panel shows
+    the track from the first position and the height, and the live check verifies the
+    estimates with the barometer readings and fixes the board took."""
+    with EmulatedBoard(front="tcp", scenario="car", filter_name="nav", duration_s=60.0, realtime=True) as board:
+        window = live_window(board.address)
+        try:
+            wait_until(qt, lambda: window.source.health().check.identical > 600, what="6 s of verified estimates")
+            window.redraw()
+            health = window.source.health()
+            window.show_health(health)
+            assert health.check.different == 0 and "filter nav at 100 Hz" in window.health_label.text()
+            rows = window.data["nav"]
+            assert window.nav_box.isVisible() and len(rows) > 500
+            truth = board.trajectory
+            # the track starts at the first fix (the drive's start, within the receiver's error)
+            assert np.hypot(*rows[0, 1:3]) < 1e-6 and abs(rows[0, 3] - truth.height_m[0]) < 15.0
+            x, y = window.track_curve.getData()
+            assert len(x) == len(rows) and np.array_equal(y, rows[:, 2])
+            assert np.isfinite(window.height_curve.yData).all()
+        finally:
+            window.close()
+
+
+def test_a_nav_recording_replays_its_track(qt, tmp_path):
+    from imulink.monitor.sources import NAV_COLUMNS, ReplaySource
+
+    path = tmp_path / "nav.imulog"
+    with EmulatedBoard(front="tcp", scenario="car", filter_name="nav", duration_s=20.0) as board:
+        hil.record(board.address, path)
+    source = ReplaySource(path, speed=100.0)
+    window = open_window(source)
+    try:
+        wait_until(qt, lambda: source.now() >= source.duration, what="the end of the replay")
+        window.redraw()
+        assert source.health().check.identical == 2000 and source.health().check.different == 0
+        rows = window.data["nav"]  # the window's time span of them
+        assert len(rows) == min(2000, round(window.span() * 100.0) + 1) and window.nav_box.isVisible()
+        assert rows[-1, 0] == pytest.approx(source.duration)
+        speed = rows[:, NAV_COLUMNS.index("speed")]
+        assert speed.max() > 1.0  # the car drives off
+    finally:
+        window.close()

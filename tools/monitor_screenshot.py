@@ -8,6 +8,8 @@ there is one, else with Qt's offscreen platform; either way with a settings dire
 its own, so the shot shows the default layout rather than the user's.
 
     .venv/bin/python tools/monitor_screenshot.py [--output docs/monitor.png] [--seconds 12]
+    .venv/bin/python tools/monitor_screenshot.py --nav     # docs/monitor_nav.png: the nav filter
+                                                           # on the simulated car drive, after 40 s
 """
 from __future__ import annotations
 
@@ -43,10 +45,17 @@ def start_xvfb() -> tuple[subprocess.Popen, str] | None:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--output", default=str(ROOT / "docs" / "monitor.png"), help="PNG to write")
-    parser.add_argument("--seconds", type=float, default=12.0, help="how long the board streams before the shot")
+    parser.add_argument("--output", help="PNG to write (default: docs/monitor.png, with --nav docs/monitor_nav.png)")
+    parser.add_argument("--seconds", type=float, help="how long the board streams before the shot (default: 12 s, "
+                                                      "with --nav 40 s)")
+    parser.add_argument("--nav", action="store_true", help="the nav filter on the car drive (GNSS, barometer) at "
+                                                           "100 Hz, its track and height shown")
     parser.add_argument("--offscreen", action="store_true", help="Qt's offscreen platform even where Xvfb is")
     args = parser.parse_args()
+    args.output = args.output or str(ROOT / "docs" / ("monitor_nav.png" if args.nav else "monitor.png"))
+    args.seconds = args.seconds if args.seconds is not None else (40.0 if args.nav else 12.0)
+    board = (["--filter", "nav", "--rate", "100", "--scenario", "car"] if args.nav
+             else ["--filter", "eskf", "--rate", "200", "--scenario", "random"])
 
     xvfb = None if args.offscreen else start_xvfb()
     with tempfile.TemporaryDirectory(prefix="imulink-shot-") as config:
@@ -55,9 +64,8 @@ def main() -> int:
             env.update(DISPLAY=xvfb[1], QT_QPA_PLATFORM="xcb")
         else:
             env["QT_QPA_PLATFORM"] = "offscreen"
-        command = [sys.executable, "-m", "imulink.cli", "monitor", "--emulate", "--filter", "eskf", "--rate", "200",
-                   "--scenario", "random", "--duration", "120", "--seed", "3",
-                   "--screenshot", args.output, "--exit-after", str(args.seconds)]
+        command = [sys.executable, "-m", "imulink.cli", "monitor", "--emulate", *board, "--duration", "120",
+                   "--seed", "3", "--screenshot", args.output, "--exit-after", str(args.seconds)]
         started = time.monotonic()
         try:
             status = subprocess.run(command, env=env, cwd=ROOT).returncode

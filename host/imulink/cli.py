@@ -767,7 +767,8 @@ def _cmd_emulate(args) -> int:
     settings = _settings_file(args)
     filter_name = settings.filter_name if settings is not None else args.filter
     front = args.serial if args.serial is not None else ("tcp" if args.tcp is not None else "pty")
-    board = EmulatedBoard(args.target, front=front, port=args.tcp or 0, scenario=args.scenario,
+    scenario = _scenario(args, filter_name)
+    board = EmulatedBoard(args.target, front=front, port=args.tcp or 0, scenario=scenario,
                           duration_s=args.duration, rate_hz=args.rate, seed=args.seed, filter_name=filter_name,
                           realtime=not args.fast, profile=args.profile, faults=faults, schema_hash=args.schema_hash,
                           image=args.image, baud=args.baud)
@@ -782,7 +783,7 @@ def _cmd_emulate(args) -> int:
         print(board.address, flush=True)
         pace = "as fast as the link drains" if args.fast else "in real time"
         return _serve_until_interrupted(
-            f"emulated board ({args.target}: {board.image}): {args.scenario} {args.duration:g} s at {args.rate:g} Hz "
+            f"emulated board ({args.target}: {board.image}): {scenario} {args.duration:g} s at {args.rate:g} Hz "
             f"{pace}, filter {filter_name}, profile {args.profile.name}"
             + (f", settings of {args.settings}" if settings is not None else "")
             + (f", faults {faults.describe()}" if faults.active else ""), lambda: board.error)
@@ -909,8 +910,7 @@ def _cmd_inject(args) -> int:
 def _cmd_demo(args) -> int:
     from . import hil
 
-    scenario = args.scenario or (hil.NAV_SCENARIO if args.filter == "nav" else "rests")
-    report = hil.demo(target=args.target, transport=args.transport, scenario=scenario, duration_s=args.duration,
+    report = hil.demo(target=args.target, transport=args.transport, scenario=_scenario(args), duration_s=args.duration,
                       rate_hz=args.rate, seed=args.seed, filter_name=args.filter, output=args.output,
                       force=args.force, progress=hil.Progress(), min_verified=args.min_verified)
     if args.json:
@@ -941,7 +941,7 @@ def _cmd_monitor(args) -> int:
         check_output(args.screenshot)
         if not Path(args.screenshot).parent.is_dir():
             raise UsageError(f"cannot write {args.screenshot}: its directory does not exist")
-    emulation = dict(scenario=args.scenario, duration_s=args.duration, rate_hz=args.rate, seed=args.seed,
+    emulation = dict(scenario=_scenario(args), duration_s=args.duration, rate_hz=args.rate, seed=args.seed,
                      filter_name=args.filter)
     if args.listen and (args.emulate or args.port is None or Path(args.port).is_file()):
         raise UsageError("--listen is for a board's PORT that another client commands")
@@ -1052,8 +1052,18 @@ def _settings_file(args):
     return settings_file.load(args.settings)
 
 
+def _scenario(args, filter_name: str | None = None) -> str:
+    """The emulated board's simulated run: --scenario, else the car drive for the nav filter
+    (its GNSS receiver and barometer) and rests for the others."""
+    from .emulator import NAV_SCENARIO
+
+    if args.scenario is not None:
+        return args.scenario
+    return NAV_SCENARIO if (filter_name or args.filter) == "nav" else "rests"
+
+
 def _add_hil_commands(sub) -> None:
-    from . import core, hil, sim
+    from . import core, emulator, hil
     from .counts import DEFAULT_PROFILE
     from .link import DEFAULT_BAUD
 
@@ -1068,10 +1078,11 @@ def _add_hil_commands(sub) -> None:
         p.add_argument("--baud", type=_baud, default=DEFAULT_BAUD,
                        help=f"line rate of a real serial port (default: {DEFAULT_BAUD}; ignored by sockets and ptys)")
 
-    def simulation_arguments(p, duration: float, scenario: str = "rests", scenarios=sim.SCENARIOS,
-                             scenario_help: str | None = None):
-        p.add_argument("--scenario", default=scenario, choices=scenarios,
-                       help=scenario_help or f"simulated trajectory (default: {scenario})")
+    def simulation_arguments(p, duration: float):
+        p.add_argument("--scenario", choices=emulator.SCENARIOS,
+                       help=f"simulated run (default: {emulator.NAV_SCENARIO} for --filter nav, rests for the "
+                            f"others); {emulator.NAV_SCENARIO}: a drive with a GNSS receiver at 1 Hz and the "
+                            f"barometer")
         p.add_argument("--duration", type=_positive_float, default=duration,
                        help=f"seconds of simulated data (default: {duration:g})")
         p.add_argument("--rate", type=_positive_float, default=100.0, help="sample rate in Hz (default: 100)")
@@ -1125,9 +1136,7 @@ def _add_hil_commands(sub) -> None:
                     "of the same C, and report: frames and losses, bit-exactness, the fixed-vs-float difference, "
                     "and the accuracy against the simulated truth. Exit status 0 when every verified estimate is "
                     "bit-exact and at least --min-verified of them were verified, 1 otherwise.")
-    simulation_arguments(p, 60.0, None, hil.DEMO_SCENARIOS,
-                         f"simulated run (default: {hil.NAV_SCENARIO} for --filter nav, rests for the others); "
-                         f"{hil.NAV_SCENARIO}: a drive with a GNSS receiver at 1 Hz and the barometer")
+    simulation_arguments(p, 60.0)
     target_arguments(p)
     p.add_argument("--transport", choices=("tcp", "pty"), default="tcp", help="link to the board (default: tcp)")
     p.add_argument("--output", "-o", metavar="FILE", help="keep the recording here (default: not kept)")

@@ -41,6 +41,11 @@ from .proxy import FaultConfig, Proxy, make_front
 from .sim import navigation
 
 TARGETS = ("native", "qemu")
+#: The navigation scenario: a car drive (imulink.sim.navigation.car_drive) with the MPU6050's
+#: data-sheet noise and turn-on biases, a GNSS receiver at 1 Hz (GnssModel's defaults) and
+#: the barometer along it. SCENARIOS: the attitude scenarios (imulink.sim) and it.
+NAV_SCENARIO = "car"
+SCENARIOS = sim.SCENARIOS + (NAV_SCENARIO,)
 #: MPU6050 temperature register at 25 degC ((25 - 36.53) * 340).
 TEMPERATURE_25C = -3920
 
@@ -241,7 +246,9 @@ class EmulatedBoard:
         front: what the host opens: "pty" (default), "tcp" (127.0.0.1:`port`, 0 any) or a
             serial port URL the board should be on (e.g. one end of a null-modem cable).
         scenario, duration_s, rate_hz, seed: the simulated run the sensors deliver
-            (:func:`imulink.sim.make_scenario`); rate_hz is also the filters' default rate.
+            (:func:`imulink.sim.make_scenario`, or NAV_SCENARIO: a car drive with a GNSS
+            receiver and the barometer, its truth in ``trajectory``); rate_hz is also the
+            filters' default rate.
         filter_name: filter active after start-up and RESET.
         realtime: samples at the board's clock rate; otherwise whenever the feed has one
             and the host has read the last ones.
@@ -282,6 +289,15 @@ class EmulatedBoard:
         self.schema_hash = schema_hash
         if simulation is not None and simulation.rate_hz != self.rate_hz:
             raise EmulatorError(f"the simulation runs at {simulation.rate_hz:g} Hz, the board at {rate_hz:g} Hz")
+        if scenario not in SCENARIOS:
+            raise EmulatorError(f"unknown scenario {scenario!r}; choose one of {', '.join(SCENARIOS)}")
+        self.trajectory: navigation.NavTrajectory | None = None
+        if simulation is None and scenario == NAV_SCENARIO:
+            self.trajectory = navigation.car_drive(duration_s, rate_hz, seed=seed)
+            simulation = sim.simulate(self.trajectory, navigation.datasheet_sensors(rate_hz), seed=seed)
+            gnss = gnss if gnss is not None else navigation.gnss_fixes(self.trajectory, navigation.GnssModel(),
+                                                                       seed=seed)
+            baro = baro if baro is not None else navigation.baro_samples(self.trajectory, seed=seed)
         self.gnss, self.baro = gnss, baro
         self.simulation = simulation if simulation is not None else sim.make_scenario(scenario, duration_s, rate_hz,
                                                                                       seed)

@@ -1423,13 +1423,6 @@ def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings:
 # ---------------------------------------------------------------------------- demo
 
 
-#: The demo's navigation scenario: a car drive (imulink.sim.navigation.car_drive) with the
-#: MPU6050's data-sheet noise and turn-on biases, a GNSS receiver at 1 Hz and the barometer.
-NAV_SCENARIO = "car"
-#: The scenarios demo() runs: the attitude scenarios and the navigation one.
-DEMO_SCENARIOS = sim.SCENARIOS + (NAV_SCENARIO,)
-
-
 @dataclass
 class DemoReport:
     address: str
@@ -1493,28 +1486,17 @@ def demo(*, target: str = "native", transport: str = "tcp", scenario: str = "res
     """Record an emulated board's simulated run (as fast as the link goes) and verify it.
 
     `target` is "native" (the firmware as a native process) or "qemu" (the ARM image in
-    QEMU). `scenario` is one of DEMO_SCENARIOS: NAV_SCENARIO feeds the board a receiver's
-    fixes and the barometer too. `output` keeps the recording (an existing file only with
-    `force`); without it the recording lives in a temporary directory that is removed at
-    the end.
+    QEMU). `scenario` is one of emulator.SCENARIOS: NAV_SCENARIO feeds the board a
+    receiver's fixes and the barometer too, and the nav filter's accuracy is reported.
+    `output` keeps the recording (an existing file only with `force`); without it the
+    recording lives in a temporary directory that is removed at the end.
     """
-    from .sim import navigation
-
     started = time.monotonic()
-    if scenario not in DEMO_SCENARIOS:
-        raise ValueError(f"unknown scenario {scenario!r}; choose one of {', '.join(DEMO_SCENARIOS)}")
     if output is not None:
         check_writable_target(output, replace=force)  # before the board is started
-    feed, traj = {}, None
-    if scenario == NAV_SCENARIO:
-        traj = navigation.car_drive(duration_s, rate_hz, seed=seed)
-        feed = dict(simulation=sim.simulate(traj, navigation.datasheet_sensors(rate_hz), seed=seed),
-                    gnss=navigation.gnss_fixes(traj, navigation.GnssModel(), seed=seed),
-                    baro=navigation.baro_samples(traj, seed=seed))
     with tempfile.TemporaryDirectory(prefix="imulink-demo-") as scratch, \
-            EmulatedBoard(target, front=transport, scenario=scenario if traj is None else "rests",
-                          duration_s=duration_s, rate_hz=rate_hz, seed=seed, filter_name=filter_name,
-                          **feed) as board:
+            EmulatedBoard(target, front=transport, scenario=scenario, duration_s=duration_s, rate_hz=rate_hz,
+                          seed=seed, filter_name=filter_name) as board:
         path = Path(output) if output is not None else Path(scratch) / "demo.imulog"
         result = record(board.address, path, force=force, progress=progress)
         recording = load_recording(path)
@@ -1531,8 +1513,8 @@ def demo(*, target: str = "native", transport: str = "tcp", scenario: str = "res
         usable = settled & ~np.isnan(truth[rows, 0])
         accuracy = rmse(attitude_errors(quat[usable], truth[rows][usable]))
     nav_accuracy = None
-    if traj is not None and filter_name == "nav":
-        nav_accuracy = _nav_accuracy(recording, fed, traj, rate_hz)
+    if board.trajectory is not None and filter_name == "nav":
+        nav_accuracy = _nav_accuracy(recording, fed, board.trajectory, rate_hz)
     return DemoReport(board.address, target, result, recording, comparison, accuracy, time.monotonic() - started,
                       kept=output is not None, nav_accuracy=nav_accuracy)
 

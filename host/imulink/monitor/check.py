@@ -9,8 +9,10 @@ board's sensor calibration from its CALIBRATION frames (GET_CALIBRATION; none se
 identity, as after start-up); the ACK of a command that restarts the filter begins a new
 filter run at sample index 0. Each run's
 samples go through the fixed-point build (what the board must compute) and the float
-twin, batch by batch, and every ESTIMATE of a complete run is compared with the fixed
-build: quaternion, gyro bias and Euler angles, bit for bit. (`imulink compare` on a
+twin, batch by batch (up to the last sample whose ESTIMATE arrived: the nav filter's
+barometer readings, fixes and markers come between a SAMPLE and its ESTIMATE and go in
+with it), and every ESTIMATE of a complete run is compared with the fixed build:
+quaternion, gyro bias and Euler angles, bit for bit. (`imulink compare` on a
 recording also checks the ESKF covariance and the saturation count, which need the
 filter stepped one sample at a time.) A run with a lost sample, or one whose settings the
 monitor does not know, is not verifiable; its estimates are counted as such.
@@ -30,7 +32,9 @@ from ..reference import FirmwareFilter
 
 _RESTARTING_IDS = {protocol.COMMAND_IDS[name] for name in protocol.RESTARTING_COMMANDS}
 _SET_SETTING = protocol.COMMAND_IDS["SET_SETTING"]
-_FILTER_NAMES = {filter_id: name for name, (filter_id, _) in core.FILTERS.items()}
+_FILTER_NAMES = {filter_id: name for name, (filter_id, _) in core.BOARD_FILTERS.items()}
+#: What the nav filter takes besides the samples: message name -> run_nav_counts' argument.
+_NAV_EVENTS = {"BARO": "baro", "GNSS": "gnss", "MARKER": "marker"}
 #: Host results kept for estimates that have not arrived yet (an ESTIMATE follows its SAMPLE at once).
 _KEEP_RESULTS = 4096
 
@@ -61,9 +65,11 @@ class _Run:
         self.fixed = reference.core
         self.float = core.Filter(filter_name, reference.si_settings["sample_rate"], "float", reference.si_settings,
                                  profile, calibration)
+        self.nav = filter_name == "nav"
         self.next_index = 0
         self.broken = False  # a sample was lost: nothing after it can be reproduced
         self.pending: list[tuple[int, tuple, tuple, tuple]] = []
+        self.events: list[tuple[str, dict]] = []  # the nav filter's BARO, GNSS, MARKER fields, in order
         self.results: dict[int, tuple] = {}  # index -> (Q30 quat, Q24 bias, Q29 euler, float quat)
 
     def add(self, fields: dict) -> None:
@@ -73,13 +79,41 @@ class _Run:
         self.pending.append((fields["index"], fields["gyr"], fields["acc"], fields["mag"]))
         self.next_index += 1
 
-    def step(self) -> None:
-        if not self.pending:
+    def add_event(self, name: str, fields: dict) -> None:
+        """A BARO, GNSS or MARKER frame: the nav filter took it after its sample."""
+        if self.nav:
+            self.events.append((name, fields))
+
+    def _nav_inputs(self, first: int, last: int) -> dict:
+        """run_nav_counts' arguments for the events of samples first..last (positions from first)."""
+        inputs = {"baro_after": [], "baro_pa": [], "gnss_after": [], "gnss": [], "marker_after": [], "markers": []}
+        kept = []
+        for name, fields in self.events:
+            if fields["index"] > last:
+                kept.append((name, fields))
+            elif fields["index"] >= first:
+                kind = _NAV_EVENTS[name]
+                inputs[f"{kind}_after"].append(fields["index"] - first)
+                if kind == "baro":
+                    inputs["baro_pa"].append(fields["pressure_pa"])
+                else:
+                    inputs["gnss" if kind == "gnss" else "markers"].append(fields)
+        self.events = kept
+        return inputs
+
+    def step(self, last: int) -> None:
+        """Run the pending samples up to index `last` (the last ESTIMATE that arrived)."""
+        ready = [p for p in self.pending if p[0] <= last]
+        if not ready:
             return
-        index = [p[0] for p in self.pending]
-        counts = [np.array([p[k] for p in self.pending], np.int16) for k in (1, 2, 3)]
-        self.pending = []
-        fixed, twin = self.fixed.run_counts(*counts), self.float.run_counts(*counts)
+        self.pending = self.pending[len(ready):]
+        index = [p[0] for p in ready]
+        counts = [np.array([p[k] for p in ready], np.int16) for k in (1, 2, 3)]
+        if self.nav:
+            inputs = self._nav_inputs(index[0], index[-1])
+            fixed, twin = self.fixed.run_nav_counts(*counts, **inputs), self.float.run_nav_counts(*counts, **inputs)
+        else:
+            fixed, twin = self.fixed.run_counts(*counts), self.float.run_counts(*counts)
         quat, bias, euler = (fixed.raw[k].tolist() for k in ("quat", "gyro_bias", "euler"))
         for k, i in enumerate(index):
             self.results[i] = (quat[k], bias[k], euler[k], twin.quat[k])
@@ -116,6 +150,9 @@ class LiveCheck:
                     self._run.add(fields)
             elif name == "ESTIMATE":
                 self._estimates.append(fields)
+            elif name in _NAV_EVENTS:
+                if self._run is not None:
+                    self._run.add_event(name, fields)
             elif name == "SETTING":
                 self.filter_id = fields["filter_id"]
                 self.settings.setdefault(fields["filter_id"], {})[fields["index"]] = fields["value"]
@@ -164,8 +201,8 @@ class LiveCheck:
         return Calibration(self.profile, sensors)
 
     def _compare(self) -> list[float]:
-        if self._run is not None:
-            self._run.step()
+        if self._run is not None and self._estimates:
+            self._run.step(max(fields["index"] for fields in self._estimates))
         results = self._run.results if self._run is not None else {}
         s = self.summary
         angles = np.full(len(self._estimates), np.nan)

@@ -42,6 +42,9 @@ SAMPLE_COLUMNS = ("t", "gyr_x", "gyr_y", "gyr_z", "acc_x", "acc_y", "acc_z", "ma
 ESTIMATE_COLUMNS = ("t", "roll", "pitch", "heading", "bias_x", "bias_y", "bias_z", "sigma_att_x", "sigma_att_y",
                     "sigma_att_z", "sigma_bias_x", "sigma_bias_y", "sigma_bias_z", "fixed_float", "gravity_weight",
                     "heading_weight")
+#: The nav filter's position (NAV_STATE frames that have one): east and north (m) from the
+#: first position the source saw, height above the ellipsoid (m), speed (m/s).
+NAV_COLUMNS = ("t", "east", "north", "height", "speed")
 #: Rows kept per ring buffer: the longest time span (MAX_SPAN_S) at up to 2 kHz.
 MAX_SPAN_S = 60.0
 RING_ROWS = 1 << 17
@@ -52,7 +55,7 @@ STATUS_INTERVAL_S = 1.0
 #: filter, numpy) is then paid some 50 times a second instead of once per sample, which at
 #: 1 kHz would take most of a core. The window draws at 30 frames/s: nobody sees the delay.
 BATCH_S = 0.02
-FILTER_NAMES = {filter_id: name for name, (filter_id, _) in core.FILTERS.items()}
+FILTER_NAMES = {filter_id: name for name, (filter_id, _) in core.BOARD_FILTERS.items()}
 _DEG = 180.0 / math.pi
 
 
@@ -73,6 +76,25 @@ def estimate_rows(times, filter_id, euler, gyro_bias, cov_mantissa, cov_exponent
     eskf = (np.asarray(filter_id) == core.FILTERS["eskf"][0])[:, None]
     weights = np.where(eskf, np.asarray(weights, np.float64) * 2.0**-30, np.nan)
     return np.column_stack([times, euler, bias, sigma, fixed_float, weights])
+
+
+def nav_rows(times, mode, lat, lon, height_mm, vel, origin: tuple[float, float, float] | None):
+    """Rows of NAV_COLUMNS from raw NAV_STATE fields ((N,) and (N,3) integer arrays), those
+    with a position (mode 2), east and north from `origin` (lat, lon deg, height m; None:
+    the first of these). Returns the rows and the origin."""
+    from ..sim.navigation import local_offsets
+
+    has = np.asarray(mode) == 2
+    if not has.any():
+        return np.empty((0, len(NAV_COLUMNS))), origin
+    lat_deg = np.degrees(np.asarray(lat)[has] / 2.0**29)
+    lon_deg = np.degrees(np.asarray(lon)[has] / 2.0**29)
+    height = np.asarray(height_mm)[has] / 1000.0
+    if origin is None:
+        origin = (float(lat_deg[0]), float(lon_deg[0]), float(height[0]))
+    offsets = local_offsets(lat_deg, lon_deg, height, *origin)
+    speed = np.linalg.norm(np.asarray(vel, np.float64).reshape(-1, 3)[has], axis=1) / 2.0**20
+    return np.column_stack([np.asarray(times)[has], offsets[:, 0], offsets[:, 1], height, speed]), origin
 
 
 @dataclass
@@ -109,6 +131,8 @@ class LiveSource:
         self.profile = profile or DEFAULT_PROFILE  # until the board states its own
         self.samples = RingBuffer(RING_ROWS, len(SAMPLE_COLUMNS))
         self.estimates = RingBuffer(RING_ROWS, len(ESTIMATE_COLUMNS))
+        self.nav = RingBuffer(RING_ROWS, len(NAV_COLUMNS))
+        self._nav_origin: tuple[float, float, float] | None = None
         self.check = LiveCheck(self.profile)
         self._health = Health("connecting", f"opening {url}")
         self._lock = threading.Lock()
@@ -130,10 +154,10 @@ class LiveSource:
         """The right end of the time axis."""
         return time.time() - self._started
 
-    def window(self, span_s: float) -> tuple[np.ndarray, np.ndarray]:
-        """Sample and estimate rows of the last `span_s` seconds."""
+    def window(self, span_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Sample, estimate and nav rows of the last `span_s` seconds."""
         low = self.now() - span_s
-        return self.samples.since(0, low), self.estimates.since(0, low)
+        return self.samples.since(0, low), self.estimates.since(0, low), self.nav.since(0, low)
 
     def health(self) -> Health:
         with self._lock:
@@ -267,7 +291,7 @@ class LiveSource:
         messages = [r.message for r in received]
         angles = self.check.feed(messages)
         t0 = self._started
-        samples, estimates = [], []
+        samples, estimates, states = [], [], []
         for item in received:
             name, fields = item.message.name, item.message.fields
             if name == "SAMPLE":
@@ -275,6 +299,9 @@ class LiveSource:
             elif name == "ESTIMATE":
                 estimates.append((item.time - t0, fields["filter_id"], fields["euler"], fields["gyro_bias"],
                                   fields["cov_mantissa"], fields["cov_exponent"], fields["weights"]))
+            elif name == "NAV_STATE":
+                states.append((item.time - t0, fields["mode"], fields["lat"], fields["lon"], fields["height_mm"],
+                               fields["vel"]))
             elif name == "STATUS":
                 with self._lock:
                     self._health.status = fields
@@ -293,6 +320,11 @@ class LiveSource:
             rows = estimate_rows(*(np.array([e[k] for e in estimates]) for k in range(7)), np.array(angles))
             self.estimates.append(rows)
             self._attitude = tuple(rows[-1, 1:4])
+        if states:
+            rows, self._nav_origin = nav_rows(*(np.array([e[k] for e in states]) for k in range(6)),
+                                              self._nav_origin)
+            if len(rows):
+                self.nav.append(rows)
 
     # ------------------------------------------------------------------ commands from the window
 
@@ -319,7 +351,7 @@ class LiveSource:
                 self._events.append(f"{action.replace('_', ' ')}: {exc}")
 
     def _do_select_filter(self, name: str) -> None:
-        filter_id = core.FILTERS[name][0]
+        filter_id = core.BOARD_FILTERS[name][0]
         reply = self._link.command("SELECT_FILTER", filter_id=filter_id)
         self.check.expect(reply.ack, ("filter", filter_id, 0))
         self._refresh_settings()
@@ -415,6 +447,9 @@ class ReplaySource:
                                            run.float_quat[self.comparison.sample_row[verified]])
         self.estimate_rows = estimate_rows(self._estimate_times(), e.filter_id, e.euler, e.gyro_bias, e.cov_mantissa,
                                            e.cov_exponent, e.weights, angle)
+        states = self.recording.nav_states
+        f = states.fields
+        self.nav_rows, _ = nav_rows(self._nav_times(), f["mode"], f["lat"], f["lon"], f["height_mm"], f["vel"], None)
         self.duration = float(max(self.sample_rows[-1, 0], self.estimate_rows[-1, 0] if len(e) else 0.0))
         self.speed = speed
         self.playing = True
@@ -428,6 +463,17 @@ class ReplaySource:
                           self.sample_rows[:, 0])
         have = rows >= 0
         times[have] = self.sample_rows[rows[have], 0]
+        return times
+
+    def _nav_times(self) -> np.ndarray:
+        """Each NAV_STATE at its sample's playback time (its receive time where its SAMPLE was lost)."""
+        states, samples = self.recording.nav_states, self.recording.samples
+        rows = {(int(s), int(i)): r for r, (s, i) in enumerate(zip(samples.segment, samples.index))}
+        times = np.interp(states.host_time, samples.host_time, self.sample_rows[:, 0]) if len(states) else np.empty(0)
+        for k, (segment, index) in enumerate(zip(states.segment, states.index)):
+            row = rows.get((int(segment), int(index)))
+            if row is not None:
+                times[k] = self.sample_rows[row, 0]
         return times
 
     def now(self) -> float:
@@ -446,13 +492,13 @@ class ReplaySource:
         self.playing = playing
         self._clock = time.monotonic()
 
-    def window(self, span_s: float) -> tuple[np.ndarray, np.ndarray]:
+    def window(self, span_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         now = self.now()
         out = []
-        for rows in (self.sample_rows, self.estimate_rows):
+        for rows in (self.sample_rows, self.estimate_rows, self.nav_rows):
             low, high = np.searchsorted(rows[:, 0], [now - span_s, now], side="right")
             out.append(rows[low:high])
-        return out[0], out[1]
+        return out[0], out[1], out[2]
 
     def attitude(self) -> tuple[float, float, float]:
         rows = self.window(1.0)[1]

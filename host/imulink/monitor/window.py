@@ -22,7 +22,7 @@ from .decimate import peaks
 from . import board3d
 from .horizon import HorizonWidget
 from .qt import QtCore, QtGui, QtWidgets, pg
-from .sources import ESTIMATE_COLUMNS, FILTER_NAMES, MAX_SPAN_S, SAMPLE_COLUMNS, Health
+from .sources import ESTIMATE_COLUMNS, FILTER_NAMES, MAX_SPAN_S, NAV_COLUMNS, SAMPLE_COLUMNS, Health
 
 #: Redraws per second, whatever the sample rate.
 FRAME_HZ = 30
@@ -43,7 +43,9 @@ PLOTS = (
     ("ESKF σ gyro bias", "deg/s", "estimates", ("sigma_bias_x", "sigma_bias_y", "sigma_bias_z")),
     ("ESKF weights", "1", "estimates", ("gravity_weight", "heading_weight")),
 )
-_COLUMNS = {"samples": SAMPLE_COLUMNS, "estimates": ESTIMATE_COLUMNS}
+_COLUMNS = {"samples": SAMPLE_COLUMNS, "estimates": ESTIMATE_COLUMNS, "nav": NAV_COLUMNS}
+#: Points of the track handed to pyqtgraph at most (every k-th row of the time span).
+TRACK_POINTS = 2000
 #: Angles that wrap at +-180 deg: the curve is broken there instead of drawn across the plot.
 _WRAPPING = ("roll", "heading")
 
@@ -103,8 +105,8 @@ class MonitorWindow(QtWidgets.QMainWindow):
         self.plots_widget = pg.GraphicsLayoutWidget()
         self.plots: list[pg.PlotItem] = []
         self.curves: dict[str, tuple[Curve, str, int]] = {}  # name -> (curve, table, column)
-        self.data: dict[str, np.ndarray] = {"samples": np.empty((0, len(SAMPLE_COLUMNS))),
-                                             "estimates": np.empty((0, len(ESTIMATE_COLUMNS)))}  # shown, undecimated
+        self.data: dict[str, np.ndarray] = {name: np.empty((0, len(columns)))
+                                             for name, columns in _COLUMNS.items()}  # shown, undecimated
         self._drawn: tuple = ()
         self._drawn_at = 0.0  # the time (source.now()) at the right end of the plots
         self.autoscaled = [True] * len(PLOTS)  # per plot: its y range follows the data
@@ -137,6 +139,7 @@ class MonitorWindow(QtWidgets.QMainWindow):
             plot.addItem(cursor, ignoreBounds=True)
             self.cursors.append(cursor)
             self.plots.append(plot)
+        self._navigation(len(PLOTS))
         for plot in self.plots[:-2]:  # time labels on the bottom row only: text is most of an axis's cost
             plot.getAxis("bottom").setStyle(showValues=False)
         self.plots[-1].setLabel("bottom", "time before now (s)")
@@ -178,6 +181,41 @@ class MonitorWindow(QtWidgets.QMainWindow):
         self._toolbar()
         self.readout = QtWidgets.QLabel()
         self.statusBar().addWidget(self.readout, 1)
+
+    def _navigation(self, slot: int) -> None:
+        """The nav filter's track (east and north from its first position, m) and height over
+        the time span, side by side in the plot grid's cell `slot` (the one after the last
+        plot); shown while NAV_STATEs with a position arrive."""
+        self.nav_box = self.plots_widget.addLayout(row=slot // 2, col=slot % 2)
+        self.track_plot = self.nav_box.addPlot(row=0, col=0, title="nav track")
+        self.track_plot.setAspectLocked(True)
+        self.track_plot.showGrid(x=True, y=True, alpha=0.3)
+        self.track_plot.setLabel("bottom", "east (m)")
+        self.track_plot.setLabel("left", "north (m)")
+        self.track_curve = pg.PlotCurveItem(pen=pg.mkPen(_COLORS[2], width=1))
+        self.track_now = pg.ScatterPlotItem(size=8, brush=pg.mkBrush(_COLORS[0]), pen=None)
+        self.track_plot.addItem(self.track_curve)
+        self.track_plot.addItem(self.track_now)
+        self.height_plot = self.nav_box.addPlot(row=0, col=1, title="nav height")
+        self.height_plot.showGrid(x=True, y=True, alpha=0.3)
+        self.height_plot.setLabel("left", "height (m)")
+        self.height_plot.setLabel("bottom", "time before now (s)")
+        self.height_curve = Curve(name="height", pen=pg.mkPen(_COLORS[1], width=1))
+        self.height_plot.addItem(self.height_curve)
+        self.nav_box.setVisible(False)
+
+    def _show_navigation(self, rows: np.ndarray, now: float) -> None:
+        """The track and the height of the shown time span (nav rows); hidden without any."""
+        self.nav_box.setVisible(len(rows) > 0)
+        if not len(rows):
+            return
+        east, north = NAV_COLUMNS.index("east"), NAV_COLUMNS.index("north")
+        track = rows[::max(1, len(rows) // TRACK_POINTS)]
+        self.track_curve.setData(track[:, east], track[:, north])
+        self.track_now.setData([rows[-1, east]], [rows[-1, north]])
+        drawn = peaks(rows, DRAWN_BINS)
+        self.height_curve.show_data(drawn[:, 0] - now, drawn[:, NAV_COLUMNS.index("height")])
+        self.height_plot.setXRange(-self.span(), 0.0, padding=0)
 
     def _toolbar(self) -> None:
         bar = self.addToolBar("view")
@@ -226,7 +264,7 @@ class MonitorWindow(QtWidgets.QMainWindow):
         box = QtWidgets.QGroupBox("board")
         grid = QtWidgets.QGridLayout(box)
         self.filter_box = QtWidgets.QComboBox()
-        self.filter_box.addItems(list(core.FILTERS))
+        self.filter_box.addItems(list(core.BOARD_FILTERS))
         self.filter_box.activated.connect(lambda _: self.source.request("select_filter", self.filter_box.currentText()))
         grid.addWidget(QtWidgets.QLabel("filter"), 0, 0)
         grid.addWidget(self.filter_box, 0, 1, 1, 3)
@@ -365,7 +403,7 @@ class MonitorWindow(QtWidgets.QMainWindow):
         if not (self.paused and self.source.live):  # a paused replay still follows its slider
             now = self.source.now()
             span = self.span()
-            tables = dict(zip(("samples", "estimates"), self.source.window(span)))
+            tables = dict(zip(("samples", "estimates", "nav"), self.source.window(span)))
             # a live view moves with its data, a replay with its clock; when neither moved (a stopped
             # stream, a paused replay) there is nothing to draw
             fresh = (span, None if self.source.live else now, *(len(t) and t[-1, 0] for t in tables.values()))
@@ -381,6 +419,7 @@ class MonitorWindow(QtWidgets.QMainWindow):
                 if self.plots[0].vb.viewRange()[0] != [-span, 0.0]:  # seconds before now: the time axes stand still
                     self.plots[0].setXRange(-span, 0.0, padding=0)
                 self._autoscale_y(drawn)
+                self._show_navigation(tables["nav"], now)
                 attitude = self.source.attitude()
                 self.horizon.set_attitude(*attitude)
                 if self.board_view is not None:
