@@ -79,6 +79,19 @@ def test_a_lost_nav_state_leaves_its_estimate_unverified(tmp_path):
     assert comparison.verified_count == len(recording.estimates) - 1 and comparison.bit_exact
 
 
+def test_replay_of_a_nav_recording_has_its_positions(tmp_path, capsys):
+    _, recording, _ = record_nav_drive("native", 10.0, tmp_path)
+    out = tmp_path / "replay.csv"
+    assert main(["replay", str(recording.path), "--csv", str(out)]) == 0
+    capsys.readouterr()
+    rows = np.genfromtxt(out, delimiter=",", names=True)
+    states = recording.nav_states.fields
+    assert np.array_equal(rows["board_lat_deg"], rows["fixed_lat_deg"])
+    np.testing.assert_array_equal(rows["board_height_m"], states["height_mm"] / 1000.0)
+    assert np.abs(rows["float_lat_deg"] - rows["fixed_lat_deg"]).max() * 111_000 < 0.1  # m
+    assert np.isfinite(rows["board_vel_e_m_s"]).all()
+
+
 @pytest.fixture(scope="module")
 def board():
     with EmulatedBoard("native", duration_s=60.0) as emulated:

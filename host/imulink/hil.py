@@ -1082,6 +1082,8 @@ def replay_columns(recording: Recording, run: HostRun, comparison: Comparison) -
             columns[f"{source}_gyro_bias_{axis}_rad_s"] = bias[:, k]
     weights = board(e.weights, 30)  # zero but for the ESKF
     columns["board_gravity_weight"], columns["board_heading_weight"] = weights[:, 0], weights[:, 1]
+    if run.nav is not None:
+        columns.update(_nav_columns(recording, run))
     columns["baro_pa"], columns["baro_temp_c"] = _baro_columns(recording)
     columns.update(_gnss_columns(recording))
     identical = np.full(n, np.nan)
@@ -1090,6 +1092,33 @@ def replay_columns(recording: Recording, run: HostRun, comparison: Comparison) -
     identical[checked] = comparison.identical[estimate_of[checked]]
     columns["identical"] = identical
     columns["fixed_float_angle_deg"] = angle_difference(fixed_quat, run.float_quat)
+    return columns
+
+
+def _nav_columns(recording: Recording, run: HostRun) -> dict[str, np.ndarray]:
+    """The nav filter's position and velocity per sample: the board's (its NAV_STATE), the
+    host fixed build's and the float twin's (position only); NaN without a position."""
+    n = len(recording.samples)
+    states = recording.nav_states.fields
+    rows = sample_rows(recording, recording.nav_states.segment, recording.nav_states.index)
+    board = {name: np.zeros((n,) + values.shape[1:], np.int64) for name, values in states.items()}
+    board_mode = np.zeros(n, np.int64)
+    for name, values in states.items():
+        board[name][rows[rows >= 0]] = values[rows >= 0]
+    board_mode[rows[rows >= 0]] = states["mode"][rows >= 0]
+    columns = {}
+    for source, fields, positioned in (("board", board, board_mode == 2),
+                                       ("fixed", run.nav, run.nav_rows & (run.nav["mode"] == 2))):
+        def masked(values: np.ndarray) -> np.ndarray:
+            return np.where(positioned, values, np.nan)
+
+        columns[f"{source}_lat_deg"] = masked(np.degrees(fields["lat"] * 2.0**-29))
+        columns[f"{source}_lon_deg"] = masked(np.degrees(fields["lon"] * 2.0**-29))
+        columns[f"{source}_height_m"] = masked(fields["height_mm"] / 1000.0)
+        for k, axis in enumerate(("e", "n", "u")):
+            columns[f"{source}_vel_{axis}_m_s"] = masked(fields["vel"][:, k] * 2.0**-20)
+    for k, name in enumerate(("lat_deg", "lon_deg", "height_m")):
+        columns[f"float_{name}"] = run.float_position[:, k]
     return columns
 
 
