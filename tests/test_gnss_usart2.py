@@ -161,8 +161,11 @@ class Board:
     LIMIT = 5_000_000
 
     def __init__(self, harness):
-        unicorn = pytest.importorskip("unicorn", reason="the Python package unicorn is missing")
-        from unicorn import arm_const
+        try:
+            import unicorn
+            from unicorn import arm_const
+        except ImportError:
+            pytest.fail("the Python package unicorn is missing: .venv/bin/pip install unicorn")
 
         self.arm = arm_const
         elf, self.symbols = harness
