@@ -56,6 +56,8 @@ typedef struct {
     imu_q30_t scale_north;      /**< (M0 + h0) / (M + h), Q30 */
     imu_real_t gravity;         /**< normal gravity at the position, m/s^2, Q24 */
     imu_q16_t acc[3];           /**< the last step's acceleration, ENU, m/s^2, Q16 (gravity removed) */
+    imu_q30_t theta_prev[3];    /**< the last sample's angle increment (bias-corrected), rad, Q30 */
+    imu_q16_t force_prev[3];    /**< the last sample's specific force (bias-corrected), sensor frame, m/s^2, Q16 */
     uint32_t saturations;       /**< clamped intermediate results (0 in normal operation) */
 } imu_nav_t;
 
