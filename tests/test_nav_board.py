@@ -148,6 +148,20 @@ def test_a_position_fix_anchors_the_board_as_the_host_computes(link):
         assert list(got[k]["ESTIMATE"]["quat"]) == host.raw["quat"][k].tolist()
 
 
+def test_injection_into_nav_compares_its_nav_state_too(board):
+    """imulink inject into the nav filter: every ESTIMATE and its NAV_STATE against the host
+    build, bit for bit; a NAV_STATE that differs is named."""
+    source = hil.load_injection_input("sim:rests:4:100:1")
+    result = hil.inject(board.address, source, filter_name="nav")
+    assert result.answered == result.samples == 400 and result.bit_exact, result.first_difference
+    state = {"index": 3, "mode": 1, "lat": 0, "lon": 0, "height_mm": 0, "vel": [0, 0, 0], "acc_bias": [0, 0, 0],
+             "baro_bias_mm": 0, "var_mantissa": [1] * 16, "var_exponent": [0] * 16, "since_fix": 0, "rejected": 0,
+             "zero_velocity": 0}
+    changed = {**state, "zero_velocity": 1}
+    assert hil._first_different_nav_field(state, dict(state)) is None
+    assert hil._first_different_nav_field(changed, state) == "nav_state.zero_velocity"
+
+
 def test_position_fix_refusals(link):
     with pytest.raises(protocol.CommandError) as error:
         link.command("POSITION_FIX", **MARKER)

@@ -1403,6 +1403,15 @@ def _first_different_field(board: dict, host: dict) -> str | None:
     return None
 
 
+def _first_different_nav_field(board: dict, host: dict) -> str | None:
+    """The first NAV_STATE field in which the board's differs from the host's, as "nav_state.<name>"."""
+    for name, _, _ in protocol.message_fields("NAV_STATE"):
+        theirs = list(board[name]) if isinstance(board[name], (list, tuple)) else board[name]
+        if theirs != host[name]:
+            return f"nav_state.{name}"
+    return None
+
+
 def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings: dict, profile: SensorProfile,
                     calibration, progress: Progress | None) -> InjectResult:
     reference = FirmwareFilter(name, raw_settings, profile, calibration)
@@ -1422,18 +1431,27 @@ def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings:
             restarts += 1
             continue
         expected = reference.step(k, gyr[k], acc[k], mag[k])
-        if reply.data is None:
+        # the nav filter's NAV_STATE came after the ESTIMATE, before the ACK: already received
+        state = next((r.message.fields for r in link.receive(0) if r.message.name == "NAV_STATE"
+                      and r.message.fields["index"] == k), None) if reference.nav_state is not None else None
+        if reply.data is None or (reference.nav_state is not None and state is None):
             lost += 1
             continue
         answered += 1
         got = reply.data.fields
         board_quat[k] = np.array(got["quat"]) / 2.0**_Q["quat"]
         different = _first_different_field(got, expected)
+        board_value, host_value = (got.get(different), expected.get(different)) if different else (None, None)
+        if different is None and state is not None:
+            different = _first_different_nav_field(state, reference.nav_state)
+            if different is not None:
+                field = different.split(".", 1)[1]
+                board_value, host_value = state[field], reference.nav_state[field]
         if different is None:
             identical += 1
         elif first is None:
-            first = {"sample_index": k, "field": different, "board": np.asarray(got[different]).tolist(),
-                     "host": np.asarray(expected[different]).tolist()}
+            first = {"sample_index": k, "field": different, "board": np.asarray(board_value).tolist(),
+                     "host": np.asarray(host_value).tolist()}
         if progress is not None:
             progress.update(f"injecting: {k + 1}/{n} samples, {identical}/{answered} identical, "
                             f"{(k + 1) / (time.monotonic() - started):.0f} samples/s")

@@ -33,6 +33,8 @@ class FirmwareFilter:
         self.core = core.Filter(filter_name, values["sample_rate"], "fixed", values, profile, calibration)
         self.saturations = 0
         self._has_covariance = filter_name == "eskf"
+        #: the nav filter's NAV_STATE fields after the last step (None for the other filters)
+        self.nav_state: dict | None = None
 
     @staticmethod
     def default_raw_settings(filter_name: str, rate_hz: float) -> dict[str, int]:
@@ -41,10 +43,17 @@ class FirmwareFilter:
         return {f.name: core.to_fixed(values[f.name], f.frac_bits, f.name) for f in core.settings_fields(filter_name)}
 
     def step(self, index: int, gyr, acc, mag) -> dict:
-        """Run one sample (three int16 triples) and return the ESTIMATE fields for it."""
-        result = self.core.run_counts(np.array([gyr], np.int16), np.array([acc], np.int16),
-                                      np.array([mag], np.int16))
-        self.saturations = result.saturations
+        """Run one sample (three int16 triples) and return the ESTIMATE fields for it (the nav
+        filter's NAV_STATE fields then in :attr:`nav_state`)."""
+        counts = (np.array([gyr], np.int16), np.array([acc], np.int16), np.array([mag], np.int16))
+        if self.filter_name == "nav":
+            result = self.core.run_nav_counts(*counts)
+            self.saturations = int(result.saturations[0])
+            self.nav_state = {name: values[0].tolist() for name, values in result.nav_states.items()}
+            self.nav_state["index"] = index
+        else:
+            result = self.core.run_counts(*counts)
+            self.saturations = result.saturations
         if self._has_covariance:
             mantissas, exponents = self.core.covariance_diagonal_raw()
             weights = self.core.measurement_weights_raw()
@@ -53,5 +62,5 @@ class FirmwareFilter:
         raw = result.raw
         return {"index": index, "filter_id": self.filter_id, "quat": raw["quat"][0].tolist(),
                 "gyro_bias": raw["gyro_bias"][0].tolist(), "euler": raw["euler"][0].tolist(),
-                "cov_mantissa": mantissas, "cov_exponent": exponents, "saturations": result.saturations,
+                "cov_mantissa": mantissas, "cov_exponent": exponents, "saturations": self.saturations,
                 "weights": weights}
