@@ -70,16 +70,7 @@ void h_poll(uint32_t now_ms)
 }
 """
 
-HARNESS_LD = """
-MEMORY { FLASH (rx) : ORIGIN = 0x08000000, LENGTH = 1024K  RAM (rwx) : ORIGIN = 0x20000000, LENGTH = 128K }
-ENTRY(h_halt)
-SECTIONS {
-    .text : { *(.text .text.*) *(.rodata .rodata.*) } > FLASH
-    .ARM.exidx : { *(.ARM.exidx .ARM.exidx.*) } > FLASH
-    .data : { *(.data .data.*) } > RAM AT > FLASH
-    .bss (NOLOAD) : { *(.bss .bss.* COMMON) } > RAM
-}
-"""
+HARNESS_LD = (ROOT / "tests" / "c" / "arm_harness.ld").read_text()
 
 SOURCES = [FIRMWARE / "boards" / "stm32f407" / "gnss_usart2.c", FIRMWARE / "boards" / "stm32f4" / "uart.c",
            *(FIRMWARE / "drivers" / name for name in ("gnss.c", "ubx.c", "nmea.c"))]

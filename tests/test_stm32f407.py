@@ -341,16 +341,7 @@ void h_ms5611_poll(uint32_t now_us)
 }
 """
 
-HARNESS_LD = """
-MEMORY { FLASH (rx) : ORIGIN = 0x08000000, LENGTH = 1024K  RAM (rwx) : ORIGIN = 0x20000000, LENGTH = 128K }
-ENTRY(h_halt)
-SECTIONS {
-    .text : { *(.text .text.*) *(.rodata .rodata.*) } > FLASH
-    .ARM.exidx : { *(.ARM.exidx .ARM.exidx.*) } > FLASH
-    .data : { *(.data .data.*) } > RAM AT > FLASH
-    .bss (NOLOAD) : { *(.bss .bss.* COMMON) } > RAM
-}
-"""
+HARNESS_LD = (ROOT / "tests" / "c" / "arm_harness.ld").read_text()  # flash, RAM and h_halt as the entry
 
 HARNESS_SOURCES = [*sorted((FIRMWARE / "drivers").glob("*.c")), FIRMWARE / "core" / "imu_sensor.c",
                    FIRMWARE / "core" / "imu_math.c", FIRMWARE / "boards" / "stm32f4" / "timers.c",

@@ -347,27 +347,9 @@ class Gnss:
 
 
 @dataclass
-class NavStates:
-    """NAV_STATE frames in arrival order (the nav filter's state after each sample): the
-    board's raw integers, one row per frame; `fields` maps each NAV_STATE field name to its
-    array ((n,) or (n, length)), index and segment included."""
-
-    host_time: np.ndarray
-    segment: np.ndarray
-    fields: dict
-
-    @property
-    def index(self) -> np.ndarray:
-        return self.fields["index"]
-
-    def __len__(self) -> int:
-        return len(self.host_time)
-
-
-@dataclass
-class Markers:
-    """MARKER frames in arrival order: the position fixes (POSITION_FIX) the board gave its
-    nav filter, each after the sample `index` (1e-7 deg, mm; used: whether it took it)."""
+class MessageTable:
+    """Frames of one message in arrival order: the board's raw integers, one row per frame;
+    `fields` maps each of the message's field names to its array ((n,) or (n, length))."""
 
     host_time: np.ndarray
     segment: np.ndarray
@@ -378,11 +360,20 @@ class Markers:
         return self.fields["index"]
 
     def rows(self) -> list[dict]:
-        """One dict of MARKER fields per frame."""
-        return [{name: int(values[k]) for name, values in self.fields.items()} for k in range(len(self))]
+        """One dict of fields per frame (integers)."""
+        return [{name: values[k].tolist() for name, values in self.fields.items()} for k in range(len(self))]
 
     def __len__(self) -> int:
         return len(self.host_time)
+
+
+class NavStates(MessageTable):
+    """NAV_STATE frames: the nav filter's state after each sample."""
+
+
+class Markers(MessageTable):
+    """MARKER frames: the position fixes (POSITION_FIX) the board gave its nav filter, each
+    after the sample `index` (1e-7 deg, mm; used: whether it took it)."""
 
 
 @dataclass
