@@ -12,7 +12,8 @@ from cffi import FFI
 ROOT = Path(__file__).resolve().parents[2]
 CORE_DIR = ROOT / "firmware" / "core"
 CORE_SOURCES = ["imu_math.c", "imu_settings.c", "imu_sensor.c", "imu_cov.c", "imu_rest.c", "imu_eecf.c", "imu_kf1d.c",
-                "imu_eskf.c", "imu_filter.c", "imu_proto.c", "imu_nav.c", "imu_navcov.c", "imu_navkf.c", "imu_navfilter.c"]
+                "imu_eskf.c", "imu_filter.c", "imu_proto.c", "imu_nav.c", "imu_navcov.c", "imu_navkf.c",
+                "imu_navfilter.c"]
 
 _TYPEDEFS = {
     "fixed": """
