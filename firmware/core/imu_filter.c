@@ -8,6 +8,7 @@ imu_status_t imu_filter_init(imu_filter_t *f, int id)
 {
     f->sensor = imu_sensor_default_settings;
     f->calibration = imu_calibration_identity;
+    f->calibrated = 0;
     switch (id) {
     case IMU_FILTER_EECF:
         imu_eecf_init(&f->u.eecf);
@@ -54,6 +55,7 @@ imu_status_t imu_filter_set_calibration(imu_filter_t *f, const imu_calibration_t
         return IMU_ERR_RANGE;
     }
     f->calibration = *cal;
+    f->calibrated = !imu_calibration_is_identity(cal);
     return IMU_OK;
 }
 
@@ -75,7 +77,12 @@ static uint32_t *saturation_counter(imu_filter_t *f)
 void imu_filter_update_raw(imu_filter_t *f, const imu_raw_sample_t *raw)
 {
     imu_sample_t sample;
-    imu_sample_from_raw_calibrated(&f->sensor, &f->calibration, raw, &sample, saturation_counter(f));
+    /* the identity's correction is exact (imu_sensor.h): without a calibration it is skipped */
+    if (f->calibrated) {
+        imu_sample_from_raw_calibrated(&f->sensor, &f->calibration, raw, &sample, saturation_counter(f));
+    } else {
+        imu_sample_from_raw(&f->sensor, raw, &sample, saturation_counter(f));
+    }
     switch (f->id) {
     case IMU_FILTER_EECF:
         imu_eecf_update(&f->u.eecf, &sample);

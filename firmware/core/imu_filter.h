@@ -28,6 +28,7 @@ typedef struct {
     imu_filter_id_t id;
     imu_sensor_settings_t sensor;
     imu_calibration_t calibration;
+    int calibrated;            /**< 0 while the calibration is the identity: the counts are scaled as they are */
     union {
         imu_eecf_t eecf;
         imu_kf1d_t kf1d;

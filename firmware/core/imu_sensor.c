@@ -30,6 +30,29 @@ static int offsets_in_range(const imu_sensor_cal_t *c)
     return 1;
 }
 
+static int sensor_is_identity(const imu_sensor_cal_t *c, const imu_sensor_cal_t *identity)
+{
+    int i;
+    for (i = 0; i < 3; ++i) {
+        if (c->offset[i] != identity->offset[i]) {
+            return 0;
+        }
+    }
+    for (i = 0; i < 9; ++i) {
+        if (c->matrix[i] != identity->matrix[i]) {
+            return 0;
+        }
+    }
+    return 1;
+}
+
+int imu_calibration_is_identity(const imu_calibration_t *cal)
+{
+    const imu_calibration_t *id = &imu_calibration_identity;
+    return sensor_is_identity(&cal->gyr, &id->gyr) && sensor_is_identity(&cal->acc, &id->acc) &&
+           sensor_is_identity(&cal->mag, &id->mag);
+}
+
 imu_status_t imu_calibration_check(const imu_calibration_t *cal)
 {
     return offsets_in_range(&cal->gyr) && offsets_in_range(&cal->acc) && offsets_in_range(&cal->mag) ? IMU_OK
@@ -52,15 +75,12 @@ static void correct(const imu_sensor_cal_t *c, const int16_t raw[3], imu_real_t 
     }
 }
 
-void imu_sample_from_raw_calibrated(const imu_sensor_settings_t *settings, const imu_calibration_t *cal,
-                                    const imu_raw_sample_t *raw, imu_sample_t *out, uint32_t *sat)
+/** The clipping flags of the raw counts and the scaling of corrected counts (Q8) into `out`. */
+static void scale_counts(const imu_sensor_settings_t *settings, const imu_raw_sample_t *raw, const imu_real_t gyr[3],
+                         const imu_real_t acc[3], const imu_real_t mag[3], imu_sample_t *out, uint32_t *sat)
 {
-    imu_real_t gyr[3], acc[3], mag[3]; /* corrected counts, Q8 */
     int i;
     out->clipped = 0;
-    correct(&cal->gyr, raw->gyr, gyr, sat);
-    correct(&cal->acc, raw->acc, acc, sat);
-    correct(&cal->mag, raw->mag, mag, sat);
     for (i = 0; i < 3; ++i) {
         if (raw->gyr[i] <= IMU_MPU6050_MIN || raw->gyr[i] >= IMU_MPU6050_MAX) {
             out->clipped |= IMU_CLIPPED_GYR;
@@ -78,8 +98,26 @@ void imu_sample_from_raw_calibrated(const imu_sensor_settings_t *settings, const
     }
 }
 
+void imu_sample_from_raw_calibrated(const imu_sensor_settings_t *settings, const imu_calibration_t *cal,
+                                    const imu_raw_sample_t *raw, imu_sample_t *out, uint32_t *sat)
+{
+    imu_real_t gyr[3], acc[3], mag[3]; /* corrected counts, Q8 */
+    correct(&cal->gyr, raw->gyr, gyr, sat);
+    correct(&cal->acc, raw->acc, acc, sat);
+    correct(&cal->mag, raw->mag, mag, sat);
+    scale_counts(settings, raw, gyr, acc, mag, out, sat);
+}
+
 void imu_sample_from_raw(const imu_sensor_settings_t *settings, const imu_raw_sample_t *raw,
                          imu_sample_t *out, uint32_t *sat)
 {
-    imu_sample_from_raw_calibrated(settings, &imu_calibration_identity, raw, out, sat);
+    /* what the identity calibration's correction gives, exactly: the counts in Q8 */
+    imu_real_t gyr[3], acc[3], mag[3];
+    int i;
+    for (i = 0; i < 3; ++i) {
+        gyr[i] = IMU_FROM_INT_SAT(raw->gyr[i], IMU_CAL_OFFSET_Q, sat);
+        acc[i] = IMU_FROM_INT_SAT(raw->acc[i], IMU_CAL_OFFSET_Q, sat);
+        mag[i] = IMU_FROM_INT_SAT(raw->mag[i], IMU_CAL_OFFSET_Q, sat);
+    }
+    scale_counts(settings, raw, gyr, acc, mag, out, sat);
 }

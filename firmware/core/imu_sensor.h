@@ -94,6 +94,9 @@ typedef struct {
 /** Offsets 0, identity matrices: the counts pass unchanged. */
 extern const imu_calibration_t imu_calibration_identity;
 
+/** @brief 1 when `cal` is imu_calibration_identity (the counts pass unchanged), else 0. */
+int imu_calibration_is_identity(const imu_calibration_t *cal);
+
 /** @brief IMU_OK, or IMU_ERR_RANGE when an offset lies beyond IMU_CAL_MAX_OFFSET. */
 imu_status_t imu_calibration_check(const imu_calibration_t *cal);
 
