@@ -7,6 +7,9 @@ mode; `imulink demo --filter nav`.
 from __future__ import annotations
 
 import json
+import shutil
+import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,6 +22,7 @@ from imulink.recording import load_recording
 from imulink.sim import navigation as nv
 from imulink.sim import simulate
 
+ROOT = Path(__file__).resolve().parents[1]
 RATE = 100.0
 NAV_ID = core.BOARD_FILTERS["nav"][0]
 
@@ -192,3 +196,28 @@ def test_imulink_demo_filter_nav(capsys):
     assert report["verdict"]["passed"] and report["compare"]["fixed_vs_float"]["position_max_m"] < 0.1
     accuracy = report["navigation_accuracy"]
     assert accuracy["horizontal_m"] < 2.0 and accuracy["velocity_m_s"] < 0.2 and accuracy["rejected"] == 0
+
+
+@pytest.mark.parametrize("build", ["FIXED", "FLOAT"])
+def test_extreme_protocol_input_has_no_undefined_behaviour(build, tmp_path):
+    """The board's nav filter fed GNSS frames, markers and pressures with every field at its
+    type's limits (tests/c/navfilter_driver.c), under the sanitizers, the fixed build with
+    every narrowing checked: no undefined behaviour, and the usable fixes among them used."""
+    gcc = shutil.which("gcc")
+    assert gcc, "gcc not found"
+    core_dir = ROOT / "firmware" / "core"
+    exe = tmp_path / "navfilter"
+    checked = ["-DIMU_CHECK_NARROWING"] if build == "FIXED" else []
+    sources = [core_dir / name for name in ("imu_filter.c", "imu_navfilter.c", "imu_navkf.c", "imu_nav.c",
+                                            "imu_navcov.c", "imu_eecf.c", "imu_kf1d.c", "imu_eskf.c", "imu_cov.c",
+                                            "imu_rest.c", "imu_sensor.c", "imu_settings.c", "imu_math.c")]
+    proc = subprocess.run([gcc, "-std=c99", "-O1", "-Wall", "-Wextra", "-Werror", f"-DIMU_{build}", *checked,
+                           f"-I{core_dir}", "-fsanitize=undefined,address", "-fno-sanitize-recover=all", "-o", str(exe),
+                           str(ROOT / "tests" / "c" / "navfilter_driver.c"), *map(str, sources), "-lm"],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    run = subprocess.run([str(exe), "3000"], capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    counts = dict(zip(*[iter(run.stdout.split())] * 2))
+    assert counts["samples"] == "3000" and int(counts["gnss_used"]) > 0 and int(counts["markers_used"]) > 0
+    assert counts["mode"] == "2"

@@ -107,7 +107,7 @@ int imu_navfilter_gnss(imu_navfilter_t *f, const imu_proto_gnss_t *fix)
     g.h_acc = accuracy(fix->h_acc_mm, DEFAULT_H_ACC_MM);
     g.v_acc = accuracy(fix->v_acc_mm, DEFAULT_V_ACC_MM);
     g.s_acc = accuracy(fix->s_acc_mm_s, DEFAULT_S_ACC_MM_S);
-    g.age = IMU_MUL(f->settings.gnss_latency, IMU_QCONST(1.0, 14), 0); /* s, Q16 -> Q30 (at most 1) */
+    g.age = IMU_SHL_SAT(f->settings.gnss_latency, 14, &f->saturations); /* s, Q16 -> Q30 (at most 1: no saturation) */
     return imu_navkf_fix(&f->kf, &g);
 }
 

@@ -502,12 +502,17 @@ static int accuracies_in_range(const imu_navkf_fix_t *fix)
 static void note_speed(imu_navkf_t *f, const imu_navkf_fix_t *fix)
 {
     imu_wide_t speed2 = 0; /* Q40 */
+    int fast = 0;          /* an axis at SLOW_SPEED or beyond: neither (its square is not needed) */
     int k;
     for (k = 0; k < 3 && fix->has_vel; ++k) {
-        speed2 += IMU_WMUL(fix->vel[k], fix->vel[k]);
+        if (fix->vel[k] >= SLOW_SPEED || fix->vel[k] <= -SLOW_SPEED) {
+            fast = 1;
+        } else {
+            speed2 += IMU_WMUL(fix->vel[k], fix->vel[k]);
+        }
     }
-    f->fix_stood = fix->has_vel && speed2 < IMU_WMUL(REST_SPEED, REST_SPEED);
-    f->fix_slow = !fix->has_vel || speed2 < IMU_WMUL(SLOW_SPEED, SLOW_SPEED);
+    f->fix_stood = fix->has_vel && !fast && speed2 < IMU_WMUL(REST_SPEED, REST_SPEED);
+    f->fix_slow = !fix->has_vel || (!fast && speed2 < IMU_WMUL(SLOW_SPEED, SLOW_SPEED));
 }
 
 /** The position (and the velocity, when the fix has one) taken from `fix` at the origin it
