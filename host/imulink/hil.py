@@ -635,7 +635,7 @@ class HostRun:
     float_position: np.ndarray | None = None
 
 
-def _events_after(recording: Recording, table, segment: int, sample_index: np.ndarray) -> np.ndarray:
+def _events_after(table, segment: int, sample_index: np.ndarray) -> np.ndarray:
     """Per row of `table` (BARO, GNSS, MARKER), the position in `sample_index` (a segment's
     recorded samples) of the sample it came after; -1 for another segment or a lost sample."""
     where = np.full(len(table), -1, np.int64)
@@ -651,9 +651,9 @@ def nav_inputs(recording: Recording, segment: int, sample_index: np.ndarray) -> 
     core.Filter.run_nav_counts: its barometer readings, receiver's fixes and markers, each
     at the position of its sample among `sample_index` (the segment's recorded indices)."""
     baro, gnss, markers = recording.baro, recording.gnss, recording.markers
-    b = _events_after(recording, baro, segment, sample_index)
-    g = _events_after(recording, gnss, segment, sample_index)
-    m = _events_after(recording, markers, segment, sample_index)
+    b = _events_after(baro, segment, sample_index)
+    g = _events_after(gnss, segment, sample_index)
+    m = _events_after(markers, segment, sample_index)
     gnss_fields = [name for name, _, _ in protocol.message_fields("GNSS") if name not in ("timestamp_us", "index")]
     fixes = [{name: (getattr(gnss, name)[k].tolist()) for name in gnss_fields} for k in np.flatnonzero(g >= 0)]
     marker_rows = markers.rows()
@@ -873,16 +873,19 @@ class Comparison:
 
 def _sample_rows(recording: Recording) -> np.ndarray:
     """Per estimate, the row of the SAMPLE with the same segment and index (-1: lost)."""
-    samples, estimates = recording.samples, recording.estimates
-    rows = {(int(s), int(i)): r for r, (s, i) in enumerate(zip(samples.segment, samples.index))}
-    return np.array([rows.get((int(s), int(i)), -1) for s, i in zip(estimates.segment, estimates.index)], np.int64)
+    return sample_rows(recording, recording.estimates.segment, recording.estimates.index)
 
 
 def _nav_state_rows(recording: Recording) -> np.ndarray:
     """Per estimate, the row of the NAV_STATE with the same segment and index (-1: none)."""
     states, estimates = recording.nav_states, recording.estimates
-    rows = {(int(s), int(i)): r for r, (s, i) in enumerate(zip(states.segment, states.index))}
-    return np.array([rows.get((int(s), int(i)), -1) for s, i in zip(estimates.segment, estimates.index)], np.int64)
+    return matching_rows(estimates.segment, estimates.index, states.segment, states.index)
+
+
+def nav_state_position(fields: dict, rows=slice(None)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Latitude, longitude (deg) and height (m) of NAV_STATE fields (Q29 rad, mm) at `rows`."""
+    return (np.degrees(fields["lat"][rows] / 2.0**29), np.degrees(fields["lon"][rows] / 2.0**29),
+            fields["height_mm"][rows] / 1000.0)
 
 
 def compare(recording: Recording, run: HostRun | None = None, min_verified: float = MIN_VERIFIED) -> Comparison:
@@ -959,8 +962,7 @@ def _position_fixed_vs_float(recording: Recording, run: HostRun, state_rows: np.
         return {}
     board = state_rows[usable]
     twin = run.float_position[rows[usable]]
-    d = local_offsets(np.degrees(states["lat"][board] / 2.0**29), np.degrees(states["lon"][board] / 2.0**29),
-                      states["height_mm"][board] / 1000.0, twin[:, 0], twin[:, 1], twin[:, 2])
+    d = local_offsets(*nav_state_position(states, board), twin[:, 0], twin[:, 1], twin[:, 2])
     return {"position_max_m": float(np.linalg.norm(d, axis=1).max())}
 
 
@@ -1112,9 +1114,9 @@ def _nav_columns(recording: Recording, run: HostRun) -> dict[str, np.ndarray]:
         def masked(values: np.ndarray) -> np.ndarray:
             return np.where(positioned, values, np.nan)
 
-        columns[f"{source}_lat_deg"] = masked(np.degrees(fields["lat"] * 2.0**-29))
-        columns[f"{source}_lon_deg"] = masked(np.degrees(fields["lon"] * 2.0**-29))
-        columns[f"{source}_height_m"] = masked(fields["height_mm"] / 1000.0)
+        lat, lon, height = nav_state_position(fields)
+        columns[f"{source}_lat_deg"], columns[f"{source}_lon_deg"] = masked(lat), masked(lon)
+        columns[f"{source}_height_m"] = masked(height)
         for k, axis in enumerate(("e", "n", "u")):
             columns[f"{source}_vel_{axis}_m_s"] = masked(fields["vel"][:, k] * 2.0**-20)
     for k, name in enumerate(("lat_deg", "lon_deg", "height_m")):
@@ -1122,11 +1124,18 @@ def _nav_columns(recording: Recording, run: HostRun) -> dict[str, np.ndarray]:
     return columns
 
 
+def matching_rows(segment: np.ndarray, index: np.ndarray, table_segment: np.ndarray,
+                  table_index: np.ndarray) -> np.ndarray:
+    """The row of a table (its frames' segments and indices) holding each (segment, index), -1 where none does."""
+    row_of = {key: row for row, key in enumerate(zip(np.asarray(table_segment).tolist(),
+                                                     np.asarray(table_index).tolist()))}
+    return np.array([row_of.get(key, -1) for key in zip(np.asarray(segment).tolist(), np.asarray(index).tolist())],
+                    np.int64)
+
+
 def sample_rows(recording: Recording, segment: np.ndarray, index: np.ndarray) -> np.ndarray:
     """The sample row of each (segment, index), -1 where that sample was not received."""
-    s = recording.samples
-    row_of = {key: row for row, key in enumerate(zip(s.segment.tolist(), s.index.tolist()))}
-    return np.array([row_of.get(key, -1) for key in zip(segment.tolist(), index.tolist())], np.int64)
+    return matching_rows(segment, index, recording.samples.segment, recording.samples.index)
 
 
 def _gnss_columns(recording: Recording) -> dict[str, np.ndarray]:
@@ -1574,16 +1583,13 @@ def _nav_accuracy(recording: Recording, fed: np.ndarray, traj, rate_hz: float) -
     from .sim.navigation import local_offsets
 
     states = recording.nav_states.fields
-    rows = {(int(s), int(i)): r for r, (s, i) in enumerate(zip(recording.samples.segment, recording.samples.index))}
-    sample = np.array([rows.get((int(s), int(i)), -1) for s, i in zip(recording.nav_states.segment, states["index"])],
-                      np.int64)
+    sample = sample_rows(recording, recording.nav_states.segment, recording.nav_states.index)
     at = np.where(sample >= 0, fed[np.maximum(sample, 0)], -1)  # the simulated sample of each NAV_STATE
     usable = (at >= SETTLE_S * rate_hz) & (states["mode"] == 2)
     if not usable.any():
         return None
     k = at[usable]
-    e = local_offsets(np.degrees(states["lat"][usable] / 2.0**29), np.degrees(states["lon"][usable] / 2.0**29),
-                      states["height_mm"][usable] / 1000.0, traj.lat_deg[k], traj.lon_deg[k], traj.height_m[k])
+    e = local_offsets(*nav_state_position(states, usable), traj.lat_deg[k], traj.lon_deg[k], traj.height_m[k])
     velocity = states["vel"][usable] / 2.0**20 - traj.vel_enu[k]
     return {"horizontal_m": float(np.sqrt(np.mean(np.sum(e[:, :2] ** 2, axis=1)))),
             "vertical_m": float(np.sqrt(np.mean(e[:, 2] ** 2))),

@@ -12,13 +12,7 @@
 
 #include "imu_nav.h"
 
-#ifdef IMU_CHECK_NARROWING
-void imu_narrowing_failed(const char *file, int line, const char *what, int64_t value)
-{
-    fprintf(stderr, "%s:%d: %s does not fit int32: %lld\n", file, line, what, (long long)value);
-    abort();
-}
-#endif
+#include "narrowing_abort.h"
 
 #ifdef IMU_FIXED
 #define TO_Q(x, q) ((int32_t)llround((x) * ldexp(1.0, (q))))

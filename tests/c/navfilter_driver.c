@@ -12,13 +12,7 @@
 
 #include "imu_filter.h"
 
-#ifdef IMU_CHECK_NARROWING
-void imu_narrowing_failed(const char *file, int line, const char *what, int64_t value)
-{
-    fprintf(stderr, "%s:%d: %s does not fit int32: %lld\n", file, line, what, (long long)value);
-    abort();
-}
-#endif
+#include "narrowing_abort.h"
 
 static uint64_t state = 0x9E3779B97F4A7C15u;
 

@@ -87,9 +87,8 @@ def nav_rows(times, mode, lat, lon, height_mm, vel, origin: tuple[float, float, 
     has = np.asarray(mode) == 2
     if not has.any():
         return np.empty((0, len(NAV_COLUMNS))), origin
-    lat_deg = np.degrees(np.asarray(lat)[has] / 2.0**29)
-    lon_deg = np.degrees(np.asarray(lon)[has] / 2.0**29)
-    height = np.asarray(height_mm)[has] / 1000.0
+    lat_deg, lon_deg, height = hil.nav_state_position(
+        {"lat": np.asarray(lat), "lon": np.asarray(lon), "height_mm": np.asarray(height_mm)}, has)
     if origin is None:
         origin = (float(lat_deg[0]), float(lon_deg[0]), float(height[0]))
     offsets = local_offsets(lat_deg, lon_deg, height, *origin)
@@ -456,25 +455,22 @@ class ReplaySource:
         self._position = 0.0
         self._clock = time.monotonic()
 
-    def _estimate_times(self) -> np.ndarray:
-        """Each estimate at its sample's playback time (its receive time where its SAMPLE was lost)."""
-        rows = self.comparison.sample_row
-        times = np.interp(self.recording.estimates.host_time, self.recording.samples.host_time,
-                          self.sample_rows[:, 0])
+    def _playback_times(self, host_time: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Frames (their receive times, their samples' rows: -1 lost) at their samples'
+        playback times, their receive times where the SAMPLE was lost."""
+        times = np.interp(host_time, self.recording.samples.host_time, self.sample_rows[:, 0])
         have = rows >= 0
         times[have] = self.sample_rows[rows[have], 0]
         return times
 
+    def _estimate_times(self) -> np.ndarray:
+        """Each estimate at its sample's playback time."""
+        return self._playback_times(self.recording.estimates.host_time, self.comparison.sample_row)
+
     def _nav_times(self) -> np.ndarray:
-        """Each NAV_STATE at its sample's playback time (its receive time where its SAMPLE was lost)."""
-        states, samples = self.recording.nav_states, self.recording.samples
-        rows = {(int(s), int(i)): r for r, (s, i) in enumerate(zip(samples.segment, samples.index))}
-        times = np.interp(states.host_time, samples.host_time, self.sample_rows[:, 0]) if len(states) else np.empty(0)
-        for k, (segment, index) in enumerate(zip(states.segment, states.index)):
-            row = rows.get((int(segment), int(index)))
-            if row is not None:
-                times[k] = self.sample_rows[row, 0]
-        return times
+        """Each NAV_STATE at its sample's playback time."""
+        states = self.recording.nav_states
+        return self._playback_times(states.host_time, hil.sample_rows(self.recording, states.segment, states.index))
 
     def now(self) -> float:
         if self.playing:
