@@ -95,13 +95,29 @@ class Math:
         self.lib.imu_quat_to_euler(self.q, self.v)
         return np.array([self._from(self.v[k], Q29) for k in range(3)])
 
-    def quat_integrate(self, q, theta):
+    def quat_integrate(self, q, theta, function="imu_quat_integrate"):
         for k in range(4):
             self.q[k] = self._to(q[k], Q30)
         for k in range(3):
             self.v[k] = self._to(theta[k], Q30)
-        self.lib.imu_quat_integrate(self.q, self.v)
+        getattr(self.lib, function)(self.q, self.v)
         return np.array([self._from(self.q[k], Q30) for k in range(4)])
+
+    def quat_turn(self, q, theta):
+        return self.quat_integrate(q, theta, "imu_quat_turn")
+
+    def heading_from_mag_tilt(self, mag, roll, pitch):
+        """mag in the caller's integers (fixed) or any scale (float); angles in rad."""
+        for k in range(3):
+            self.v[k] = int(mag[k]) if self.fixed else float(mag[k])
+        sc = [self._to(f(a), Q30) for a in (roll, pitch) for f in (np.sin, np.cos)]
+        return self._from(self.lib.imu_heading_from_mag_tilt(self.v, *sc), Q29)
+
+    def deviation_weight(self, deviation, tolerance):
+        """Both in Q24 units (m/s^2 for the filters)."""
+        sat = self.ffi.new("uint32_t *")
+        w = self.lib.imu_deviation_weight(self._to(deviation, 2.0**24), self._to(tolerance, 2.0**24), sat)
+        return self._from(w, Q30), sat[0]
 
 
 FIXED = Math(_core_fixed, True)
@@ -174,6 +190,26 @@ def atan2_inputs():
 
 ATAN2_INPUTS = atan2_inputs()
 ATAN2_OUT = fixed_atan2(ATAN2_INPUTS)
+
+
+def test_vec3_norm_fixed_is_the_rounded_exact_root():
+    """imu_vec3_norm is sqrt(x^2 + y^2 + z^2) rounded to nearest, exactly, over the int32 range
+    (saturated to INT32_MAX beyond it); a floor would bias every magnitude low."""
+    import math
+    import random
+    lib, ffi = _core_fixed.lib, _core_fixed.ffi
+    v = ffi.new("int32_t[3]")
+    rng = random.Random(12)
+    cases = [[rng.randint(INT32_MIN, INT32_MAX) >> rng.randrange(32) for _ in range(3)] for _ in range(30000)]
+    cases += [[INT32_MIN] * 3, [INT32_MAX, 0, 0], [0, 0, 0], [1, 1, 0], [0, 2, 1], [3, 4, 0], [-3, 4, 12]]
+    for x in cases:
+        for k in range(3):
+            v[k] = x[k]
+        total = sum(c * c for c in x)
+        root = math.isqrt(total)
+        want = root + (1 if total - root * root > root else 0)  # exact: sqrt(total) >= root + 1/2
+        assert lib.imu_vec3_norm(v) == min(want, INT32_MAX), x
+    assert _core_float.lib.imu_vec3_norm(_core_float.ffi.new("double[3]", [3.0, -4.0, 12.0])) == 13.0
 
 
 def test_atan2_fixed_accuracy():
@@ -396,3 +432,113 @@ def test_quat_integrate_limits_steps_beyond_one_radian(build):
     extreme = np.array([INT32_MIN, INT32_MIN, INT32_MIN]) / Q30
     out = impl.quat_integrate(np.array([1.0, 0, 0, 0]), extreme)
     assert abs(np.linalg.norm(out) - 1.0) < 3e-9
+
+
+# --------------------------------------------------------------------------- small turns
+
+
+def test_quat_turn_below_the_bound_is_the_second_order_exponential():
+    """imu_quat_turn below |theta| = 1/64 rad: the rotation of q (x) (1 - |theta|^2/8, theta/2),
+    long by at most |theta|^3/24 against the exact exponential, and a norm within the Q30
+    rounding of 1 (|theta|^4/128 < 2^-31 at the bound); both builds, a few LSB apart."""
+    q, theta = random_steps(3000, 15, 1e-9, 1 / 64 * 0.999)
+    for qi, ti in zip(q, theta):
+        qi = np.rint(qi * Q30) / Q30
+        ti = np.rint(ti * Q30) / Q30
+        qi /= np.linalg.norm(qi)
+        exact = exact_integrate(qi, ti)
+        size = np.linalg.norm(ti)
+        for impl, rounding in ((FIXED, 3e-9), (FLOAT, 1e-15)):
+            got = impl.quat_turn(qi, ti)
+            assert abs(np.linalg.norm(got) - 1.0) < rounding + size**4 / 128
+            # the angle between the two attitudes: 2 |vector part of exact^-1 (x) got|
+            gap = 2 * np.linalg.norm(qmul(exact * [1, -1, -1, -1], got)[1:])
+            assert gap < rounding * 2 + size**3 / 24 * 1.01, f"|theta| {size:.3g}: gap {gap:.3g}"
+        assert np.abs(FIXED.quat_turn(qi, ti) - FLOAT.quat_turn(qi, ti)).max() < 3e-9
+
+
+@pytest.mark.parametrize("build", ["fixed", "float"])
+def test_quat_turn_above_the_bound_is_the_integration(build):
+    """From |theta| = 1/64 rad on, imu_quat_turn is imu_quat_integrate: the same numbers."""
+    impl = BUILDS[build]
+    q, theta = random_steps(500, 16, 1 / 64 * 1.001, 1.5)
+    for qi, ti in zip(q, theta):
+        qi = np.rint(qi * Q30) / Q30
+        ti = np.rint(ti * Q30) / Q30
+        np.testing.assert_array_equal(impl.quat_turn(qi, ti), impl.quat_integrate(qi, ti))
+
+
+# --------------------------------------------------------------------------- matrix, heading, weight
+
+
+def test_quat_y_axis_is_column_one_of_the_rows():
+    """imu_quat_y_axis gives the same integers as element 1 of imu_quat_matrix_row's rows."""
+    lib, ffi = _core_fixed.lib, _core_fixed.ffi
+    q, _ = random_steps(1000, 17, 1e-3, 1e-2)
+    qq, out, row = ffi.new("int32_t[4]"), ffi.new("int32_t[3]"), ffi.new("int32_t[3]")
+    for qi in q:
+        for k in range(4):
+            qq[k] = int(np.rint(qi[k] * Q30))
+        lib.imu_quat_y_axis(qq, out)
+        for r in range(3):
+            lib.imu_quat_matrix_row(qq, r, row)
+            assert out[r] == row[1]
+
+
+def reference_heading(mag, roll, pitch):
+    """atan2(-h_x, h_y) of h = Rx(pitch) Ry(roll) m (imu_math.h's convention)."""
+    cr, sr, cp, sp = np.cos(roll), np.sin(roll), np.cos(pitch), np.sin(pitch)
+    m = np.asarray(mag, dtype=np.float64)
+    hx = cr * m[0] + sr * m[2]
+    w = cr * m[2] - sr * m[0]
+    hy = cp * m[1] - sp * w
+    return np.arctan2(-hx, hy)
+
+
+def test_heading_from_mag_tilt_at_any_field_scale():
+    """The heading does not depend on the field's scale: from a few LSB to the int32 limits
+    (INT32_MIN included), the fixed build is within its roundings of the exact heading of its
+    integers: atan2's 2e-9 rad plus a few LSB of the field scaled to 30 bits (largest
+    component at least 2^29: 4e-9 of |m|) over the horizontal part; the float build within
+    1e-12 of the exact heading."""
+    rng = np.random.default_rng(18)
+    worst = 0.0  # error over its bound
+    for _ in range(3000):
+        bits = rng.integers(4, 32)
+        mag = np.clip(np.rint(rng.standard_normal(3) * 2.0**bits / 2), INT32_MIN, INT32_MAX).astype(np.int64)
+        if not mag.any():
+            continue
+        roll, pitch = rng.uniform(-np.pi, np.pi), rng.uniform(-1.5, 1.5)
+        sc = [np.rint(f(a) * Q30) / Q30 for a in (roll, pitch) for f in (np.sin, np.cos)]
+        exact = np.arctan2(-(sc[1] * mag[0] + sc[0] * mag[2]),
+                           sc[3] * mag[1] - sc[2] * (sc[1] * mag[2] - sc[0] * mag[0]))
+        horizontal = np.hypot(sc[1] * mag[0] + sc[0] * mag[2],
+                              sc[3] * mag[1] - sc[2] * (sc[1] * mag[2] - sc[0] * mag[0]))
+        if horizontal < np.linalg.norm(mag) / 16:  # nearly vertical field: the heading is ill-conditioned
+            continue
+        err = abs(wrapped(FIXED.heading_from_mag_tilt(mag, roll, pitch) - exact))
+        worst = max(worst, err / (2e-9 + 4e-9 * np.linalg.norm(mag) / horizontal))
+        assert abs(wrapped(FLOAT.heading_from_mag_tilt(mag, roll, pitch) - reference_heading(mag, roll, pitch))) < 1e-12
+    assert worst < 1.0, worst
+    for extreme in ([INT32_MIN, INT32_MIN, INT32_MIN], [INT32_MAX, INT32_MIN, 0], [0, 1, 0], [0, 0, 0]):
+        got = FIXED.heading_from_mag_tilt(extreme, 0.3, -0.2)
+        want = reference_heading(extreme, 0.3, -0.2) if any(extreme) else 0.0
+        assert abs(wrapped(got - want)) < 1e-8, (extreme, got, want)
+
+
+@pytest.mark.parametrize("build", ["fixed", "float"])
+def test_deviation_weight_is_the_formula(build):
+    """imu_deviation_weight = 1 / (1 + (d/t)^2)^2 below 16 tolerances (within 2^-28 in the fixed
+    build), 0 from there on; symmetric in d; no saturation counted for any legal tolerance."""
+    impl = BUILDS[build]
+    rng = np.random.default_rng(19)
+    for _ in range(3000):
+        tol = float(np.exp(rng.uniform(np.log(2.0**-20), np.log(1.9))))
+        dev = float(rng.uniform(-20, 20) * tol)
+        if build == "fixed":
+            tol, dev = max(round(tol * 2**24), 1) / 2**24, round(dev * 2**24) / 2**24
+        got, sat = impl.deviation_weight(dev, tol)
+        want = 0.0 if abs(dev) >= 16 * tol else 1.0 / (1.0 + (dev / tol) ** 2) ** 2
+        assert abs(got - want) < (2.0**-28 if build == "fixed" else 1e-15), (dev, tol, got, want)
+        assert sat == 0
+        assert impl.deviation_weight(-dev, tol)[0] == got

@@ -25,12 +25,16 @@ KF1D, ESKF with 6 and with 9 states, default settings, simulated random motion a
   math and of the codec, and the state sizes (sizeof on the target);
 - with --profile, where the instructions go: per measured call (update_raw, get, the
   two encoders), the instructions executed inside each function (its own, callees
-  apart), per call.
+  apart), per call;
+- with --lines N, the N source lines of each filter's update_raw and get that executed
+  the most instructions per call (inlined code counted at its own line, with the
+  function it was compiled into), from a build with -g (the same code).
 
 Instructions are not cycles: on a Cortex-M4 most take one cycle, loads and stores
 two, divisions 2-12; the DWT cycle counter on a board is the cycle truth.
 
-    .venv/bin/python tools/bench_arm.py [--samples 4000] [--filters eecf,kf1d,eskf,eskf9] [--profile] [--json]
+    .venv/bin/python tools/bench_arm.py [--samples 4000] [--filters eecf,kf1d,eskf,eskf9] [--profile] [--lines N]
+                                        [--json]
 
 Needs arm-none-eabi-gcc (with newlib) on the PATH and the Python package unicorn.
 The full run takes a few minutes (every instruction is emulated).
@@ -165,8 +169,9 @@ def core_sources() -> list[Path]:
     return sorted(CORE_DIR.glob("*.c"))
 
 
-def build_arm(directory: Path) -> ArmBuild:
-    """Compile the core and the harness for the Cortex-M4 and link them into bench.elf in `directory`."""
+def build_arm(directory: Path, debug_info: bool = False) -> ArmBuild:
+    """Compile the core and the harness for the Cortex-M4 and link them into bench.elf in `directory`;
+    with `debug_info`, also with -g (line tables for the line profile: the same code)."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     gcc = _tool(CC)
@@ -175,8 +180,9 @@ def build_arm(directory: Path) -> ArmBuild:
     for src in [*core_sources(), HARNESS]:
         obj = directory / (src.stem + ".o")
         # Run in `directory` so the .su and .ci files land next to the objects.
-        _run([gcc, *CFLAGS, *ANALYSIS_FLAGS, f"-I{CORE_DIR}", "-c", src, "-o", obj], f"compiling {src.name}",
-             cwd=directory)
+        debug = ["-g"] if debug_info else []
+        _run([gcc, *CFLAGS, *ANALYSIS_FLAGS, *debug, f"-I{CORE_DIR}", "-c", src, "-o", obj],
+             f"compiling {src.name}", cwd=directory)
         objects[src.stem] = obj
     elf = directory / "bench.elf"
     _run([gcc, *LDFLAGS, "-T", LINKER_SCRIPT, f"-Wl,-Map={directory / 'bench.map'}", *objects.values(),
@@ -412,7 +418,8 @@ class Emulator:
     `count_each_instruction` a per-instruction hook counts as well, to check the former.
     """
 
-    def __init__(self, build: ArmBuild, count_each_instruction: bool = False, profile: bool = False):
+    def __init__(self, build: ArmBuild, count_each_instruction: bool = False, profile: bool = False,
+                 profile_lines: bool = False):
         if unicorn is None:
             raise BenchError("the Python package unicorn is missing: .venv/bin/pip install unicorn")
         self.build = build
@@ -444,7 +451,10 @@ class Emulator:
         self.profile: collections.Counter | None = collections.Counter() if profile else None
         self.profile_calls: collections.Counter = collections.Counter()
         self._calling = ""
-        self._function_starts, self._function_names = function_ranges(build.elf) if profile else ([], [])
+        self._function_starts, self._function_names = (function_ranges(build.elf) if profile or profile_lines
+                                                       else ([], []))
+        #: With `profile_lines`: executions per (called function, block address, block size).
+        self.block_counts: collections.Counter | None = collections.Counter() if profile_lines else None
 
     def _on_block(self, uc, address, size, _user):
         key = (address, size)
@@ -455,6 +465,8 @@ class Emulator:
         if self.profile is not None:
             inside = self._function_names[bisect.bisect_right(self._function_starts, address) - 1]
             self.profile[self._calling, inside] += n
+        if self.block_counts is not None:
+            self.block_counts[self._calling, address, size] += 1
 
     def _on_instruction(self, uc, address, size, _user):
         """Reference count, one call per instruction. unicorn does not call this hook for an
@@ -885,6 +897,9 @@ class Results:
     seconds: float = 0.0
     #: With --profile: per measured row (label), per call measured, [function, instructions per call].
     profiles: dict[str, dict[str, list[tuple[str, float]]]] = field(default_factory=dict)
+    #: With --lines: per measured row, per call measured, the busiest source lines:
+    #: [location ("file:line in function"), instructions per call, the line's text].
+    line_profiles: dict[str, dict[str, list[tuple[str, float, str]]]] = field(default_factory=dict)
 
 
 #: The calls whose profile is reported (the others, set-up and read-back, are the harness's).
@@ -902,25 +917,81 @@ def call_profile(emu: Emulator) -> dict[str, list[tuple[str, float]]]:
     return result
 
 
+def _instruction_addresses(emu: Emulator, address: int, size: int) -> list[int]:
+    """The addresses of the instructions of a translated block (the halfword rule)."""
+    code = bytes(emu.uc.mem_read(address, size))
+    addresses, i = [], 0
+    while i < len(code) - 1:
+        addresses.append(address + i)
+        i += 4 if code[i + 1] >> 3 >= 0b11101 else 2
+    return addresses
+
+
+def line_profile(emu: Emulator, top: int) -> dict[str, list[tuple[str, float, str]]]:
+    """Per profiled call, the `top` source lines that executed most instructions per call
+    (the innermost line of inlined code, addr2line on an ELF built with debug_info), with the
+    function they were compiled into and the line's text."""
+    per_address: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
+    for (calling, address, size), executions in emu.block_counts.items():
+        if calling in PROFILED_CALLS:
+            for a in _instruction_addresses(emu, address, size):
+                per_address[calling][a] += executions
+    addresses = sorted({a for counts in per_address.values() for a in counts})
+    if not addresses:
+        return {}
+    out = _run([_tool("arm-none-eabi-addr2line"), "-e", emu.build.elf, *(hex(a) for a in addresses)],
+               "arm-none-eabi-addr2line").splitlines()
+    where = {}
+    for a, location in zip(addresses, out):
+        path, _, line = location.split(" (")[0].rpartition(":")
+        function = emu._function_names[bisect.bisect_right(emu._function_starts, a) - 1]
+        where[a] = (path, line, function)
+    texts: dict[tuple[str, str], str] = {}
+
+    def text(path: str, line: str) -> str:
+        if (path, line) not in texts:
+            try:
+                source = Path(path).read_text().splitlines()
+                texts[path, line] = " ".join(source[int(line) - 1].split())[:70]
+            except (OSError, ValueError, IndexError):
+                texts[path, line] = ""
+        return texts[path, line]
+
+    result = {}
+    for call, counts in per_address.items():
+        calls = emu.profile_calls.get(call, 0)
+        lines: collections.Counter = collections.Counter()
+        for a, executions in counts.items():
+            lines[where[a]] += executions
+        result[call] = [(f"{Path(path).name}:{line} in {function}", count / calls, text(path, line))
+                        for (path, line, function), count in lines.most_common(top)]
+    return result
+
+
 def run_benchmark(samples: int, filter_keys: list[str], build_dir: Path, codec: bool = True,
-                  decode_samples: int | None = None, progress=lambda _msg: None, profile: bool = False) -> Results:
-    """Build, check and measure everything; raises BenchError when a check fails."""
+                  decode_samples: int | None = None, progress=lambda _msg: None, profile: bool = False,
+                  lines: int = 0) -> Results:
+    """Build, check and measure everything; raises BenchError when a check fails. With
+    `lines`, also the busiest source lines of each profiled call (a -g build: the same code)."""
     start = time.perf_counter()
-    build = build_arm(build_dir)
+    build = build_arm(build_dir, debug_info=lines > 0)
     check_no_float(build)
     progress(f"built {build.elf} ({build.compiler}); no floating point")
     data = simulated_data(samples)
     filters = {}
     profiles = {}
+    line_profiles = {}
     for key in filter_keys:
         config = CONFIGS[key]
         t0 = time.perf_counter()
-        emu = Emulator(build, profile=profile)
+        emu = Emulator(build, profile=profile, profile_lines=lines > 0)
         cost = measure_filter(emu, config, data, samples)
         add_static_stack(build, cost, config)
         filters[key] = cost
         if profile:
             profiles[config.label] = call_profile(emu)
+        if lines:
+            line_profiles[config.label] = line_profile(emu, lines)
         progress(f"{config.label}: {samples} samples bit-exact, {time.perf_counter() - t0:.0f} s")
     codec_cost = None
     if codec:
@@ -934,7 +1005,8 @@ def run_benchmark(samples: int, filter_keys: list[str], build_dir: Path, codec: 
     results = Results(build.compiler, CFLAGS, ["-nostartfiles", "-Wl,--gc-sections", f"-T {LINKER_SCRIPT.name}"],
                       samples, f'sim.make_scenario("random", {samples / RATE_HZ:g}, {RATE_HZ:g}, seed={SCENARIO_SEED})',
                       filters, codec_cost, object_sizes(build), library_sizes(build),
-                      target_sizes(Emulator(build)), datetime.date.today().isoformat(), profiles=profiles)
+                      target_sizes(Emulator(build)), datetime.date.today().isoformat(), profiles=profiles,
+                      line_profiles=line_profiles)
     results.seconds = time.perf_counter() - start
     return results
 
@@ -1016,6 +1088,20 @@ def profile_table(r: Results, top: int = 8) -> str:
     return "\n".join(lines)
 
 
+def line_profile_table(r: Results) -> str:
+    """Per filter's measured call, its busiest source lines."""
+    lines = ["| measured call | source line (in the function it was compiled into) | instructions per call | "
+             "share | text |", "|---|---|---:|---:|---|"]
+    costs = {cost.label: cost for cost in r.filters.values()}
+    for label, calls in r.line_profiles.items():
+        for call, rows in calls.items():
+            mean = costs[label].update.mean if call == "imu_filter_update_raw" else costs[label].get.mean
+            for location, count, text in rows:
+                code = f"`{text.replace('|', '&#124;')}`" if text else ""
+                lines.append(f"| {label} {call} | {location} | {_n(count, 1)} | {100 * count / mean:.1f} % | {code} |")
+    return "\n".join(lines)
+
+
 def report(r: Results) -> str:
     notes = [
         f"Cortex-M4 build: {r.compiler}",
@@ -1035,6 +1121,9 @@ def report(r: Results) -> str:
     if r.profiles:
         notes += ["", "Where the instructions go (each function's own instructions, callees apart, per call; "
                   "static functions the compiler inlined count in their caller):", "", profile_table(r)]
+    if r.line_profiles:
+        notes += ["", "By source line (the line an instruction was compiled from, inlined code at its own "
+                  "line; per call of the filter):", "", line_profile_table(r)]
     return "\n".join(notes)
 
 
@@ -1056,6 +1145,9 @@ def main() -> int:
     parser.add_argument("--profile", action="store_true",
                         help="also report, per measured call, the instructions spent in each function "
                              "(the run takes about twice as long)")
+    parser.add_argument("--lines", type=int, default=0, metavar="N",
+                        help="also report, per filter's update and get, the N source lines that executed the "
+                             "most instructions (builds with -g, which leaves the code as it is)")
     parser.add_argument("--json", action="store_true", help="print machine-readable results instead of the table")
     args = parser.parse_args()
     keys = [k.strip() for k in args.filters.split(",") if k.strip()]
@@ -1064,6 +1156,8 @@ def main() -> int:
         parser.error(f"unknown filter configuration(s) {', '.join(unknown)}; choose among {', '.join(CONFIGS)}")
     if args.samples < 3:
         parser.error("--samples must be at least 3 (one ESKF fusion step)")
+    if args.lines < 0:
+        parser.error("--lines must be 0 or more")
 
     def progress(message: str) -> None:
         print(message, file=sys.stderr, flush=True)
@@ -1071,11 +1165,11 @@ def main() -> int:
     try:
         if args.build_dir is not None:
             results = run_benchmark(args.samples, keys, args.build_dir, not args.no_codec, args.decode_samples,
-                                    progress, args.profile)
+                                    progress, args.profile, args.lines)
         else:
             with tempfile.TemporaryDirectory(prefix="bench_arm.") as tmp:
                 results = run_benchmark(args.samples, keys, Path(tmp), not args.no_codec, args.decode_samples,
-                                        progress, args.profile)
+                                        progress, args.profile, args.lines)
     except BenchError as exc:
         print(f"FAIL: {exc}", file=sys.stderr)
         return 1

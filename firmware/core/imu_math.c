@@ -123,6 +123,17 @@ int imu_vec3_normalize(const imu_real_t v[3], imu_q30_t unit[3], imu_real_t *nor
     return 1;
 }
 
+imu_real_t imu_vec3_norm(const imu_real_t v[3])
+{
+    /* three squares, each at most 2^62: the sum is below 2^64 */
+    const uint64_t sum = (uint64_t)((int64_t)v[0] * v[0]) + (uint64_t)((int64_t)v[1] * v[1]) +
+                         (uint64_t)((int64_t)v[2] * v[2]);
+    const uint64_t root = isqrt64(sum);
+    /* sqrt(sum) >= root + 1/2 exactly when sum - root^2 > root (integers): rounded up */
+    const uint64_t rounded = root + (sum - root * root > root ? 1 : 0);
+    return rounded > INT32_MAX ? INT32_MAX : (imu_real_t)rounded;
+}
+
 imu_real_t imu_hypot(imu_real_t a, imu_real_t b)
 {
     const uint64_t sum = (uint64_t)((int64_t)a * a) + (uint64_t)((int64_t)b * b);
@@ -285,6 +296,9 @@ void imu_sincos(imu_angle_t angle, imu_q30_t *s, imu_q30_t *c)
     }
 }
 
+/** imu_quat_turn's series bound: |theta|^2 below 2^-12 rad^2 (|theta| < 1/64 rad), in Q60. */
+#define TURN_SERIES_LIMIT ((uint64_t)1 << 48)
+
 /** (v >> s) rounded to nearest, ties to even, for s in [1, 62] and |v| < 2^62. Unbiased
  *  and odd-symmetric (v and -v give opposite results): unlike ties toward +inf, the
  *  rounding adds no drift of its own direction. (int64_t is two's complement: the mask
@@ -300,6 +314,7 @@ static int64_t rshift_round_even64(int64_t v, int s)
 }
 
 /**
+ * quat_mul_step: r = q (x) (w, v) in Q61, exact. quat_mul_step_normalized:
  * q <- normalize(q (x) (w, v)): the product with a rotation step whose vector part v
  * carries one more fraction bit than the quaternion (w: Q30, v: Q31, |v| <= sin(1/2)),
  * so that the half angle of a small step is exact instead of rounded to Q30, and the
@@ -320,19 +335,24 @@ static int64_t rshift_round_even64(int64_t v, int s)
  * step, the same whichever way the board turns. Larger eps: rounded, then
  * imu_quat_normalize.
  */
-static void quat_mul_step_normalized(imu_q30_t q[4], imu_q30_t w, const int32_t v[3])
+static void quat_mul_step(const imu_q30_t q[4], imu_q30_t w, const int32_t v[3], int64_t r[4])
 {
     const int64_t w2 = (int64_t)w * 2; /* Q31 */
+    r[0] = (int64_t)q[0] * w2 - (int64_t)q[1] * v[0] - (int64_t)q[2] * v[1] - (int64_t)q[3] * v[2];
+    r[1] = (int64_t)q[0] * v[0] + (int64_t)q[1] * w2 + (int64_t)q[2] * v[2] - (int64_t)q[3] * v[1];
+    r[2] = (int64_t)q[0] * v[1] - (int64_t)q[1] * v[2] + (int64_t)q[2] * w2 + (int64_t)q[3] * v[0];
+    r[3] = (int64_t)q[0] * v[2] + (int64_t)q[1] * v[1] - (int64_t)q[2] * v[0] + (int64_t)q[3] * w2;
+}
+
+static void quat_mul_step_normalized(imu_q30_t q[4], imu_q30_t w, const int32_t v[3])
+{
     const int64_t one58 = (int64_t)1 << 58;
     const int64_t near = (int64_t)1 << 47; /* 2^-11 in Q58 */
     int64_t r[4];                          /* the product, Q61 */
     int64_t a = -one58;                    /* |q|^2 - 1, Q58: four squares (< 2^62) / 4, minus 1 */
     int64_t b;                             /* |dq|^2 - 1, Q58 */
     int i;
-    r[0] = (int64_t)q[0] * w2 - (int64_t)q[1] * v[0] - (int64_t)q[2] * v[1] - (int64_t)q[3] * v[2];
-    r[1] = (int64_t)q[0] * v[0] + (int64_t)q[1] * w2 + (int64_t)q[2] * v[2] - (int64_t)q[3] * v[1];
-    r[2] = (int64_t)q[0] * v[1] - (int64_t)q[1] * v[2] + (int64_t)q[2] * w2 + (int64_t)q[3] * v[0];
-    r[3] = (int64_t)q[0] * v[2] + (int64_t)q[1] * v[1] - (int64_t)q[2] * v[0] + (int64_t)q[3] * w2;
+    quat_mul_step(q, w, v, r);
     for (i = 0; i < 4; ++i) {
         a += ((int64_t)q[i] * q[i]) >> 2; /* at most 2^60 each: the sum stays below 2^62 */
     }
@@ -397,6 +417,25 @@ void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3])
     quat_mul_step_normalized(q, cos_x, half_step);
 }
 
+void imu_quat_turn(imu_q30_t q[4], const imu_q30_t theta[3])
+{
+    /* |theta|^2 in Q60, as in imu_quat_integrate */
+    const uint64_t sum = (uint64_t)((int64_t)theta[0] * theta[0]) + (uint64_t)((int64_t)theta[1] * theta[1]) +
+                         (uint64_t)((int64_t)theta[2] * theta[2]);
+    if (sum < TURN_SERIES_LIMIT) {
+        /* w = 1 - |theta|^2 / 8 (Q30: Q60 >> 33); the half angle theta/2 in Q31 is theta's Q30 integer. */
+        const imu_q30_t w = IMU_ONE_Q30 - (imu_q30_t)imu_rshift_round64((int64_t)sum, 33);
+        int64_t r[4]; /* Q61 */
+        int i;
+        quat_mul_step(q, w, theta, r);
+        for (i = 0; i < 4; ++i) {
+            q[i] = IMU_NARROW(rshift_round_even64(r[i], 31));
+        }
+        return;
+    }
+    imu_quat_integrate(q, theta);
+}
+
 /** Sum of two Q30 products (Q60 in int64). */
 #define P2(a, b, c, d) ((int64_t)(a) * (b) + (int64_t)(c) * (d))
 
@@ -426,6 +465,13 @@ void imu_quat_matrix_row(const imu_q30_t q[4], int row, imu_q30_t out[3])
     out[2] = (imu_q30_t)imu_rshift_round64(r[2], 30);
 }
 
+void imu_quat_y_axis(const imu_q30_t q[4], imu_q30_t out[3])
+{
+    out[0] = (imu_q30_t)imu_rshift_round64(2 * P2(q[1], q[2], -q[0], q[3]), 30);
+    out[1] = (imu_q30_t)imu_rshift_round64(((int64_t)1 << 60) - 2 * P2(q[1], q[1], q[3], q[3]), 30);
+    out[2] = (imu_q30_t)imu_rshift_round64(2 * P2(q[2], q[3], q[0], q[1]), 30);
+}
+
 #undef P2
 
 #else /* IMU_FLOAT */
@@ -444,6 +490,11 @@ int imu_vec3_normalize(const imu_real_t v[3], imu_q30_t unit[3], imu_real_t *nor
         *norm = n;
     }
     return 1;
+}
+
+imu_real_t imu_vec3_norm(const imu_real_t v[3])
+{
+    return sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
 }
 
 imu_real_t imu_hypot(imu_real_t a, imu_real_t b)
@@ -514,6 +565,22 @@ void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3])
     imu_quat_normalize(q);
 }
 
+void imu_quat_turn(imu_q30_t q[4], const imu_q30_t theta[3])
+{
+    const double sum = theta[0] * theta[0] + theta[1] * theta[1] + theta[2] * theta[2];
+    if (sum < 1.0 / 4096.0) { /* the fixed build's TURN_SERIES_LIMIT */
+        const double step[4] = {1.0 - sum / 8.0, 0.5 * theta[0], 0.5 * theta[1], 0.5 * theta[2]};
+        imu_q30_t out[4];
+        int i;
+        imu_quat_mul(q, step, out);
+        for (i = 0; i < 4; ++i) {
+            q[i] = out[i];
+        }
+        return;
+    }
+    imu_quat_integrate(q, theta);
+}
+
 void imu_quat_matrix_row(const imu_q30_t q[4], int row, imu_q30_t out[3])
 {
     switch (row) {
@@ -533,6 +600,13 @@ void imu_quat_matrix_row(const imu_q30_t q[4], int row, imu_q30_t out[3])
         out[2] = 1.0 - 2.0 * (q[1] * q[1] + q[2] * q[2]);
         break;
     }
+}
+
+void imu_quat_y_axis(const imu_q30_t q[4], imu_q30_t out[3])
+{
+    out[0] = 2.0 * (q[1] * q[2] - q[0] * q[3]);
+    out[1] = 1.0 - 2.0 * (q[1] * q[1] + q[3] * q[3]);
+    out[2] = 2.0 * (q[2] * q[3] + q[0] * q[1]);
 }
 
 #endif
@@ -591,16 +665,13 @@ void imu_quat_rotate(const imu_q30_t q[4], const imu_q30_t v[3], imu_q30_t out[3
 
 void imu_quat_to_euler(const imu_q30_t q[4], imu_angle_t euler[3])
 {
-    imu_q30_t east[3];
-    imu_q30_t north[3];
-    imu_q30_t up[3];
-    imu_quat_matrix_row(q, 0, east);
-    imu_quat_matrix_row(q, 1, north);
+    imu_q30_t up[3]; /* row 2 of R: the earth's up in the sensor frame */
+    imu_q30_t y[3];  /* column 1 of R: the sensor's y axis in the earth frame (east, north, up) */
     imu_quat_matrix_row(q, 2, up);
-    /* Column 1 of R is the y axis in the earth frame: (east[1], north[1], up[1]). */
+    imu_quat_y_axis(q, y);
     euler[0] = imu_atan2(-up[0], up[2]);
-    euler[1] = imu_atan2(up[1], imu_hypot(east[1], north[1]));
-    euler[2] = imu_atan2(east[1], north[1]);
+    euler[1] = imu_atan2(y[2], imu_hypot(y[0], y[1]));
+    euler[2] = imu_atan2(y[0], y[1]);
 }
 
 void imu_euler_to_quat(const imu_angle_t euler[3], imu_q30_t q[4])
@@ -641,16 +712,42 @@ int imu_tilt_from_acc(const imu_real_t acc[3], imu_angle_t *roll, imu_angle_t *p
 
 imu_angle_t imu_heading_from_mag(const imu_real_t mag[3], imu_angle_t roll, imu_angle_t pitch)
 {
-    /* Horizontal field h = Rx(pitch) Ry(roll) m; heading = atan2(-h_x, h_y).
-     * The field is normalised first so that products stay within Q30. */
-    imu_q30_t m[3];
     imu_q30_t sr, cr, sp, cp;
-    imu_q30_t w, hx, hy;
-    if (!imu_vec3_normalize(mag, m, 0)) {
-        return 0;
-    }
     imu_sincos(roll, &sr, &cr);
     imu_sincos(pitch, &sp, &cp);
+    return imu_heading_from_mag_tilt(mag, sr, cr, sp, cp);
+}
+
+imu_angle_t imu_heading_from_mag_tilt(const imu_real_t mag[3], imu_q30_t sr, imu_q30_t cr, imu_q30_t sp, imu_q30_t cp)
+{
+    /* Horizontal field h = Rx(pitch) Ry(roll) m; heading = atan2(-h_x, h_y), which does not
+     * depend on the field's scale. */
+    imu_real_t m[3];
+    imu_real_t w, hx, hy;
+    int i;
+    if (mag[0] == 0 && mag[1] == 0 && mag[2] == 0) {
+        return 0;
+    }
+    for (i = 0; i < 3; ++i) {
+        m[i] = mag[i];
+    }
+#ifdef IMU_FIXED
+    {
+        /* The largest component scaled by a power of two into [2^29, 2^30): |m| stays
+         * below sqrt(3) 2^30 < 2^31, and so do h_x, h_y and w (rotations of m by the
+         * unit (cr, sr) and (cp, sp)), with every product rounded to Q30 of m. */
+        uint32_t largest = 0;
+        int shift;
+        for (i = 0; i < 3; ++i) {
+            const uint32_t a = mag[i] < 0 ? (uint32_t)(-(int64_t)mag[i]) : (uint32_t)mag[i];
+            largest = a > largest ? a : largest;
+        }
+        shift = imu_clz32(largest) - 2; /* 30 - bit length */
+        for (i = 0; i < 3; ++i) {
+            m[i] = shift >= 0 ? IMU_NARROW((int64_t)mag[i] * ((int64_t)1 << shift)) : IMU_SHR(mag[i], -shift);
+        }
+    }
+#endif
     hx = IMU_ADD(IMU_MUL(cr, m[0], 30), IMU_MUL(sr, m[2], 30));
     w = IMU_SUB(IMU_MUL(cr, m[2], 30), IMU_MUL(sr, m[0], 30));
     hy = IMU_SUB(IMU_MUL(cp, m[1], 30), IMU_MUL(sp, w, 30));
@@ -659,16 +756,28 @@ imu_angle_t imu_heading_from_mag(const imu_real_t mag[3], imu_angle_t roll, imu_
 
 imu_q30_t imu_deviation_weight(imu_real_t deviation, imu_real_t tolerance, uint32_t *sat)
 {
-    imu_real_t d, d2;
-    imu_q30_t inv;
+    imu_q30_t inv; /* 1 / (1 + (deviation / tolerance)^2) = t^2 / (t^2 + d^2), Q30, <= 1 */
     if (deviation < 0) {
         deviation = IMU_NEG_SAT(deviation, sat);
     }
     if (deviation >= IMU_MUL(tolerance, IMU_QCONST(16.0, 24), 24)) { /* tolerance < 2: 16 x < 2^29 */
         return 0;
     }
-    d = IMU_DIV_SAT(deviation, tolerance, 26, sat); /* Q24 / Q24 -> Q26, < 16 */
-    d2 = IMU_MUL(d, d, 30);                          /* Q22, < 256 */
-    inv = IMU_DIV_SAT(IMU_QCONST(1.0, 22), IMU_ADD(IMU_QCONST(1.0, 22), d2), 30, sat); /* Q30, <= 1 */
+#ifdef IMU_FIXED
+    {
+        /* t^2 (Q48, below 2^50, at least 1) and t^2 + d^2 (below 257 t^2 < 2^59) brought
+         * to 31 bits by one shift, each rounded (2^-31 relative: a truncation would bias
+         * the weight against the float build's), then one 64-by-32-bit division, rounded:
+         * t^2 2^30 / (t^2 + d^2) <= 2^30 */
+        const uint64_t t2 = (uint64_t)((int64_t)tolerance * tolerance);
+        const uint64_t den = t2 + (uint64_t)((int64_t)deviation * deviation);
+        const int down = imu_bit_length64(den) - 31;
+        const uint32_t den31 = (uint32_t)(down > 0 ? (den + ((uint64_t)1 << (down - 1))) >> down : den << -down);
+        const uint32_t t2_31 = (uint32_t)(down > 0 ? (t2 + ((uint64_t)1 << (down - 1))) >> down : t2 << -down);
+        inv = (imu_q30_t)imu_udiv64_32(((uint64_t)t2_31 << 30) + (den31 >> 1), den31);
+    }
+#else
+    inv = tolerance * tolerance / (tolerance * tolerance + deviation * deviation);
+#endif
     return IMU_MUL(inv, inv, 30);
 }

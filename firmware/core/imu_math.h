@@ -29,8 +29,12 @@
  */
 int imu_vec3_normalize(const imu_real_t v[3], imu_q30_t unit[3], imu_real_t *norm);
 
-/** @brief sqrt(a^2 + b^2) of two values of the same Q format; saturated to int32. */
+/** @brief sqrt(a^2 + b^2) of two values of the same Q format, floored; saturated to int32. */
 imu_real_t imu_hypot(imu_real_t a, imu_real_t b);
+
+/** @brief |v| in v's Q format, rounded to nearest (a floor would bias every magnitude low
+ *  against the float build's); saturated to int32. */
+imu_real_t imu_vec3_norm(const imu_real_t v[3]);
 
 /** @brief out = a x b for Q30 vectors of magnitude <= 1 (result Q30). */
 void imu_vec3_cross(const imu_q30_t a[3], const imu_q30_t b[3], imu_q30_t out[3]);
@@ -52,6 +56,9 @@ void imu_quat_mul(const imu_q30_t a[4], const imu_q30_t b[4], imu_q30_t out[4]);
 /** @brief Row `row` (0: east, 1: north, 2: up) of the sensor-to-earth rotation matrix of q (Q30). */
 void imu_quat_matrix_row(const imu_q30_t q[4], int row, imu_q30_t out[3]);
 
+/** @brief Column 1 of the rotation matrix of q: the sensor's y axis in the earth frame, Q30. */
+void imu_quat_y_axis(const imu_q30_t q[4], imu_q30_t out[3]);
+
 /** @brief out = R(q) v: a sensor-frame unit vector (Q30) expressed in the earth frame. */
 void imu_quat_rotate(const imu_q30_t q[4], const imu_q30_t v[3], imu_q30_t out[3]);
 
@@ -66,6 +73,19 @@ void imu_quat_rotate(const imu_q30_t q[4], const imu_q30_t v[3], imu_q30_t out[3
  * 1e-11 at the 0.035 rad steps of 200 deg/s at 100 Hz). Float build: exact cos and sin.
  */
 void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3]);
+
+/**
+ * @brief Turn q (Q30) by a small body-frame rotation vector theta (Q30 rad), as a
+ *        correction does: q <- q (x) (1 - |theta|^2/8, theta/2) below |theta| = 1/64 rad,
+ *        imu_quat_integrate above.
+ *
+ * The series step is the exponential to second order: its rotation is long by
+ * |theta|^3/24 (below 1.6e-7 rad at the bound) and its norm by |theta|^4/128 (below
+ * 2^-31, under the Q30 rounding). It is rounded once (ties to even), not normalised (the
+ * next imu_quat_integrate normalises exactly): some 140 Cortex-M4 instructions where
+ * imu_quat_integrate takes 345.
+ */
+void imu_quat_turn(imu_q30_t q[4], const imu_q30_t theta[3]);
 
 /** @brief atan2(y, x) in (-pi, pi] (Q29 rad); x and y in the same Q format. atan2(0, 0) = 0. */
 imu_angle_t imu_atan2(imu_real_t y, imu_real_t x);
@@ -100,6 +120,9 @@ int imu_tilt_from_acc(const imu_real_t acc[3], imu_angle_t *roll, imu_angle_t *p
  *        `mag` (any Q format) after removing roll and pitch (tilt compensation).
  */
 imu_angle_t imu_heading_from_mag(const imu_real_t mag[3], imu_angle_t roll, imu_angle_t pitch);
+
+/** @brief imu_heading_from_mag for a tilt given as the sines and cosines (Q30) of roll and pitch. */
+imu_angle_t imu_heading_from_mag_tilt(const imu_real_t mag[3], imu_q30_t sr, imu_q30_t cr, imu_q30_t sp, imu_q30_t cp);
 
 /**
  * @brief Weight of a measurement whose input departs from its model:

@@ -80,8 +80,16 @@ _DECLARATIONS = """
 
     imu_angle_t imu_atan2(imu_real_t y, imu_real_t x);
     imu_real_t imu_hypot(imu_real_t a, imu_real_t b);
+    imu_real_t imu_vec3_norm(const imu_real_t v[3]);
     void imu_sincos(imu_angle_t angle, imu_q30_t *s, imu_q30_t *c);
     void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3]);
+    void imu_quat_turn(imu_q30_t q[4], const imu_q30_t theta[3]);
+    void imu_quat_matrix_row(const imu_q30_t q[4], int row, imu_q30_t out[3]);
+    void imu_quat_y_axis(const imu_q30_t q[4], imu_q30_t out[3]);
+    imu_angle_t imu_heading_from_mag(const imu_real_t mag[3], imu_angle_t roll, imu_angle_t pitch);
+    imu_angle_t imu_heading_from_mag_tilt(const imu_real_t mag[3], imu_q30_t sr, imu_q30_t cr, imu_q30_t sp,
+                                          imu_q30_t cp);
+    imu_q30_t imu_deviation_weight(imu_real_t deviation, imu_real_t tolerance, uint32_t *sat);
     void imu_quat_to_euler(const imu_q30_t q[4], imu_angle_t euler[3]);
     void imu_euler_to_quat(const imu_angle_t euler[3], imu_q30_t q[4]);
 
