@@ -728,9 +728,6 @@ imu_angle_t imu_heading_from_mag_tilt(const imu_real_t mag[3], imu_q30_t sr, imu
     if (mag[0] == 0 && mag[1] == 0 && mag[2] == 0) {
         return 0;
     }
-    for (i = 0; i < 3; ++i) {
-        m[i] = mag[i];
-    }
 #ifdef IMU_FIXED
     {
         /* The largest component scaled by a power of two into [2^29, 2^30): |m| stays
@@ -746,6 +743,10 @@ imu_angle_t imu_heading_from_mag_tilt(const imu_real_t mag[3], imu_q30_t sr, imu
         for (i = 0; i < 3; ++i) {
             m[i] = shift >= 0 ? IMU_NARROW((int64_t)mag[i] * ((int64_t)1 << shift)) : IMU_SHR(mag[i], -shift);
         }
+    }
+#else
+    for (i = 0; i < 3; ++i) {
+        m[i] = mag[i];
     }
 #endif
     hx = IMU_ADD(IMU_MUL(cr, m[0], 30), IMU_MUL(sr, m[2], 30));
