@@ -388,17 +388,22 @@ def static_stack(build: ArmBuild, root: str, exclude: frozenset = frozenset()) -
 # ============================================================================ emulator
 
 
-def thumb_instruction_count(code: bytes) -> int:
-    """Number of Thumb-2 instructions in `code`, which starts on an instruction: a halfword
-    whose top five bits are 0b11101, 0b11110 or 0b11111 starts a 32-bit instruction."""
-    count = 0
+def thumb_instruction_offsets(code: bytes) -> list[int]:
+    """Offsets of the Thumb-2 instructions in `code`, which starts on an instruction: a
+    halfword whose top five bits are 0b11101, 0b11110 or 0b11111 starts a 32-bit instruction."""
+    offsets = []
     i = 0
     end = len(code) - 1
     while i < end:
+        offsets.append(i)
         top = code[i + 1] >> 3  # little-endian halfword: bits 15..11 are in the second byte
         i += 4 if top >= 0b11101 else 2
-        count += 1
-    return count
+    return offsets
+
+
+def thumb_instruction_count(code: bytes) -> int:
+    """Number of Thumb-2 instructions in `code` (see thumb_instruction_offsets)."""
+    return len(thumb_instruction_offsets(code))
 
 
 @dataclass
@@ -463,10 +468,13 @@ class Emulator:
             n = self._block_instructions[key] = thumb_instruction_count(bytes(uc.mem_read(address, size)))
         self.instructions += n
         if self.profile is not None:
-            inside = self._function_names[bisect.bisect_right(self._function_starts, address) - 1]
-            self.profile[self._calling, inside] += n
+            self.profile[self._calling, self.function_at(address)] += n
         if self.block_counts is not None:
             self.block_counts[self._calling, address, size] += 1
+
+    def function_at(self, address: int) -> str:
+        """The function whose code holds `address` (an emulator made with profile or profile_lines)."""
+        return self._function_names[bisect.bisect_right(self._function_starts, address) - 1]
 
     def _on_instruction(self, uc, address, size, _user):
         """Reference count, one call per instruction. unicorn does not call this hook for an
@@ -917,16 +925,6 @@ def call_profile(emu: Emulator) -> dict[str, list[tuple[str, float]]]:
     return result
 
 
-def _instruction_addresses(emu: Emulator, address: int, size: int) -> list[int]:
-    """The addresses of the instructions of a translated block (the halfword rule)."""
-    code = bytes(emu.uc.mem_read(address, size))
-    addresses, i = [], 0
-    while i < len(code) - 1:
-        addresses.append(address + i)
-        i += 4 if code[i + 1] >> 3 >= 0b11101 else 2
-    return addresses
-
-
 def line_profile(emu: Emulator, top: int) -> dict[str, list[tuple[str, float, str]]]:
     """Per profiled call, the `top` source lines that executed most instructions per call
     (the innermost line of inlined code, addr2line on an ELF built with debug_info), with the
@@ -934,8 +932,8 @@ def line_profile(emu: Emulator, top: int) -> dict[str, list[tuple[str, float, st
     per_address: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
     for (calling, address, size), executions in emu.block_counts.items():
         if calling in PROFILED_CALLS:
-            for a in _instruction_addresses(emu, address, size):
-                per_address[calling][a] += executions
+            for offset in thumb_instruction_offsets(emu.read(address, size)):
+                per_address[calling][address + offset] += executions
     addresses = sorted({a for counts in per_address.values() for a in counts})
     if not addresses:
         return {}
@@ -944,8 +942,7 @@ def line_profile(emu: Emulator, top: int) -> dict[str, list[tuple[str, float, st
     where = {}
     for a, location in zip(addresses, out):
         path, _, line = location.split(" (")[0].rpartition(":")
-        function = emu._function_names[bisect.bisect_right(emu._function_starts, a) - 1]
-        where[a] = (path, line, function)
+        where[a] = (path, line, emu.function_at(a))
     texts: dict[tuple[str, str], str] = {}
 
     def text(path: str, line: str) -> str:
