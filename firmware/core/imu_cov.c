@@ -107,15 +107,17 @@ static int diagonal_shifts(const imu_cov_t *c, imu_wide_t d[IMU_COV_MAX], signed
 {
     int i, moved = 0;
     for (i = 0; i < c->n; ++i) {
-        if (d[i] <= 0) {
-            ++*sat; /* rounding destroyed this variance: restart it at the smallest normalised value */
-            d[i] = (int64_t)1 << 28;
-        }
-        /* s = ceil((bits - 30) / 2): d * 2^(-2s) in [2^28, 2^30); 0 for the usual d already there */
-        if (d[i] >= ((int64_t)1 << 28) && d[i] < ((int64_t)1 << 30)) {
+        /* s = ceil((bits - 30) / 2): d * 2^(-2s) in [2^28, 2^30); 0 for the usual d already there
+         * (one unsigned comparison tests both bounds) */
+        if ((uint64_t)d[i] - ((uint64_t)1 << 28) < ((uint64_t)3 << 28)) {
             shift[i] = 0;
         } else {
-            const int excess = imu_bit_length64((uint64_t)d[i]) - 30;
+            int excess;
+            if (d[i] <= 0) {
+                ++*sat; /* rounding destroyed this variance: restart it at the smallest normalised value */
+                d[i] = (int64_t)1 << 28;
+            }
+            excess = imu_bit_length64((uint64_t)d[i]) - 30;
             shift[i] = (signed char)(excess >= 0 ? (excess + 1) / 2 : -((-excess) / 2));
             moved |= shift[i];
         }
@@ -676,7 +678,7 @@ int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu
      * = P~ - w ch ch^T / sh with ch = P~ hs, sh = w hs ch + r 2^-2E: E cancels.
      * With a gain map G (K' = G K), Joseph's form for that gain, (I - K'h) P (I - K'h)^T
      * + K' r K'^T, is P - (u u^T - o o^T) / s with u = P h^T and o = u - G u. */
-    imu_q30_t hs[IMU_COV_MAX];
+    imu_q30_t hs[IMU_COV_MAX];  /* then compacted: its non-zero entries, those of the states `used` */
     imu_real_t ch[IMU_COV_MAX]; /* P~ hs, Q30; |ch| <= 2^30 */
     imu_wide_t oh[IMU_COV_MAX]; /* the part of ch the gain map leaves out, Q30 */
     imu_wide_t q = 0;           /* hs P~ hs, Q30 */
@@ -690,18 +692,20 @@ int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu
     big = scale_row(c, h, hs, sat);
     for (j = 0; j < n; ++j) {
         if (hs[j] != 0) {
-            used[count++] = (unsigned char)j;
+            used[count] = (unsigned char)j;
+            hs[count++] = hs[j]; /* count <= j */
         }
     }
     for (i = 0; i < n; ++i) {
-        imu_wide_t sum = 0; /* Q60, below 2^60 (scale_row) */
+        const unsigned char *row = CELL_INDEX[i]; /* (the storage index of (i, j) is row[j]) */
+        imu_wide_t sum = 0;                       /* Q60, below 2^60 (scale_row) */
         for (t = 0; t < count; ++t) {
-            sum += IMU_WMUL(c->p[cell(i, used[t])], hs[used[t]]);
+            sum += IMU_WMUL(c->p[row[used[t]]], hs[t]);
         }
         ch[i] = (imu_real_t)Q60_TO_Q30(sum);
     }
     for (t = 0; t < count; ++t) {
-        q += IMU_WMUL(ch[used[t]], hs[used[t]]); /* Q60, below 2^60 */
+        q += IMU_WMUL(ch[used[t]], hs[t]); /* Q60, below 2^60 */
     }
     q = Q60_TO_Q30(q);
     if (noise_dwarfs_row(r, 30 - r_q - 2 * big)) {

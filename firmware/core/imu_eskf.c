@@ -206,15 +206,16 @@ static int near_gravity(const imu_eskf_t *f, const imu_q16_t acc[3])
     return deviation < IMU_SHR(f->settings.acc_tolerance, 6) && deviation > -IMU_SHR(f->settings.acc_tolerance, 6);
 }
 
-/** Norm and dip of a field (Q16) in the earth frame of the current attitude; 0 for a zero field. */
-static int field_norm_dip(const imu_eskf_t *f, const imu_q16_t mag[3], imu_q16_t *norm, imu_angle_t *dip,
+/** Norm and dip of a field (Q16) in the earth frame of the attitude of rotation `rot`;
+ *  0 for a zero field. */
+static int field_norm_dip(const imu_rotation_t *rot, const imu_q16_t mag[3], imu_q16_t *norm, imu_angle_t *dip,
                           imu_q30_t earth[3], imu_q30_t *horizontal)
 {
     imu_q30_t unit[3];
     if (!imu_vec3_normalize(mag, unit, norm)) {
         return 0;
     }
-    imu_quat_rotate(f->q, unit, earth);
+    imu_rotation_apply(rot, unit, earth);
     *dip = field_dip(earth, horizontal);
     return 1;
 }
@@ -241,12 +242,12 @@ static void set_reference(imu_eskf_field_t *field, imu_q16_t norm, imu_angle_t d
  * with a horizontal share the heading can be read from): the dip and norm are then
  * learnt anew. Returns 1 when taken.
  */
-static int acquire_reference(imu_eskf_t *f, const imu_q16_t mag[3])
+static int acquire_reference(imu_eskf_t *f, const imu_rotation_t *rot, const imu_q16_t mag[3])
 {
     imu_q30_t earth[3], horizontal;
     imu_q16_t norm;
     imu_angle_t dip;
-    if (!field_norm_dip(f, mag, &norm, &dip, earth, &horizontal) || norm < MIN_REF_FIELD || norm > MAX_REF_FIELD ||
+    if (!field_norm_dip(rot, mag, &norm, &dip, earth, &horizontal) || norm < MIN_REF_FIELD || norm > MAX_REF_FIELD ||
         horizontal < MIN_HORIZONTAL_FIELD) {
         return 0;
     }
@@ -267,7 +268,9 @@ static void initialise(imu_eskf_t *f, const imu_sample_t *s)
     align_to(f, s->acc, s->mag);
     f->ref.norm = 0;
     if ((s->clipped & IMU_CLIPPED_MAG) == 0) {
-        (void)acquire_reference(f, s->mag);
+        imu_rotation_t rot;
+        imu_quat_rotation(f->q, &rot);
+        (void)acquire_reference(f, &rot, s->mag);
     }
     /* A first sample away from 1 g (a tap, free fall) gives no tilt: align again at the first calm step. */
     f->realign = (s->clipped & IMU_CLIPPED_ACC) != 0 || !near_gravity(f, s->acc);
@@ -422,19 +425,27 @@ static void scalar_update(imu_eskf_t *f, const imu_q30_t h[9], imu_q30_t z, imu_
  */
 static int norm_second_order(imu_eskf_t *f, const imu_q30_t up[3], imu_q30_t *mean)
 {
-    const imu_q30_t cross[3][3] = {{0, -up[2], up[1]}, {up[2], 0, -up[0]}, {-up[1], up[0], 0}};
     imu_wide_t coupling = 0; /* E[(v x dtheta) . dba], Q60 */
     imu_wide_t trace = 0;    /* tr P_ba, Q60 */
     imu_wide_t vertical = 0; /* v' P_ba v, Q60 */
     imu_q30_t across;        /* E|dba across v|^2 / 2, Q30 */
+    imu_q30_t p_ba[3][3];    /* P_ba, Q30 (each element read once: P is symmetric) */
     int i, j;
     for (i = 0; i < 3; ++i) {
-        imu_wide_t p_up = 0; /* (P_ba v)_i, Q60 */
-        for (j = 0; j < 3; ++j) {
-            coupling += IMU_WMUL(cross[i][j], imu_cov_element_q30(&f->cov, ACC_BIAS + i, ATT + j, &f->saturations));
-            p_up += IMU_WMUL(imu_cov_element_q30(&f->cov, ACC_BIAS + i, ACC_BIAS + j, &f->saturations), up[j]);
+        for (j = i; j < 3; ++j) {
+            p_ba[i][j] = p_ba[j][i] = imu_cov_element_q30(&f->cov, ACC_BIAS + i, ACC_BIAS + j, &f->saturations);
         }
-        trace += IMU_WMUL(imu_cov_element_q30(&f->cov, ACC_BIAS + i, ACC_BIAS + i, &f->saturations), IMU_ONE_Q30);
+    }
+    for (i = 0; i < 3; ++i) {
+        /* row i of [v x] is v_{i+1} e_{i+2} - v_{i+2} e_{i+1} (indices mod 3) */
+        const int next = (i + 1) % 3, after = (i + 2) % 3;
+        imu_wide_t p_up = 0; /* (P_ba v)_i, Q60 */
+        coupling += IMU_WMUL(up[next], imu_cov_element_q30(&f->cov, ACC_BIAS + i, ATT + after, &f->saturations)) -
+                    IMU_WMUL(up[after], imu_cov_element_q30(&f->cov, ACC_BIAS + i, ATT + next, &f->saturations));
+        for (j = 0; j < 3; ++j) {
+            p_up += IMU_WMUL(p_ba[i][j], up[j]);
+        }
+        trace += IMU_WMUL(p_ba[i][i], IMU_ONE_Q30);
         vertical += IMU_WMUL(IMU_NARROW(IMU_WSHR(p_up, 30)), up[i]);
     }
     across = IMU_HALF(IMU_WIDE_SAT(IMU_WSHR(trace - vertical, 30), &f->saturations));
@@ -455,11 +466,11 @@ static int norm_second_order(imu_eskf_t *f, const imu_q30_t up[3], imu_q30_t *me
  *   tilt / horizontal-bias trade look observable.
  * The acceleration noise is isotropic, so the rows keep independent noise.
  */
-static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q30_t up[3], imu_q30_t dx[9])
+static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_rotation_t *rot, imu_q30_t dx[9])
 {
     const imu_eskf_settings_t *st = &f->settings;
+    const imu_q30_t *up = rot->row[2];
     imu_q30_t c[3];         /* a / g - ba, g, Q30 */
-    imu_q30_t axes[2][3];   /* east and north in the sensor frame, Q30 */
     imu_q30_t unit[3];
     imu_real_t norm;        /* |a|, m/s^2, Q16 */
     imu_q30_t h[9];
@@ -494,10 +505,8 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q30_
         c[k] = IMU_SUB_SAT(IMU_MUL_SAT(acc[k], f->inv_gravity, 16, &f->saturations), f->acc_bias[k],
                            &f->saturations);
     }
-    imu_quat_matrix_row(f->q, 0, axes[0]);
-    imu_quat_matrix_row(f->q, 1, axes[1]);
     for (k = 0; k < 2; ++k) {
-        const imu_q30_t *e = axes[k];
+        const imu_q30_t *e = rot->row[k]; /* east, north */
         /* e . c: each |c_k| <= 2 g, the sum up to 2 sqrt(3) g: saturated to Q30 */
         const imu_q30_t z = IMU_WIDE_SAT(
             IMU_WSHR(IMU_WMUL(e[0], c[0]) + IMU_WMUL(e[1], c[1]) + IMU_WMUL(e[2], c[2]), 30), &f->saturations);
@@ -599,10 +608,11 @@ static void align_heading(imu_eskf_t *f, const imu_q16_t mag[3])
 }
 
 /** Heading measurement from the horizontal field; learns and tracks the field reference. */
-static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_q30_t up[3], imu_q30_t dx[9])
+static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_rotation_t *rot, imu_q30_t dx[9])
 {
     const imu_eskf_settings_t *st = &f->settings;
-    imu_q30_t earth[3], horizontal, north[3];
+    const imu_q30_t *north = rot->row[1], *up = rot->row[2];
+    imu_q30_t earth[3], horizontal;
     imu_q16_t norm;
     imu_angle_t dip;
     imu_q30_t h[9], z, sigma, w_norm;
@@ -611,13 +621,13 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_q30_
     f->mag_weight = 0;
     if (f->ref.norm <= 0) {
         /* No reference yet (a magnetometer that read zeros or nonsense so far). */
-        if (acquire_reference(f, mag)) {
+        if (acquire_reference(f, rot, mag)) {
             align_heading(f, mag);
             restart_attitude_uncertainty(f);
         }
         return;
     }
-    if (!field_norm_dip(f, mag, &norm, &dip, earth, &horizontal) || horizontal < MIN_HORIZONTAL_FIELD) {
+    if (!field_norm_dip(rot, mag, &norm, &dip, earth, &horizontal) || horizontal < MIN_HORIZONTAL_FIELD) {
         return;
     }
     f->mag_weight = field_weight(f, norm, dip, &f->ref, &w_norm);
@@ -652,7 +662,6 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_q30_
      * pass for heading information: tan(dip) times it). The gain map lets the update
      * correct only the vertical components of the attitude and the gyro bias, so that
      * the magnetometer cannot tilt the estimate, and P keeps the tilt's uncertainty. */
-    imu_quat_matrix_row(f->q, 1, north);
     for (i = 0; i < 9; ++i) {
         h[i] = 0;
     }
@@ -673,19 +682,15 @@ static imu_q16_t acc_earth_q16(const imu_eskf_t *f, int k)
 /**
  * Low-pass the specific force in the estimated earth frame, where rotations do
  * not change gravity but a back-and-forth translation averages out (time
- * constant acc_lowpass), and return it in the sensor frame: acc <- R^T lp(R acc).
+ * constant acc_lowpass), and return it in the sensor frame: acc <- R^T lp(R acc), R = rot.
  */
-static void lowpass_specific_force(imu_eskf_t *f, imu_q16_t acc[3])
+static void lowpass_specific_force(imu_eskf_t *f, const imu_rotation_t *rot, imu_q16_t acc[3])
 {
-    imu_q30_t rows[3][3];
     imu_q16_t earth[3];
     imu_q16_t smooth[3];
     int r, k;
+    imu_rotation_apply(rot, acc, earth); /* Q30 * Q16 >> 30 -> Q16; |R a| = |a| */
     for (r = 0; r < 3; ++r) {
-        imu_quat_matrix_row(f->q, r, rows[r]);
-        /* Q30 * Q16 >> 30 -> Q16; |R a| = |a|. */
-        earth[r] = IMU_ADD(IMU_ADD(IMU_MUL(rows[r][0], acc[0], 30), IMU_MUL(rows[r][1], acc[1], 30)),
-                           IMU_MUL(rows[r][2], acc[2], 30));
         /* alpha (Q30) * (earth - smooth) (Q16, both within 1774 m/s^2) -> Q46. */
         f->acc_earth[r] = f->acc_earth_valid
                               ? f->acc_earth[r] + IMU_WMUL(f->acc_alpha, IMU_SUB(earth[r], acc_earth_q16(f, r)))
@@ -694,8 +699,8 @@ static void lowpass_specific_force(imu_eskf_t *f, imu_q16_t acc[3])
     }
     f->acc_earth_valid = 1;
     for (k = 0; k < 3; ++k) {
-        acc[k] = IMU_ADD(IMU_ADD(IMU_MUL(rows[0][k], smooth[0], 30), IMU_MUL(rows[1][k], smooth[1], 30)),
-                         IMU_MUL(rows[2][k], smooth[2], 30));
+        acc[k] = IMU_ADD(IMU_ADD(IMU_MUL(rot->row[0][k], smooth[0], 30), IMU_MUL(rot->row[1][k], smooth[1], 30)),
+                         IMU_MUL(rot->row[2][k], smooth[2], 30));
     }
 }
 
@@ -705,13 +710,16 @@ static void lowpass_specific_force(imu_eskf_t *f, imu_q16_t acc[3])
  * per call: kept within the inputs' limit, which a low-passed specific force cannot leave
  * (and so that R^T v fits Q16 in lowpass_specific_force).
  */
-static void turn_acc_earth(imu_eskf_t *f, const imu_q30_t dtheta[3])
+static void turn_acc_earth(imu_eskf_t *f, const imu_rotation_t *rot, const imu_q30_t dtheta[3])
 {
     const imu_wide_t limit = IMU_WMUL(INPUT_LIMIT, IMU_ONE_Q30);
     imu_q30_t u[3];
     imu_q16_t v[3];
     int k;
-    imu_quat_rotate(f->q, dtheta, u);
+    if (!f->acc_earth_valid) {
+        return; /* nothing to turn: the next low-pass starts afresh (and rot may be of an older attitude) */
+    }
+    imu_rotation_apply(rot, dtheta, u);
     for (k = 0; k < 3; ++k) {
         v[k] = acc_earth_q16(f, k);
     }
@@ -787,7 +795,8 @@ static imu_real_t mean_of_three(imu_real_t sum)
 /** One filter step at the end of a group of three samples. */
 static void filter_step(imu_eskf_t *f)
 {
-    imu_q30_t up[3], dx[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+    imu_rotation_t rot; /* R(q) of the updates: q changes only when they are injected */
+    imu_q30_t dx[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
     imu_q16_t acc[3], mag[3];
     int k;
     { /* (block scopes: their arrays share stack with the updates') */
@@ -835,15 +844,15 @@ static void filter_step(imu_eskf_t *f)
         restart_attitude_uncertainty(f);
         f->realign = 0;
     }
-    imu_quat_matrix_row(f->q, 2, up);
+    imu_quat_rotation(f->q, &rot);
     if ((f->clipped & IMU_CLIPPED_ACC) == 0) {
-        lowpass_specific_force(f, acc);
-        gravity_update(f, acc, up, dx);
+        lowpass_specific_force(f, &rot, acc);
+        gravity_update(f, acc, &rot, dx);
     } else {
         f->acc_weight = 0;
     }
     if ((f->clipped & IMU_CLIPPED_MAG) == 0) {
-        heading_update(f, mag, up, dx);
+        heading_update(f, mag, &rot, dx);
     } else {
         f->mag_weight = 0;
     }
@@ -855,7 +864,7 @@ static void filter_step(imu_eskf_t *f)
      * estimated earth frame's correction (exp(R dtheta)). A correction beyond a radian
      * is no small error: it is limited to one radian (the next steps do the rest). */
     limit_to_one_radian(&dx[ATT]);
-    turn_acc_earth(f, &dx[ATT]);
+    turn_acc_earth(f, &rot, &dx[ATT]);
     imu_quat_integrate(f->q, &dx[ATT]);
     f->injected[0] = IMU_ONE_Q30;
     for (k = 0; k < 3; ++k) {

@@ -652,14 +652,20 @@ void imu_quat_mul(const imu_q30_t a[4], const imu_q30_t b[4], imu_q30_t out[4])
 #endif
 }
 
-void imu_quat_rotate(const imu_q30_t q[4], const imu_q30_t v[3], imu_q30_t out[3])
+void imu_quat_rotation(const imu_q30_t q[4], imu_rotation_t *r)
 {
-    imu_q30_t row[3];
-    int r;
-    for (r = 0; r < 3; ++r) {
-        imu_quat_matrix_row(q, r, row);
-        out[r] = IMU_ADD(IMU_ADD(IMU_MUL(row[0], v[0], 30), IMU_MUL(row[1], v[1], 30)),
-                         IMU_MUL(row[2], v[2], 30));
+    int i;
+    for (i = 0; i < 3; ++i) {
+        imu_quat_matrix_row(q, i, r->row[i]);
+    }
+}
+
+void imu_rotation_apply(const imu_rotation_t *r, const imu_real_t v[3], imu_real_t out[3])
+{
+    int i;
+    for (i = 0; i < 3; ++i) {
+        const imu_q30_t *row = r->row[i];
+        out[i] = IMU_ADD(IMU_ADD(IMU_MUL(row[0], v[0], 30), IMU_MUL(row[1], v[1], 30)), IMU_MUL(row[2], v[2], 30));
     }
 }
 

@@ -59,8 +59,16 @@ void imu_quat_matrix_row(const imu_q30_t q[4], int row, imu_q30_t out[3]);
 /** @brief Column 1 of the rotation matrix of q: the sensor's y axis in the earth frame, Q30. */
 void imu_quat_y_axis(const imu_q30_t q[4], imu_q30_t out[3]);
 
-/** @brief out = R(q) v: a sensor-frame unit vector (Q30) expressed in the earth frame. */
-void imu_quat_rotate(const imu_q30_t q[4], const imu_q30_t v[3], imu_q30_t out[3]);
+/** The sensor-to-earth rotation matrix of a quaternion, by rows (imu_quat_matrix_row), Q30. */
+typedef struct {
+    imu_q30_t row[3][3]; /**< row[0]: east, row[1]: north, row[2]: up, in the sensor frame */
+} imu_rotation_t;
+
+/** @brief The rotation matrix of q: its three rows (imu_quat_matrix_row). */
+void imu_quat_rotation(const imu_q30_t q[4], imu_rotation_t *r);
+
+/** @brief out = R v: the sensor-frame v in the earth frame (v and out in any one Q format). */
+void imu_rotation_apply(const imu_rotation_t *r, const imu_real_t v[3], imu_real_t out[3]);
 
 /**
  * @brief q <- normalize(q (x) exp(theta / 2)): advance the attitude by a body-frame

@@ -86,6 +86,9 @@ _DECLARATIONS = """
     void imu_quat_turn(imu_q30_t q[4], const imu_q30_t theta[3]);
     void imu_quat_matrix_row(const imu_q30_t q[4], int row, imu_q30_t out[3]);
     void imu_quat_y_axis(const imu_q30_t q[4], imu_q30_t out[3]);
+    typedef struct { imu_q30_t row[3][3]; } imu_rotation_t;
+    void imu_quat_rotation(const imu_q30_t q[4], imu_rotation_t *r);
+    void imu_rotation_apply(const imu_rotation_t *r, const imu_real_t v[3], imu_real_t out[3]);
     imu_angle_t imu_heading_from_mag(const imu_real_t mag[3], imu_angle_t roll, imu_angle_t pitch);
     imu_angle_t imu_heading_from_mag_tilt(const imu_real_t mag[3], imu_q30_t sr, imu_q30_t cr, imu_q30_t sp,
                                           imu_q30_t cp);
