@@ -28,13 +28,15 @@ KF1D, ESKF with 6 and with 9 states, default settings, simulated random motion a
   apart), per call;
 - with --lines N, the N source lines of each filter's update_raw and get that executed
   the most instructions per call (inlined code counted at its own line, with the
-  function it was compiled into), from a build with -g (the same code).
+  function it was compiled into), from a build with -g (the same code);
+- with --optimize O3 (or Os), the same at another optimisation level than the
+  firmware's -O2: what another level would give.
 
 Instructions are not cycles: on a Cortex-M4 most take one cycle, loads and stores
 two, divisions 2-12; the DWT cycle counter on a board is the cycle truth.
 
     .venv/bin/python tools/bench_arm.py [--samples 4000] [--filters eecf,kf1d,eskf,eskf9] [--profile] [--lines N]
-                                        [--json]
+                                        [--optimize O2|O3|Os] [--json]
 
 Needs arm-none-eabi-gcc (with newlib) on the PATH and the Python package unicorn.
 The full run takes a few minutes (every instruction is emulated).
@@ -76,8 +78,16 @@ LINKER_SCRIPT = HARNESS_DIR / "bench.ld"
 
 CC = "arm-none-eabi-gcc"
 TARGET_FLAGS = ["-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=soft"]
-#: The firmware's compile flags: the code measured here is the code the board runs.
-CFLAGS = ["-std=c99", "-O2", *TARGET_FLAGS, "-DIMU_FIXED", "-ffunction-sections", "-fdata-sections"]
+#: The firmware's optimisation level and compile flags: the code measured here is the code the board runs.
+OPTIMIZE = "-O2"
+CFLAGS = ["-std=c99", OPTIMIZE, *TARGET_FLAGS, "-DIMU_FIXED", "-ffunction-sections", "-fdata-sections"]
+#: Levels --optimize may try instead (what-if measurements: the firmware stays at OPTIMIZE).
+OPTIMIZE_LEVELS = ("-O2", "-O3", "-Os")
+
+
+def compile_flags(optimize: str = OPTIMIZE) -> list[str]:
+    """CFLAGS with another optimisation level."""
+    return [optimize if flag == OPTIMIZE else flag for flag in CFLAGS]
 #: Analysis outputs only (.su, .ci files): they do not change the generated code.
 ANALYSIS_FLAGS = ["-fstack-usage", "-fcallgraph-info=su"]
 LDFLAGS = [*TARGET_FLAGS, "-nostartfiles", "-Wl,--gc-sections"]
@@ -169,9 +179,10 @@ def core_sources() -> list[Path]:
     return sorted(CORE_DIR.glob("*.c"))
 
 
-def build_arm(directory: Path, debug_info: bool = False) -> ArmBuild:
+def build_arm(directory: Path, debug_info: bool = False, optimize: str = OPTIMIZE) -> ArmBuild:
     """Compile the core and the harness for the Cortex-M4 and link them into bench.elf in `directory`;
-    with `debug_info`, also with -g (line tables for the line profile: the same code)."""
+    with `debug_info`, also with -g (line tables for the line profile: the same code); `optimize`
+    replaces the firmware's -O2."""
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     gcc = _tool(CC)
@@ -181,7 +192,7 @@ def build_arm(directory: Path, debug_info: bool = False) -> ArmBuild:
         obj = directory / (src.stem + ".o")
         # Run in `directory` so the .su and .ci files land next to the objects.
         debug = ["-g"] if debug_info else []
-        _run([gcc, *CFLAGS, *ANALYSIS_FLAGS, *debug, f"-I{CORE_DIR}", "-c", src, "-o", obj],
+        _run([gcc, *compile_flags(optimize), *ANALYSIS_FLAGS, *debug, f"-I{CORE_DIR}", "-c", src, "-o", obj],
              f"compiling {src.name}", cwd=directory)
         objects[src.stem] = obj
     elf = directory / "bench.elf"
@@ -967,11 +978,11 @@ def line_profile(emu: Emulator, top: int) -> dict[str, list[tuple[str, float, st
 
 def run_benchmark(samples: int, filter_keys: list[str], build_dir: Path, codec: bool = True,
                   decode_samples: int | None = None, progress=lambda _msg: None, profile: bool = False,
-                  lines: int = 0) -> Results:
+                  lines: int = 0, optimize: str = OPTIMIZE) -> Results:
     """Build, check and measure everything; raises BenchError when a check fails. With
     `lines`, also the busiest source lines of each profiled call (a -g build: the same code)."""
     start = time.perf_counter()
-    build = build_arm(build_dir, debug_info=lines > 0)
+    build = build_arm(build_dir, debug_info=lines > 0, optimize=optimize)
     check_no_float(build)
     progress(f"built {build.elf} ({build.compiler}); no floating point")
     data = simulated_data(samples)
@@ -999,7 +1010,8 @@ def run_benchmark(samples: int, filter_keys: list[str], build_dir: Path, codec: 
         if profile:
             profiles["codec"] = call_profile(emu)
         progress(f"codec: {codec_cost.frames} frames encoded and decoded, {time.perf_counter() - t0:.0f} s")
-    results = Results(build.compiler, CFLAGS, ["-nostartfiles", "-Wl,--gc-sections", f"-T {LINKER_SCRIPT.name}"],
+    linked = ["-nostartfiles", "-Wl,--gc-sections", f"-T {LINKER_SCRIPT.name}"]
+    results = Results(build.compiler, compile_flags(optimize), linked,
                       samples, f'sim.make_scenario("random", {samples / RATE_HZ:g}, {RATE_HZ:g}, seed={SCENARIO_SEED})',
                       filters, codec_cost, object_sizes(build), library_sizes(build),
                       target_sizes(Emulator(build)), datetime.date.today().isoformat(), profiles=profiles,
@@ -1145,6 +1157,9 @@ def main() -> int:
     parser.add_argument("--lines", type=int, default=0, metavar="N",
                         help="also report, per filter's update and get, the N source lines that executed the "
                              "most instructions (builds with -g, which leaves the code as it is)")
+    parser.add_argument("--optimize", choices=[level[1:] for level in OPTIMIZE_LEVELS], default=OPTIMIZE[1:],
+                        help=f"optimisation level to measure (default {OPTIMIZE[1:]}, the firmware's; the others "
+                             "answer what another level would give)")
     parser.add_argument("--json", action="store_true", help="print machine-readable results instead of the table")
     args = parser.parse_args()
     keys = [k.strip() for k in args.filters.split(",") if k.strip()]
@@ -1162,11 +1177,11 @@ def main() -> int:
     try:
         if args.build_dir is not None:
             results = run_benchmark(args.samples, keys, args.build_dir, not args.no_codec, args.decode_samples,
-                                    progress, args.profile, args.lines)
+                                    progress, args.profile, args.lines, "-" + args.optimize)
         else:
             with tempfile.TemporaryDirectory(prefix="bench_arm.") as tmp:
                 results = run_benchmark(args.samples, keys, Path(tmp), not args.no_codec, args.decode_samples,
-                                        progress, args.profile, args.lines)
+                                        progress, args.profile, args.lines, "-" + args.optimize)
     except BenchError as exc:
         print(f"FAIL: {exc}", file=sys.stderr)
         return 1
