@@ -92,6 +92,31 @@ static inline int32_t imu_sat32(int64_t v, uint32_t *sat)
     return (int32_t)v;
 }
 
+/** a + b of two int32 values, saturated; increments *sat when clamping. The overflow test
+ *  of a 32-bit addition (GCC's and Clang's builtin: the flags of one add on a 32-bit
+ *  core) where imu_sat32 of the 64-bit sum needs a 64-bit add and a compare: the same
+ *  result. An overflow has b's sign. */
+static inline int32_t imu_add_sat32(int32_t a, int32_t b, uint32_t *sat)
+{
+    int32_t r;
+    if (__builtin_add_overflow(a, b, &r)) {
+        ++*sat;
+        return b < 0 ? INT32_MIN : INT32_MAX;
+    }
+    return r;
+}
+
+/** a - b of two int32 values, saturated (imu_add_sat32); an overflow has the sign of -b. */
+static inline int32_t imu_sub_sat32(int32_t a, int32_t b, uint32_t *sat)
+{
+    int32_t r;
+    if (__builtin_sub_overflow(a, b, &r)) {
+        ++*sat;
+        return b > 0 ? INT32_MIN : INT32_MAX;
+    }
+    return r;
+}
+
 /** (v >> s) rounded to nearest for s in [1, 62]. */
 static inline int64_t imu_rshift_round64(int64_t v, int s)
 {
@@ -234,8 +259,7 @@ static inline int32_t imu_wshr_feedback_sat(int64_t v, int s, int64_t *residual,
 #define IMU_MUL_SAT(a, b, s, sat) imu_mul_sat((a), (b), (s), (sat))
 #define IMU_DIV_SAT(a, b, s, sat) imu_div_sat((a), (b), (s), (sat))
 #define IMU_WSHR_FEEDBACK_SAT(v, s, residual, sat) imu_wshr_feedback_sat((v), (s), (residual), (sat))
-#define IMU_ADD_SAT(a, b, sat) imu_sat32((int64_t)(a) + (b), (sat))
-#define IMU_SUB_SAT(a, b, sat) imu_sat32((int64_t)(a) - (b), (sat))
+
 #define IMU_NEG_SAT(a, sat) imu_sat32(-(int64_t)(a), (sat))
 /** Add s fraction bits (Qn to Q(n+s)), saturated. */
 #define IMU_SHL_SAT(a, s, sat) imu_sat32((int64_t)(a) * ((int64_t)1 << (s)), (sat))
@@ -257,6 +281,9 @@ static inline int32_t imu_wshr_feedback_sat(int64_t v, int s, int64_t *residual,
 #define IMU_MUL_TO_INT(a, b, q) ((int32_t)imu_rshift_round64((int64_t)(a) * (b), (q)))
 /** An int64 value proven (at the call) to fit int32, as int32. */
 #define IMU_NARROW(v) ((int32_t)(v))
+/** Saturated sum and difference of two int32 reals of one Q format. */
+#define IMU_ADD_SAT(a, b, sat) imu_add_sat32((a), (b), (sat))
+#define IMU_SUB_SAT(a, b, sat) imu_sub_sat32((a), (b), (sat))
 
 #else /* IMU_CHECK_NARROWING: the same operations, each narrowing checked */
 
@@ -290,6 +317,13 @@ static inline int32_t imu_mul_at(int32_t a, int32_t b, int s, const char *file, 
 #define IMU_MUL_TO_INT(a, b, q) \
     imu_narrow_at(imu_rshift_round64((int64_t)(a) * (b), (q)), __FILE__, __LINE__, "IMU_MUL_TO_INT")
 #define IMU_NARROW(v) imu_narrow_at((v), __FILE__, __LINE__, "IMU_NARROW")
+/* Their operands are int32: a wide one would be cut to 32 bits before the saturation. */
+#define IMU_ADD_SAT(a, b, sat)                                                                                   \
+    imu_add_sat32(imu_narrow_at((a), __FILE__, __LINE__, "IMU_ADD_SAT"),                                       \
+                  imu_narrow_at((b), __FILE__, __LINE__, "IMU_ADD_SAT"), (sat))
+#define IMU_SUB_SAT(a, b, sat)                                                                                   \
+    imu_sub_sat32(imu_narrow_at((a), __FILE__, __LINE__, "IMU_SUB_SAT"),                                       \
+                  imu_narrow_at((b), __FILE__, __LINE__, "IMU_SUB_SAT"), (sat))
 
 #endif /* IMU_CHECK_NARROWING */
 

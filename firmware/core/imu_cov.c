@@ -109,7 +109,7 @@ static int diagonal_shifts(const imu_cov_t *c, imu_wide_t d[IMU_COV_MAX], signed
     for (i = 0; i < c->n; ++i) {
         /* s = ceil((bits - 30) / 2): d * 2^(-2s) in [2^28, 2^30); 0 for the usual d already there
          * (one unsigned comparison tests both bounds) */
-        if ((uint64_t)d[i] - ((uint64_t)1 << 28) < ((uint64_t)3 << 28)) {
+        if ((uint64_t)(d[i] - ((int64_t)1 << 28)) < ((uint64_t)3 << 28)) {
             shift[i] = 0;
         } else {
             int excess;
