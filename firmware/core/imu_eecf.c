@@ -209,10 +209,10 @@ static void lowpass3(imu_real_t y[3], const imu_real_t x[3], imu_q30_t alpha, ui
 
 /** Running mean (weight 1/(n+1) for the sample after n) while that weighs more than
  *  `alpha`, low-pass with weight alpha after; n + 1 < 2^25 where it divides. */
-static imu_q30_t mean_weight(int32_t n, int32_t warmup, imu_q30_t alpha, uint32_t *sat)
+static imu_q30_t mean_weight(int32_t n, int32_t warmup, imu_q30_t alpha)
 {
     if (n < warmup) {
-        return IMU_DIV_SAT(IMU_FROM_INT_SAT(1, 0, sat), IMU_FROM_INT_SAT(n + 1, 0, sat), 30, sat);
+        return IMU_ONE_Q30 / (n + 1); /* 1 / (n + 1) in Q30, truncated: one 32-bit division */
     }
     return alpha;
 }
@@ -243,11 +243,10 @@ static void rest_update(imu_eecf_t *f, const imu_sample_t *s)
     int k;
     if (f->rest_count > 0) {
         /* The run so far holds rest_count samples, the gyroscope mean gyr_count. */
-        const imu_q30_t alpha = mean_weight(f->rest_count, f->rest_warmup, f->rest_alpha, &f->saturations);
+        const imu_q30_t alpha = mean_weight(f->rest_count, f->rest_warmup, f->rest_alpha);
         lowpass3(f->acc_mean, s->acc, alpha, &f->saturations);
         lowpass3(f->mag_mean, s->mag, alpha, &f->saturations);
-        lowpass3(f->gyr_mean, s->gyr, mean_weight(f->gyr_count, f->bias_warmup, f->bias_alpha, &f->saturations),
-                 &f->saturations);
+        lowpass3(f->gyr_mean, s->gyr, mean_weight(f->gyr_count, f->bias_warmup, f->bias_alpha), &f->saturations);
         if (f->gyr_count < INT32_MAX) {
             ++f->gyr_count;
         }
