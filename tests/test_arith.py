@@ -1,8 +1,10 @@
-"""The integer divisions of the arithmetic layer (firmware/core/imu_arith.h).
+"""The integer divisions and saturating sums of the arithmetic layer (firmware/core/imu_arith.h).
 
 IMU_DIV_SAT divides 64 by 32 bits with imu_udiv64_32 (long division in base 2^16 on
 32-bit hardware divisions) instead of a 64-bit division: its results and saturation
-counts must be those of the exact quotients, truncated, for every input.
+counts must be those of the exact quotients, truncated, for every input. IMU_ADD_SAT and
+IMU_SUB_SAT add in 32 bits and test the overflow: theirs must be those of the exact sums,
+saturated.
 tests/c/arith_driver.c, built with UBSan and ASan, computes them; Python's integers are
 the reference.
 """
@@ -91,3 +93,16 @@ def test_udiv64_32_is_exact(driver):
     expected = [((hi * 2**32 + lo) // v, 0) for hi, lo, v in cases]
     wrong = [(c, g, e) for c, g, e in zip(cases, got, expected) if g != e]
     assert not wrong, f"{len(wrong)} wrong, first (hi, lo, v), got, expected: {wrong[0]}"
+
+
+def test_add_and_sub_sat_are_the_exact_results_saturated(driver):
+    rng = random.Random(4)
+    cases = [(rng.choice("+-"), some_int32(rng), some_int32(rng)) for _ in range(60000)]
+    ends = (INT32_MIN, -1, 0, 1, INT32_MAX)
+    cases += [(op, a, b) for op in "+-" for a in ends for b in ends]
+    got = run(driver, [f"{op} {a} {b}" for op, a, b in cases])
+    expected = [sat32(a + b if op == "+" else a - b) for op, a, b in cases]
+    wrong = [(c, g, e) for c, g, e in zip(cases, got, expected) if g != e]
+    assert not wrong, f"{len(wrong)} wrong, first (op, a, b), got, expected: {wrong[0]}"
+    clamped = [e for e in expected if e[1]]
+    assert {v for v, _ in clamped} == {INT32_MIN, INT32_MAX}, "the cases must saturate both ways"

@@ -93,11 +93,11 @@ GET_CEILING = {
 #: Ceilings on the deepest stack imu_filter_update_raw used (bytes, painted stack) over the
 #: same samples: measured at EECF 436 and KF1D 388, plus about 5 % (EECF 404 before the
 #: heading's tilt compensation took its sines and cosines in a function of its own, KF1D 404
-#: between the magnitudes it kept at hand and the 32-bit saturating sums); the ESKF's is the issue's target, 1 KiB
-#: (measured at 944 with 6 and 9 states; 2 076 before
-#: the covariance prediction stored P in its new exponents at once and used phi's rows as its
-#: multipliers, 1 756 before it took only the moving rows of phi and the covariance code
-#: stopped keeping wide copies of P and arrays it could share).
+#: between the magnitudes it kept at hand and the 32-bit saturating sums); the ESKF's is the
+#: issue's target, 1 KiB (measured at 944 with 6 and 9 states; 2 076 before the covariance
+#: prediction stored P in its new exponents at once and used phi's rows as its multipliers,
+#: 1 756 before it took only the moving rows of phi and the covariance code stopped keeping
+#: wide copies of P and arrays it could share).
 STACK_CEILING = {
     "eecf": 460,
     "kf1d": 410,

@@ -259,7 +259,6 @@ static inline int32_t imu_wshr_feedback_sat(int64_t v, int s, int64_t *residual,
 #define IMU_MUL_SAT(a, b, s, sat) imu_mul_sat((a), (b), (s), (sat))
 #define IMU_DIV_SAT(a, b, s, sat) imu_div_sat((a), (b), (s), (sat))
 #define IMU_WSHR_FEEDBACK_SAT(v, s, residual, sat) imu_wshr_feedback_sat((v), (s), (residual), (sat))
-
 #define IMU_NEG_SAT(a, sat) imu_sat32(-(int64_t)(a), (sat))
 /** Add s fraction bits (Qn to Q(n+s)), saturated. */
 #define IMU_SHL_SAT(a, s, sat) imu_sat32((int64_t)(a) * ((int64_t)1 << (s)), (sat))
