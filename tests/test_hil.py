@@ -770,7 +770,10 @@ def test_demo(tmp_path, capsys, transport):
     assert reported == pytest.approx(expected, abs=1e-3)
 
 
-CLI = [sys.executable, "-c", "import sys; from imulink.cli import main; sys.exit(main())"]
+#: `imulink` in a process that takes SIGINT as Ctrl-C even when the suite runs as a background
+#: job of a non-interactive shell (which starts it with SIGINT ignored, and Python keeps that).
+CLI = [sys.executable, "-c", "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+       "from imulink.cli import main; sys.exit(main())"]
 
 
 def _demo_in(temporary, *argv) -> subprocess.Popen:
