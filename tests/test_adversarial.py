@@ -28,11 +28,10 @@ from imulink import hil, protocol
 from imulink.emulator import EmulatedBoard
 from imulink.recording import KIND_HEADER, KIND_RECEIVED, MAGIC, load_recording, read_records
 
-CLI = [sys.executable, "-c", "import sys\nfrom imulink.cli import main\nsys.exit(main())"]
-#: The same, taking SIGINT as Ctrl-C even when the suite runs as a background job of a
+#: `imulink`, taking SIGINT as Ctrl-C even when the suite runs as a background job of a
 #: non-interactive shell: such a job starts with SIGINT ignored, and Python then keeps it so.
-CLI_CTRL_C = [sys.executable, "-c", "import signal, sys\nsignal.signal(signal.SIGINT, signal.default_int_handler)\n"
-              "from imulink.cli import main\nsys.exit(main())"]
+CLI = [sys.executable, "-c", "import signal, sys\nsignal.signal(signal.SIGINT, signal.default_int_handler)\n"
+       "from imulink.cli import main\nsys.exit(main())"]
 #: Seconds any command may take here; none should come near it (a hang shows as a failure).
 TIME_LIMIT_S = 60
 
@@ -457,7 +456,7 @@ def test_a_full_disk_leaves_an_existing_export_as_it_was(files):
 
 
 def _start_record(address: str, path: Path, *extra) -> subprocess.Popen:
-    return subprocess.Popen(CLI_CTRL_C + ["record", address, "-o", str(path), *extra], stdout=subprocess.PIPE,
+    return subprocess.Popen(CLI + ["record", address, "-o", str(path), *extra], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, stdin=subprocess.DEVNULL)
 
 
