@@ -144,8 +144,10 @@ static int count_bits(int count)
 
 /** Q30 measurement row scaled by 2^(e_j - E), with E chosen so the largest entry is in
  *  [2^(29 - x), 2^(30 - x)], 2^x at least the number of non-zero entries: a sum of the
- *  products with P~'s entries (below 2^30) stays below 2^60. */
-static int scale_row(const imu_cov_t *c, const imu_q30_t h[], imu_q30_t hs[], uint32_t *sat)
+ *  products with P~'s entries (below 2^30) stays below 2^60. Out: its entries that are not
+ *  zero, hs[t] of the state used[t], and their count; returns E. */
+static int scale_row(const imu_cov_t *c, const imu_q30_t h[], imu_q30_t hs[], unsigned char used[], int *used_count,
+                     uint32_t *sat)
 {
     int big = INT32_MIN;
     int count = 0;
@@ -161,9 +163,16 @@ static int scale_row(const imu_cov_t *c, const imu_q30_t h[], imu_q30_t hs[], ui
         big = 0;
     }
     big += count_bits(count);
+    count = 0;
     for (j = 0; j < c->n; ++j) {
-        hs[j] = h[j] != 0 ? (imu_q30_t)wide_ldexp(h[j], c->e[j] - big, sat) : 0;
+        if (h[j] != 0) {
+            hs[count] = (imu_q30_t)wide_ldexp(h[j], c->e[j] - big, sat);
+            if (hs[count] != 0) {
+                used[count++] = (unsigned char)j;
+            }
+        }
     }
+    *used_count = count;
     return big;
 }
 
@@ -238,30 +247,34 @@ static inline imu_wide_t change(int32_t kc_i, int32_t ko_i, const int32_t cm[], 
  * ch and oh become 31-bit mantissas cm (in place of ch), om of one exponent ce; kc = (w / sh) cm 2^(2 ce + 1)
  * makes each cell's change kc_i cm_j 2^-31, a 32-bit product: |kc_i| < 2^31, as the
  * change of a variance, (w / sh) ch_i^2 2^-30 <= P~_ii, is below 2^30 (Cauchy-Schwarz).
+ * `left`: 0 when no gain map left a part out (oh is then only the storage of d).
  */
-static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], imu_wide_t sh, imu_q30_t w, imu_q30_t z,
-                         int big, imu_q30_t dx[], uint32_t *sat)
+static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], int left, imu_wide_t sh, imu_q30_t w,
+                         imu_q30_t z, int big, imu_q30_t dx[], uint32_t *sat)
 {
     int32_t *const cm = ch;      /* ch as mantissas of 2^ce, below 2^31: in place of ch */
-    int32_t om[IMU_COV_MAX];     /* the same for oh */
+    int32_t om[IMU_COV_MAX];     /* the same for oh (when `left`) */
     int32_t kc[IMU_COV_MAX];     /* (w / sh) cm 2^(2 ce + 1) (gain_of) */
     imu_wide_t *const d = oh;    /* the new diagonal, Q30 in the old exponents: in place of oh */
     signed char shift[IMU_COV_MAX]; /* exponent changes, |shift| <= 17 */
     imu_wide_t cmax = 0;
-    int32_t mapped = 0; /* non-zero when a gain map left a part out */
+    int32_t mapped = 0;   /* non-zero when a gain map left a part out */
+    int normalised = 1;   /* 1 while every new diagonal mantissa is in [2^28, 2^30) */
     int ce, ke, ve, i, j, k;
     int32_t k_mant, v_mant;
     for (i = 0; i < c->n; ++i) {
-        const imu_wide_t a = wide_abs(ch[i]), b = wide_abs(oh[i]);
+        const uint32_t a = (uint32_t)(ch[i] < 0 ? -(int64_t)ch[i] : ch[i]); /* |ch| <= 2^30 */
         cmax = a > cmax ? a : cmax;
-        cmax = b > cmax ? b : cmax;
+        if (left) {
+            const imu_wide_t b = wide_abs(oh[i]);
+            cmax = b > cmax ? b : cmax;
+        }
     }
     if (cmax == 0) {
         return;
     }
     ce = imu_bit_length64((uint64_t)cmax) - 31; /* cmax 2^-ce in [2^30, 2^31) */
-    for (i = 0; i < c->n; ++i) {
-        cm[i] = mantissa31(ch[i], ce, sat);
+    for (i = 0; left && i < c->n; ++i) {
         om[i] = mantissa31(oh[i], ce, sat);
         mapped |= om[i];
     }
@@ -281,25 +294,41 @@ static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], imu_wid
     }
     for (i = 0; i < c->n; ++i) {
         /* dx_i = v (cm_i - om_i) 2^(ve + ce + e_i - E) in Q30: v_mant * (cm_i - om_i) < 2^62. */
-        const imu_wide_t vc = mapped == 0 ? IMU_WMUL(v_mant, cm[i]) : (imu_wide_t)v_mant * ((imu_wide_t)cm[i] - om[i]);
-        const int32_t ko_i = mapped != 0 ? gain_of(om[i], k_mant, 2 * ce + ke + 1, sat) : 0;
+        imu_wide_t vc;
+        int32_t ko_i = 0;
+        cm[i] = mantissa31(ch[i], ce, sat);
+        vc = IMU_WMUL(v_mant, cm[i]);
+        if (mapped != 0) {
+            vc = (imu_wide_t)v_mant * ((imu_wide_t)cm[i] - om[i]);
+            ko_i = gain_of(om[i], k_mant, 2 * ce + ke + 1, sat);
+        }
         kc[i] = gain_of(cm[i], k_mant, 2 * ce + ke + 1, sat);
         dx[i] = IMU_ADD_SAT(dx[i], imu_sat32(wide_ldexp(vc, ve + ce + c->e[i] - big, sat), sat), sat);
         d[i] = (imu_wide_t)c->p[cell(i, i)] - change(kc[i], ko_i, cm, om, mapped, i);
+        /* (diagonal_shifts' test: one unsigned comparison tests both bounds) */
+        normalised &= (uint64_t)(d[i] - ((int64_t)1 << 28)) < ((uint64_t)3 << 28);
     }
-    if (diagonal_shifts(c, d, shift, sat) == 0 && mapped == 0) {
-        /* the usual case, the same arithmetic in a loop of its own: no exponent moves, no map */
+    if (normalised || diagonal_shifts(c, d, shift, sat) == 0) {
+        /* the usual case: no exponent moves, each cell its change saturated (rescaled by 0); the
+         * loops written apart for each (mul_q31 of |kc_i| <= 2^31 and |cm_j| < 2^31 is an int32) */
         for (i = 0; i < c->n; ++i) {
+            uint32_t counted_before = 0; /* (ko_i once more: its saturations were counted the first time) */
+            const int32_t ko_i = mapped != 0 ? gain_of(om[i], k_mant, 2 * ce + ke + 1, &counted_before) : 0;
             k = cell(i, i);
             c->p[k] = (int32_t)d[i]; /* in [2^28, 2^30) */
-            for (j = i + 1, ++k; j < c->n; ++j, ++k) {
-                c->p[k] = imu_sat32((imu_wide_t)c->p[k] - mul_q31(kc[i], cm[j]), sat);
+            if (mapped == 0) {
+                for (j = i + 1, ++k; j < c->n; ++j, ++k) {
+                    c->p[k] = IMU_SUB_SAT(c->p[k], mul_q31(kc[i], cm[j]), sat);
+                }
+            } else {
+                for (j = i + 1, ++k; j < c->n; ++j, ++k) {
+                    c->p[k] = imu_sat32((imu_wide_t)c->p[k] - mul_q31(kc[i], cm[j]) + mul_q31(ko_i, om[j]), sat);
+                }
             }
         }
         return;
     }
     for (i = 0; i < c->n; ++i) {
-        /* ko_i once more (kept in no array: stack); its saturations were counted the first time */
         uint32_t counted_before = 0;
         const int32_t ko_i = mapped != 0 ? gain_of(om[i], k_mant, 2 * ce + ke + 1, &counted_before) : 0;
         k = cell(i, i);
@@ -396,13 +425,18 @@ static imu_real_t rescaled(imu_wide_t v, int down, uint32_t *sat)
     return v;
 }
 
-static int scale_row(const imu_cov_t *c, const imu_q30_t h[], imu_q30_t hs[], uint32_t *sat)
+static int scale_row(const imu_cov_t *c, const imu_q30_t h[], imu_q30_t hs[], unsigned char used[], int *used_count,
+                     uint32_t *sat)
 {
-    int j;
+    int j, count = 0;
     (void)sat;
     for (j = 0; j < c->n; ++j) {
-        hs[j] = h[j];
+        if (h[j] != 0) {
+            hs[count] = h[j];
+            used[count++] = (unsigned char)j;
+        }
     }
+    *used_count = count;
     return 0;
 }
 
@@ -419,12 +453,13 @@ static int scaled_row(const imu_cov_t *c, imu_q30_t row[IMU_COV_MAX], int i, int
     return 0;
 }
 
-static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], imu_wide_t sh, imu_q30_t w, imu_q30_t z,
-                         int big, imu_q30_t dx[], uint32_t *sat)
+static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], int left, imu_wide_t sh, imu_q30_t w,
+                         imu_q30_t z, int big, imu_q30_t dx[], uint32_t *sat)
 {
     imu_wide_t d[IMU_COV_MAX];
     int i, j;
     (void)big;
+    (void)left; /* (left_out wrote oh = 0 without a map) */
     for (i = 0; i < c->n; ++i) {
         dx[i] += w * z / sh * (ch[i] - oh[i]);
         for (j = i; j < c->n; ++j) {
@@ -608,9 +643,10 @@ void imu_cov_predict(imu_cov_t *c, imu_q30_t rows[][IMU_COV_MAX], const int movi
             imu_wide_t biggest = 0;
             int row_shift;
             for (j = 0; j < n; ++j) {
+                const unsigned char *cells = CELL_INDEX[j]; /* P~_kj at cells[k] (P~ is symmetric) */
                 imu_wide_t sum = 0;
                 for (t = 0; t < tr.count[s]; ++t) {
-                    sum += IMU_WMUL(tr.a[s][t], c->p[cell(tr.cols[s][t], j)]);
+                    sum += IMU_WMUL(tr.a[s][t], c->p[cells[tr.cols[s][t]]]);
                 }
                 row[j] = sum;
                 biggest = wide_abs(sum) > biggest ? wide_abs(sum) : biggest;
@@ -678,24 +714,18 @@ int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu
      * = P~ - w ch ch^T / sh with ch = P~ hs, sh = w hs ch + r 2^-2E: E cancels.
      * With a gain map G (K' = G K), Joseph's form for that gain, (I - K'h) P (I - K'h)^T
      * + K' r K'^T, is P - (u u^T - o o^T) / s with u = P h^T and o = u - G u. */
-    imu_q30_t hs[IMU_COV_MAX];  /* then compacted: its non-zero entries, those of the states `used` */
+    imu_q30_t hs[IMU_COV_MAX];  /* the scaled row's non-zero entries, those of the states `used` (scale_row) */
     imu_real_t ch[IMU_COV_MAX]; /* P~ hs, Q30; |ch| <= 2^30 */
     imu_wide_t oh[IMU_COV_MAX]; /* the part of ch the gain map leaves out, Q30 */
     imu_wide_t q = 0;           /* hs P~ hs, Q30 */
     imu_wide_t sh;              /* Q30 */
     unsigned char used[IMU_COV_MAX]; /* the states hs is not zero at */
     const int n = c->n;
-    int big, i, j, t, count = 0;
+    int big, i, t, count;
     if (w <= 0) {
         return 0;
     }
-    big = scale_row(c, h, hs, sat);
-    for (j = 0; j < n; ++j) {
-        if (hs[j] != 0) {
-            used[count] = (unsigned char)j;
-            hs[count++] = hs[j]; /* count <= j */
-        }
-    }
+    big = scale_row(c, h, hs, used, &count, sat);
     for (i = 0; i < n; ++i) {
         const unsigned char *row = CELL_INDEX[i]; /* (the storage index of (i, j) is row[j]) */
         imu_wide_t sum = 0;                       /* Q60, below 2^60 (scale_row) */
@@ -718,7 +748,7 @@ int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu
         return 0;
     }
     left_out(c, ch, gain_map, oh, sat);
-    apply_update(c, ch, oh, sh, w, z, big, dx, sat);
+    apply_update(c, ch, oh, gain_map != 0, sh, w, z, big, dx, sat);
     return 1;
 }
 
