@@ -50,22 +50,24 @@ static void store_diagonal(imu_cov_t *c, imu_wide_t d[IMU_COV_MAX], uint32_t *sa
 /** v * 2^n: rounded for n < 0, saturated to +-2^62 for n > 0. */
 static inline imu_wide_t wide_ldexp(imu_wide_t v, int n, uint32_t *sat)
 {
-    if (n == 0) {
-        return v; /* the common case of unmoved exponents */
-    }
-    if (n < 0) {
-        /* imu_rshift_round64(v, -n) as ((v >> (-n - 1)) + 1) >> 1: the same integer with
-         * one variable 64-bit shift instead of two (n varies here); from 32 bits on, that
-         * shift is one of the high word ((x + 1) >> 1 written (x >> 1) + (x & 1), which
-         * cannot overflow) */
+    /* n < 0: imu_rshift_round64(v, -n) as ((v >> (-n - 1)) + 1) >> 1, the same integer with
+     * one variable 64-bit shift instead of two (n varies here); from 32 bits on, that shift
+     * is one of the high word ((x + 1) >> 1 written (x >> 1) + (x & 1), which cannot
+     * overflow). The longest shifts are tested first: they are the most frequent. */
+    if (n <= -33) {
         if (n < -62) {
             return 0;
         }
-        if (n <= -33) {
+        {
             const int32_t x = (int32_t)(v >> 32) >> (-n - 33);
             return (x >> 1) + (x & 1);
         }
+    }
+    if (n < 0) {
         return ((v >> (-n - 1)) + 1) >> 1;
+    }
+    if (n == 0) {
+        return v; /* unmoved exponents */
     }
     if (n > 62 || v > (WIDE_LIMIT >> n) || v < -(WIDE_LIMIT >> n)) {
         if (v == 0) {
