@@ -131,7 +131,7 @@ static gain_t gain(imu_real_t num, reciprocal_t r)
 }
 
 /** x g 2^-extra, rounded and saturated (|x g.mant| < 2^62; the shift is at least -1). */
-static imu_real_t times(imu_real_t x, gain_t g, int extra, uint32_t *sat)
+static inline imu_real_t times(imu_real_t x, gain_t g, int extra, uint32_t *sat)
 {
     const imu_wide_t v = IMU_WMUL(x, g.mant);
     const int shift = g.exp + extra;
@@ -166,7 +166,7 @@ static gain_t gain(imu_real_t num, reciprocal_t r)
     return g;
 }
 
-static imu_real_t times(imu_real_t x, gain_t g, int extra, uint32_t *sat)
+static inline imu_real_t times(imu_real_t x, gain_t g, int extra, uint32_t *sat)
 {
     (void)extra; /* a change of Q format */
     (void)sat;
