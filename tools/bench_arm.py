@@ -6,7 +6,7 @@ Builds firmware/core/*.c for the Cortex-M4 with the firmware's flags
 -ffunction-sections -fdata-sections) and the harness tools/arm_bench/harness.c into one
 ELF, checks that it links no floating-point routine and holds no VFP instruction, then
 runs the compiled functions in the unicorn emulator and measures, per filter (EECF,
-KF1D, ESKF with 6 and with 9 states, default settings, simulated random motion at
+KF1D, ESKF with 6 and with 9 states, default settings, simulated random motion (by default) at
 100 Hz):
 
 - Thumb-2 instructions executed by imu_filter_update_raw and imu_filter_get per
@@ -30,13 +30,15 @@ KF1D, ESKF with 6 and with 9 states, default settings, simulated random motion a
   the most instructions per call (inlined code counted at its own line, with the
   function it was compiled into), from a build with -g (the same code);
 - with --optimize O3 (or Os), the same at another optimisation level than the
-  firmware's -O2: what another level would give.
+  firmware's -O2: what another level would give;
+- with --scenario static (or rests, turntable), the same on another simulated motion:
+  the ESKF's costliest fusion steps are at rest, where it also runs the rest updates.
 
 Instructions are not cycles: on a Cortex-M4 most take one cycle, loads and stores
 two, divisions 2-12; the DWT cycle counter on a board is the cycle truth.
 
     .venv/bin/python tools/bench_arm.py [--samples 4000] [--filters eecf,kf1d,eskf,eskf9] [--profile] [--lines N]
-                                        [--optimize O2|O3|Os] [--json]
+                                        [--optimize O2|O3|Os] [--scenario random|static|rests|turntable] [--json]
 
 Needs arm-none-eabi-gcc (with newlib) on the PATH and the Python package unicorn.
 The full run takes a few minutes (every instruction is emulated).
@@ -100,6 +102,7 @@ STACK_WINDOW = 16 * 1024
 STACK_PAINT = 0xC5A5_5A3C  # a word no register or pointer of this code is likely to hold
 
 RATE_HZ = 100.0
+SCENARIO = "random"
 SCENARIO_SEED = 0
 #: MPU6050 temperature register at 25 degC ((25 - 36.53) * 340): SAMPLE carries it.
 TEMPERATURE_COUNTS = -3920
@@ -602,9 +605,14 @@ def load_segments(elf: bytes) -> list[tuple[int, bytes]]:
 # ============================================================================ filters
 
 
-def simulated_data(samples: int):
-    """Simulated random motion at 100 Hz (int16 counts), at least `samples` long."""
-    return sim.make_scenario("random", max(samples, 1) / RATE_HZ, RATE_HZ, seed=SCENARIO_SEED)
+def scenario_call(samples: int, scenario: str = SCENARIO) -> str:
+    """The simulator call of the benchmark's data, as the report shows it."""
+    return f'sim.make_scenario("{scenario}", {max(samples, 1) / RATE_HZ:g}, {RATE_HZ:g}, seed={SCENARIO_SEED})'
+
+
+def simulated_data(samples: int, scenario: str = SCENARIO):
+    """A simulated motion at 100 Hz (int16 counts), at least `samples` long (scenario_call)."""
+    return sim.make_scenario(scenario, max(samples, 1) / RATE_HZ, RATE_HZ, seed=SCENARIO_SEED)
 
 
 #: Per-sample outputs compared between the emulated ELF and the host build, in this order.
@@ -978,14 +986,14 @@ def line_profile(emu: Emulator, top: int) -> dict[str, list[tuple[str, float, st
 
 def run_benchmark(samples: int, filter_keys: list[str], build_dir: Path, codec: bool = True,
                   decode_samples: int | None = None, progress=lambda _msg: None, profile: bool = False,
-                  lines: int = 0, optimize: str = OPTIMIZE) -> Results:
+                  lines: int = 0, optimize: str = OPTIMIZE, scenario: str = SCENARIO) -> Results:
     """Build, check and measure everything; raises BenchError when a check fails. With
     `lines`, also the busiest source lines of each profiled call (a -g build: the same code)."""
     start = time.perf_counter()
     build = build_arm(build_dir, debug_info=lines > 0, optimize=optimize)
     check_no_float(build)
     progress(f"built {build.elf} ({build.compiler}); no floating point")
-    data = simulated_data(samples)
+    data = simulated_data(samples, scenario)
     filters = {}
     profiles = {}
     line_profiles = {}
@@ -1012,7 +1020,7 @@ def run_benchmark(samples: int, filter_keys: list[str], build_dir: Path, codec: 
         progress(f"codec: {codec_cost.frames} frames encoded and decoded, {time.perf_counter() - t0:.0f} s")
     linked = ["-nostartfiles", "-Wl,--gc-sections", f"-T {LINKER_SCRIPT.name}"]
     results = Results(build.compiler, compile_flags(optimize), linked,
-                      samples, f'sim.make_scenario("random", {samples / RATE_HZ:g}, {RATE_HZ:g}, seed={SCENARIO_SEED})',
+                      samples, scenario_call(samples, scenario),
                       filters, codec_cost, object_sizes(build), library_sizes(build),
                       target_sizes(Emulator(build)), datetime.date.today().isoformat(), profiles=profiles,
                       line_profiles=line_profiles)
@@ -1160,6 +1168,9 @@ def main() -> int:
     parser.add_argument("--optimize", choices=[level[1:] for level in OPTIMIZE_LEVELS], default=OPTIMIZE[1:],
                         help=f"optimisation level to measure (default {OPTIMIZE[1:]}, the firmware's; the others "
                              "answer what another level would give)")
+    parser.add_argument("--scenario", choices=sim.SCENARIOS, default=SCENARIO,
+                        help=f"simulated motion (default {SCENARIO}; static: the board at rest, where the ESKF "
+                             "also runs its rest updates)")
     parser.add_argument("--json", action="store_true", help="print machine-readable results instead of the table")
     args = parser.parse_args()
     keys = [k.strip() for k in args.filters.split(",") if k.strip()]
@@ -1177,11 +1188,11 @@ def main() -> int:
     try:
         if args.build_dir is not None:
             results = run_benchmark(args.samples, keys, args.build_dir, not args.no_codec, args.decode_samples,
-                                    progress, args.profile, args.lines, "-" + args.optimize)
+                                    progress, args.profile, args.lines, "-" + args.optimize, args.scenario)
         else:
             with tempfile.TemporaryDirectory(prefix="bench_arm.") as tmp:
                 results = run_benchmark(args.samples, keys, Path(tmp), not args.no_codec, args.decode_samples,
-                                        progress, args.profile, args.lines, "-" + args.optimize)
+                                        progress, args.profile, args.lines, "-" + args.optimize, args.scenario)
     except BenchError as exc:
         print(f"FAIL: {exc}", file=sys.stderr)
         return 1
