@@ -262,7 +262,7 @@ static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], int lef
     imu_wide_t cmax = 0;
     int32_t mapped = 0;   /* non-zero when a gain map left a part out */
     int normalised = 1;   /* 1 while every new diagonal mantissa is in [2^28, 2^30) */
-    int ce, ke, ve, i, j, k;
+    int ce, ke, ve, k_exp, v_exp, i, j, k;
     int32_t k_mant, v_mant;
     for (i = 0; i < c->n; ++i) {
         const uint32_t a = (uint32_t)(ch[i] < 0 ? -(int64_t)ch[i] : ch[i]); /* |ch| <= 2^30 */
@@ -294,6 +294,8 @@ static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], int lef
         v_mant = normalize_wide(wz < 0 ? -v : v, &ve);
         ve -= 30 + es;
     }
+    k_exp = 2 * ce + ke + 1; /* the gains' exponent (gain_of) */
+    v_exp = ve + ce - big;   /* the corrections' exponent but for e_i */
     for (i = 0; i < c->n; ++i) {
         /* dx_i = v (cm_i - om_i) 2^(ve + ce + e_i - E) in Q30: v_mant * (cm_i - om_i) < 2^62. */
         imu_wide_t vc;
@@ -302,10 +304,10 @@ static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], int lef
         vc = IMU_WMUL(v_mant, cm[i]);
         if (mapped != 0) {
             vc = (imu_wide_t)v_mant * ((imu_wide_t)cm[i] - om[i]);
-            ko_i = gain_of(om[i], k_mant, 2 * ce + ke + 1, sat);
+            ko_i = gain_of(om[i], k_mant, k_exp, sat);
         }
-        kc[i] = gain_of(cm[i], k_mant, 2 * ce + ke + 1, sat);
-        dx[i] = IMU_ADD_SAT(dx[i], imu_sat32(wide_ldexp(vc, ve + ce + c->e[i] - big, sat), sat), sat);
+        kc[i] = gain_of(cm[i], k_mant, k_exp, sat);
+        dx[i] = IMU_ADD_SAT(dx[i], imu_sat32(wide_ldexp(vc, v_exp + c->e[i], sat), sat), sat);
         d[i] = (imu_wide_t)c->p[cell(i, i)] - change(kc[i], ko_i, cm, om, mapped, i);
         /* (diagonal_shifts' test: one unsigned comparison tests both bounds) */
         normalised &= (uint64_t)(d[i] - ((int64_t)1 << 28)) < ((uint64_t)3 << 28);
@@ -315,7 +317,7 @@ static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], int lef
          * loops written apart for each (mul_q31 of |kc_i| <= 2^31 and |cm_j| < 2^31 is an int32) */
         for (i = 0; i < c->n; ++i) {
             uint32_t counted_before = 0; /* (ko_i once more: its saturations were counted the first time) */
-            const int32_t ko_i = mapped != 0 ? gain_of(om[i], k_mant, 2 * ce + ke + 1, &counted_before) : 0;
+            const int32_t ko_i = mapped != 0 ? gain_of(om[i], k_mant, k_exp, &counted_before) : 0;
             k = cell(i, i);
             c->p[k] = (int32_t)d[i]; /* in [2^28, 2^30) */
             if (mapped == 0) {
@@ -332,7 +334,7 @@ static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], int lef
     }
     for (i = 0; i < c->n; ++i) {
         uint32_t counted_before = 0;
-        const int32_t ko_i = mapped != 0 ? gain_of(om[i], k_mant, 2 * ce + ke + 1, &counted_before) : 0;
+        const int32_t ko_i = mapped != 0 ? gain_of(om[i], k_mant, k_exp, &counted_before) : 0;
         k = cell(i, i);
         c->p[k] = rescaled(d[i], 2 * shift[i], sat);
         for (j = i + 1, ++k; j < c->n; ++j, ++k) {
