@@ -463,7 +463,9 @@ static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], int lef
     imu_wide_t d[IMU_COV_MAX];
     int i, j;
     (void)big;
-    (void)left; /* (left_out wrote oh = 0 without a map) */
+    for (i = 0; !left && i < c->n; ++i) {
+        oh[i] = 0.0; /* nothing left out without a map */
+    }
     for (i = 0; i < c->n; ++i) {
         dx[i] += w * z / sh * (ch[i] - oh[i]);
         for (j = i; j < c->n; ++j) {
@@ -682,19 +684,29 @@ void imu_cov_predict(imu_cov_t *c, imu_q30_t rows[][IMU_COV_MAX], const int movi
 
 /**
  * The part of P h that a gain map leaves out, in scaled coordinates: with u_i = ch_i 2^(e_i + E),
- * o = u - G u gives oh_i = ch_i - sum_j G_ij 2^(e_j - e_i) ch_j (zero without a map), G_ij
- * the block's: 0, 1 on the diagonal (oh_i = 0), or v_i v_j.
+ * o = u - G u gives oh_i = ch_i - sum_j G_ij 2^(e_j - e_i) ch_j, G_ij the block's: 0, 1 on
+ * the diagonal (oh_i = 0), or v_i v_j.
  */
 static void left_out(const imu_cov_t *c, const imu_real_t ch[], const imu_cov_map_t *gain_map, imu_wide_t oh[],
                      uint32_t *sat)
 {
+    const imu_q30_t *v = gain_map->along;
+    imu_q30_t g[3][3]; /* v v^T, Q30: each product once, when a block is corrected along v */
+    int along = 0;
     int i, j;
+    for (i = 0; i < c->n / 3; ++i) {
+        along |= gain_map->block[i] == IMU_COV_BLOCK_ALONG;
+    }
+    for (i = 0; along && i < 3; ++i) {
+        for (j = i; j < 3; ++j) {
+            g[i][j] = g[j][i] = IMU_MUL(v[i], v[j], 30);
+        }
+    }
     for (i = 0; i < c->n; ++i) {
         const int first = i - i % 3;
-        const imu_q30_t *v = gain_map != 0 ? gain_map->along : 0;
         oh[i] = 0;
-        if (gain_map == 0 || gain_map->block[i / 3] == IMU_COV_BLOCK_ALL) {
-            continue; /* nothing left out (with G = I: ch_i - ch_i) */
+        if (gain_map->block[i / 3] == IMU_COV_BLOCK_ALL) {
+            continue; /* nothing left out (ch_i - ch_i) */
         }
         oh[i] = ch[i];
         if (gain_map->block[i / 3] != IMU_COV_BLOCK_ALONG) {
@@ -702,9 +714,8 @@ static void left_out(const imu_cov_t *c, const imu_real_t ch[], const imu_cov_ma
         }
         for (j = first; j < first + 3 && j < c->n; ++j) {
             /* |ch_j| <= 2^30, |G_ij| <= 2^30: the product is below 2^30 again */
-            const imu_q30_t g = IMU_MUL(v[i - first], v[j - first], 30);
-            if (g != 0) {
-                oh[i] -= wide_ldexp(IMU_MUL(ch[j], g, 30), c->e[j] - c->e[i], sat);
+            if (g[i - first][j - first] != 0) {
+                oh[i] -= wide_ldexp(IMU_MUL(ch[j], g[i - first][j - first], 30), c->e[j] - c->e[i], sat);
             }
         }
     }
@@ -720,7 +731,7 @@ int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu
      * + K' r K'^T, is P - (u u^T - o o^T) / s with u = P h^T and o = u - G u. */
     imu_q30_t hs[IMU_COV_MAX];  /* the scaled row's non-zero entries, those of the states `used` (scale_row) */
     imu_real_t ch[IMU_COV_MAX]; /* P~ hs, Q30; |ch| <= 2^30 */
-    imu_wide_t oh[IMU_COV_MAX]; /* the part of ch the gain map leaves out, Q30 */
+    imu_wide_t oh[IMU_COV_MAX]; /* the part of ch the gain map leaves out, Q30 (written only under a map) */
     imu_wide_t q = 0;           /* hs P~ hs, Q30 */
     imu_wide_t sh;              /* Q30 */
     unsigned char used[IMU_COV_MAX]; /* the states hs is not zero at */
@@ -751,7 +762,9 @@ int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu
         ++*sat;
         return 0;
     }
-    left_out(c, ch, gain_map, oh, sat);
+    if (gain_map != 0) {
+        left_out(c, ch, gain_map, oh, sat);
+    }
     apply_update(c, ch, oh, gain_map != 0, sh, w, z, big, dx, sat);
     return 1;
 }
