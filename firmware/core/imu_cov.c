@@ -98,6 +98,13 @@ static imu_real_t headroom_int32(imu_wide_t v)
     return (imu_real_t)(v > INT32_MAX ? INT32_MAX : v);
 }
 
+/** 1 when a diagonal mantissa lies in [2^28, 2^30), where it stays: one unsigned comparison
+ *  tests both bounds. */
+static inline int normalised_diagonal(imu_wide_t d)
+{
+    return (uint64_t)(d - ((int64_t)1 << 28)) < ((uint64_t)3 << 28);
+}
+
 /**
  * The exponent change of each state that brings its diagonal mantissa d_i (Q30 in the
  * old exponents) into [2^28, 2^30): d_i 2^(-2 shift_i). A diagonal that rounding drove
@@ -109,9 +116,8 @@ static int diagonal_shifts(const imu_cov_t *c, imu_wide_t d[IMU_COV_MAX], signed
 {
     int i, moved = 0;
     for (i = 0; i < c->n; ++i) {
-        /* s = ceil((bits - 30) / 2): d * 2^(-2s) in [2^28, 2^30); 0 for the usual d already there
-         * (one unsigned comparison tests both bounds) */
-        if ((uint64_t)(d[i] - ((int64_t)1 << 28)) < ((uint64_t)3 << 28)) {
+        /* s = ceil((bits - 30) / 2): d * 2^(-2s) in [2^28, 2^30); 0 for the usual d already there */
+        if (normalised_diagonal(d[i])) {
             shift[i] = 0;
         } else {
             int excess;
@@ -309,8 +315,7 @@ static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], int lef
         kc[i] = gain_of(cm[i], k_mant, k_exp, sat);
         dx[i] = IMU_ADD_SAT(dx[i], imu_sat32(wide_ldexp(vc, v_exp + c->e[i], sat), sat), sat);
         d[i] = (imu_wide_t)c->p[cell(i, i)] - change(kc[i], ko_i, cm, om, mapped, i);
-        /* (diagonal_shifts' test: one unsigned comparison tests both bounds) */
-        normalised &= (uint64_t)(d[i] - ((int64_t)1 << 28)) < ((uint64_t)3 << 28);
+        normalised &= normalised_diagonal(d[i]); /* (diagonal_shifts' test) */
     }
     if (normalised || diagonal_shifts(c, d, shift, sat) == 0) {
         /* the usual case: no exponent moves, each cell its change saturated (rescaled by 0); the
