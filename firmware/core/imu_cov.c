@@ -257,9 +257,10 @@ static inline imu_wide_t change(int32_t kc_i, int32_t ko_i, const int32_t cm[], 
  * change of a variance, (w / sh) ch_i^2 2^-30 <= P~_ii, is below 2^30 (Cauchy-Schwarz).
  * `left`: 0 when no gain map left a part out (oh is then only the storage of d).
  */
-static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], int left, imu_wide_t sh, imu_q30_t w,
-                         imu_q30_t z, int big, imu_q30_t dx[], uint32_t *sat)
+static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], const imu_cov_map_t *gain_map,
+                         imu_wide_t sh, imu_q30_t w, imu_q30_t z, int big, imu_q30_t dx[], uint32_t *sat)
 {
+    const int left = gain_map != 0;
     int32_t *const cm = ch;      /* ch as mantissas of 2^ce, below 2^31: in place of ch */
     int32_t om[IMU_COV_MAX];     /* the same for oh (when `left`) */
     int32_t kc[IMU_COV_MAX];     /* (w / sh) cm 2^(2 ce + 1) (gain_of) */
@@ -267,6 +268,8 @@ static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], int lef
     signed char shift[IMU_COV_MAX]; /* exponent changes, |shift| <= 17 */
     imu_wide_t cmax = 0;
     int32_t mapped = 0;   /* non-zero when a gain map left a part out */
+    unsigned whole = 0;   /* bit i: state i wholly left out (oh_i = ch_i: om_i = cm_i, ko_i = kc_i) */
+    int split = 1;        /* 1 while each state is wholly left out or wholly corrected (om_i = 0) */
     int normalised = 1;   /* 1 while every new diagonal mantissa is in [2^28, 2^30) */
     int ce, ke, ve, k_exp, v_exp, i, j, k;
     int32_t k_mant, v_mant;
@@ -285,6 +288,11 @@ static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], int lef
     for (i = 0; left && i < c->n; ++i) {
         om[i] = mantissa31(oh[i], ce, sat);
         mapped |= om[i];
+    }
+    for (i = 0; left && 3 * i < c->n; ++i) { /* the blocks (the last may be partial) */
+        /* (left_out: a block left out wholly has oh = ch, one corrected wholly oh = 0) */
+        whole |= gain_map->block[i] == IMU_COV_BLOCK_NONE ? 7u << (3 * i) : 0u;
+        split &= gain_map->block[i] != IMU_COV_BLOCK_ALONG;
     }
     {
         /* sh = sn 2^es with sn in [2^30, 2^31) (truncated), so that both quotients are
@@ -318,21 +326,33 @@ static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], int lef
         normalised &= normalised_diagonal(d[i]); /* (diagonal_shifts' test) */
     }
     if (normalised || diagonal_shifts(c, d, shift, sat) == 0) {
-        /* the usual case: no exponent moves, each cell its change saturated (rescaled by 0); the
-         * loops written apart for each (mul_q31 of |kc_i| <= 2^31 and |cm_j| < 2^31 is an int32) */
+        /* the usual case: no exponent moves, each cell its change saturated (rescaled by 0), in
+         * a loop of its own for each kind of update: without a map, with a map whose blocks are
+         * corrected wholly or not at all, with one along a vector (mul_q31 of |kc_i| <= 2^31 and
+         * |cm_j| < 2^31 is an int32) */
         for (i = 0; i < c->n; ++i) {
-            uint32_t counted_before = 0; /* (ko_i once more: its saturations were counted the first time) */
-            const int32_t ko_i = mapped != 0 ? gain_of(om[i], k_mant, k_exp, &counted_before) : 0;
-            k = cell(i, i);
-            c->p[k] = (int32_t)d[i]; /* in [2^28, 2^30) */
-            if (mapped == 0) {
-                for (j = i + 1, ++k; j < c->n; ++j, ++k) {
+            c->p[cell(i, i)] = (int32_t)d[i]; /* in [2^28, 2^30) */
+        }
+        for (i = 0; mapped == 0 && i < c->n - 1; ++i) {
+            for (j = i + 1, k = cell(i, j); j < c->n; ++j, ++k) {
+                c->p[k] = IMU_SUB_SAT(c->p[k], mul_q31(kc[i], cm[j]), sat);
+            }
+        }
+        for (i = 0; mapped != 0 && split && i < c->n - 1; ++i) {
+            /* kc_i cm_j - ko_i om_j is kc_i cm_j where state i or j is wholly corrected (its
+             * ko or om is 0), and 0 where both are wholly left out (ko_i om_j = kc_i cm_j) */
+            const unsigned kept = (whole >> i & 1u) != 0 ? whole : 0u;
+            for (j = i + 1, k = cell(i, j); j < c->n; ++j, ++k) {
+                if ((kept >> j & 1u) == 0) {
                     c->p[k] = IMU_SUB_SAT(c->p[k], mul_q31(kc[i], cm[j]), sat);
                 }
-            } else {
-                for (j = i + 1, ++k; j < c->n; ++j, ++k) {
-                    c->p[k] = imu_sat32((imu_wide_t)c->p[k] - mul_q31(kc[i], cm[j]) + mul_q31(ko_i, om[j]), sat);
-                }
+            }
+        }
+        for (i = 0; mapped != 0 && !split && i < c->n - 1; ++i) {
+            uint32_t counted_before = 0; /* (ko_i once more: its saturations were counted the first time) */
+            const int32_t ko_i = gain_of(om[i], k_mant, k_exp, &counted_before);
+            for (j = i + 1, k = cell(i, j); j < c->n; ++j, ++k) {
+                c->p[k] = imu_sat32((imu_wide_t)c->p[k] - mul_q31(kc[i], cm[j]) + mul_q31(ko_i, om[j]), sat);
             }
         }
         return;
@@ -462,13 +482,13 @@ static int scaled_row(const imu_cov_t *c, imu_q30_t row[IMU_COV_MAX], int i, int
     return 0;
 }
 
-static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], int left, imu_wide_t sh, imu_q30_t w,
-                         imu_q30_t z, int big, imu_q30_t dx[], uint32_t *sat)
+static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], const imu_cov_map_t *gain_map,
+                         imu_wide_t sh, imu_q30_t w, imu_q30_t z, int big, imu_q30_t dx[], uint32_t *sat)
 {
     imu_wide_t d[IMU_COV_MAX];
     int i, j;
     (void)big;
-    for (i = 0; !left && i < c->n; ++i) {
+    for (i = 0; gain_map == 0 && i < c->n; ++i) {
         oh[i] = 0.0; /* nothing left out without a map */
     }
     for (i = 0; i < c->n; ++i) {
@@ -699,7 +719,7 @@ static void left_out(const imu_cov_t *c, const imu_real_t ch[], const imu_cov_ma
     imu_q30_t g[3][3]; /* v v^T, Q30: each product once, when a block is corrected along v */
     int along = 0;
     int i, j;
-    for (i = 0; i < c->n / 3; ++i) {
+    for (i = 0; 3 * i < c->n; ++i) { /* the blocks (the last may be partial) */
         along |= gain_map->block[i] == IMU_COV_BLOCK_ALONG;
     }
     for (i = 0; along && i < 3; ++i) {
@@ -770,7 +790,7 @@ int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu
     if (gain_map != 0) {
         left_out(c, ch, gain_map, oh, sat);
     }
-    apply_update(c, ch, oh, gain_map != 0, sh, w, z, big, dx, sat);
+    apply_update(c, ch, oh, gain_map, sh, w, z, big, dx, sat);
     return 1;
 }
 
