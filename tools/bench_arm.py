@@ -85,14 +85,15 @@ OPTIMIZE = "-O2"
 CFLAGS = ["-std=c99", OPTIMIZE, *TARGET_FLAGS, "-DIMU_FIXED", "-ffunction-sections", "-fdata-sections"]
 #: Levels --optimize may try instead (what-if measurements: the firmware stays at OPTIMIZE).
 OPTIMIZE_LEVELS = ("-O2", "-O3", "-Os")
+#: Analysis outputs only (.su, .ci files): they do not change the generated code.
+ANALYSIS_FLAGS = ["-fstack-usage", "-fcallgraph-info=su"]
+LDFLAGS = [*TARGET_FLAGS, "-nostartfiles", "-Wl,--gc-sections"]
 
 
 def compile_flags(optimize: str = OPTIMIZE) -> list[str]:
     """CFLAGS with another optimisation level."""
     return [optimize if flag == OPTIMIZE else flag for flag in CFLAGS]
-#: Analysis outputs only (.su, .ci files): they do not change the generated code.
-ANALYSIS_FLAGS = ["-fstack-usage", "-fcallgraph-info=su"]
-LDFLAGS = [*TARGET_FLAGS, "-nostartfiles", "-Wl,--gc-sections"]
+
 
 # Memory map (tools/arm_bench/bench.ld).
 FLASH_BASE, FLASH_SIZE = 0x0800_0000, 1024 * 1024

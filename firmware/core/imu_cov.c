@@ -255,7 +255,7 @@ static inline imu_wide_t change(int32_t kc_i, int32_t ko_i, const int32_t cm[], 
  * ch and oh become 31-bit mantissas cm (in place of ch), om of one exponent ce; kc = (w / sh) cm 2^(2 ce + 1)
  * makes each cell's change kc_i cm_j 2^-31, a 32-bit product: |kc_i| < 2^31, as the
  * change of a variance, (w / sh) ch_i^2 2^-30 <= P~_ii, is below 2^30 (Cauchy-Schwarz).
- * `left`: 0 when no gain map left a part out (oh is then only the storage of d).
+ * Without a gain map (NULL), oh is only the storage of d.
  */
 static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], const imu_cov_map_t *gain_map,
                          imu_wide_t sh, imu_q30_t w, imu_q30_t z, int big, imu_q30_t dx[], uint32_t *sat)
