@@ -79,6 +79,24 @@ static inline imu_wide_t wide_ldexp(imu_wide_t v, int n, uint32_t *sat)
     return v * ((int64_t)1 << n);
 }
 
+/** wide_ldexp of an int32: the same integer, with 32-bit shifts, which cannot saturate below 2^32. */
+static inline imu_wide_t real_ldexp(int32_t v, int n, uint32_t *sat)
+{
+    if (n < 0) {
+        if (n <= -32) {
+            return 0; /* |v| 2^n <= 1/2, which rounds (ties up) to 0 */
+        }
+        {
+            const int32_t t = v >> (-n - 1);
+            return (t >> 1) + (t & 1); /* (t + 1) >> 1 without its overflow */
+        }
+    }
+    if (n < 32) {
+        return (imu_wide_t)v * ((int64_t)1 << n); /* below 2^62 */
+    }
+    return wide_ldexp(v, n, sat);
+}
+
 static imu_wide_t wide_abs(imu_wide_t v)
 {
     return v < 0 ? -v : v;
@@ -174,7 +192,7 @@ static int scale_row(const imu_cov_t *c, const imu_q30_t h[], imu_q30_t hs[], un
     count = 0;
     for (j = 0; j < c->n; ++j) {
         if (h[j] != 0) {
-            hs[count] = (imu_q30_t)wide_ldexp(h[j], c->e[j] - big, sat);
+            hs[count] = (imu_q30_t)real_ldexp(h[j], c->e[j] - big, sat);
             if (hs[count] != 0) {
                 used[count++] = (unsigned char)j;
             }
@@ -206,7 +224,7 @@ static int scaled_row(const imu_cov_t *c, imu_q30_t row[IMU_COV_MAX], int i, int
     f = 61 - count_bits(count) - biggest;
     for (t = 0; t < count; ++t) { /* cols[t] >= t: each entry is read before it is written */
         const int k = cols[t];
-        row[t] = (imu_q30_t)wide_ldexp(row[k], c->e[k] - c->e[i] - 30 + f, sat);
+        row[t] = (imu_q30_t)real_ldexp(row[k], c->e[k] - c->e[i] - 30 + f, sat);
     }
     return f;
 }
@@ -410,6 +428,13 @@ static imu_wide_t wide_mul_q30(imu_wide_t v, imu_q30_t w)
 /* Every shift in the shared code is a Q-format change or an exponent difference,
  * and exponents stay 0 in this build: both are the identity. */
 static imu_wide_t wide_ldexp(imu_wide_t v, int n, uint32_t *sat)
+{
+    (void)n;
+    (void)sat;
+    return v;
+}
+
+static imu_wide_t real_ldexp(imu_real_t v, int n, uint32_t *sat)
 {
     (void)n;
     (void)sat;
@@ -630,10 +655,10 @@ static imu_wide_t transformed(const imu_cov_t *c, const transition_t *tr, int i,
         return c->p[cell(i, j)];
     }
     if (sj < 0) {
-        return wide_ldexp(tr->m[si][j], tr->m_exp[si], sat);
+        return real_ldexp(tr->m[si][j], tr->m_exp[si], sat);
     }
     if (si < 0) {
-        return wide_ldexp(tr->m[sj][i], tr->m_exp[sj], sat); /* (P~ phi~^T)_ij = (phi~ P~)_ji: P~ is symmetric */
+        return real_ldexp(tr->m[sj][i], tr->m_exp[sj], sat); /* (P~ phi~^T)_ij = (phi~ P~)_ji: P~ is symmetric */
     }
     for (t = 0; t < tr->count[sj]; ++t) {
         sum += IMU_WMUL(tr->m[si][tr->cols[sj][t]], tr->a[sj][t]);
@@ -740,7 +765,7 @@ static void left_out(const imu_cov_t *c, const imu_real_t ch[], const imu_cov_ma
         for (j = first; j < first + 3 && j < c->n; ++j) {
             /* |ch_j| <= 2^30, |G_ij| <= 2^30: the product is below 2^30 again */
             if (g[i - first][j - first] != 0) {
-                oh[i] -= wide_ldexp(IMU_MUL(ch[j], g[i - first][j - first], 30), c->e[j] - c->e[i], sat);
+                oh[i] -= real_ldexp(IMU_MUL(ch[j], g[i - first][j - first], 30), c->e[j] - c->e[i], sat);
             }
         }
     }
@@ -801,7 +826,7 @@ void imu_cov_cap_unit_variance(imu_cov_t *c, int i)
 
 imu_real_t imu_cov_element_q30(const imu_cov_t *c, int i, int j, uint32_t *sat)
 {
-    return IMU_WIDE_SAT(wide_ldexp(c->p[cell(i, j)], c->e[i] + c->e[j], sat), sat);
+    return IMU_WIDE_SAT(real_ldexp(c->p[cell(i, j)], c->e[i] + c->e[j], sat), sat);
 }
 
 void imu_cov_get(const imu_cov_t *c, int i, int j, imu_real_t *mant, int32_t *exp)
