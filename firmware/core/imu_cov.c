@@ -176,29 +176,28 @@ static int scale_row(const imu_cov_t *c, const imu_q30_t h[], imu_q30_t hs[], un
                      uint32_t *sat)
 {
     int big = INT32_MIN;
-    int count = 0;
-    int j;
+    int count = 0, kept = 0;
+    int j, t;
     for (j = 0; j < c->n; ++j) {
         if (h[j] != 0) {
-            const int mag = c->e[j] + imu_bit_length64((uint64_t)(h[j] < 0 ? -(int64_t)h[j] : h[j])) - 30;
+            const uint32_t magnitude = (uint32_t)(h[j] < 0 ? -(int64_t)h[j] : h[j]);
+            const int mag = c->e[j] + (32 - imu_clz32(magnitude)) - 30;
             big = mag > big ? mag : big;
-            ++count;
+            used[count++] = (unsigned char)j;
         }
     }
     if (big == INT32_MIN) {
         big = 0;
     }
     big += count_bits(count);
-    count = 0;
-    for (j = 0; j < c->n; ++j) {
-        if (h[j] != 0) {
-            hs[count] = (imu_q30_t)real_ldexp(h[j], c->e[j] - big, sat);
-            if (hs[count] != 0) {
-                used[count++] = (unsigned char)j;
-            }
+    for (t = 0; t < count; ++t) {
+        const int k = used[t];
+        hs[kept] = (imu_q30_t)real_ldexp(h[k], c->e[k] - big, sat);
+        if (hs[kept] != 0) {
+            used[kept++] = (unsigned char)k;
         }
     }
-    *used_count = count;
+    *used_count = kept;
     return big;
 }
 
@@ -269,14 +268,15 @@ static inline imu_wide_t change(int32_t kc_i, int32_t ko_i, const int32_t cm[], 
 }
 
 /**
- * P~ -= (w / sh) (ch ch^T - oh oh^T) and dx_i += (w z / sh) (ch_i - oh_i) 2^(e_i - E) (Q30).
+ * P~ -= (w / sh) (ch ch^T - oh oh^T) and dx_i += (w z / sh) (ch_i - oh_i) 2^(e_i - E) (Q30); cmax is max |ch_i|.
  * ch and oh become 31-bit mantissas cm (in place of ch), om of one exponent ce; kc = (w / sh) cm 2^(2 ce + 1)
  * makes each cell's change kc_i cm_j 2^-31, a 32-bit product: |kc_i| < 2^31, as the
  * change of a variance, (w / sh) ch_i^2 2^-30 <= P~_ii, is below 2^30 (Cauchy-Schwarz).
  * Without a gain map (NULL), oh is only the storage of d.
  */
-static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], const imu_cov_map_t *gain_map,
-                         imu_wide_t sh, imu_q30_t w, imu_q30_t z, int big, imu_q30_t dx[], uint32_t *sat)
+static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t cmax, imu_wide_t oh[],
+                         const imu_cov_map_t *gain_map, imu_wide_t sh, imu_q30_t w, imu_q30_t z, int big,
+                         imu_q30_t dx[], uint32_t *sat)
 {
     const int left = gain_map != 0;
     int32_t *const cm = ch;      /* ch as mantissas of 2^ce, below 2^31: in place of ch */
@@ -284,20 +284,15 @@ static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], const i
     int32_t kc[IMU_COV_MAX];     /* (w / sh) cm 2^(2 ce + 1) (gain_of) */
     imu_wide_t *const d = oh;    /* the new diagonal, Q30 in the old exponents: in place of oh */
     signed char shift[IMU_COV_MAX]; /* exponent changes, |shift| <= 17 */
-    imu_wide_t cmax = 0;
     int32_t mapped = 0;   /* non-zero when a gain map left a part out */
     unsigned whole = 0;   /* bit i: state i wholly left out (oh_i = ch_i: om_i = cm_i, ko_i = kc_i) */
     int split = 1;        /* 1 while each state is wholly left out or wholly corrected (om_i = 0) */
     int normalised = 1;   /* 1 while every new diagonal mantissa is in [2^28, 2^30) */
     int ce, ke, ve, k_exp, v_exp, i, j, k;
     int32_t k_mant, v_mant;
-    for (i = 0; i < c->n; ++i) {
-        const uint32_t a = (uint32_t)(ch[i] < 0 ? -(int64_t)ch[i] : ch[i]); /* |ch| <= 2^30 */
-        cmax = a > cmax ? a : cmax;
-        if (left) {
-            const imu_wide_t b = wide_abs(oh[i]);
-            cmax = b > cmax ? b : cmax;
-        }
+    for (i = 0; left && i < c->n; ++i) {
+        const imu_wide_t b = wide_abs(oh[i]);
+        cmax = b > cmax ? b : cmax;
     }
     if (cmax == 0) {
         return;
@@ -507,11 +502,13 @@ static int scaled_row(const imu_cov_t *c, imu_q30_t row[IMU_COV_MAX], int i, int
     return 0;
 }
 
-static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t oh[], const imu_cov_map_t *gain_map,
-                         imu_wide_t sh, imu_q30_t w, imu_q30_t z, int big, imu_q30_t dx[], uint32_t *sat)
+static void apply_update(imu_cov_t *c, imu_real_t ch[], imu_wide_t cmax, imu_wide_t oh[],
+                         const imu_cov_map_t *gain_map, imu_wide_t sh, imu_q30_t w, imu_q30_t z, int big,
+                         imu_q30_t dx[], uint32_t *sat)
 {
     imu_wide_t d[IMU_COV_MAX];
     int i, j;
+    (void)cmax;
     (void)big;
     for (i = 0; gain_map == 0 && i < c->n; ++i) {
         oh[i] = 0.0; /* nothing left out without a map */
@@ -782,6 +779,7 @@ int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu
     imu_q30_t hs[IMU_COV_MAX];  /* the scaled row's non-zero entries, those of the states `used` (scale_row) */
     imu_real_t ch[IMU_COV_MAX]; /* P~ hs, Q30; |ch| <= 2^30 */
     imu_wide_t oh[IMU_COV_MAX]; /* the part of ch the gain map leaves out, Q30 (written only under a map) */
+    imu_wide_t cmax = 0;        /* max |ch_i| (apply_update) */
     imu_wide_t q = 0;           /* hs P~ hs, Q30 */
     imu_wide_t sh;              /* Q30 */
     unsigned char used[IMU_COV_MAX]; /* the states hs is not zero at */
@@ -798,6 +796,7 @@ int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu
             sum += IMU_WMUL(c->p[row[used[t]]], hs[t]);
         }
         ch[i] = (imu_real_t)Q60_TO_Q30(sum);
+        cmax = wide_abs(ch[i]) > cmax ? wide_abs(ch[i]) : cmax;
     }
     for (t = 0; t < count; ++t) {
         q += IMU_WMUL(ch[used[t]], hs[t]); /* Q60, below 2^60 */
@@ -815,7 +814,7 @@ int imu_cov_update(imu_cov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu
     if (gain_map != 0) {
         left_out(c, ch, gain_map, oh, sat);
     }
-    apply_update(c, ch, oh, gain_map, sh, w, z, big, dx, sat);
+    apply_update(c, ch, cmax, oh, gain_map, sh, w, z, big, dx, sat);
     return 1;
 }
 
