@@ -109,11 +109,23 @@ static int headroom(imu_wide_t magnitude, int bits)
     return excess > 0 ? excess : 0;
 }
 
-/** A value brought below 2^31 by headroom(., 31) and a rounding shift, as int32: the
- *  rounding can reach +2^31 exactly, which becomes INT32_MAX (one unit in 2^31). */
-static imu_real_t headroom_int32(imu_wide_t v)
+/** v 2^-k rounded (wide_ldexp) as an int32, for |v| < 2^(31 + k), k >= 0 (headroom(., 31)
+ *  gives such a k): the rounding can reach +2^31 exactly, which becomes INT32_MAX (one unit
+ *  in 2^31). For k < 32, in 32-bit operations: the quotient's low word, plus the bit below. */
+static imu_real_t shifted_int32(imu_wide_t v, int k, uint32_t *sat)
 {
-    return (imu_real_t)(v > INT32_MAX ? INT32_MAX : v);
+    if (k == 0) {
+        return (imu_real_t)v;
+    }
+    if (k < 32) {
+        const uint32_t low = (uint32_t)v;
+        const int32_t quotient = (int32_t)((low >> k) | ((uint32_t)(v >> 32) << (32 - k))); /* floor(v 2^-k) */
+        return quotient == INT32_MAX ? quotient : quotient + (int32_t)(low >> (k - 1) & 1u);
+    }
+    {
+        const imu_wide_t r = wide_ldexp(v, -k, sat);
+        return (imu_real_t)(r > INT32_MAX ? INT32_MAX : r);
+    }
 }
 
 /** 1 when a diagonal mantissa lies in [2^28, 2^30), where it stays: one unsigned comparison
@@ -249,7 +261,7 @@ static inline int32_t mantissa31(imu_wide_t v, int e, uint32_t *sat)
     if (e <= 0) {
         return (int32_t)v * ((int32_t)1 << -e); /* e >= -30: bit_length(v) >= 1 */
     }
-    return headroom_int32(wide_ldexp(v, -e, sat));
+    return shifted_int32(v, e, sat);
 }
 
 /** (w / sh) m 2^(2 ce + 1) of a mantissa m (cm_i or om_i) from k_mant 2^scale = w / sh:
@@ -448,8 +460,10 @@ static int headroom(imu_wide_t magnitude, int bits)
     return 0;
 }
 
-static imu_real_t headroom_int32(imu_wide_t v)
+static imu_real_t shifted_int32(imu_wide_t v, int k, uint32_t *sat)
 {
+    (void)k;
+    (void)sat;
     return v;
 }
 
@@ -706,7 +720,7 @@ void imu_cov_predict(imu_cov_t *c, imu_q30_t rows[][IMU_COV_MAX], const int movi
             }
             row_shift = headroom(biggest, 31);
             for (j = 0; j < n; ++j) {
-                tr.m[s][j] = headroom_int32(wide_ldexp(row[j], -row_shift, sat));
+                tr.m[s][j] = shifted_int32(row[j], row_shift, sat);
             }
             tr.m_exp[s] = row_shift - tr.f[s];
         }
