@@ -37,7 +37,8 @@ from .counts import (BROAD_PROFILE, DEFAULT_PROFILE, SensorDataError, SensorProf
                      profile_from_scales, si_to_counts)
 from .emulator import EmulatedBoard
 from .files import check_writable_target, create_beside, publish
-from .link import COMMAND_ATTEMPTS, DEFAULT_BAUD, CommandTimeout, Disconnected, Link, LinkError, ReceiveTimeout
+from .link import (COMMAND_ATTEMPTS, COMMAND_TIMEOUT_MAX_S, DEFAULT_BAUD, CommandTimeout, Disconnected, Link, LinkError,
+                   ReceiveTimeout)
 from .recording import Estimates, Recording, RecordingError, RecordingWriter, load_recording, sample_times
 from .reference import FirmwareFilter
 
@@ -1432,7 +1433,10 @@ def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings:
     gyr, acc, mag = source.gyr.tolist(), source.acc.tolist(), source.mag.tolist()
     for k in range(n):
         try:
-            reply = link.command("INJECT_SAMPLE", timestamp_us=round(k * 1e6 / source.rate_hz) & 0xFFFFFFFF,
+            # Not retried (a sample must run once), so its ACK gets the link's longest wait: an
+            # emulated board on a busy host can stall past the usual COMMAND_TIMEOUT_S.
+            reply = link.command("INJECT_SAMPLE", timeout=COMMAND_TIMEOUT_MAX_S,
+                                 timestamp_us=round(k * 1e6 / source.rate_hz) & 0xFFFFFFFF,
                                  index=k, gyr=gyr[k], acc=acc[k], mag=mag[k], temperature=0)
         except CommandTimeout:  # did the sample run on the board? Unknown: restart the filter on both sides
             link.command("SET_INJECTION_MODE", enabled=1)
