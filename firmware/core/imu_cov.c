@@ -170,6 +170,12 @@ static imu_real_t rescaled(imu_wide_t v, int down, uint32_t *sat)
     return imu_sat32(down == 0 ? v : wide_ldexp(v, -down, sat), sat);
 }
 
+/** Number of significant bits of |v|, v != 0 (one leading-zero count). */
+static int magnitude_bits(int32_t v)
+{
+    return 32 - imu_clz32(v < 0 ? (uint32_t)0 - (uint32_t)v : (uint32_t)v);
+}
+
 /** Bits to add to a sum of `count` terms: 2^bits >= count. */
 static int count_bits(int count)
 {
@@ -192,8 +198,7 @@ static int scale_row(const imu_cov_t *c, const imu_q30_t h[], imu_q30_t hs[], un
     int j, t;
     for (j = 0; j < c->n; ++j) {
         if (h[j] != 0) {
-            const uint32_t magnitude = (uint32_t)(h[j] < 0 ? -(int64_t)h[j] : h[j]);
-            const int mag = c->e[j] + (32 - imu_clz32(magnitude)) - 30;
+            const int mag = c->e[j] + magnitude_bits(h[j]) - 30;
             big = mag > big ? mag : big;
             used[count++] = (unsigned char)j;
         }
@@ -228,8 +233,7 @@ static int scaled_row(const imu_cov_t *c, imu_q30_t row[IMU_COV_MAX], int i, int
     int f, t;
     for (t = 0; t < count; ++t) {
         const int k = cols[t];
-        const int64_t magnitude = row[k] < 0 ? -(int64_t)row[k] : row[k];
-        const int bits = imu_bit_length64((uint64_t)magnitude) + c->e[k] - c->e[i];
+        const int bits = magnitude_bits(row[k]) + c->e[k] - c->e[i];
         biggest = bits > biggest ? bits : biggest;
     }
     f = 61 - count_bits(count) - biggest;
