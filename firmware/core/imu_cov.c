@@ -111,15 +111,16 @@ static int headroom(imu_wide_t magnitude, int bits)
 
 /** v 2^-k rounded (wide_ldexp) as an int32, for |v| < 2^(31 + k), k >= 0 (headroom(., 31)
  *  gives such a k): the rounding can reach +2^31 exactly, which becomes INT32_MAX (one unit
- *  in 2^31). For k < 32, in 32-bit operations: the quotient's low word, plus the bit below. */
+ *  in 2^31). For k < 32, in 32-bit operations: the quotient's low word plus the bit below. */
 static imu_real_t shifted_int32(imu_wide_t v, int k, uint32_t *sat)
 {
     if (k == 0) {
         return (imu_real_t)v;
     }
     if (k < 32) {
-        const uint32_t low = (uint32_t)v;
-        const int32_t quotient = (int32_t)((low >> k) | ((uint32_t)(v >> 32) << (32 - k))); /* floor(v 2^-k) */
+        /* floor(v 2^-k), an int32: the low word's bits from k up, the high word's low k bits above them */
+        const uint32_t low = (uint32_t)v, high_bits = (uint32_t)(v >> 32) & (((uint32_t)1 << k) - 1u);
+        const int32_t quotient = (int32_t)((low >> k) | (high_bits << (32 - k)));
         return quotient == INT32_MAX ? quotient : quotient + (int32_t)(low >> (k - 1) & 1u);
     }
     {
@@ -173,7 +174,7 @@ static imu_real_t rescaled(imu_wide_t v, int down, uint32_t *sat)
 /** Number of significant bits of |v|, v != 0 (one leading-zero count). */
 static int magnitude_bits(int32_t v)
 {
-    return 32 - imu_clz32(v < 0 ? (uint32_t)0 - (uint32_t)v : (uint32_t)v);
+    return 32 - imu_clz32((uint32_t)(v < 0 ? -(int64_t)v : v));
 }
 
 /** Bits to add to a sum of `count` terms: 2^bits >= count. */
