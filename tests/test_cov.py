@@ -250,3 +250,18 @@ def test_navigation_instance_with_sixteen_states(drivers, seed):
             assert_covariance_close(p, p_ref, tol * 10, build)
             np.testing.assert_allclose(dx, dx_ref, rtol=1e-4 if build == "nav fixed" else 1e-9, atol=tol)
             np.testing.assert_array_equal(p, p.T)
+
+
+def test_32_bit_shifts_give_the_64_bit_shifts_integers(tmp_path):
+    """The covariance's 32-bit shortcuts (real_ldexp for an int32 times 2^n, shifted_int32
+    for a wide value narrowed by a right shift) against the 64-bit rounding shift they stand
+    for, over random values, each range's extremes and rounding ties (tests/c/cov_shift_driver.c):
+    the same integers and the same saturation counts. The golden vectors check them only
+    where the filters' data take them."""
+    exe = tmp_path / "cov_shift"
+    subprocess.run([GCC, "-std=c99", "-O1", "-Wall", "-Wextra", "-Werror", "-DIMU_FIXED", f"-I{CORE}",
+                    str(ROOT / "tests" / "c" / "cov_shift_driver.c"), "-o", str(exe)], check=True)
+    proc = subprocess.run([str(exe)], capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stdout
+    cases, differences = (int(word) for word in proc.stdout.split()[::2][:2])
+    assert cases > 7_000_000 and differences == 0, proc.stdout
