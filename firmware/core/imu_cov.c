@@ -79,7 +79,8 @@ static inline imu_wide_t wide_ldexp(imu_wide_t v, int n, uint32_t *sat)
     return v * ((int64_t)1 << n);
 }
 
-/** wide_ldexp of an int32: the same integer, with 32-bit shifts, which cannot saturate below 2^32. */
+/** wide_ldexp(v, n) of an int32 v, the same integer: 32-bit shifts for n < 0, and no saturation
+ *  test for n < 32, where |v| 2^n stays below 2^62. */
 static inline imu_wide_t real_ldexp(int32_t v, int n, uint32_t *sat)
 {
     if (n < 0) {
