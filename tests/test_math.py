@@ -434,6 +434,22 @@ def test_quat_integrate_limits_steps_beyond_one_radian(build):
     assert abs(np.linalg.norm(out) - 1.0) < 3e-9
 
 
+@pytest.mark.parametrize("build", ["fixed", "float"])
+def test_quat_from_rotation_is_the_integration_of_the_identity(build):
+    """imu_quat_from_rotation (exp(theta / 2) without the product by the identity) gives the
+    integers imu_quat_integrate gives from (1, 0, 0, 0): steps of a filter, steps up to and
+    beyond the 1 rad limit, the zero step and the most negative one."""
+    impl = BUILDS[build]
+    identity = np.array([1.0, 0.0, 0.0, 0.0])
+    _, small = random_steps(1500, 17, 1e-9, 0.1)
+    _, large = random_steps(1500, 18, 0.1, 1.99)
+    steps = np.vstack([small, large, np.zeros((1, 3)), np.array([[INT32_MIN, INT32_MIN, INT32_MIN]]) / Q30])
+    for ti in steps:
+        ti = np.rint(ti * Q30) / Q30
+        np.testing.assert_array_equal(impl.quat_integrate(identity, ti, "imu_quat_from_rotation"),
+                                      impl.quat_integrate(identity, ti))
+
+
 # --------------------------------------------------------------------------- small turns
 
 

@@ -319,11 +319,12 @@ static void rotation_quaternion(const imu_wide_t phi[3], imu_q30_t dq[4])
         ++parts;
     }
     for (k = 0; k < 3; ++k) {
-        part[k] = (imu_q30_t)(phi[k] / parts); /* at most 0.5 rad: fits Q30 */
+        /* at most 0.5 rad: fits Q30 (one part, the usual case, needs no 64-bit division: a
+         * library routine of some sixty instructions on the Cortex-M4) */
+        part[k] = (imu_q30_t)(parts == 1 ? phi[k] : phi[k] / parts);
     }
-    dq[0] = IMU_ONE_Q30;
-    dq[1] = dq[2] = dq[3] = 0;
-    for (k = 0; k < parts; ++k) {
+    imu_quat_from_rotation(dq, part);
+    for (k = 1; k < parts; ++k) {
         imu_quat_integrate(dq, part);
     }
 }
@@ -866,11 +867,7 @@ static void filter_step(imu_eskf_t *f)
     limit_to_one_radian(&dx[ATT]);
     turn_acc_earth(f, &rot, &dx[ATT]);
     imu_quat_integrate(f->q, &dx[ATT]);
-    f->injected[0] = IMU_ONE_Q30;
-    for (k = 0; k < 3; ++k) {
-        f->injected[k + 1] = 0;
-    }
-    imu_quat_integrate(f->injected, &dx[ATT]);
+    imu_quat_from_rotation(f->injected, &dx[ATT]);
     for (k = 0; k < 3; ++k) {
         f->gyro_bias[k] = IMU_ADD_SAT(f->gyro_bias[k], dx[GYRO_BIAS + k], &f->saturations);
         if (imu_eskf_state_count(f) == 9) {

@@ -344,18 +344,14 @@ static void quat_mul_step(const imu_q30_t q[4], imu_q30_t w, const int32_t v[3],
     r[3] = (int64_t)q[0] * v[2] + (int64_t)q[1] * v[1] - (int64_t)q[2] * v[0] + (int64_t)q[3] * w2;
 }
 
-static void quat_mul_step_normalized(imu_q30_t q[4], imu_q30_t w, const int32_t v[3])
+/** q <- the product r (Q61) of quat_mul_step with the step (w, v), normalised and rounded;
+ *  a = |q|^2 - 1 of the quaternion it was formed from (Q58). */
+static inline void store_normalized_product(imu_q30_t q[4], const int64_t r[4], int64_t a, imu_q30_t w, const int32_t v[3])
 {
     const int64_t one58 = (int64_t)1 << 58;
     const int64_t near = (int64_t)1 << 47; /* 2^-11 in Q58 */
-    int64_t r[4];                          /* the product, Q61 */
-    int64_t a = -one58;                    /* |q|^2 - 1, Q58: four squares (< 2^62) / 4, minus 1 */
     int64_t b;                             /* |dq|^2 - 1, Q58 */
     int i;
-    quat_mul_step(q, w, v, r);
-    for (i = 0; i < 4; ++i) {
-        a += ((int64_t)q[i] * q[i]) >> 2; /* at most 2^60 each: the sum stays below 2^62 */
-    }
     /* w^2 (Q60, w <= 2^30) / 4 plus |v|^2 (Q62, each v at most 2^30) / 16: below 2^59. */
     b = (((int64_t)w * w) >> 2) + (((int64_t)v[0] * v[0]) >> 4) + (((int64_t)v[1] * v[1]) >> 4) +
         (((int64_t)v[2] * v[2]) >> 4) - one58;
@@ -380,7 +376,31 @@ static void quat_mul_step_normalized(imu_q30_t q[4], imu_q30_t w, const int32_t 
     imu_quat_normalize(q);
 }
 
-void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3])
+static void quat_mul_step_normalized(imu_q30_t q[4], imu_q30_t w, const int32_t v[3])
+{
+    int64_t r[4];                      /* the product, Q61 */
+    int64_t a = -((int64_t)1 << 58);   /* |q|^2 - 1, Q58: four squares (< 2^62) / 4, minus 1 */
+    int i;
+    quat_mul_step(q, w, v, r);
+    for (i = 0; i < 4; ++i) {
+        a += ((int64_t)q[i] * q[i]) >> 2; /* at most 2^60 each: the sum stays below 2^62 */
+    }
+    store_normalized_product(q, r, a, w, v);
+}
+
+/** quat_mul_step_normalized of the identity (2^30, 0, 0, 0), the same integers: its product
+ *  with the step is the step itself in Q61 and its norm is exact (a = 0), so neither the
+ *  sixteen products nor the four squares are formed. */
+static void identity_step_normalized(imu_q30_t q[4], imu_q30_t w, const int32_t v[3])
+{
+    const int64_t r[4] = {(int64_t)w * ((int64_t)1 << 31), (int64_t)v[0] * ((int64_t)1 << 30),
+                          (int64_t)v[1] * ((int64_t)1 << 30), (int64_t)v[2] * ((int64_t)1 << 30)};
+    store_normalized_product(q, r, 0, w, v);
+}
+
+/** The rotation step of theta (Q30 rad): w = cos(x) (Q30) and v = sin(x) theta / |theta| (Q31),
+ *  x = |theta| / 2, |theta| limited to 1 rad. */
+static inline void rotation_step(const imu_q30_t theta[3], imu_q30_t *w, int32_t half_step[3])
 {
     /* |theta|^2 in Q60 (three squares below 2^62 each: below 2^64 unsigned). */
     uint64_t sum = (uint64_t)((int64_t)theta[0] * theta[0]) + (uint64_t)((int64_t)theta[1] * theta[1]) +
@@ -403,9 +423,8 @@ void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3])
     x2 = (int32_t)imu_rshift_round64((int64_t)sum, 32);
     const int32_t x4 = imu_mul(x2, x2, 30);
     /* cos x = 1 - x^2/2 + x^4/24; sin(x)/x = 1 - x^2/6 + x^4/120 (Q30). */
-    const int32_t cos_x = IMU_ONE_Q30 - x2 / 2 + x4 / 24;
     const int32_t sinc_x = IMU_ONE_Q30 - x2 / 6 + x4 / 120;
-    int32_t half_step[3]; /* sin(x) * step / |step| = sinc * step / 2, Q31 */
+    *w = IMU_ONE_Q30 - x2 / 2 + x4 / 24;
     for (i = 0; i < 3; ++i) {
         /* sinc (<= 2^30) * step (|step| <= 2^30) / 2 in Q31: Q60 >> 30, magnitude at
          * most 2^30. Exact for steps below 4.3e-5 rad (sinc = 1); otherwise rounded
@@ -414,7 +433,22 @@ void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3])
          * sign: a drift of 9.3e-10 rad per step on each axis.) */
         half_step[i] = IMU_NARROW(rshift_round_even64((int64_t)sinc_x * step[i], 30));
     }
-    quat_mul_step_normalized(q, cos_x, half_step);
+}
+
+void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3])
+{
+    imu_q30_t w;
+    int32_t half_step[3]; /* sin(x) * step / |step| = sinc * step / 2, Q31 */
+    rotation_step(theta, &w, half_step);
+    quat_mul_step_normalized(q, w, half_step);
+}
+
+void imu_quat_from_rotation(imu_q30_t q[4], const imu_q30_t theta[3])
+{
+    imu_q30_t w;
+    int32_t half_step[3];
+    rotation_step(theta, &w, half_step);
+    identity_step_normalized(q, w, half_step);
 }
 
 void imu_quat_turn(imu_q30_t q[4], const imu_q30_t theta[3])
@@ -563,6 +597,13 @@ void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3])
         q[i] = out[i];
     }
     imu_quat_normalize(q);
+}
+
+void imu_quat_from_rotation(imu_q30_t q[4], const imu_q30_t theta[3])
+{
+    q[0] = 1.0;
+    q[1] = q[2] = q[3] = 0.0;
+    imu_quat_integrate(q, theta);
 }
 
 void imu_quat_turn(imu_q30_t q[4], const imu_q30_t theta[3])

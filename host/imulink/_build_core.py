@@ -83,6 +83,7 @@ _DECLARATIONS = """
     imu_real_t imu_vec3_norm(const imu_real_t v[3]);
     void imu_sincos(imu_angle_t angle, imu_q30_t *s, imu_q30_t *c);
     void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3]);
+    void imu_quat_from_rotation(imu_q30_t q[4], const imu_q30_t theta[3]);
     void imu_quat_turn(imu_q30_t q[4], const imu_q30_t theta[3]);
     void imu_quat_matrix_row(const imu_q30_t q[4], int row, imu_q30_t out[3]);
     void imu_quat_y_axis(const imu_q30_t q[4], imu_q30_t out[3]);
