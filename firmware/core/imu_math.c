@@ -37,8 +37,8 @@ static uint32_t isqrt64(uint64_t v)
 {
     int k;
     uint64_t n;
-    uint32_t top, r, c;
-    uint64_t root, d;
+    uint32_t top, r, c, root;
+    uint64_t wide_root, d;
     if (v == 0) {
         return 0;
     }
@@ -55,20 +55,19 @@ static uint32_t isqrt64(uint64_t v)
     while ((uint64_t)(r + 1) * (r + 1) <= top) {
         ++r;
     }
-    root = (uint64_t)r << 16;
-    d = n - root * root;                 /* in [0, (2r + 1) 2^32) */
+    wide_root = (uint64_t)r << 16;
+    d = n - wide_root * wide_root;       /* in [0, (2r + 1) 2^32) */
     c = (uint32_t)(d >> 17) / r;         /* d / 2^17 < (2r + 1) 2^15 < 2^32 */
-    root += c;
-    if (root > UINT32_MAX) {
-        root = UINT32_MAX;               /* floor(sqrt(n)) < 2^32 */
-    }
-    while (root * root > n) {
+    wide_root += c;
+    /* floor(sqrt(n)) < 2^32: from here on a uint32, each square one 32 x 32 -> 64-bit multiply */
+    root = wide_root > UINT32_MAX ? UINT32_MAX : (uint32_t)wide_root;
+    while ((uint64_t)root * root > n) {
         --root;
     }
-    while (root < UINT32_MAX && (root + 1) * (root + 1) <= n) {
+    while (root < UINT32_MAX && (uint64_t)(root + 1) * (root + 1) <= n) {
         ++root;
     }
-    return (uint32_t)(root >> k);
+    return root >> k;
 }
 
 /** |v| as uint32 (2^31 for INT32_MIN). */
