@@ -663,7 +663,7 @@ typedef struct {
 
 /** (phi~ P~ phi~^T)_ij, Q30 in the old exponents (wide). P~ is read only at (i, j) itself
  *  (both rows the identity's), so the prediction may store each element as it goes. */
-static imu_wide_t transformed(const imu_cov_t *c, const transition_t *tr, int i, int j, uint32_t *sat)
+static inline imu_wide_t transformed(const imu_cov_t *c, const transition_t *tr, int i, int j, uint32_t *sat)
 {
     const int si = tr->slot[i], sj = tr->slot[j];
     imu_wide_t sum = 0; /* below 2^62 (scaled_row) */
