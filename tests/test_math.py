@@ -333,6 +333,30 @@ def test_quat_to_euler_inverts_convention(build):
 
 
 @pytest.mark.parametrize("build", ["fixed", "float"])
+def test_quat_to_euler_axes_give_the_angles_sines_and_cosines(build):
+    """imu_quat_to_euler_axes: imu_quat_to_euler's angles, and axes from which the sines and
+    cosines of roll r and pitch p are read: up = (-sin r cos p, sin p, cos r cos p), y[2] = sin p,
+    cos_pitch = cos p, each within a few Q30 LSB of the sine and cosine of the angles themselves."""
+    m = BUILDS[build]
+    ffi, lib = m.ffi, m.lib
+    t = "int32_t" if m.fixed else "double"
+    q, euler, axes = ffi.new(f"{t}[4]"), ffi.new(f"{t}[3]"), ffi.new("imu_euler_axes_t *")
+    scale_q = Q30 if m.fixed else 1.0
+    for e in random_euler(3000, 4):
+        quat = euler_to_quat_np(e)
+        for k in range(4):
+            q[k] = int(round(quat[k] * Q30)) if m.fixed else float(quat[k])
+        lib.imu_quat_to_euler_axes(q, euler, axes)
+        angles = np.array([euler[k] / (Q29 if m.fixed else 1.0) for k in range(3)])
+        np.testing.assert_array_equal(angles, m.quat_to_euler(np.array([q[k] / scale_q for k in range(4)])))
+        r, p = angles[0], angles[1]
+        up = np.array([axes.up[k] for k in range(3)]) / scale_q
+        want = [-np.sin(r) * np.cos(p), np.sin(p), np.cos(r) * np.cos(p), np.sin(p), np.cos(p)]
+        got = [*up, axes.y[2] / scale_q, axes.cos_pitch / scale_q]
+        assert np.abs(np.array(got) - want).max() < (1e-8 if m.fixed else 1e-14), f"euler {e}"
+
+
+@pytest.mark.parametrize("build", ["fixed", "float"])
 def test_euler_quat_round_trip(build):
     m = BUILDS[build]
     for e in random_euler(3000, 3, max_pitch=1.2):

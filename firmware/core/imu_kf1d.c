@@ -209,23 +209,37 @@ static void correct(imu_kf1d_t *f, imu_kf1d_axis_t *a, imu_angle_t measured, imu
  * difference in an hour of random motion at 5 kHz (tools/agreement.py --rates 5000
  * --filters kf1d).
  *
- * The pitch axis takes the measured roll `roll_m` (Q29 rad), equal to the
+ * `up` is the earth's vertical in the sensor frame (Q30) of the predicted attitude, which
+ * the corrections turn. The pitch axis takes the measured roll `roll_m` (Q29 rad), equal to the
  * estimated roll when the accelerometer agrees with the estimate: near the gimbal
  * lock the estimated roll is ill-conditioned (a rounding-level attitude difference
  * becomes degrees of roll), and pitch corrections about an axis taken from it
  * part two builds within a few samples; the measurement is the same in both.
  */
-static void turn_by_corrections(imu_kf1d_t *f, imu_angle_t roll_m, const imu_angle_t delta[3])
+static void turn_by_corrections(imu_kf1d_t *f, const imu_q30_t up[3], imu_angle_t roll_m, const imu_angle_t delta[3])
 {
     uint32_t *sat = &f->saturations;
-    imu_q30_t up[3], sr, cr, theta[3];
-    imu_quat_matrix_row(f->quat, 2, up);
+    imu_q30_t sr, cr, theta[3];
     imu_sincos(roll_m, &sr, &cr);
     /* rad Q29 * Q30 >> 29 -> rad Q30 */
     theta[0] = IMU_SUB_SAT(IMU_MUL_SAT(delta[PITCH], cr, 29, sat), IMU_MUL_SAT(delta[HEADING], up[0], 29, sat), sat);
     theta[1] = IMU_SUB_SAT(IMU_SHL_SAT(delta[ROLL], 1, sat), IMU_MUL_SAT(delta[HEADING], up[1], 29, sat), sat);
     theta[2] = IMU_SUB_SAT(IMU_MUL_SAT(delta[PITCH], sr, 29, sat), IMU_MUL_SAT(delta[HEADING], up[2], 29, sat), sat);
     imu_quat_turn(f->quat, theta);
+}
+
+/** cos r of the attitude whose axes these are (Q30): up_z / cos p (up_z = cos r cos p), within
+ *  [-1, 1]; 1 where cos p is 0 (the roll is undefined there, as atan2(0, 0) = 0 makes it). */
+static imu_q30_t cos_roll(const imu_euler_axes_t *axes, uint32_t *sat)
+{
+    const imu_q30_t up_z = axes->up[2], cp = axes->cos_pitch;
+    if (cp == 0) {
+        return IMU_ONE_Q30;
+    }
+    if (up_z >= cp || up_z <= -cp) {
+        return up_z > 0 ? IMU_ONE_Q30 : -IMU_ONE_Q30; /* (a rounding beyond 1) */
+    }
+    return IMU_DIV_SAT(up_z, cp, 30, sat); /* below 1 in magnitude */
 }
 
 void imu_kf1d_update(imu_kf1d_t *f, const imu_sample_t *s)
@@ -242,7 +256,7 @@ void imu_kf1d_update(imu_kf1d_t *f, const imu_sample_t *s)
     imu_angle_t pitch_m = f->axis[PITCH].angle;
     const int have_mag = s->mag[0] != 0 || s->mag[1] != 0 || s->mag[2] != 0;
     imu_angle_t predicted[3];
-    imu_q30_t sp_pred, cp_pred; /* sin and cos of the predicted pitch, Q30 */
+    imu_euler_axes_t axes; /* what the predicted angles are read from (Q30) */
     int k;
 
     if (have_tilt) {
@@ -287,20 +301,19 @@ void imu_kf1d_update(imu_kf1d_t *f, const imu_sample_t *s)
         bias_noise = IMU_WSHR_FEEDBACK_SAT(IMU_WMUL(f->settings.q_bias, f->dt), 36, &f->bias_noise_residual,
                                            sat); /* Q48*Q30 = Q78 >> 36 -> Q42 */
         imu_quat_integrate(f->quat, theta);
-        imu_quat_to_euler(f->quat, predicted);
+        imu_quat_to_euler_axes(f->quat, predicted, &axes);
         {
             /* The biases' reach (Euler kinematics): pitch rate = w_x cos r + w_z sin r,
              * heading rate = (w_x sin r - w_z cos r) / cos p, roll rate = w_y + ...: an
              * x-gyro bias moves pitch by cos r, a z-gyro bias the heading by cos r / cos p,
              * taken as cos r cos p (bounded; the sign is what matters). Upside down they
              * act backwards: with A's fixed -dt the bias estimates then ran away (tenths of
-             * a rad/s in tumbling random motion), and the fixed and float builds with them. */
-            imu_q30_t sr, cr, coupling[3];
-            imu_sincos(predicted[ROLL], &sr, &cr);
-            imu_sincos(predicted[PITCH], &sp_pred, &cp_pred);
+             * a rad/s in tumbling random motion), and the fixed and float builds with them.
+             * Both are read from the axes the angles come from, without a sine or cosine. */
+            imu_q30_t coupling[3];
             coupling[ROLL] = IMU_ONE_Q30;
-            coupling[PITCH] = cr;
-            coupling[HEADING] = IMU_MUL(cr, cp_pred, 30);
+            coupling[PITCH] = cos_roll(&axes, sat);
+            coupling[HEADING] = axes.up[2];
             for (k = 0; k < 3; ++k) {
                 predict(f, &f->axis[k], predicted[k], f->settings.q_angle, bias_noise, coupling[k]);
             }
@@ -322,7 +335,8 @@ void imu_kf1d_update(imu_kf1d_t *f, const imu_sample_t *s)
         const imu_q30_t w_acc =
             imu_deviation_weight(IMU_SHL_SAT(IMU_SUB_SAT(acc_norm, IMU_STANDARD_GRAVITY, sat), 8, sat),
                                  f->settings.acc_tolerance, sat); /* deviation Q16 -> Q24 */
-        const imu_q30_t cp2 = IMU_MUL(IMU_MUL(cp_m, cp_m, 30), IMU_MUL(cp_pred, cp_pred, 30), 30);
+        const imu_q30_t cp2 =
+            IMU_MUL(IMU_MUL(cp_m, cp_m, 30), IMU_MUL(axes.cos_pitch, axes.cos_pitch, 30), 30);
         const imu_q30_t w_roll = IMU_MUL(cp2, w_acc, 30);
         correct(f, &f->axis[ROLL], roll_m, f->settings.r_angle, w_roll);
         correct(f, &f->axis[PITCH], pitch_m, f->settings.r_angle, w_acc);
@@ -343,7 +357,7 @@ void imu_kf1d_update(imu_kf1d_t *f, const imu_sample_t *s)
         for (k = 0; k < 3; ++k) {
             delta[k] = imu_angle_diff(f->axis[k].angle, predicted[k]);
         }
-        turn_by_corrections(f, roll_m, delta);
+        turn_by_corrections(f, axes.up, roll_m, delta);
     }
 }
 

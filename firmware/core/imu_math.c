@@ -709,15 +709,21 @@ void imu_rotation_apply(const imu_rotation_t *r, const imu_real_t v[3], imu_real
     }
 }
 
+void imu_quat_to_euler_axes(const imu_q30_t q[4], imu_angle_t euler[3], imu_euler_axes_t *axes)
+{
+    const imu_q30_t *up = axes->up, *y = axes->y;
+    imu_quat_matrix_row(q, 2, axes->up);
+    imu_quat_y_axis(q, axes->y);
+    axes->cos_pitch = imu_hypot(y[0], y[1]);
+    euler[0] = imu_atan2(-up[0], up[2]);
+    euler[1] = imu_atan2(y[2], axes->cos_pitch);
+    euler[2] = imu_atan2(y[0], y[1]);
+}
+
 void imu_quat_to_euler(const imu_q30_t q[4], imu_angle_t euler[3])
 {
-    imu_q30_t up[3]; /* row 2 of R: the earth's up in the sensor frame */
-    imu_q30_t y[3];  /* column 1 of R: the sensor's y axis in the earth frame (east, north, up) */
-    imu_quat_matrix_row(q, 2, up);
-    imu_quat_y_axis(q, y);
-    euler[0] = imu_atan2(-up[0], up[2]);
-    euler[1] = imu_atan2(y[2], imu_hypot(y[0], y[1]));
-    euler[2] = imu_atan2(y[0], y[1]);
+    imu_euler_axes_t axes;
+    imu_quat_to_euler_axes(q, euler, &axes);
 }
 
 void imu_euler_to_quat(const imu_angle_t euler[3], imu_q30_t q[4])

@@ -119,6 +119,17 @@ imu_angle_t imu_angle_diff(imu_angle_t a, imu_angle_t b);
 /** @brief Euler angles [roll, pitch, heading] (Q29 rad) of a unit quaternion. */
 void imu_quat_to_euler(const imu_q30_t q[4], imu_angle_t euler[3]);
 
+/** What imu_quat_to_euler_axes reads the Euler angles from (Q30): with them, the sines and
+ *  cosines of roll r and pitch p of a unit quaternion without a sine or cosine of its own. */
+typedef struct {
+    imu_q30_t up[3];   /**< row 2 of R, the earth's up in the sensor frame: (-sin r cos p, sin p, cos r cos p) */
+    imu_q30_t y[3];    /**< column 1 of R, the sensor's y axis in the earth frame: y[2] = sin p */
+    imu_q30_t cos_pitch; /**< cos p = |(y[0], y[1])|, at least 0 */
+} imu_euler_axes_t;
+
+/** @brief imu_quat_to_euler, the same angles, and the axes they were read from. */
+void imu_quat_to_euler_axes(const imu_q30_t q[4], imu_angle_t euler[3], imu_euler_axes_t *axes);
+
 /** @brief Unit quaternion of Euler angles [roll, pitch, heading] (Q29 rad). */
 void imu_euler_to_quat(const imu_angle_t euler[3], imu_q30_t q[4]);
 

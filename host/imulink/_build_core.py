@@ -95,6 +95,8 @@ _DECLARATIONS = """
                                           imu_q30_t cp);
     imu_q30_t imu_deviation_weight(imu_real_t deviation, imu_real_t tolerance, uint32_t *sat);
     void imu_quat_to_euler(const imu_q30_t q[4], imu_angle_t euler[3]);
+    typedef struct { imu_q30_t up[3]; imu_q30_t y[3]; imu_q30_t cos_pitch; } imu_euler_axes_t;
+    void imu_quat_to_euler_axes(const imu_q30_t q[4], imu_angle_t euler[3], imu_euler_axes_t *axes);
     void imu_euler_to_quat(const imu_angle_t euler[3], imu_q30_t q[4]);
 
     typedef enum { IMU_PROTO_OK = 0, IMU_PROTO_ERR_LENGTH = -1, IMU_PROTO_ERR_COBS = -2,
