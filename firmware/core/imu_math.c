@@ -709,7 +709,8 @@ void imu_rotation_apply(const imu_rotation_t *r, const imu_real_t v[3], imu_real
     }
 }
 
-void imu_quat_to_euler_axes(const imu_q30_t q[4], imu_angle_t euler[3], imu_euler_axes_t *axes)
+/** imu_quat_to_euler_axes, inline in both public functions (a get converts every call). */
+static inline void euler_and_axes(const imu_q30_t q[4], imu_angle_t euler[3], imu_euler_axes_t *axes)
 {
     const imu_q30_t *up = axes->up, *y = axes->y;
     imu_quat_matrix_row(q, 2, axes->up);
@@ -720,10 +721,15 @@ void imu_quat_to_euler_axes(const imu_q30_t q[4], imu_angle_t euler[3], imu_eule
     euler[2] = imu_atan2(y[0], y[1]);
 }
 
+void imu_quat_to_euler_axes(const imu_q30_t q[4], imu_angle_t euler[3], imu_euler_axes_t *axes)
+{
+    euler_and_axes(q, euler, axes);
+}
+
 void imu_quat_to_euler(const imu_q30_t q[4], imu_angle_t euler[3])
 {
     imu_euler_axes_t axes;
-    imu_quat_to_euler_axes(q, euler, &axes);
+    euler_and_axes(q, euler, &axes);
 }
 
 void imu_euler_to_quat(const imu_angle_t euler[3], imu_q30_t q[4])
