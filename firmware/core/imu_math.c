@@ -345,7 +345,8 @@ static void quat_mul_step(const imu_q30_t q[4], imu_q30_t w, const int32_t v[3],
 
 /** q <- the product r (Q61) of quat_mul_step with the step (w, v), normalised and rounded;
  *  a = |q|^2 - 1 of the quaternion it was formed from (Q58). */
-static inline void store_normalized_product(imu_q30_t q[4], const int64_t r[4], int64_t a, imu_q30_t w, const int32_t v[3])
+static inline void store_normalized_product(imu_q30_t q[4], const int64_t r[4], int64_t a, imu_q30_t w,
+                                            const int32_t v[3])
 {
     const int64_t one58 = (int64_t)1 << 58;
     const int64_t near = (int64_t)1 << 47; /* 2^-11 in Q58 */

@@ -84,7 +84,7 @@ void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3]);
 
 /**
  * @brief q = exp(theta / 2): imu_quat_integrate of the identity quaternion, the same
- *        integers without the product by the identity (some 70 Cortex-M4 instructions less).
+ *        integers without the product by the identity (some 70 Cortex-M4 instructions fewer).
  */
 void imu_quat_from_rotation(imu_q30_t q[4], const imu_q30_t theta[3]);
 
