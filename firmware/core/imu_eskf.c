@@ -943,10 +943,11 @@ void imu_eskf_update(imu_eskf_t *f, const imu_sample_t *s)
         f->gyr_sum[k] = IMU_ADD(f->gyr_sum[k], IMU_SHR(s->gyr[k], 2)); /* three below 2^29 each */
     }
     f->clipped |= clipped;
-    imu_quat_integrate(f->q_out, theta);
     if (++f->in_group == 3) {
         f->in_group = 0;
-        filter_step(f);
+        filter_step(f); /* the output becomes the step's estimate */
+    } else {
+        imu_quat_integrate(f->q_out, theta); /* the output follows the gyroscope until the step */
     }
 }
 
