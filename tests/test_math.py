@@ -164,6 +164,39 @@ def test_hypot_fixed_is_the_floor_of_the_exact_root():
     assert not wrong, f"{len(wrong)} wrong, first {wrong[0]}"
 
 
+@pytest.mark.parametrize("build", ["fixed", "float"])
+def test_vec3_normalize_unit_vector_and_length_alone(build):
+    """imu_vec3_normalize gives v / |v| (Q30, within a few LSB) and |v| in v's format (within
+    one unit in the fixed build, which rounds it from the scaled vector's root and saturates it
+    to int32); without a unit vector (NULL) the same length and return value; the zero vector
+    returns 0."""
+    import random
+    m = BUILDS[build]
+    ffi, lib = m.ffi, m.lib
+    t = "int32_t" if m.fixed else "double"
+    v, unit, norm, alone = ffi.new(f"{t}[3]"), ffi.new(f"{t}[3]"), ffi.new(f"{t} *"), ffi.new(f"{t} *")
+    rng = random.Random(13)
+    cases = [[rng.randint(INT32_MIN, INT32_MAX) >> rng.randrange(32) for _ in range(3)] for _ in range(20000)]
+    cases += [[INT32_MIN] * 3, [INT32_MAX, 0, 0], [0, 0, 1], [1, 1, 0], [-3, 4, 12], [0, 0, 0]]
+    for x in cases:
+        for k in range(3):
+            v[k] = x[k]
+        got = lib.imu_vec3_normalize(v, unit, norm)
+        assert lib.imu_vec3_normalize(v, ffi.NULL, alone) == got
+        if not any(x):
+            assert got == 0
+            continue
+        assert got == 1 and alone[0] == norm[0], x
+        length = float(np.linalg.norm(np.array(x, dtype=np.float64)))
+        if m.fixed:
+            assert abs(norm[0] - min(length, INT32_MAX)) <= 1.0, x  # saturated to int32
+        else:
+            assert norm[0] == pytest.approx(length, rel=1e-15), x
+        direction = np.array(x, dtype=np.float64) / length
+        got_unit = np.array([unit[k] for k in range(3)]) / (Q30 if m.fixed else 1.0)
+        assert np.abs(got_unit - direction).max() < (5e-9 if m.fixed else 1e-15), x
+
+
 # --------------------------------------------------------------------------- atan2
 
 

@@ -167,7 +167,6 @@ static int distance_within(const imu_real_t a[3], const imu_real_t b[3], imu_rea
 /** The turn test of the specific force compares the run's mean against this from now on. */
 static void take_acc_reference(imu_eecf_t *f)
 {
-    imu_q30_t unit[3];
     imu_real_t norm;
     int k;
     for (k = 0; k < 3; ++k) {
@@ -175,7 +174,7 @@ static void take_acc_reference(imu_eecf_t *f)
     }
     /* Limit |v| rest_turn: |v| (Q16, int32) * rest_turn (Q30, <= 0.5) >> 30 -> Q16,
      * at most 2^30. A zero vector has limit 0 and never fails. */
-    if (imu_vec3_normalize(f->acc_turn_ref, unit, &norm)) {
+    if (imu_vec3_normalize(f->acc_turn_ref, NULL, &norm)) {
         f->acc_turn_limit = IMU_MUL(norm, f->settings.rest_turn, 30);
         f->acc_ref_norm = norm;
     } else {
@@ -187,13 +186,12 @@ static void take_acc_reference(imu_eecf_t *f)
 /** The same for the field (a board without magnetometer reads zero: never fails). */
 static void take_mag_reference(imu_eecf_t *f)
 {
-    imu_q30_t unit[3];
     imu_real_t norm;
     int k;
     for (k = 0; k < 3; ++k) {
         f->mag_turn_ref[k] = f->mag_mean[k];
     }
-    f->mag_turn_limit = imu_vec3_normalize(f->mag_turn_ref, unit, &norm) ? IMU_MUL(norm, f->settings.rest_turn, 30) : 0;
+    f->mag_turn_limit = imu_vec3_normalize(f->mag_turn_ref, NULL, &norm) ? IMU_MUL(norm, f->settings.rest_turn, 30) : 0;
     f->mag_still_count = 0;
 }
 

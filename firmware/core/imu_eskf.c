@@ -195,10 +195,9 @@ static void align_to(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q16_t mag[
 /** 1 when the specific force's norm is within acc_tolerance of gravity (Q16 m/s^2 in). */
 static int near_gravity(const imu_eskf_t *f, const imu_q16_t acc[3])
 {
-    imu_q30_t unit[3];
     imu_real_t norm;
     imu_real_t deviation;
-    if (!imu_vec3_normalize(acc, unit, &norm) || norm >= MAX_GRAVITY_NORM) {
+    if (!imu_vec3_normalize(acc, NULL, &norm) || norm >= MAX_GRAVITY_NORM) {
         return 0;
     }
     /* |a| / g - 1: Q16 * Q30 >> 22 -> Q24 (below 512 m/s^2: 53 g). */
@@ -472,7 +471,6 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_rota
     const imu_eskf_settings_t *st = &f->settings;
     const imu_q30_t *up = rot->row[2];
     imu_q30_t c[3];         /* a / g - ba, g, Q30 */
-    imu_q30_t unit[3];
     imu_real_t norm;        /* |a|, m/s^2, Q16 */
     imu_q30_t h[9];
     imu_real_t noise_g; /* specific-force noise in g, Q26 (up to 100 m/s^2 over 9 m/s^2: 11 g) */
@@ -480,7 +478,7 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_rota
     imu_cov_map_t gain_map;
     const imu_cov_map_t *map = NULL;
     int k, i;
-    if (!imu_vec3_normalize(acc, unit, &norm)) {
+    if (!imu_vec3_normalize(acc, NULL, &norm)) {
         f->acc_weight = 0;
         return;
     }
@@ -521,7 +519,7 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_rota
     if (imu_eskf_state_count(f) == 9) {
         imu_real_t c_norm; /* |c|, g, Q30 */
         imu_q30_t second_order;
-        if (imu_vec3_normalize(c, unit, &c_norm) && norm_second_order(f, up, &second_order)) {
+        if (imu_vec3_normalize(c, NULL, &c_norm) && norm_second_order(f, up, &second_order)) {
             const imu_q30_t z = IMU_SUB_SAT(IMU_SUB_SAT(c_norm, IMU_ONE_Q30, &f->saturations), second_order,
                                             &f->saturations);
             for (i = 0; i < 6; ++i) {

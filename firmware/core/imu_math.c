@@ -107,8 +107,8 @@ int imu_vec3_normalize(const imu_real_t v[3], imu_q30_t unit[3], imu_real_t *nor
     n = isqrt64(sum); /* at least 2^29 */
     /* 1/n in Q61 (n >= 2^29: at most 2^32, exactly 2^32 for n = 2^29); m <= n keeps
      * m * inv at most 2^63 and the Q30 result within 2^30. */
-    inv = (uint64_t)imu_udiv_or_big((uint64_t)1 << 61, n);
-    for (i = 0; i < 3; ++i) {
+    inv = unit != 0 ? (uint64_t)imu_udiv_or_big((uint64_t)1 << 61, n) : 0;
+    for (i = 0; unit != 0 && i < 3; ++i) {
         /* The signed product (+-m inv) rounded by (x + 2^30) >> 31, ties toward +inf:
          * for -m that is -((m inv + 2^30 - 1) >> 31). */
         const uint64_t p = (uint64_t)m[i] * inv;
@@ -517,7 +517,7 @@ int imu_vec3_normalize(const imu_real_t v[3], imu_q30_t unit[3], imu_real_t *nor
     if (n == 0.0) {
         return 0;
     }
-    for (i = 0; i < 3; ++i) {
+    for (i = 0; unit != 0 && i < 3; ++i) {
         unit[i] = v[i] / n;
     }
     if (norm != 0) {

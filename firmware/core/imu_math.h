@@ -23,7 +23,8 @@
 /**
  * @brief Unit vector of v and its length.
  * @param v     vector in any Q format (all three components the same format), any int32.
- * @param unit  output, Q30; untouched when v is zero.
+ * @param unit  output, Q30; untouched when v is zero. NULL: the length alone (the same
+ *              value, without the reciprocal and the three products).
  * @param norm  output (may be NULL), |v| in the format of v, saturated to int32.
  * @return 1 on success, 0 when v is the zero vector.
  */

@@ -641,9 +641,8 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     f->fix_stood = 1;
     f->fix_slow = 1;
     {
-        imu_q30_t unit[3];
         imu_real_t norm = 0;
-        f->field_reference = imu_vec3_normalize(mag, unit, &norm) ? norm : 0;
+        f->field_reference = imu_vec3_normalize(mag, NULL, &norm) ? norm : 0;
     }
     f->rejecting = -1;
     f->rejected = 0;

@@ -81,6 +81,7 @@ _DECLARATIONS = """
     imu_angle_t imu_atan2(imu_real_t y, imu_real_t x);
     imu_real_t imu_hypot(imu_real_t a, imu_real_t b);
     imu_real_t imu_vec3_norm(const imu_real_t v[3]);
+    int imu_vec3_normalize(const imu_real_t v[3], imu_q30_t unit[3], imu_real_t *norm);
     void imu_sincos(imu_angle_t angle, imu_q30_t *s, imu_q30_t *c);
     void imu_quat_integrate(imu_q30_t q[4], const imu_q30_t theta[3]);
     void imu_quat_from_rotation(imu_q30_t q[4], const imu_q30_t theta[3]);
