@@ -606,14 +606,19 @@ def load_segments(elf: bytes) -> list[tuple[int, bytes]]:
 # ============================================================================ filters
 
 
+def scenario_seconds(samples: int) -> float:
+    """Duration (s) of the simulated motion that holds `samples` samples at RATE_HZ (at least one)."""
+    return max(samples, 1) / RATE_HZ
+
+
 def scenario_call(samples: int, scenario: str = SCENARIO) -> str:
     """The simulator call of the benchmark's data, as the report shows it."""
-    return f'sim.make_scenario("{scenario}", {max(samples, 1) / RATE_HZ:g}, {RATE_HZ:g}, seed={SCENARIO_SEED})'
+    return f'sim.make_scenario("{scenario}", {scenario_seconds(samples):g}, {RATE_HZ:g}, seed={SCENARIO_SEED})'
 
 
 def simulated_data(samples: int, scenario: str = SCENARIO):
     """A simulated motion at 100 Hz (int16 counts), at least `samples` long (scenario_call)."""
-    return sim.make_scenario(scenario, max(samples, 1) / RATE_HZ, RATE_HZ, seed=SCENARIO_SEED)
+    return sim.make_scenario(scenario, scenario_seconds(samples), RATE_HZ, seed=SCENARIO_SEED)
 
 
 #: Per-sample outputs compared between the emulated ELF and the host build, in this order.
