@@ -204,6 +204,29 @@ def test_thumb_instruction_count():
     assert bench_arm.thumb_instruction_count(b"") == 0
 
 
+def test_cycle_bounds_of_a_known_run():
+    """The Cortex-M4's timings (tools/arm_cycles.py), worked by hand for this run:
+    least 2 + 1 + 1 + 4 + 2 + 1 + 1 + 1 + 1 = 14 (the second load pipelines after the first,
+    the store takes 1, push 1 + 3, udiv 2, the two instructions under the IT 1 each);
+    most 3 + 3 + 3 + 5 + 12 + 1 + 3 + 1 + 1 = 32."""
+    run = [("ldr", "r3, [r0]"), ("ldr.w", "r2, [r0, #4]"), ("str", "r3, [r1]"), ("push", "{r4, r5, lr}"),
+           ("udiv", "r0, r0, r1"), ("itt", "eq"), ("ldreq", "r0, [r1]"), ("moveq", "r1, #0"), ("adds", "r0, #1")]
+    assert bench_arm.arm_cycles.block_cycles(run) == (14, 32)
+    assert bench_arm.arm_cycles.block_cycles([("ldrd", "r0, r1, [r2]"), ("pop", "{r4-r7, pc}")]) == (3 + 6, 4 + 7)
+    assert bench_arm.arm_cycles.register_count("sp!, {r4-r7, lr}") == 5
+
+
+def test_cycle_bounds_of_a_filter_run(build, data):
+    """With cycles, every call of a run has bounds: at least a cycle per instruction and a
+    refill per jump, the most within 12 cycles per instruction; the counts stay the same."""
+    plain, _ = bench_arm.run_filter(bench_arm.Emulator(build), bench_arm.CONFIGS["eskf9"], data, 7)
+    cost, _ = bench_arm.run_filter(bench_arm.Emulator(build, cycles=True), bench_arm.CONFIGS["eskf9"], data, 7)
+    assert (cost.update.mean, cost.get.mean) == (plain.update.mean, plain.get.mean)
+    for instructions, (least, most) in [(cost.update.mean, cost.cycles_update), (cost.get.mean, cost.cycles_get),
+                                        (cost.update_phases["fusion"].mean, cost.cycles_phases["fusion"])]:
+        assert instructions < least < most < 12 * instructions
+
+
 class _CheckedEmulator(bench_arm.Emulator):
     """Counts every call both ways and keeps the calls where they differ."""
 

@@ -32,13 +32,17 @@ KF1D, ESKF with 6 and with 9 states, default settings, simulated random motion (
 - with --optimize O3 (or Os), the same at another optimisation level than the
   firmware's -O2: what another level would give;
 - with --scenario static (or rests, turntable), the same on another simulated motion:
-  the ESKF's costliest fusion steps are at rest, where it also runs the rest updates.
+  the ESKF's costliest fusion steps are at rest, where it also runs the rest updates;
+- with --cycles, bounds on the cycles of each filter's update and get at zero wait
+  states, from the instructions executed and the Cortex-M4's instruction timings
+  (tools/arm_cycles.py).
 
 Instructions are not cycles: on a Cortex-M4 most take one cycle, loads and stores
 two, divisions 2-12; the DWT cycle counter on a board is the cycle truth.
 
     .venv/bin/python tools/bench_arm.py [--samples 4000] [--filters eecf,kf1d,eskf,eskf9] [--profile] [--lines N]
-                                        [--optimize O2|O3|Os] [--scenario random|static|rests|turntable] [--json]
+                                        [--optimize O2|O3|Os] [--scenario random|static|rests|turntable]
+                                        [--cycles] [--json]
 
 Needs arm-none-eabi-gcc (with newlib) on the PATH and the Python package unicorn.
 The full run takes a few minutes (every instruction is emulated).
@@ -62,6 +66,9 @@ from pathlib import Path
 
 import numpy as np
 from cobs import cobs
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import arm_cycles  # noqa: E402  (tools/arm_cycles.py)
 
 from imulink import core, protocol, sim
 from imulink.counts import DEFAULT_PROFILE
@@ -154,6 +161,14 @@ class ArmBuild:
     objects: dict[str, Path]  # stem -> object file
     symbols: dict[str, Symbol]
     compiler: str  # first line of `arm-none-eabi-gcc --version`
+    _listing: str | None = field(default=None, repr=False)
+
+    def disassembly(self) -> str:
+        """`arm-none-eabi-objdump -d` of the ELF (run once)."""
+        if self._listing is None:
+            self._listing = _run([_tool("arm-none-eabi-objdump"), "-d", "--no-show-raw-insn", self.elf],
+                                 "arm-none-eabi-objdump")
+        return self._listing
 
     def address(self, name: str) -> int:
         try:
@@ -246,7 +261,7 @@ FLOAT_SYMBOL = re.compile(r"^(__aeabi_[fd]\w*|__\w*[sd]f\d?|__(float|fix)\w*|__(
 def float_problems(build: ArmBuild) -> list[str]:
     """Floating-point symbols and VFP instructions in the ELF (empty: integer only)."""
     problems = [f"symbol {name}" for name in sorted(build.symbols) if FLOAT_SYMBOL.match(name)]
-    listing = _run([_tool("arm-none-eabi-objdump"), "-d", "--no-show-raw-insn", build.elf], "arm-none-eabi-objdump")
+    listing = build.disassembly()
     function = "?"
     for line in listing.splitlines():
         header = re.match(r"^[0-9a-f]+ <(.+)>:$", line)
@@ -264,6 +279,17 @@ def float_problems(build: ArmBuild) -> list[str]:
                                         and re.search(r"\bp1[01]\b", operands)):
             problems.append(f"VFP instruction in {function}: {parts[0].strip()} {mnemonic} {operands.strip()}")
     return problems
+
+
+def instruction_listing(build: ArmBuild) -> dict[int, tuple[str, str]]:
+    """Every instruction of the ELF by address: (mnemonic, operands) as objdump prints them."""
+    listing = {}
+    for line in build.disassembly().splitlines():
+        parts = line.split("\t")
+        address = re.match(r"^\s*([0-9a-f]+):$", parts[0])
+        if address and len(parts) >= 2:
+            listing[int(address.group(1), 16)] = (parts[1].strip(), parts[2].strip() if len(parts) > 2 else "")
+    return listing
 
 
 def check_no_float(build: ArmBuild) -> None:
@@ -327,7 +353,7 @@ def _disassembled_frames(build: ArmBuild) -> dict[str, tuple[int, list[str]]]:
     every push, stmdb sp!, pre-indexed store to sp and sub sp in the function (an upper bound
     when they sit on different paths); callees are bl targets and tail calls (b to another
     function)."""
-    listing = _run([_tool("arm-none-eabi-objdump"), "-d", "--no-show-raw-insn", build.elf], "arm-none-eabi-objdump")
+    listing = build.disassembly()
     functions: dict[str, tuple[int, list[str]]] = {}
     name, frame, callees = None, 0, []
     for line in listing.splitlines() + ["00000000 <end>:"]:
@@ -342,7 +368,7 @@ def _disassembled_frames(build: ArmBuild) -> dict[str, tuple[int, list[str]]]:
             continue
         mnemonic, operands = parts[1].strip(), parts[2].strip()
         if mnemonic in ("push", "push.w") or (mnemonic.startswith("stmdb") and operands.startswith("sp!")):
-            frame += 4 * _register_count(operands)
+            frame += 4 * arm_cycles.register_count(operands)
         elif re.match(r"^subs?(\.w)?$", mnemonic) and re.match(r"^sp, (sp, )?#\d+$", operands):
             frame += int(operands.rsplit("#", 1)[1])
         elif mnemonic.startswith("str") and re.search(r"\[sp, #-(\d+)\]!", operands):
@@ -351,15 +377,6 @@ def _disassembled_frames(build: ArmBuild) -> dict[str, tuple[int, list[str]]]:
         if target and (mnemonic.startswith("bl") or (mnemonic in ("b", "b.w", "b.n") and target.group(1) != name)):
             callees.append(target.group(1))
     return functions
-
-
-def _register_count(register_list: str) -> int:
-    """Registers in an operand such as "{r4, r5, r6, lr}" or "sp!, {r4-r7, lr}"."""
-    count = 0
-    for item in register_list[register_list.index("{") + 1: register_list.index("}")].split(","):
-        first, _, last = item.strip().partition("-")
-        count += int(last[1:]) - int(first[1:]) + 1 if last else 1
-    return count
 
 
 def static_stack(build: ArmBuild, root: str, exclude: frozenset = frozenset()) -> tuple[int, list[str]]:
@@ -428,6 +445,7 @@ class CallResult:
     stack: int          # deepest stack use in bytes below the SP at the call (0 when not measured)
     instructions_each: int | None = None  # reference count of the per-instruction hook, when enabled
     it_skipped: int | None = None  # of those, IT-block instructions whose condition failed
+    cycles: tuple[int, int] | None = None  # (least, most) cycles at zero wait states (arm_cycles), when enabled
 
 
 class Emulator:
@@ -439,7 +457,7 @@ class Emulator:
     """
 
     def __init__(self, build: ArmBuild, count_each_instruction: bool = False, profile: bool = False,
-                 profile_lines: bool = False):
+                 profile_lines: bool = False, cycles: bool = False):
         if unicorn is None:
             raise BenchError("the Python package unicorn is missing: .venv/bin/pip install unicorn")
         self.build = build
@@ -475,6 +493,13 @@ class Emulator:
                                                        else ([], []))
         #: With `profile_lines`: executions per (called function, block address, block size).
         self.block_counts: collections.Counter | None = collections.Counter() if profile_lines else None
+        #: With `cycles`: the instructions by address, each block's (least, most) cycles, the sums of a call
+        #: and the refills (execution jumped: a taken branch or another write of the PC).
+        self._listing = instruction_listing(build) if cycles else None
+        self.counts_cycles = cycles
+        self._block_cycles: dict[tuple[int, int], tuple[int, int]] = {}
+        self.cycles_least = self.cycles_most = self.refills = 0
+        self._block_end: int | None = None
 
     def _on_block(self, uc, address, size, _user):
         key = (address, size)
@@ -486,6 +511,20 @@ class Emulator:
             self.profile[self._calling, self.function_at(address)] += n
         if self.block_counts is not None:
             self.block_counts[self._calling, address, size] += 1
+        if self._listing is not None:
+            self._count_cycles(key)
+
+    def _count_cycles(self, block: tuple[int, int]) -> None:
+        address, size = block
+        cost = self._block_cycles.get(block)
+        if cost is None:
+            cost = self._block_cycles[block] = arm_cycles.block_cycles(
+                [self._listing[address + offset] for offset in thumb_instruction_offsets(self.read(address, size))])
+        self.cycles_least += cost[0]
+        self.cycles_most += cost[1]
+        if self._block_end is not None and address != self._block_end:
+            self.refills += 1
+        self._block_end = address + size
 
     def function_at(self, address: int) -> str:
         """The function whose code holds `address` (an emulator made with profile or profile_lines)."""
@@ -558,6 +597,8 @@ class Emulator:
         self.instructions = 0
         self.instructions_each = 0
         self.it_skipped = 0
+        self.cycles_least = self.cycles_most = self.refills = 0
+        self._block_end = None
         self._calling = function
         self.profile_calls[function] += 1
         try:
@@ -567,11 +608,17 @@ class Emulator:
             raise BenchError(f"{function} stopped in the emulator at pc=0x{pc:08x}: {exc}") from None
         value = self.uc.reg_read(arm_const.UC_ARM_REG_R0)
         stack = self.take_stack_depth(sp) if measure_stack else 0
+        cycles = None
+        if self._listing is not None:
+            refills = self.refills + 1  # the return to bench_halt, where the emulator stops before a block
+            least_refill, most_refill = arm_cycles.REFILL
+            cycles = (self.cycles_least + refills * least_refill, self.cycles_most + refills * most_refill)
         if not self.count_each_instruction:
-            return CallResult(value, self.instructions, stack)
+            return CallResult(value, self.instructions, stack, cycles=cycles)
         self.it_skipped += len(self._it_pending)  # an IT block at the very end of the call
         self._it_pending.clear()
-        return CallResult(value, self.instructions, stack, self.instructions_each + self.it_skipped, self.it_skipped)
+        return CallResult(value, self.instructions, stack, self.instructions_each + self.it_skipped, self.it_skipped,
+                          cycles)
 
     def take_stack_depth(self, sp: int | None = None) -> int:
         """Bytes below `sp` (default: the stack top) written since the last scan; repaints them."""
@@ -726,6 +773,10 @@ class FilterCost:
     stack_update_static: int | None = None
     stack_get_static: int | None = None
     static_unknown: list[str] = field(default_factory=list)
+    #: With --cycles: mean (least, most) cycles at zero wait states of the update, per phase too, and of the get.
+    cycles_update: tuple[float, float] | None = None
+    cycles_phases: dict[str, tuple[float, float]] = field(default_factory=dict)
+    cycles_get: tuple[float, float] | None = None
 
 
 def run_filter(emu: Emulator, config: FilterConfig, data, n: int) -> tuple[FilterCost, Outputs]:
@@ -748,6 +799,8 @@ def run_filter(emu: Emulator, config: FilterConfig, data, n: int) -> tuple[Filte
     filt, raw, out = emu.address("bench_filter"), emu.address("bench_raw"), emu.address("bench_out")
     update = np.zeros(n, np.int64)
     get = np.zeros(n, np.int64)
+    update_cycles = np.zeros((n, 2), np.int64)
+    get_cycles = np.zeros((n, 2), np.int64)
     phase = [""] * n
     stack_update = stack_get = 0
     outputs = Outputs.empty(n)
@@ -764,6 +817,8 @@ def run_filter(emu: Emulator, config: FilterConfig, data, n: int) -> tuple[Filte
         g = emu.call("imu_filter_get", filt, out)
         emu.call("bench_read_state")
         update[i], get[i] = u.instructions, g.instructions
+        if u.cycles is not None:
+            update_cycles[i], get_cycles[i] = u.cycles, g.cycles
         stack_update, stack_get = max(stack_update, u.stack), max(stack_get, g.stack)
         values = _OUTPUT.unpack(emu.read(out, _OUTPUT.size))
         state = _STATE.unpack(emu.read("bench_state", _STATE.size))
@@ -777,6 +832,11 @@ def run_filter(emu: Emulator, config: FilterConfig, data, n: int) -> tuple[Filte
         if stat is not None:
             phases[name] = stat
     cost = FilterCost(config.key, config.label, n, Stat.of(update), Stat.of(get), phases, stack_update, stack_get)
+    if emu.counts_cycles:
+        cost.cycles_update = tuple(update_cycles.mean(axis=0))
+        cost.cycles_get = tuple(get_cycles.mean(axis=0))
+        for name in phases:
+            cost.cycles_phases[name] = tuple(update_cycles[[p == name for p in phase]].mean(axis=0))
     return cost, outputs
 
 
@@ -992,9 +1052,10 @@ def line_profile(emu: Emulator, top: int) -> dict[str, list[tuple[str, float, st
 
 def run_benchmark(samples: int, filter_keys: list[str], build_dir: Path, codec: bool = True,
                   decode_samples: int | None = None, progress=lambda _msg: None, profile: bool = False,
-                  lines: int = 0, optimize: str = OPTIMIZE, scenario: str = SCENARIO) -> Results:
+                  lines: int = 0, optimize: str = OPTIMIZE, scenario: str = SCENARIO, cycles: bool = False) -> Results:
     """Build, check and measure everything; raises BenchError when a check fails. With
-    `lines`, also the busiest source lines of each profiled call (a -g build: the same code)."""
+    `lines`, also the busiest source lines of each profiled call (a -g build: the same code);
+    with `cycles`, the filters' cycle bounds at zero wait states (tools/arm_cycles.py)."""
     start = time.perf_counter()
     build = build_arm(build_dir, debug_info=lines > 0, optimize=optimize)
     check_no_float(build)
@@ -1006,7 +1067,7 @@ def run_benchmark(samples: int, filter_keys: list[str], build_dir: Path, codec: 
     for key in filter_keys:
         config = CONFIGS[key]
         t0 = time.perf_counter()
-        emu = Emulator(build, profile=profile, profile_lines=lines > 0)
+        emu = Emulator(build, profile=profile, profile_lines=lines > 0, cycles=cycles)
         cost = measure_filter(emu, config, data, samples)
         add_static_stack(build, cost, config)
         filters[key] = cost
@@ -1125,6 +1186,26 @@ def line_profile_table(r: Results) -> str:
     return "\n".join(lines)
 
 
+def cycles_table(r: Results) -> str:
+    """Per filter's update (and its phases) and get: instructions and the cycle bounds."""
+    lines = ["| measured | instructions mean | cycles mean, least - most | cycles per instruction |",
+             "|---|---:|---:|---:|"]
+
+    def row(what: str, instructions: float, bounds: tuple[float, float]) -> None:
+        least, most = bounds
+        lines.append(f"| {what} | {_n(instructions)} | {_n(least)} - {_n(most)} | "
+                     f"{least / instructions:.2f} - {most / instructions:.2f} |")
+
+    for cost in r.filters.values():
+        if cost.cycles_update is None:
+            continue
+        row(f"**{cost.label}** update_raw, every sample", cost.update.mean, cost.cycles_update)
+        for name, bounds in cost.cycles_phases.items():
+            row(f"{cost.label} update_raw, {name}", cost.update_phases[name].mean, bounds)
+        row(f"{cost.label} get", cost.get.mean, cost.cycles_get)
+    return "\n".join(lines)
+
+
 def report(r: Results) -> str:
     notes = [
         f"Cortex-M4 build: {r.compiler}",
@@ -1141,6 +1222,11 @@ def report(r: Results) -> str:
         "(arm-none-eabi-size, before --gc-sections); RAM B: their data + bss; state B: sizeof on the target.",
         f"runtime: {r.seconds:.0f} s",
     ]
+    if any(cost.cycles_update is not None for cost in r.filters.values()):
+        notes += ["", "Cycles at zero wait states, bounds from the Cortex-M4's instruction timings "
+                  "(tools/arm_cycles.py: least with every load and store pipelined where it can be, divisions 2, "
+                  "branch refills 1; most with an address stall for every load and store, divisions 12, refills 3; "
+                  "flash wait states not included):", "", cycles_table(r)]
     if r.profiles:
         notes += ["", "Where the instructions go (each function's own instructions, callees apart, per call; "
                   "static functions the compiler inlined count in their caller):", "", profile_table(r)]
@@ -1177,6 +1263,9 @@ def main() -> int:
     parser.add_argument("--scenario", choices=sim.SCENARIOS, default=SCENARIO,
                         help=f"simulated motion (default {SCENARIO}; static: the board at rest, where the ESKF "
                              "also runs its rest updates)")
+    parser.add_argument("--cycles", action="store_true",
+                        help="also bound each filter's cycles at zero wait states from the instructions executed "
+                             "and the Cortex-M4's instruction timings (tools/arm_cycles.py)")
     parser.add_argument("--json", action="store_true", help="print machine-readable results instead of the table")
     args = parser.parse_args()
     keys = [k.strip() for k in args.filters.split(",") if k.strip()]
@@ -1194,11 +1283,13 @@ def main() -> int:
     try:
         if args.build_dir is not None:
             results = run_benchmark(args.samples, keys, args.build_dir, not args.no_codec, args.decode_samples,
-                                    progress, args.profile, args.lines, "-" + args.optimize, args.scenario)
+                                    progress, args.profile, args.lines, "-" + args.optimize, args.scenario,
+                                    args.cycles)
         else:
             with tempfile.TemporaryDirectory(prefix="bench_arm.") as tmp:
                 results = run_benchmark(args.samples, keys, Path(tmp), not args.no_codec, args.decode_samples,
-                                        progress, args.profile, args.lines, "-" + args.optimize, args.scenario)
+                                        progress, args.profile, args.lines, "-" + args.optimize, args.scenario,
+                                    args.cycles)
     except BenchError as exc:
         print(f"FAIL: {exc}", file=sys.stderr)
         return 1
