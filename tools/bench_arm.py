@@ -511,7 +511,7 @@ class Emulator:
             self.profile[self._calling, self.function_at(address)] += n
         if self.block_counts is not None:
             self.block_counts[self._calling, address, size] += 1
-        if self._listing is not None:
+        if self.counts_cycles:
             self._count_cycles(key)
 
     def _count_cycles(self, block: tuple[int, int]) -> None:
@@ -609,7 +609,7 @@ class Emulator:
         value = self.uc.reg_read(arm_const.UC_ARM_REG_R0)
         stack = self.take_stack_depth(sp) if measure_stack else 0
         cycles = None
-        if self._listing is not None:
+        if self.counts_cycles:
             refills = self.refills + 1  # the return to bench_halt, where the emulator stops before a block
             least_refill, most_refill = arm_cycles.REFILL
             cycles = (self.cycles_least + refills * least_refill, self.cycles_most + refills * most_refill)
