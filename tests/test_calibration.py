@@ -322,6 +322,38 @@ def test_fixed_point_correction_is_the_documented_integer_arithmetic():
     assert saturations > 0  # the saturating cases were exercised
 
 
+def test_counts_scaled_as_the_identity_calibration_scales_them():
+    """imu_sample_from_raw scales the raw counts straight (imu_sensor.c): every output and
+    saturation equals imu_sample_from_raw_calibrated's with the identity calibration (counts
+    in Q8, the shift 8 bits longer), with scales of every size, saturating ones included."""
+    from imulink import _core_fixed, core
+
+    ffi, lib = _core_fixed.ffi, _core_fixed.lib
+    rng = np.random.default_rng(6)
+    identity = ffi.new("imu_calibration_t *", lib.imu_calibration_identity)
+    sensor = core.sensor_struct(_core_fixed, "fixed", P)
+    saturated = 0
+    for trial in range(300):
+        if trial % 3:  # a scale of every size; the largest saturate the counts near full range
+            for name in ("gyro_scale", "acc_scale", "mag_scale"):
+                setattr(sensor, name, int(rng.integers(-2**31, 2**31)) >> int(rng.integers(0, 31)))
+        raw = ffi.new("imu_raw_sample_t *")
+        for name in ("gyr", "acc", "mag"):
+            counts = rng.integers(-32768, 32768, 3)
+            counts[rng.integers(0, 3)] = rng.choice([-32768, 32767, 0])
+            setattr(raw, name, counts.tolist())
+        outs, sats = [], []
+        for convert in (lambda o, c: lib.imu_sample_from_raw(sensor, raw, o, c),
+                        lambda o, c: lib.imu_sample_from_raw_calibrated(sensor, identity, raw, o, c)):
+            out, count = ffi.new("imu_sample_t *"), ffi.new("uint32_t *")
+            convert(out, count)
+            outs.append([list(out.gyr), list(out.acc), list(out.mag), out.clipped])
+            sats.append(count[0])
+        assert outs[0] == outs[1] and sats[0] == sats[1], trial
+        saturated += sats[0]
+    assert saturated > 0  # the saturating scalings were exercised
+
+
 def test_core_runs_a_calibration_in_both_builds():
     """The float twin follows the fixed build with a calibration too; a magnetometer
     calibration from the data themselves brings the heading back; a calibration of

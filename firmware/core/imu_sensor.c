@@ -75,49 +75,59 @@ static void correct(const imu_sensor_cal_t *c, const int16_t raw[3], imu_real_t 
     }
 }
 
-/** The clipping flags of the raw counts and the scaling of corrected counts (Q8) into `out`. */
-static void scale_counts(const imu_sensor_settings_t *settings, const imu_raw_sample_t *raw, const imu_real_t gyr[3],
-                         const imu_real_t acc[3], const imu_real_t mag[3], imu_sample_t *out, uint32_t *sat)
+/** The clipping flags of raw counts: a count at its register's limit may stand for more. */
+static unsigned clipping_flags(const imu_raw_sample_t *raw)
 {
+    unsigned clipped = 0;
     int i;
-    out->clipped = 0;
     for (i = 0; i < 3; ++i) {
         if (raw->gyr[i] <= IMU_MPU6050_MIN || raw->gyr[i] >= IMU_MPU6050_MAX) {
-            out->clipped |= IMU_CLIPPED_GYR;
+            clipped |= IMU_CLIPPED_GYR;
         }
         if (raw->acc[i] <= IMU_MPU6050_MIN || raw->acc[i] >= IMU_MPU6050_MAX) {
-            out->clipped |= IMU_CLIPPED_ACC;
+            clipped |= IMU_CLIPPED_ACC;
         }
         if (raw->mag[i] <= IMU_HMC5883L_MIN || raw->mag[i] >= IMU_HMC5883L_MAX) {
-            out->clipped |= IMU_CLIPPED_MAG;
+            clipped |= IMU_CLIPPED_MAG;
         }
-        /* the scalings of imu_sample_from_raw(), 8 bits longer for the Q8 counts */
-        out->gyr[i] = IMU_MUL_SAT(gyr[i], settings->gyro_scale, 16 + IMU_CAL_OFFSET_Q, sat);
-        out->acc[i] = IMU_MUL_SAT(acc[i], settings->acc_scale, 16 + IMU_CAL_OFFSET_Q, sat);
-        out->mag[i] = IMU_MUL_SAT(mag[i], settings->mag_scale, 8 + IMU_CAL_OFFSET_Q, sat);
     }
+    return clipped;
+}
+
+/** Axis i of the sample from counts with `frac_bits` fraction bits (0: raw counts; IMU_CAL_OFFSET_Q:
+ *  corrected ones): the scalings of imu_sample_from_raw(), `frac_bits` longer. The float build
+ *  keeps counts as they are. */
+static inline void scale_axis(const imu_sensor_settings_t *settings, imu_real_t gyr, imu_real_t acc, imu_real_t mag,
+                              int frac_bits, int i, imu_sample_t *out, uint32_t *sat)
+{
+    (void)frac_bits; /* (a change of Q format: the float build's macros leave it out) */
+    out->gyr[i] = IMU_MUL_SAT(gyr, settings->gyro_scale, 16 + frac_bits, sat);
+    out->acc[i] = IMU_MUL_SAT(acc, settings->acc_scale, 16 + frac_bits, sat);
+    out->mag[i] = IMU_MUL_SAT(mag, settings->mag_scale, 8 + frac_bits, sat);
 }
 
 void imu_sample_from_raw_calibrated(const imu_sensor_settings_t *settings, const imu_calibration_t *cal,
                                     const imu_raw_sample_t *raw, imu_sample_t *out, uint32_t *sat)
 {
     imu_real_t gyr[3], acc[3], mag[3]; /* corrected counts, Q8 */
+    int i;
     correct(&cal->gyr, raw->gyr, gyr, sat);
     correct(&cal->acc, raw->acc, acc, sat);
     correct(&cal->mag, raw->mag, mag, sat);
-    scale_counts(settings, raw, gyr, acc, mag, out, sat);
+    out->clipped = clipping_flags(raw);
+    for (i = 0; i < 3; ++i) {
+        scale_axis(settings, gyr[i], acc[i], mag[i], IMU_CAL_OFFSET_Q, i, out, sat);
+    }
 }
 
 void imu_sample_from_raw(const imu_sensor_settings_t *settings, const imu_raw_sample_t *raw,
                          imu_sample_t *out, uint32_t *sat)
 {
-    /* what the identity calibration's correction gives, exactly: the counts in Q8 */
-    imu_real_t gyr[3], acc[3], mag[3];
+    /* What the identity calibration's correction and the Q8 scaling give, exactly: its
+     * correction is the count in Q8, and (c 2^8 s + 2^(k + 7)) >> (k + 8) = (c s + 2^(k - 1)) >> k. */
     int i;
+    out->clipped = clipping_flags(raw);
     for (i = 0; i < 3; ++i) {
-        gyr[i] = IMU_FROM_INT_SAT(raw->gyr[i], IMU_CAL_OFFSET_Q, sat);
-        acc[i] = IMU_FROM_INT_SAT(raw->acc[i], IMU_CAL_OFFSET_Q, sat);
-        mag[i] = IMU_FROM_INT_SAT(raw->mag[i], IMU_CAL_OFFSET_Q, sat);
+        scale_axis(settings, raw->gyr[i], raw->acc[i], raw->mag[i], 0, i, out, sat);
     }
-    scale_counts(settings, raw, gyr, acc, mag, out, sat);
 }

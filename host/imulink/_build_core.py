@@ -64,6 +64,8 @@ _DECLARATIONS = """
     imu_status_t imu_filter_set_settings(imu_filter_t *f, const void *settings);
     void imu_filter_set_sensor(imu_filter_t *f, const imu_sensor_settings_t *sensor);
     imu_status_t imu_filter_set_calibration(imu_filter_t *f, const imu_calibration_t *cal);
+    void imu_sample_from_raw(const imu_sensor_settings_t *settings, const imu_raw_sample_t *raw, imu_sample_t *out,
+                             uint32_t *sat);
     void imu_sample_from_raw_calibrated(const imu_sensor_settings_t *settings, const imu_calibration_t *cal,
                                         const imu_raw_sample_t *raw, imu_sample_t *out, uint32_t *sat);
     void imu_filter_update_raw(imu_filter_t *f, const imu_raw_sample_t *raw);
