@@ -1289,7 +1289,7 @@ def main() -> int:
             with tempfile.TemporaryDirectory(prefix="bench_arm.") as tmp:
                 results = run_benchmark(args.samples, keys, Path(tmp), not args.no_codec, args.decode_samples,
                                         progress, args.profile, args.lines, "-" + args.optimize, args.scenario,
-                                    args.cycles)
+                                        args.cycles)
     except BenchError as exc:
         print(f"FAIL: {exc}", file=sys.stderr)
         return 1
