@@ -322,6 +322,7 @@ def _cmd_nav(args) -> int:
     from . import nav
     from .files import check_output
     from .nav_input import read_nav_csv
+    from .sensor_input import InputError
 
     check_output(args.csv, inputs=[args.input])
     path = Path(args.input)
@@ -338,6 +339,11 @@ def _cmd_nav(args) -> int:
 
             inp = nav.input_from_recording(load_recording(path, progress=phase(f"reading {path.name}")),
                                            args.gnss_latency)
+        if args.start is not None:
+            inp = nav.with_start(inp, *args.start)
+        elif len(inp.fix_index) == 0:
+            raise InputError(f"{path} has no GNSS or position fix: the nav filter starts at the first one, or "
+                             "give the place of the first sample with --start LAT,LON,HEIGHT[,ACCURACY]")
         result = nav.run(inp, args.arith, args.lever_arm)
         nav.write_csv(result, args.csv, inputs=[args.input])
     finally:
@@ -347,6 +353,8 @@ def _cmd_nav(args) -> int:
               "start_sample": result.start, "rows_written": len(result), "rate_hz": nav.sample_rate_hz(inp.timestamp_us),
               "fixes": len(inp.fix_index), "fixes_used": used, "fixes_gated": result.rejected,
               "zero_velocity_updates": result.zero_velocity, "saturations": result.saturations,
+              "start_marker": None if args.start is None else dict(zip(
+                  ("lat_deg", "lon_deg", "height_m", "accuracy_m"), args.start)),
               "end": {"lat_deg": float(result.lat_deg[-1]), "lon_deg": float(result.lon_deg[-1]),
                       "height_m": float(result.height_m[-1]),
                       "sd_horizontal_m": float(math.hypot(result.sigma[-1, 0], result.sigma[-1, 1])),
@@ -356,7 +364,7 @@ def _cmd_nav(args) -> int:
         return 0
     end = report["end"]
     print(f"{args.csv}: {len(result)} rows ({args.arith} build, {report['rate_hz']:g} Hz, from line "
-          f"{result.start + 2}, the first fix)")
+          f"{result.start + 2}, {'the --start marker' if args.start is not None else 'the first fix'})")
     print(f"fixes: {used} of {report['fixes']} used, {result.rejected} gated; zero-velocity updates: "
           f"{result.zero_velocity}; saturations: {result.saturations}")
     print(f"end: {end['lat_deg']:.7f} deg, {end['lon_deg']:.7f} deg, {end['height_m']:.2f} m "
@@ -567,22 +575,24 @@ def build_parser() -> argparse.ArgumentParser:
                    default=0.683, help="confidence of the intervals (default: 0.683, one standard deviation)")
     p.set_defaults(func=_cmd_allan)
 
+    from .nav import DEFAULT_START_ACCURACY_M
+
     p = sub.add_parser(
         "nav", help="run the nav filter (GNSS/INS navigation) offline over a recording or a navigation CSV",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Run the `nav` filter (docs/navigation.md: a loosely coupled GNSS/INS error-state Kalman\n"
                     "filter, the C core the board runs) over INPUT and write its estimate for every sample\n"
-                    "from the first fix on.\n\n"
+                    "from the first fix on (with --start: from the first sample on).\n\n"
                     "INPUT is one of:\n"
-                    "  FILE.csv      a navigation CSV: a header and one row per IMU sample with\n"
-                    "                timestamp_us, gyr_x_rad_s.., acc_x_m_s2..; optionally mag_x_uT..; a fix\n"
-                    "                in the row it was measured at: gnss_lat_deg, gnss_lon_deg, gnss_height_m,\n"
-                    "                gnss_h_acc_m, gnss_v_acc_m and, unless it is a marker's, gnss_vel_e_m_s,\n"
-                    "                gnss_vel_n_m_s, gnss_vel_u_m_s, gnss_s_acc_m_s (docs/navigation.md)\n"
-                    "  FILE.imulog   a recording (imulink record): its samples, and the receiver's 3-D fixes\n"
-                    "                in the rows they arrived with\n"
+                    "  FILE.csv      a navigation CSV: a header and one row per IMU sample, columns in any\n"
+                    "                order (others, such as truth_*, are ignored; sensor frame x right,\n"
+                    "                y forward, z up; velocities east, north, up):\n"
+                    f"{_nav_columns_help()}\n"
+                    "  FILE.imulog   a recording (imulink record): its samples, its barometer readings and\n"
+                    "                the receiver's 3-D fixes in the rows they arrived with\n"
                     "The filter starts at the first fix, at rest (attitude from the accelerometer and\n"
-                    "the magnetometer). A fix without velocity is a marker's: trusted, never gated.\n\n"
+                    "the magnetometer), or with --start at the first sample, at that place. A fix without\n"
+                    "velocity is a marker's: trusted, never gated.\n\n"
                     "Output (--csv): timestamp_us, lat_deg, lon_deg, height_m, vel_e_m_s, vel_n_m_s,\n"
                     "vel_u_m_s, qw, qx, qy, qz (sensor to east-north-up), the standard deviations of the\n"
                     "error state (sd_*), fix_age_s (since the last fix used) and gated (fixes rejected so\n"
@@ -592,6 +602,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--csv", metavar="OUT", required=True, help="write the estimate to OUT (CSV)")
     p.add_argument("--arith", choices=("fixed", "float"), default="fixed",
                    help="the firmware's fixed point (default) or the float twin")
+    p.add_argument("--start", type=_nav_start, metavar="LAT,LON,HEIGHT[,ACCURACY]",
+                   help="start at the first sample at this place, as a marker's fix in the first row would: "
+                        "latitude and longitude in degrees (within +-85 and +-180), height in metres above the "
+                        "ellipsoid (within +-10 km), ACCURACY the place's standard deviation on each axis in "
+                        f"metres (default {DEFAULT_START_ACCURACY_M:g}); position only, trusted as its accuracy "
+                        "says. The input's own fixes are used as well (one in the first row right after the "
+                        "start). A negative latitude: --start=-33.9,18.4,10")
     p.add_argument("--lever-arm", type=_lever_arm, metavar="X,Y,Z",
                    help="the GNSS antenna's position in the sensor frame (x right, y forward, z up), m, each within "
                         "+-10 (default: at the sensor)")
@@ -710,6 +727,48 @@ def _lever_arm(text: str) -> tuple[float, float, float]:
     if len(values) != 3 or not all(math.isfinite(v) and abs(v) <= MAX_LEVER_ARM_M for v in values):
         raise argparse.ArgumentTypeError(f"{text!r} is not X,Y,Z in metres, each within +-{MAX_LEVER_ARM_M:g}")
     return values
+
+
+def _nav_start(text: str) -> tuple[float, float, float, float]:
+    """LAT,LON,HEIGHT[,ACCURACY] (deg, deg, m, m): a place the nav filter can start at."""
+    from .nav import DEFAULT_START_ACCURACY_M, start_error
+
+    try:
+        values = [float(part) for part in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) not in (3, 4):
+        raise argparse.ArgumentTypeError(f"{text!r} is not LAT,LON,HEIGHT[,ACCURACY]: three or four numbers "
+                                         "(degrees, degrees, metres, metres)")
+    if len(values) == 3:
+        values.append(DEFAULT_START_ACCURACY_M)
+    problem = start_error(*values)
+    if problem is not None:
+        raise argparse.ArgumentTypeError(f"{text!r}: {problem}")
+    return tuple(values)
+
+
+def _nav_columns_help() -> str:
+    """The navigation CSV's columns (imulink.nav_input's tuples) with their units, for `nav --help`."""
+    import textwrap
+
+    from .nav_input import BARO, GNSS_POSITION, GNSS_VELOCITY, MAG, REQUIRED, column_unit
+
+    groups = (("required, in every row", REQUIRED), ("magnetometer, in every row or in none", MAG),
+              ("barometer, in the row of each sample it took", BARO),
+              ("a fix, in the row it was measured at", GNSS_POSITION),
+              ("its velocity, beside a receiver's fix (a marker's leaves these empty)", GNSS_VELOCITY))
+    lines = []
+    for label, names in groups:
+        parts, run = [], []
+        for k, name in enumerate(names):
+            run.append(name)
+            if k + 1 == len(names) or column_unit(names[k + 1]) != column_unit(name):
+                parts.append(f"{', '.join(run)} ({column_unit(name)})".replace(" C)", "\N{NO-BREAK SPACE}C)"))
+                run = []
+        lines.append(textwrap.fill(f"{label}: {'; '.join(parts)}", width=92, initial_indent=" " * 16,
+                                   subsequent_indent=" " * 18, break_on_hyphens=False))
+    return "\n".join(lines).replace("\N{NO-BREAK SPACE}", " ")
 
 
 def _in_range(parse, low, high, requirement: str):

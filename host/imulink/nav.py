@@ -6,12 +6,14 @@ marker's, at a known place) with the attitude from the accelerometer and magneto
 that sample, at rest; every later sample is propagated, and each fix is used right after
 the sample of its row (with its age, when the input says how late it arrived: the filter
 takes the estimate back that far). A marker's fix (in a CSV, one without velocity) is
-trusted as its accuracy says, never gated; a receiver's is gated.
+trusted as its accuracy says, never gated; a receiver's is gated. `with_start` puts a
+marker's fix at the first sample (`imulink nav --start`), for an input without a fix
+there.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -158,6 +160,60 @@ def sample_rate_hz(timestamp_us: np.ndarray) -> float:
 
 #: The largest lever arm the filter takes, each axis, m.
 MAX_LEVER_ARM_M = 10.0
+
+#: Where the filter can start (imu_nav.c's origin: +-85 deg latitude, +-180 deg longitude,
+#: +-10 km above the ellipsoid) and the accuracy a start marker may say it has, m, each axis
+#: (the filter takes accuracies from 1 mm to 2^30 mm; the horizontal one is sqrt(2) times it).
+START_MAX_LAT_DEG, START_MAX_LON_DEG, START_MAX_HEIGHT_M = 85.0, 180.0, 10000.0
+START_MAX_ACCURACY_M = 100000.0
+DEFAULT_START_ACCURACY_M = 1.0
+
+
+def start_error(lat_deg: float, lon_deg: float, height_m: float, accuracy_m: float) -> str | None:
+    """Why the filter cannot start at this place with this accuracy (one line), None when it can."""
+    for name, value in (("latitude", lat_deg), ("longitude", lon_deg), ("height", height_m),
+                        ("accuracy", accuracy_m)):
+        if not math.isfinite(value):
+            return f"the {name} {value!r} is not a finite number"
+    if abs(lat_deg) > START_MAX_LAT_DEG:
+        return f"latitude {lat_deg:g} deg is beyond +-{START_MAX_LAT_DEG:g} deg, the nav filter's limit"
+    if abs(lon_deg) > START_MAX_LON_DEG:
+        return f"longitude {lon_deg:g} deg is beyond +-{START_MAX_LON_DEG:g} deg"
+    if abs(height_m) > START_MAX_HEIGHT_M:
+        return f"height {height_m:g} m is beyond +-{START_MAX_HEIGHT_M:g} m (10 km), the nav filter's limit"
+    if not 0.0 < accuracy_m <= START_MAX_ACCURACY_M:
+        return f"accuracy {accuracy_m:g} m is not above 0 and at most {START_MAX_ACCURACY_M:g} m"
+    return None
+
+
+def with_start(inp: NavInput, lat_deg: float, lon_deg: float, height_m: float,
+               accuracy_m: float = DEFAULT_START_ACCURACY_M) -> NavInput:
+    """`inp` with a marker's fix at its first sample (degrees, degrees, metres above the
+    ellipsoid; `accuracy_m` one standard deviation on each axis, as a simulated marker's:
+    a horizontal accuracy sqrt(2) times it), so that `run` starts there: position only,
+    trusted as its accuracy says. The input's own fixes stay; one in the first row is used
+    right after the second sample, its age one sample interval longer, so that it still
+    counts for the instant it was valid (`run` refuses one that becomes over 1 s old).
+    InputError for a place or an accuracy the filter does not take (start_error)."""
+    problem = start_error(lat_deg, lon_deg, height_m, accuracy_m)
+    if problem is not None:
+        raise InputError(f"the start: {problem}")
+    if len(inp) < 2:
+        raise InputError(f"{len(inp)} sample(s); the nav filter needs at least 2")
+    index = np.array(inp.fix_index, dtype=np.int64)
+    age = np.zeros(len(index)) if inp.fix_age_s is None else np.array(inp.fix_age_s, dtype=np.float64)
+    first_row = index == 0
+    index[first_row] = 1
+    age[first_row] += (int(inp.timestamp_us[1]) - int(inp.timestamp_us[0])) / 1e6
+    s_acc = np.asarray(inp.fix_s_acc_m_s, dtype=np.float64)
+    marker = np.isnan(s_acc) if inp.fix_is_marker is None else np.asarray(inp.fix_is_marker, dtype=bool)
+    return replace(inp, fix_index=np.r_[0, index], fix_lat_deg=np.r_[float(lat_deg), inp.fix_lat_deg],
+                   fix_lon_deg=np.r_[float(lon_deg), inp.fix_lon_deg],
+                   fix_height_m=np.r_[float(height_m), inp.fix_height_m],
+                   fix_h_acc_m=np.r_[float(accuracy_m) * math.sqrt(2.0), inp.fix_h_acc_m],
+                   fix_v_acc_m=np.r_[float(accuracy_m), inp.fix_v_acc_m],
+                   fix_vel_enu=np.vstack([np.full((1, 3), math.nan), np.reshape(inp.fix_vel_enu, (-1, 3))]),
+                   fix_s_acc_m_s=np.r_[math.nan, s_acc], fix_age_s=np.r_[0.0, age], fix_is_marker=np.r_[True, marker])
 
 
 def run(inp: NavInput, arithmetic: str = "fixed", lever_arm_m=None) -> NavResult:

@@ -36,6 +36,17 @@ MAG = CSV_COLUMNS["mag"]
 BARO = ("baro_pa", "baro_temp_c")
 GNSS_POSITION = ("gnss_lat_deg", "gnss_lon_deg", "gnss_height_m", "gnss_h_acc_m", "gnss_v_acc_m")
 GNSS_VELOCITY = ("gnss_vel_e_m_s", "gnss_vel_n_m_s", "gnss_vel_u_m_s", "gnss_s_acc_m_s")
+#: The unit of a column, by how its name ends (the first ending that matches).
+UNITS = (("_rad_s", "rad/s"), ("_m_s2", "m/s^2"), ("_m_s", "m/s"), ("_uT", "uT"), ("_deg", "deg"), ("_m", "m"),
+         ("_us", "us"), ("_pa", "Pa"), ("_temp_c", "deg C"))
+
+
+def column_unit(name: str) -> str:
+    """The unit of a column of the navigation CSV (UNITS); KeyError for a name without one."""
+    for ending, unit in UNITS:
+        if name.endswith(ending):
+            return unit
+    raise KeyError(name)
 
 
 @dataclass
