@@ -843,6 +843,24 @@ void imu_cov_cap_unit_variance(imu_cov_t *c, int i)
     cap_unit_variance(c, i);
 }
 
+void imu_cov_scale_up(imu_cov_t *c, int k)
+{
+    int i;
+#ifdef IMU_FIXED
+    for (i = 0; i < c->n; ++i) {
+        c->e[i] += k; /* P_ij 2^(e_i + e_j): 4^k */
+    }
+#else
+    double factor = 1.0;
+    for (i = 0; i < k; ++i) {
+        factor *= 4.0;
+    }
+    for (i = 0; i < IMU_COV_CELLS; ++i) {
+        c->p[i] *= factor;
+    }
+#endif
+}
+
 imu_real_t imu_cov_element_q30(const imu_cov_t *c, int i, int j, uint32_t *sat)
 {
     return IMU_WIDE_SAT(real_ldexp(c->p[cell(i, j)], c->e[i] + c->e[j], sat), sat);

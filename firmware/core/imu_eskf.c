@@ -172,13 +172,6 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
     return IMU_OK;
 }
 
-/** Dip of a unit field in the earth frame (positive below the horizon), rad Q29, and its horizontal length. */
-static imu_angle_t field_dip(const imu_q30_t earth[3], imu_q30_t *horizontal)
-{
-    *horizontal = imu_hypot(earth[0], earth[1]);
-    return imu_atan2(-earth[2], *horizontal);
-}
-
 /** Attitude from a specific force and a field alone: tilt + tilt-compensated heading (seed 004 eq. 3-5, 14). */
 static void align_to(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q16_t mag[3])
 {
@@ -215,7 +208,7 @@ static int field_norm_dip(const imu_rotation_t *rot, const imu_q16_t mag[3], imu
         return 0;
     }
     imu_rotation_apply(rot, unit, earth);
-    *dip = field_dip(earth, horizontal);
+    *dip = imu_field_dip(earth, horizontal);
     return 1;
 }
 
@@ -552,20 +545,8 @@ static imu_q30_t field_weight(imu_eskf_t *f, imu_q16_t norm, imu_angle_t dip, co
                               imu_q30_t *w_norm)
 {
     const imu_eskf_settings_t *st = &f->settings;
-    const imu_q16_t ref_norm = reference_norm(ref);
-    const imu_angle_t ref_dip = reference_dip(ref);
-    /* |m| / ref beyond 64 is far outside any tolerance (and the Q24 ratio's range). */
-    if (IMU_MUL(norm, IMU_QCONST(1.0 / 64.0, 30), 30) >= ref_norm) {
-        *w_norm = 0;
-        return 0;
-    }
-    /* Norm deviation |m| / ref - 1 (Q16 / Q16 -> Q24) and dip deviation (Q29 -> Q24). */
-    *w_norm = imu_deviation_weight(IMU_SUB(IMU_DIV_SAT(norm, ref_norm, 24, &f->saturations), IMU_QCONST(1.0, 24)),
-                                   IMU_SHR(st->mag_tolerance, 6), &f->saturations);
-    return IMU_MUL(*w_norm,
-                   imu_deviation_weight(IMU_SHR(imu_angle_diff(dip, ref_dip), 5), IMU_SHR(st->dip_tolerance, 6),
-                                        &f->saturations),
-                   30);
+    return imu_field_weight(norm, reference_norm(ref), dip, reference_dip(ref), IMU_SHR(st->mag_tolerance, 6),
+                            IMU_SHR(st->dip_tolerance, 6), w_norm, &f->saturations);
 }
 
 /** field <- field + rate (target - field) for the norm (Q16) and dip (Q29, within +-pi/2);

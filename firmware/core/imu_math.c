@@ -841,3 +841,23 @@ imu_q30_t imu_deviation_weight(imu_real_t deviation, imu_real_t tolerance, uint3
 #endif
     return IMU_MUL(inv, inv, 30);
 }
+
+imu_angle_t imu_field_dip(const imu_q30_t earth[3], imu_q30_t *horizontal)
+{
+    *horizontal = imu_hypot(earth[0], earth[1]);
+    return imu_atan2(-earth[2], *horizontal);
+}
+
+imu_q30_t imu_field_weight(imu_real_t norm, imu_real_t ref_norm, imu_angle_t dip, imu_angle_t ref_dip,
+                           imu_real_t norm_tolerance, imu_real_t dip_tolerance, imu_q30_t *w_norm, uint32_t *sat)
+{
+    /* |m| / ref beyond 64 is far outside any tolerance (and the Q24 ratio's range). */
+    if (IMU_MUL(norm, IMU_QCONST(1.0 / 64.0, 30), 30) >= ref_norm) {
+        *w_norm = 0;
+        return 0;
+    }
+    /* Norm deviation |m| / ref - 1 (Q16 / Q16 -> Q24) and dip deviation (Q29 -> Q24). */
+    *w_norm = imu_deviation_weight(IMU_SUB(IMU_DIV_SAT(norm, ref_norm, 24, sat), IMU_QCONST(1.0, 24)), norm_tolerance,
+                                   sat);
+    return IMU_MUL(*w_norm, imu_deviation_weight(IMU_SHR(imu_angle_diff(dip, ref_dip), 5), dip_tolerance, sat), 30);
+}

@@ -160,4 +160,24 @@ imu_angle_t imu_heading_from_mag_tilt(const imu_real_t mag[3], imu_q30_t sr, imu
  */
 imu_q30_t imu_deviation_weight(imu_real_t deviation, imu_real_t tolerance, uint32_t *sat);
 
+/**
+ * @brief Dip of a unit field in the earth frame (ENU; positive below the horizon) and its
+ *        horizontal length. @param earth unit field, Q30 @param horizontal out, Q30
+ * @return rad, Q29
+ */
+imu_angle_t imu_field_dip(const imu_q30_t earth[3], imu_q30_t *horizontal);
+
+/**
+ * @brief How far a magnetic field is from a reference field, as a weight in [0, 1] (Q30):
+ *        the product of imu_deviation_weight of the norm's relative deviation and of the
+ *        dip's (a magnet, steel or a motor nearby changes either). The one rule of the
+ *        attitude ESKF and the nav filter.
+ * @param norm, ref_norm the field's and the reference's strength, any one unit, Q16 (ref_norm > 0)
+ * @param dip, ref_dip   their dips, rad, Q29 (imu_field_dip)
+ * @param norm_tolerance relative, Q24 (below 2); @param dip_tolerance rad, Q24 (below 2)
+ * @param w_norm         out: the norm's weight alone, Q30
+ */
+imu_q30_t imu_field_weight(imu_real_t norm, imu_real_t ref_norm, imu_angle_t dip, imu_angle_t ref_dip,
+                           imu_real_t norm_tolerance, imu_real_t dip_tolerance, imu_q30_t *w_norm, uint32_t *sat);
+
 #endif /* IMU_MATH_H */

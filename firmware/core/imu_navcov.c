@@ -16,6 +16,7 @@
 #define imu_cov_update imu_navcov_update
 #define imu_cov_reset_state imu_navcov_reset_state
 #define imu_cov_cap_unit_variance imu_navcov_cap_unit_variance
+#define imu_cov_scale_up imu_navcov_scale_up
 #define imu_cov_get imu_navcov_get
 #define imu_cov_element_q30 imu_navcov_element_q30
 

@@ -14,7 +14,7 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12, BARO_BIAS = 15 }
  * 1e-5 rad/s/sqrt(s) and 1e-4 m/s^2/sqrt(s). */
 #define NOISE_VEL IMU_QCONST(6.1529e-5 / 4096.0, 54) /* (2 * 3.923e-3 m/s^2/sqrt(Hz))^2 / (64 m/s)^2 */
 #define NOISE_ATT IMU_QCONST(3.0462e-8, 54)          /* (2 * 8.727e-5 rad/s/sqrt(Hz))^2 */
-#define NOISE_GYRO_BIAS IMU_QCONST(1e-10, 54)
+#define NOISE_GYRO_BIAS IMU_QCONST(1e-9, 54)
 #define NOISE_ACC_BIAS IMU_QCONST(1e-8, 54)
 /** The barometer's bias, a random walk of 2.5 m/sqrt(h) (the weather: 30 Pa/sqrt(h)), in units of 1024 m */
 #define NOISE_BARO_BIAS IMU_QCONST(1.7e-3 / 1048576.0, 54)
@@ -74,8 +74,13 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12, BARO_BIAS = 15 }
  *  component (about the sine of the heading error times the field's horizontal share),
  *  Q30: 0.02, a microtesla of noise and disturbance in a 50 uT field. */
 #define FIELD_EAST_SIGMA IMU_QCONST(0.02, 30)
-/** ... weighed by the field's strength: 10 % from the start's weighs a quarter (Q24). */
+/** ... weighed by how far the field's strength and dip are from the start's (imu_field_weight, the
+ *  attitude ESKF's rule): 10 % of the strength or 0.05 rad of dip weighs a quarter (Q24); a field
+ *  whose weight is below a half (6 % or 0.03 rad off: iron, a magnet, a motor nearby) is left out,
+ *  however long it stays: its error does not average out as noise does. */
 #define FIELD_TOLERANCE IMU_QCONST(0.1, 24)
+#define DIP_TOLERANCE IMU_QCONST(0.05, 24)
+#define FIELD_DISTURBED IMU_QCONST(0.5, 30)
 /** Without GNSS, the tilt from the accelerometer: the standard deviation of the force
  *  direction's horizontal components (Q30: 0.05, some 3 deg: the board's own accelerations
  *  between the samples the weight lets through), the weight a quarter 0.2 m/s^2 (Q24) from
@@ -83,12 +88,25 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12, BARO_BIAS = 15 }
 #define GRAVITY_SIGMA IMU_QCONST(0.05, 30)
 #define GRAVITY_TOLERANCE IMU_QCONST(0.2, 24)
 
-/* The gate on the position's normalised innovation squared (each axis against its own
- * variance: the correlations between the axes are small beside the fix's noise), Q16:
- * chi-square at 99.9 % for three degrees of freedom. The velocity is not gated: its
- * innovations are what makes the heading observable, large while the heading is wrong
- * (a receiver's Doppler velocity does not jump with multipath as its position does). */
+/* The gate on a GNSS fix's position and, apart, its velocity: the normalised innovation
+ * squared (each axis against its own predicted variance plus the fix's: the correlations
+ * between the axes are small beside the fix's noise), Q16: chi-square at 99.9 % for three
+ * degrees of freedom. A part beyond it is rejected and counted; the other part is used. */
 #define GATE_3 IMU_QCONST(16.27, 16)
+/* Two consecutive fixes agree with each other when the one's position moved by the
+ * receiver's mean velocity between them (without velocity: the estimate's displacement, the
+ * corrections taken off) lands within GATE_SIGMAS standard deviations of the other (their
+ * difference's, Q16). RAYLEIGH_MEAN (Q16): the mean length of a horizontal difference of unit
+ * variance per axis, sqrt(pi / 2): the running mean of the fixes' normalised disagreement is
+ * that when they are as accurate as the receiver says; beyond, their accuracies are inflated
+ * by its ratio to it (each disagreement counted up to SPREAD_CAP, Q16, so that an outlier
+ * weighs little; the mean over some SPREAD_FIXES fixes). */
+#define GATE_SIGMAS IMU_QCONST(4.0, 16)
+#define RAYLEIGH_MEAN IMU_QCONST(1.2533141, 16)
+#define SPREAD_CAP IMU_QCONST(5.0, 16)
+#define SPREAD_WEIGHT IMU_QCONST(1.0 / 16.0, 30)
+/** The most a fix scales the covariance by: 4^MAX_FADE. */
+#define MAX_FADE 8
 
 /** Unit conversions into the states' units (Q30): mm to 1024 m (Q50 factor, >> 20),
  *  mm/s to 64 m/s (Q46, >> 16), m/s Q20 to 64 m/s (Q36, >> 26). */
@@ -97,10 +115,14 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12, BARO_BIAS = 15 }
 #define MM_S_TO_VEL IMU_QCONST(1.0 / 64000.0, 46)
 #define Q20_TO_VEL IMU_QCONST(1.0 / 64.0, 36)
 
-/** Seconds (Q16): the covariance's interval, the time after which the gate gives in, and
- *  the longest count kept (how long without GNSS before rest alone makes zero velocity). */
+/** Seconds (Q16): the covariance's interval; how long a run of rejected fixes that agree
+ *  with each other lasts before the estimate is the one in doubt (its position and velocity
+ *  are then reset to the fix: a cold receiver's first fix far off, a divergence); fixes
+ *  further apart than GAP_TIME are not compared; the longest count kept (how long without
+ *  GNSS before rest alone makes zero velocity). */
 #define COV_INTERVAL IMU_QCONST(0.05, 16)
-#define REJECT_TIME IMU_QCONST(30.0, 16)
+#define RESET_TIME IMU_QCONST(15.0, 16)
+#define GAP_TIME IMU_QCONST(2.5, 16)
 #define LONGEST_COUNT IMU_QCONST(60.0, 16)
 
 /** The antenna's lever arm: each axis within +-10 m (mm). */
@@ -109,6 +131,10 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12, BARO_BIAS = 15 }
 static const int POSITION_ROWS[3] = {POS, POS + 1, POS + 2};
 static const int VELOCITY_ROWS[3] = {VEL, VEL + 1, VEL + 2};
 static const int ATTITUDE_ROWS[3] = {ATT, ATT + 1, ATT + 2};
+/** The gain map of a receiver's position: everything but the attitude and the gyro bias (blocks of three states). */
+static const imu_navcov_map_t POSITION_ONLY = {
+    {IMU_COV_BLOCK_ALL, IMU_COV_BLOCK_ALL, IMU_COV_BLOCK_NONE, IMU_COV_BLOCK_NONE, IMU_COV_BLOCK_ALL, IMU_COV_BLOCK_ALL},
+    {0, 0, 0}};
 
 static void matrix(const imu_q30_t q[4], imu_q30_t r[3][3])
 {
@@ -198,7 +224,7 @@ static void covariance_step(imu_navkf_t *f)
             rows[i][ACC_BIAS + j] = -IMU_MUL(rm[i][j], t2, 30);
         }
     }
-    imu_navcov_predict(&f->cov, rows, POSITION_ROWS, 3, qvar, 84, sat);
+    imu_navcov_predict(&f->cov, rows, POSITION_ROWS, 3, qvar, 60, sat);
 
     clear_rows(rows);
     minus_cross_columns(dvu, r0, rows, ATT);
@@ -208,7 +234,7 @@ static void covariance_step(imu_navkf_t *f)
             rows[i][ACC_BIAS + j] = -IMU_MUL(rm[i][j], t64, 30);
         }
     }
-    imu_navcov_predict(&f->cov, rows, VELOCITY_ROWS, 3, qvar, 84, sat);
+    imu_navcov_predict(&f->cov, rows, VELOCITY_ROWS, 3, qvar, 60, sat);
 
     clear_rows(rows);
     for (i = 0; i < 3; ++i) {
@@ -217,14 +243,14 @@ static void covariance_step(imu_navkf_t *f)
             /* -T (delta_ij + a_ij) / 2 */
             rows[i][GYRO_BIAS + j] = -IMU_ADD(i == j ? IMU_HALF(t) : 0, IMU_MUL(IMU_HALF(t), a[i][j], 30));
         }
-        /* Q54 per second * s Q30 -> Q84 */
-        qvar[VEL + i] = IMU_WMUL(NOISE_VEL, t);
-        qvar[ATT + i] = IMU_WMUL(NOISE_ATT, t);
-        qvar[GYRO_BIAS + i] = IMU_WMUL(NOISE_GYRO_BIAS, t);
-        qvar[ACC_BIAS + i] = IMU_WMUL(NOISE_ACC_BIAS, t);
+        /* Q54 per second * s Q30 >> 24 -> Q60 */
+        qvar[VEL + i] = IMU_WSHR(IMU_WMUL(NOISE_VEL, t), 24);
+        qvar[ATT + i] = IMU_WSHR(IMU_WMUL(NOISE_ATT, t), 24);
+        qvar[GYRO_BIAS + i] = IMU_WSHR(IMU_WMUL(NOISE_GYRO_BIAS, t), 24);
+        qvar[ACC_BIAS + i] = IMU_WSHR(IMU_WMUL(NOISE_ACC_BIAS, t), 24);
     }
-    qvar[BARO_BIAS] = IMU_WMUL(NOISE_BARO_BIAS, t);
-    imu_navcov_predict(&f->cov, rows, ATTITUDE_ROWS, 3, qvar, 84, sat);
+    qvar[BARO_BIAS] = IMU_WSHR(IMU_WMUL(NOISE_BARO_BIAS, t), 24);
+    imu_navcov_predict(&f->cov, rows, ATTITUDE_ROWS, 3, qvar, 60, sat);
     for (i = 0; i < 3; ++i) {
         imu_navcov_cap_unit_variance(&f->cov, ATT + i); /* an attitude error beyond a radian means nothing */
     }
@@ -264,7 +290,7 @@ static void clear(imu_q30_t dx[IMU_NAVKF_STATES])
  *  earlier parts of the same measurement corrected, h . dx, is taken off here), variance
  *  r / w (r: Q60, unit^2; w: a weight in [0, 1], Q30). */
 static void measure_row(imu_navkf_t *f, const imu_q30_t h[IMU_NAVKF_STATES], imu_q30_t z, imu_wide_t r, imu_q30_t w,
-                        imu_q30_t dx[IMU_NAVKF_STATES])
+                        const imu_navcov_map_t *gain_map, imu_q30_t dx[IMU_NAVKF_STATES])
 {
     uint32_t *sat = &f->nav.saturations;
     imu_wide_t corrected = 0; /* h . dx, Q60 */
@@ -273,7 +299,7 @@ static void measure_row(imu_navkf_t *f, const imu_q30_t h[IMU_NAVKF_STATES], imu
         corrected += IMU_WMUL(h[j], dx[j]);
     }
     (void)imu_navcov_update(&f->cov, h, r, 60, IMU_SUB_SAT(z, IMU_WIDE_SAT(IMU_WSHR(corrected, 30), sat), sat), w,
-                            NULL, dx, sat);
+                            gain_map, dx, sat);
 }
 
 /** The same for state i alone. */
@@ -282,7 +308,7 @@ static void measure(imu_navkf_t *f, int i, imu_q30_t z, imu_wide_t r, imu_q30_t 
     imu_q30_t h[IMU_NAVKF_STATES];
     clear(h);
     h[i] = IMU_ONE_Q30;
-    measure_row(f, h, z, r, w, dx);
+    measure_row(f, h, z, r, w, NULL, dx);
 }
 
 /** The corrections dx (the states' units, Q30) applied to the strapdown state. */
@@ -310,6 +336,9 @@ static void apply(imu_navkf_t *f, const imu_q30_t dx[IMU_NAVKF_STATES])
     /* units of 1024 m, Q30 -> mm (* 1024000 >> 30), the rounding carried */
     f->baro_bias = IMU_ADD_SAT(f->baro_bias, IMU_WSHR_FEEDBACK_SAT(IMU_WMUL(dx[BARO_BIAS], 1024000), 30,
                                                                    &f->carry[BARO_BIAS], sat), sat);
+    for (k = 0; k < 3; ++k) {
+        f->moved[k] = IMU_ADD_SAT(f->moved[k], IMU_WIDE_SAT(IMU_WSHR(step[k], 15), sat), sat); /* mm */
+    }
     imu_nav_move(n, step);
     imu_quat_integrate(n->q, theta);
     restart_interval(f);
@@ -342,45 +371,59 @@ static void at_rest(imu_navkf_t *f, imu_q30_t w)
 }
 
 /**
- * An update that the ENU component `row` of a sensor-frame unit vector u (Q30), turned into
- * ENU, is zero. With R = R^ (I + [dtheta x]), (R u)_row = r . u + r . (dtheta x u) = r . u +
- * dtheta . (u x r), r the row of R^: h = u x r on the attitude error, z = -r . u; variance
+ * An update that the component of a sensor-frame unit vector u (Q30), turned into ENU, along
+ * an ENU unit vector e is zero. With R = R^ (I + [dtheta x]), e . R u = r . u + r . (dtheta x u)
+ * = r . u + dtheta . (u x r), r = R^T e (for e = an axis, that row of R^): h = u x r on the
+ * attitude error, z = -r . u; variance
  * sigma^2 / w (sigma Q30, w Q30 in [0, 1]). Only the attitude moves (through P the rest too).
  */
-static void zero_component(imu_navkf_t *f, const imu_q30_t u[3], int row, imu_q30_t sigma, imu_q30_t w,
+static void zero_component(imu_navkf_t *f, const imu_q30_t u[3], const imu_q30_t r[3], imu_q30_t sigma, imu_q30_t w,
                            imu_q30_t dx[IMU_NAVKF_STATES])
 {
     uint32_t *sat = &f->nav.saturations;
-    imu_q30_t r[3], h[IMU_NAVKF_STATES];
+    imu_q30_t h[IMU_NAVKF_STATES];
     imu_real_t z = 0; /* Q30 */
     int k;
-    imu_quat_matrix_row(f->nav.q, row, r);
     clear(h);
     imu_vec3_cross(u, r, &h[ATT]);
     for (k = 0; k < 3; ++k) {
         z = IMU_SUB_SAT(z, IMU_MUL(r[k], u[k], 30), sat);
     }
-    measure_row(f, h, z, IMU_WMUL(sigma, sigma), w, dx);
+    measure_row(f, h, z, IMU_WMUL(sigma, sigma), w, NULL, dx);
+}
+
+/** A sensor-frame unit vector (Q30) in the estimate's earth frame (ENU, Q30). */
+static void to_earth(const imu_navkf_t *f, const imu_q30_t unit[3], imu_q30_t earth[3])
+{
+    imu_q30_t r[3][3];
+    int k;
+    matrix(f->nav.q, r);
+    for (k = 0; k < 3; ++k) {
+        earth[k] = IMU_ADD(IMU_ADD(IMU_MUL(r[k][0], unit[0], 30), IMU_MUL(r[k][1], unit[1], 30)),
+                           IMU_MUL(r[k][2], unit[2], 30));
+    }
 }
 
 /** The magnetometer's heading: the field has no east component (the magnetic north is the
- *  north here); weight w (Q30), times how far the field's strength is from the start's. */
+ *  north here); weight w (Q30), times how far the field's strength and dip are from the
+ *  start's; a disturbed field (FIELD_DISTURBED) is left out. */
 static void field_heading(imu_navkf_t *f, const imu_real_t mag[3], imu_q30_t w)
 {
     uint32_t *sat = &f->nav.saturations;
-    imu_q30_t unit[3], dx[IMU_NAVKF_STATES];
+    imu_q30_t unit[3], earth[3], dx[IMU_NAVKF_STATES], w_field, w_norm, horizontal, r[3][3];
     imu_real_t norm;
     if (f->field_reference <= 0 || !imu_vec3_normalize(mag, unit, &norm)) {
         return;
     }
-    /* relative change of the strength, Q24: iron nearby changes it */
-    w = IMU_MUL(w, imu_deviation_weight(IMU_DIV_SAT(IMU_SUB_SAT(norm, f->field_reference, sat), f->field_reference,
-                                                    24, sat), FIELD_TOLERANCE, sat), 30);
-    if (w <= 0) {
+    to_earth(f, unit, earth);
+    w_field = imu_field_weight(norm, f->field_reference, imu_field_dip(earth, &horizontal), f->dip_reference,
+                               FIELD_TOLERANCE, DIP_TOLERANCE, &w_norm, sat);
+    if (w_field < FIELD_DISTURBED) {
         return;
     }
     clear(dx);
-    zero_component(f, unit, 0, FIELD_EAST_SIGMA, w, dx);
+    matrix(f->nav.q, r);
+    zero_component(f, unit, r[0], FIELD_EAST_SIGMA, IMU_MUL(w, w_field, 30), dx);
     apply(f, dx);
 }
 
@@ -391,7 +434,7 @@ static void gravity_tilt(imu_navkf_t *f, const imu_q16_t acc[3])
 {
     uint32_t *sat = &f->nav.saturations;
     imu_q16_t force[3];
-    imu_q30_t unit[3], dx[IMU_NAVKF_STATES], w;
+    imu_q30_t unit[3], dx[IMU_NAVKF_STATES], w, r[3][3];
     imu_real_t norm; /* m/s^2, Q16 */
     int k;
     for (k = 0; k < 3; ++k) {
@@ -407,8 +450,9 @@ static void gravity_tilt(imu_navkf_t *f, const imu_q16_t acc[3])
         return;
     }
     clear(dx);
-    zero_component(f, unit, 0, GRAVITY_SIGMA, w, dx);
-    zero_component(f, unit, 1, GRAVITY_SIGMA, w, dx);
+    matrix(f->nav.q, r);
+    zero_component(f, unit, r[0], GRAVITY_SIGMA, w, dx);
+    zero_component(f, unit, r[1], GRAVITY_SIGMA, w, dx);
     apply(f, dx);
 }
 
@@ -618,7 +662,8 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     f->dt_per_64 = IMU_MUL(f->nav.dt, IMU_QCONST(1.0 / 64.0, 36), 30); /* s Q30 -> s / 64, Q36 */
     f->cov_steps = seconds_in_steps(f, COV_INTERVAL);
     f->rest_steps = f->cov_steps;
-    f->reject_steps = seconds_in_steps(f, REJECT_TIME);
+    f->reset_steps = seconds_in_steps(f, RESET_TIME);
+    f->gap_steps = seconds_in_steps(f, GAP_TIME);
     f->longest_steps = seconds_in_steps(f, LONGEST_COUNT);
     f->still = 0;
     f->baro_bias = 0;
@@ -642,9 +687,22 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     f->fix_slow = 1;
     {
         imu_real_t norm = 0;
-        f->field_reference = imu_vec3_normalize(mag, NULL, &norm) ? norm : 0;
+        imu_q30_t unit[3];
+        f->field_reference = imu_vec3_normalize(mag, unit, &norm) ? norm : 0;
+        imu_q30_t earth[3], horizontal;
+        to_earth(f, unit, earth);
+        f->dip_reference = f->field_reference > 0 ? imu_field_dip(earth, &horizontal) : 0;
     }
-    f->rejecting = -1;
+    for (k = 0; k < 3; ++k) {
+        f->last_offset[k] = f->last_at[k] = f->last_vel[k] = 0;
+        f->moved[k] = 0;
+    }
+    f->last_fix = 0;
+    f->last_used = 0;
+    f->fades = 0;
+    f->spread = RAYLEIGH_MEAN;
+    f->doubting = -1;
+    f->resets = 0;
     f->rejected = 0;
     f->zero_velocity = 0;
     f->anchored = 0;
@@ -675,6 +733,13 @@ static imu_q30_t force_steadiness(imu_navkf_t *f, const imu_q16_t acc[3])
     return imu_deviation_weight(IMU_SHL_SAT(trend, 8, sat), TREND_TOLERANCE, sat); /* Q16 -> Q24 */
 }
 
+/** 1 when the estimate's horizontal speed is below SLOW_SPEED. */
+static int estimate_slow(const imu_navkf_t *f)
+{
+    const imu_real_t *v = f->nav.vel; /* m/s, Q20, within 512 m/s: the squares' sum below 2^59 */
+    return IMU_WMUL(v[0], v[0]) + IMU_WMUL(v[1], v[1]) < IMU_WMUL(SLOW_SPEED, SLOW_SPEED);
+}
+
 void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc[3], const imu_real_t mag[3])
 {
     const imu_q30_t steadiness = force_steadiness(f, acc);
@@ -685,7 +750,7 @@ void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc
     f->still = still_sample(f, acc) ? (f->still < f->rest_steps ? f->still + 1 : f->still) : 0;
     f->since_fix += f->since_fix < f->longest_steps;
     f->since_baro += f->since_baro < f->baro_steps;
-    f->rejecting += f->rejecting >= 0 && f->rejecting < f->reject_steps;
+    f->doubting += f->doubting >= 0 && f->doubting < f->reset_steps;
     imu_nav_propagate(&f->nav, gyr, acc);
     for (k = 0; k < 3; ++k) {
         /* the specific force in ENU (the acceleration with gravity back), Q16 * Q36 -> Q52 */
@@ -698,12 +763,15 @@ void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc
     }
     flush(f);
     {
-        /* GNSS within the last minute: rest only as the last fix says (through an outage too:
-         * a car cruising through a tunnel is as still as a foot in its stance); without, the
+        /* GNSS within the last minute: rest as the last fix says while fixes come; through an
+         * outage, only while the estimate's own speed is a walker's (a car cruising through a
+         * tunnel is as still as a foot in its stance, but not as slow); without GNSS, the
          * sensors alone decide */
         const int with_gnss = f->since_fix < f->longest_steps;
+        const int fixes_come = f->since_fix < f->gap_steps;
         const imu_q30_t w = with_gnss ? steadiness : IMU_ONE_Q30;
-        const int at_rest_now = f->still >= f->rest_steps && (with_gnss ? f->fix_stood : 1) && w > 0;
+        const int at_rest_now = f->still >= f->rest_steps &&
+                                (!with_gnss || (fixes_come ? f->fix_stood : estimate_slow(f))) && w > 0;
         if (at_rest_now) {
             at_rest(f, w);
         }
@@ -730,20 +798,84 @@ static imu_real_t normalised_square(const imu_navkf_t *f, int i, imu_q30_t z, im
     return IMU_DIV_SAT(IMU_MUL_SAT(z, z, 30, &ignored), s, 16, &ignored);
 }
 
+/** A value (mm) over a standard deviation (mm, >= 1), Q16 (saturated: the gate's own saturations are not counted). */
+static imu_real_t in_sigmas(imu_real_t value, imu_real_t sigma)
+{
+    uint32_t ignored = 0;
+    return IMU_DIV_SAT(value, sigma, 16, &ignored);
+}
+
+/**
+ * How far a GNSS fix lies from the last one moved to its time (Q16, in standard deviations of
+ * their difference: horizontal h_acc each axis, vertical v_acc sqrt 2), by the receiver's mean
+ * velocity when both have one, else by the estimate's displacement without the corrections
+ * applied since (`offset`: this fix's offset from the estimate, mm); *horizontal gets the
+ * horizontal part. -1 when there is none to compare with (none yet, or too long ago).
+ */
+static imu_real_t disagreement(const imu_navkf_t *f, const imu_navkf_fix_t *fix, const imu_real_t at_fix[3],
+                               const imu_real_t offset[3], imu_real_t *horizontal)
+{
+    uint32_t ignored = 0;
+    const imu_nav_t *n = &f->nav;
+    imu_real_t d[3]; /* mm */
+    int k;
+    if (f->last_fix == 0 || f->since_fix > f->gap_steps) {
+        return -1;
+    }
+    for (k = 0; k < 3; ++k) {
+        if (fix->has_vel && f->last_fix == 2) {
+            /* mean velocity (Q20) * dt (Q30) >> 30 -> m per sample, Q20; * samples * 1000 >> 20 -> mm */
+            const imu_real_t per_sample = IMU_MUL(IMU_HALF(IMU_ADD(fix->vel[k], f->last_vel[k])), n->dt, 30);
+            const imu_real_t moved = IMU_WIDE_SAT(IMU_WSHR(IMU_WMUL(per_sample, f->since_fix) * 1000, 20), &ignored);
+            d[k] = IMU_SUB_SAT(IMU_SUB_SAT(at_fix[k], f->last_at[k], &ignored), IMU_MUL_SAT(moved, k == 0 ? n->scale_east
+                               : k == 1 ? n->scale_north : IMU_ONE_Q30, 30, &ignored), &ignored); /* offset mm */
+            if (k < 2) {
+                d[k] = IMU_DIV_SAT(d[k], k == 0 ? n->scale_east : n->scale_north, 30, &ignored); /* mm */
+            }
+        } else {
+            d[k] = IMU_ADD_SAT(IMU_SUB_SAT(offset[k], f->last_offset[k], &ignored), f->moved[k], &ignored);
+        }
+    }
+    *horizontal = imu_hypot(in_sigmas(d[0], fix->h_acc), in_sigmas(d[1], fix->h_acc));
+    return imu_hypot(*horizontal, in_sigmas(d[2], IMU_MUL_SAT(fix->v_acc, IMU_QCONST(1.41421356, 30), 30, &ignored)));
+}
+
+/** The receiver's accuracy's inflation (Q16, at least 1): how far its fixes disagree among
+ *  themselves beside what their accuracies say. */
+static imu_real_t inflation(const imu_navkf_t *f)
+{
+    uint32_t ignored = 0;
+    return f->spread > RAYLEIGH_MEAN ? IMU_DIV_SAT(f->spread, RAYLEIGH_MEAN, 16, &ignored) : IMU_QCONST(1.0, 16);
+}
+
+/** The estimate in doubt: position (and velocity) reset to the fix, as at the start. */
+static int reset_to_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
+{
+    if (!anchor(f, fix)) {
+        return 0;
+    }
+    ++f->resets;
+    f->doubting = -1;
+    f->last_fix = 0;
+    return 1;
+}
+
 int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
 {
     uint32_t *sat = &f->nav.saturations;
     imu_nav_t *n = &f->nav;
     imu_real_t at_fix[3], arm_enu[3], arm_vel[3]; /* offsets mm; the antenna's velocity beside the sensor's, Q20 */
+    imu_real_t offset[3];                         /* the fix's offset from the estimate then, ENU, mm */
     imu_q30_t z[6], dx[IMU_NAVKF_STATES], r[3][3];
     imu_wide_t var[6]; /* the measurements' variances, Q60 */
-    imu_real_t nis = 0; /* Q16 */
-    const int count = fix->has_vel ? 6 : 3;
+    imu_real_t nis_pos = 0, nis_vel = 0, apart = -1, apart_h = 0; /* Q16 */
+    const int gnss = fix->source == IMU_NAVKF_GNSS;
+    const imu_real_t inflate = gnss ? inflation(f) : IMU_QCONST(1.0, 16);
     /* standard deviations in the states' units, Q30: horizontal (each axis), vertical, speed */
-    const imu_q30_t sigma_pos[2] = {IMU_MUL_SAT(fix->h_acc, MM_TO_POS_AXIS, 20, sat),
-                                    IMU_MUL_SAT(fix->v_acc, MM_TO_POS, 20, sat)};
+    const imu_q30_t sigma_pos[2] = {IMU_MUL_SAT(IMU_MUL_SAT(fix->h_acc, MM_TO_POS_AXIS, 20, sat), inflate, 16, sat),
+                                    IMU_MUL_SAT(IMU_MUL_SAT(fix->v_acc, MM_TO_POS, 20, sat), inflate, 16, sat)};
     const imu_q30_t sigma_vel = IMU_MUL_SAT(fix->s_acc, MM_S_TO_VEL, 16, sat);
-    int k;
+    int use_pos, use_vel, k;
     if (!f->anchored) {
         return anchor(f, fix);
     }
@@ -763,7 +895,8 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
         if (k < 2) {
             d = IMU_DIV_SAT(d, k == 0 ? n->scale_east : n->scale_north, 30, sat); /* offset mm -> mm */
         }
-        z[k] = IMU_MUL_SAT(IMU_SUB_SAT(d, arm_enu[k], sat), MM_TO_POS, 20, sat);
+        offset[k] = IMU_SUB_SAT(d, arm_enu[k], sat);
+        z[k] = IMU_MUL_SAT(offset[k], MM_TO_POS, 20, sat);
         var[k] = IMU_WMUL(sigma_pos[k < 2 ? 0 : 1], sigma_pos[k < 2 ? 0 : 1]);
         if (fix->has_vel) {
             const imu_real_t back_vel = IMU_WIDE_SAT(IMU_WSHR(IMU_WMUL(n->acc[k], fix->age), 26), sat);
@@ -772,37 +905,89 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
             var[3 + k] = IMU_WMUL(sigma_vel, sigma_vel);
         }
     }
-    for (k = 0; k < 3 && fix->source == IMU_NAVKF_GNSS; ++k) {
-        nis = IMU_ADD_SAT(nis, normalised_square(f, k, z[k], var[k]), sat);
-    }
-    if (fix->source == IMU_NAVKF_GNSS) {
-        /* whether the board stands, from any fix: a rejected one's position is in doubt, not
-         * its speed */
+    use_pos = 1;
+    use_vel = fix->has_vel;
+    if (gnss) {
+        for (k = 0; k < 3; ++k) {
+            nis_pos = IMU_ADD_SAT(nis_pos, normalised_square(f, POS + k, z[k], var[k]), sat);
+            if (fix->has_vel) {
+                nis_vel = IMU_ADD_SAT(nis_vel, normalised_square(f, VEL + k, z[3 + k], var[3 + k]), sat);
+            }
+        }
+        apart = disagreement(f, fix, at_fix, offset, &apart_h);
+        if ((nis_pos > GATE_3 || nis_vel > GATE_3) && f->last_used && apart >= 0 &&
+            apart <= IMU_MUL(GATE_SIGMAS, inflate, 16)) {
+            /* A fix that agrees with the last one used but not with the estimate: the estimate
+             * is the one in doubt (a gyro bias that stepped, a model the motion left): its
+             * covariance is scaled up until the fix passes, a fading memory (counted). */
+            const imu_real_t most = nis_pos > nis_vel ? nis_pos : nis_vel;
+            int fade = 1;
+            while (fade < MAX_FADE && IMU_SHR(most, 2 * fade) > GATE_3) {
+                ++fade;
+            }
+            imu_navcov_scale_up(&f->cov, fade);
+            for (k = 0; k < 3; ++k) {
+                imu_navcov_cap_unit_variance(&f->cov, ATT + k);
+            }
+            ++f->fades;
+            nis_pos = nis_vel = 0;
+            for (k = 0; k < 3; ++k) {
+                nis_pos = IMU_ADD_SAT(nis_pos, normalised_square(f, POS + k, z[k], var[k]), sat);
+                if (fix->has_vel) {
+                    nis_vel = IMU_ADD_SAT(nis_vel, normalised_square(f, VEL + k, z[3 + k], var[3 + k]), sat);
+                }
+            }
+        }
+        use_pos = nis_pos <= GATE_3;
+        use_vel = fix->has_vel && nis_vel <= GATE_3;
+        if (apart >= 0) {
+            /* the receiver's own consistency, an outlier counted as SPREAD_CAP at most */
+            f->spread = IMU_ADD(f->spread, IMU_MUL(IMU_SUB(apart_h < SPREAD_CAP ? apart_h : SPREAD_CAP, f->spread),
+                                                   SPREAD_WEIGHT, 30));
+        }
+        for (k = 0; k < 3; ++k) {
+            f->last_offset[k] = offset[k];
+            f->last_at[k] = at_fix[k];
+            f->last_vel[k] = fix->vel[k];
+            f->moved[k] = 0;
+        }
+        f->last_fix = fix->has_vel ? 2 : 1;
+        f->last_used = use_pos;
+        /* whether the board stands, from any fix: a rejected one's position is in doubt, not its speed */
         note_speed(f, fix);
         f->since_fix = 0;
-    }
-    if (nis > GATE_3) {
-        if (f->rejecting < 0) {
-            f->rejecting = 0;
-        }
-        if (f->rejecting < f->reject_steps) {
+        if (!use_pos || use_vel != fix->has_vel) {
             ++f->rejected;
-            return 0;
+            if (f->doubting >= 0 && apart >= 0 && apart <= IMU_MUL(GATE_SIGMAS, inflate, 16)) {
+                /* a run of rejected fixes that agree with each other: the estimate is in doubt */
+                if (f->doubting >= f->reset_steps) {
+                    return reset_to_fix(f, fix);
+                }
+            } else {
+                f->doubting = 0;
+            }
+        } else {
+            f->doubting = -1;
         }
     }
-    f->rejecting = -1;
     clear(dx);
-    for (k = 0; k < count; ++k) {
+    for (k = 0; k < 6; ++k) {
         imu_q30_t h[IMU_NAVKF_STATES];
+        if (k < 3 ? !use_pos : !use_vel) {
+            continue;
+        }
         clear(h);
         h[k] = IMU_ONE_Q30;
         if (k < 3) {
             lever_arm_row(f, r[k], &h[ATT]);
         }
-        measure_row(f, h, z[k], var[k], IMU_ONE_Q30, dx);
+        /* A receiver's position with its velocity corrects neither the attitude nor the gyro
+         * bias: its errors wander for tens of seconds (multipath) where its Doppler velocity's
+         * do not, and the velocity shows the heading. */
+        measure_row(f, h, z[k], var[k], IMU_ONE_Q30, k < 3 && gnss && fix->has_vel ? &POSITION_ONLY : NULL, dx);
     }
     apply(f, dx);
-    return 1;
+    return use_pos && use_vel == fix->has_vel;
 }
 
 /** ln(1 + u) for |u| <= BARO_REFERENCE_SPAN, Q30: u - u^2/2 + u^3/3 - u^4/4. */

@@ -86,7 +86,6 @@ typedef struct {
     int32_t still;              /**< consecutive still samples (stops counting at rest_steps) */
     int32_t rest_steps;         /**< still samples that make rest */
     imu_wide_t zero_rate_var;   /**< variance of one sample's rate at rest, (rad/s)^2, Q60 */
-    int32_t reject_steps;       /**< samples of rejected fixes after which the gate gives in */
     int32_t longest_steps;      /**< where the counts stop: a minute (without GNSS that long, rest is the sensors') */
     imu_q16_t force_fast[3];    /**< the specific force low-passed over 0.1 s, sensor frame, m/s^2, Q16 */
     imu_q16_t force_slow[3];    /**< ... over 1 s */
@@ -96,8 +95,22 @@ typedef struct {
     int fix_stood;              /**< 1 when the last GNSS fix's speed was below REST_SPEED (0: no velocity) */
     int fix_slow;               /**< 1 when it was below SLOW_SPEED or unknown: the magnetometer gives the heading */
     imu_real_t field_reference; /**< the field's strength at the start, the mag's unit (0: none) */
-    int32_t rejecting;          /**< samples since the first of the current run of rejected fixes; -1: none */
-    uint32_t rejected;          /**< GNSS fixes rejected by the gate, in all */
+    imu_angle_t dip_reference;  /**< its dip in the start's attitude, rad, Q29 */
+    int32_t doubting;           /**< samples since the first of the current run of rejected GNSS fixes that agree
+                                     with each other; -1: none */
+    int32_t reset_steps;        /**< samples of such a run after which position and velocity are reset to the fixes */
+    int32_t gap_steps;          /**< two fixes further apart than this (samples) are not compared */
+    imu_real_t last_offset[3];  /**< the last GNSS fix's offset from the estimate then (antenna's, ENU), mm */
+    imu_real_t last_at[3];      /**< its position in the origin's offsets (imu_nav_offsets), mm */
+    imu_real_t last_vel[3];     /**< its velocity, m/s, Q20 */
+    int last_fix;               /**< 0: none to compare with; 1: a position; 2: with velocity */
+    int last_used;              /**< 1 when its position was used */
+    imu_real_t moved[3];        /**< the position corrections applied since the last GNSS fix, ENU, mm */
+    imu_real_t spread;          /**< how far consecutive fixes disagree beside their accuracy, a running mean
+                                     of their normalised squared disagreement, Q16 (1: as reported) */
+    uint32_t rejected;          /**< GNSS fixes rejected by the gate (position or velocity), in all */
+    uint32_t resets;            /**< position and velocity reset to the fixes (the filter's own divergence) */
+    uint32_t fades;             /**< fixes that scaled the covariance up (the estimate in doubt) */
     uint32_t zero_velocity;     /**< zero-velocity (and zero-rate) updates, in all */
     imu_real_t baro_bias;       /**< the barometer's height minus the true one, mm */
     imu_real_t baro_reference;  /**< pressure of the barometer's reference, Pa (0: none yet) */
