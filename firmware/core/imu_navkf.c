@@ -106,7 +106,7 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12, BARO_BIAS = 15 }
 #define SPREAD_CAP IMU_QCONST(5.0, 16)
 #define SPREAD_WEIGHT IMU_QCONST(1.0 / 16.0, 30)
 /** The most a fix scales the covariance by: 4^MAX_FADE. */
-#define MAX_FADE 8
+#define MAX_FADE 5
 
 /** Unit conversions into the states' units (Q30): mm to 1024 m (Q50 factor, >> 20),
  *  mm/s to 64 m/s (Q46, >> 16), m/s Q20 to 64 m/s (Q36, >> 26). */
@@ -921,8 +921,10 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
              * is the one in doubt (a gyro bias that stepped, a model the motion left): its
              * covariance is scaled up until the fix passes, a fading memory (counted). */
             const imu_real_t most = nis_pos > nis_vel ? nis_pos : nis_vel;
+            imu_real_t bound = IMU_MUL(GATE_3, IMU_QCONST(4.0, 16), 16); /* Q16, at most 2^30 */
             int fade = 1;
-            while (fade < MAX_FADE && IMU_SHR(most, 2 * fade) > GATE_3) {
+            while (fade < MAX_FADE && most > bound) {
+                bound = IMU_MUL(bound, IMU_QCONST(4.0, 16), 16);
                 ++fade;
             }
             imu_navcov_scale_up(&f->cov, fade);

@@ -128,7 +128,7 @@ _DECLARATIONS = """
         imu_real_t h_acc; imu_real_t v_acc; imu_real_t s_acc; imu_q30_t age;
     } imu_navkf_fix_t;
     typedef struct { imu_q30_t q[4]; imu_real_t vel[3]; uint32_t saturations; ...; } imu_nav_t;
-    typedef struct { imu_nav_t nav; uint32_t rejected; uint32_t zero_velocity; ...; } imu_navkf_t;
+    typedef struct { imu_nav_t nav; uint32_t rejected; uint32_t resets; uint32_t fades; uint32_t zero_velocity; ...; } imu_navkf_t;
     imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t acc[3], const imu_real_t mag[3],
                                  const imu_navkf_fix_t *fix, const imu_real_t lever_arm[3]);
     void imu_navkf_position(const imu_navkf_t *f, imu_angle_t *lat, imu_angle_t *lon, imu_real_t *height);

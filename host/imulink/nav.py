@@ -36,7 +36,9 @@ class NavResult:
     geodetic position (deg, m), ENU velocity (m/s), attitude quaternion (sensor to ENU, w
     first), the error state's standard deviations (STATE_NAMES, SI units: m, m/s, rad,
     rad/s, m/s^2, m); per fix of the input from the start on, whether the gate let it in;
-    counts of rejected fixes, zero-velocity updates and saturations."""
+    counts of rejected fixes (position or velocity gated), resets of position and velocity to
+    the fixes (the estimate in doubt), fixes that scaled the covariance up, zero-velocity
+    updates and saturations."""
     start: int
     timestamp_us: np.ndarray
     lat_deg: np.ndarray
@@ -48,6 +50,8 @@ class NavResult:
     fix_index: np.ndarray
     fix_accepted: np.ndarray
     rejected: int
+    resets: int
+    fades: int
     zero_velocity: int
     saturations: int
 
@@ -333,4 +337,5 @@ def run(inp: NavInput, arithmetic: str = "fixed", lever_arm_m=None) -> NavResult
         height_m=height * scale(0) / 1000.0, vel_enu=vel * scale(20), quat=quat * scale(30),
         sigma=np.sqrt(np.maximum(variance, 0.0)) * STATE_UNITS,
         fix_index=inp.fix_index[1:], fix_accepted=accepted.astype(bool),
-        rejected=int(state.rejected), zero_velocity=int(state.zero_velocity), saturations=int(state.nav.saturations))
+        rejected=int(state.rejected), resets=int(state.resets), fades=int(state.fades),
+        zero_velocity=int(state.zero_velocity), saturations=int(state.nav.saturations))
