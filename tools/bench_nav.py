@@ -28,13 +28,26 @@ also propagates the covariance), per GNSS fix (imu_navkf_fix) and per barometer 
 After every sample the position, velocity and attitude are read back and compared with
 the x86 fixed build (imulink.nav): the benchmark fails at the first difference.
 
+Rough conditions (`--rough`, instead of the accuracy scenarios above): every scenario of
+imulink.sim.nav_scenarios (engine vibration, GNSS outliers and multipath, a gyro bias
+step, a magnetic disturbance, an indoor outage, a cold start, a velocity blunder, heel
+strikes that clip and stairs) over seeds 0..N-1 (`--seeds`, default 3), both builds; one
+table per scenario: each metric's worst seed (not the best) in each build, beside the
+clean twin's worst (the same runs without the conditions), the GNSS fixes alone (their own
+errors: the simplest alternative) and the target; and the largest fixed-vs-float
+difference over the seeds. The cases run in parallel (two processes).
+
     .venv/bin/python tools/bench_nav.py [--seconds 60] [--no-accuracy] [--no-arm] [--json]
+    .venv/bin/python tools/bench_nav.py --rough [--seeds 3] [--no-arm] [--json]
 """
 from __future__ import annotations
 
 import argparse
 import json
 import math
+import multiprocessing
+import multiprocessing.connection
+import os
 import struct
 import sys
 import tempfile
@@ -50,6 +63,7 @@ sys.path.insert(0, str(ROOT / "host"))
 import bench_arm  # noqa: E402
 from imulink import nav  # noqa: E402
 from imulink.nav_input import simulated_input  # noqa: E402
+from imulink.sim import nav_scenarios as ns  # noqa: E402
 from imulink.sim import navigation as nv  # noqa: E402
 from imulink.sim import simulate  # noqa: E402
 
@@ -195,6 +209,162 @@ def without_gnss(progress=lambda _m: None) -> dict:
     return row
 
 
+def _plain(value):
+    """`value` with numpy's scalars and arrays and tuples made JSON's types."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value
+
+
+def rough_case(case: tuple[str, int]) -> dict:
+    """One rough scenario and seed: its metrics in both builds, its clean twin's (fixed build),
+    the GNSS fixes alone, and the builds' largest difference."""
+    name, seed = case
+    scenario = ns.build(name, seed)
+    results = {a: nav.run(scenario.inp, a) for a in ("fixed", "float")}
+    row = {"name": name, "seed": seed, "description": scenario.description, "targets": dict(scenario.targets),
+           "events": _plain(scenario.events), "fixed_vs_float_m_deg": builds_differ(results),
+           "clean": ns.evaluate(scenario, nav.run(scenario.clean, "fixed"), clean=True),
+           "gnss": ns.gnss_alone(scenario)}
+    for arithmetic, result in results.items():
+        row[arithmetic] = ns.evaluate(scenario, result)
+    return row
+
+
+def _case_process(case: tuple[str, int], pipe) -> None:
+    try:
+        pipe.send(rough_case(case))
+    except Exception as exc:  # reported in the parent, with the case it belongs to
+        pipe.send(exc)
+    pipe.close()
+
+
+def run_cases(cases: list[tuple[str, int]], processes: int, timeout_s: float, progress=lambda _m: None):
+    """rough_case over `cases`, `processes` at a time, each in a process of its own, so that a
+    case that takes longer than `timeout_s` (s; a filter that never returns) is ended, and one
+    whose process dies (a crash in the C core) or raises is reported, instead of either
+    holding the benchmark up or ending it. Yields (case, row), row a str saying why it failed."""
+    context = multiprocessing.get_context("fork")
+    waiting, running = list(cases), []
+    while waiting or running:
+        while waiting and len(running) < processes:
+            case = waiting.pop(0)
+            receive, send = context.Pipe(duplex=False)
+            process = context.Process(target=_case_process, args=(case, send), daemon=True)
+            process.start()
+            send.close()
+            running.append((case, process, receive, time.monotonic()))
+        multiprocessing.connection.wait([r for _, _, r, _ in running], timeout=1.0)
+        for entry in list(running):
+            case, process, receive, started = entry
+            if receive.poll():
+                try:
+                    row = receive.recv()
+                except EOFError:  # the process died without a word
+                    row = None
+            elif time.monotonic() - started > timeout_s:
+                process.kill()
+                row = f"timed out after {timeout_s:g} s"
+            elif not process.is_alive():
+                row = None
+            else:
+                continue
+            process.join()
+            receive.close()
+            running.remove(entry)
+            if row is None:
+                row = f"the process died (exit code {process.exitcode})"
+            elif isinstance(row, Exception):
+                row = f"raised {row!r}"
+            yield case, row
+
+
+def _failed_case(case: tuple[str, int], why: str) -> dict:
+    """A case that failed (`why`), as a row: every metric NaN (the worst), the clean twin's
+    too; the GNSS fixes' as they are."""
+    name, seed = case
+    scenario = ns.build(name, seed)
+    nan = {metric: math.nan for metric in scenario.metrics}
+    return {"name": name, "seed": seed, "description": scenario.description, "targets": dict(scenario.targets),
+            "events": _plain(scenario.events), "fixed_vs_float_m_deg": (math.nan, math.nan), "clean": nan,
+            "gnss": ns.gnss_alone(scenario), "fixed": nan, "float": dict(nan), "failed": why}
+
+
+def _worst(rows: list[dict], column: str, metric: str) -> tuple[float | None, int | None]:
+    """The largest (worst: every metric is an error) value of a metric over the seeds, and its
+    seed; a NaN (nothing measured, or a run that failed) is the worst of all."""
+    values = [(row[column][metric], row["seed"]) for row in rows if row[column][metric] is not None]
+    if not values:
+        return None, None
+    return max(values, key=lambda v: (math.isnan(v[0]), v[0]))
+
+
+def rough(seeds: int, progress=lambda _m: None, timeout_s: float = 300.0) -> list[dict]:
+    """Every rough scenario over seeds 0..seeds-1, in parallel: per scenario, each metric's
+    worst seed in each build, the clean twin's and the GNSS fixes' worst, and the target. A
+    case that takes longer than `timeout_s` (s), or crashes, counts as failed: NaN, the worst."""
+    cases = [(name, seed) for name in ns.SCENARIOS for seed in range(seeds)]
+    rows: dict[str, list[dict]] = {name: [] for name in ns.SCENARIOS}
+    processes = max(1, min(2, os.cpu_count() or 1, len(cases)))
+    for case, row in run_cases(cases, processes, timeout_s, progress):
+        if isinstance(row, str):
+            progress(f"{case[0]} seed {case[1]}: FAILED, {row}")
+            row = _failed_case(case, row)
+        else:
+            progress(f"{case[0]} seed {case[1]}: done")
+        rows[case[0]].append(row)
+    table = []
+    for name, runs in rows.items():
+        runs.sort(key=lambda r: r["seed"])
+        metrics = {}
+        for metric in runs[0]["fixed"]:
+            entry = {column: _worst(runs, column, metric) for column in ("fixed", "float", "clean", "gnss")}
+            limit = runs[0]["targets"].get(metric)
+            entry["target"] = limit
+            if limit is not None:
+                worst = [entry[a][0] for a in ("fixed", "float")]
+                entry["met"] = all(v is not None and v <= limit for v in worst)
+            metrics[metric] = entry
+        differ = max(runs, key=lambda r: (math.isnan(r["fixed_vs_float_m_deg"][0]), r["fixed_vs_float_m_deg"][0]))
+        table.append({"scenario": name, "description": runs[0]["description"], "seeds": [r["seed"] for r in runs],
+                      "metrics": metrics, "fixed_vs_float_m_deg": list(differ["fixed_vs_float_m_deg"]),
+                      "fixed_vs_float_worst_seed": differ["seed"], "events": {r["seed"]: r["events"] for r in runs},
+                      "failed": {r["seed"]: r["failed"] for r in runs if "failed" in r}})
+    return table
+
+
+def _cell(value_seed, seed: bool = True) -> str:
+    value, at = value_seed
+    if value is None:
+        return "-"
+    text = f"{value:.3g}" if isinstance(value, float) else f"{value}"
+    return f"{text} (seed {at})" if seed else text
+
+
+def print_rough(table: list[dict]) -> None:
+    for row in table:
+        seeds = row["seeds"]
+        print(f"\n{row['scenario']}: {row['description']}")
+        print(f"seeds {seeds[0]}-{seeds[-1]}; each metric at its worst seed; the clean twin: the same runs without "
+              "the conditions (fixed build); GNSS alone: the fixes' own errors")
+        print("| metric | fixed | float | clean twin | GNSS alone | target | met |")
+        print("|---|---:|---:|---:|---:|---:|---|")
+        for metric, entry in row["metrics"].items():
+            target = "-" if entry["target"] is None else f"<= {entry['target']:g}"
+            met = "" if entry["target"] is None else ("yes" if entry["met"] else "NO")
+            print(f"| {metric} | {_cell(entry['fixed'])} | {_cell(entry['float'])} | {_cell(entry['clean'], False)} "
+                  f"| {_cell(entry['gnss'], False)} | {target} | {met} |")
+        m, deg = row["fixed_vs_float_m_deg"]
+        seed = row["fixed_vs_float_worst_seed"]
+        print(f"fixed vs float (max over the seeds): {m:.3f} m, {deg:.4f} deg (seed {seed})")
+        for seed, why in row["failed"].items():
+            print(f"FAILED: seed {seed}: {why} (its metrics nan)")
+
+
 def to_words(values, q: int) -> list[int]:
     return [int(v) for v in np.rint(np.asarray(values, dtype=np.float64) * 2.0 ** q)]
 
@@ -285,14 +455,24 @@ def main() -> int:
     parser.add_argument("--no-accuracy", action="store_true", help="skip the accuracy scenarios")
     parser.add_argument("--no-arm", action="store_true", help="skip the Cortex-M4 cost")
     parser.add_argument("--json", action="store_true", help="print the results as JSON")
+    parser.add_argument("--rough", action="store_true",
+                        help="the rough scenarios (imulink.sim.nav_scenarios) instead of the accuracy ones")
+    parser.add_argument("--seeds", type=int, default=3, help="with --rough: seeds 0..N-1 of each scenario (default 3)")
+    parser.add_argument("--case-timeout", type=float, default=300.0,
+                        help="with --rough: seconds a scenario and seed may take before it counts as failed "
+                        "(default 300)")
     args = parser.parse_args()
     if args.seconds < 2.0:
         parser.error("--seconds must be at least 2 (a fix each second)")
+    if args.seeds < 1:
+        parser.error("--seeds must be at least 1")
     started = time.perf_counter()
     log = (lambda m: None) if args.json else (lambda m: print(m, file=sys.stderr))
     out = {}
     try:
-        if not args.no_accuracy:
+        if args.rough:
+            out["rough"] = rough(args.seeds, log, args.case_timeout)
+        elif not args.no_accuracy:
             out["accuracy"] = accuracy(log)
         if not args.no_arm:
             with tempfile.TemporaryDirectory(prefix="bench_nav.") as tmp:
@@ -302,8 +482,10 @@ def main() -> int:
         return 1
     out["run_s"] = time.perf_counter() - started
     if args.json:
-        print(json.dumps(out, indent=2))
+        print(json.dumps(_plain(out) if args.rough else out, indent=2))
         return 0
+    if "rough" in out:
+        print_rough(out["rough"])
     for row in out.get("accuracy", []):
         print(f"{row['scenario']}:")
         for key in (k for k in row if k not in ("scenario", "fixed_vs_float_m_deg")):

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import quat as Q
-from .sensors import AccModel, GyroModel, MagModel, SensorSuite
+from .sensors import AccModel, GyroModel, MagModel, SensorSuite, _smooth_window
 from .trajectories import Trajectory, _lowpass_noise, _n_samples, integrate_gyro
 
 # WGS-84 (NIMA TR8350.2): semi-major axis, flattening, first eccentricity squared.
@@ -233,14 +233,25 @@ def _rectangle_headings(lengths_m: tuple[float, float], stride_m: float) -> list
     return changes
 
 
+#: A staircase's tread (going), m: a stride on stairs spans two of them.
+STAIR_TREAD_M = 0.28
+
+
 def foot_walk(duration_s: float, rate_hz: float, seed: int = 0, origin: Origin = Origin(),
-              rectangle_m: tuple[float, float] = (20.0, 10.0)) -> NavTrajectory:
+              rectangle_m: tuple[float, float] = (20.0, 10.0), stairs=()) -> NavTrajectory:
     """A foot-mounted sensor (on the instep: y forward, z up while the foot is flat) walking
     laps of a rectangle, anticlockwise, from a corner: strides of 1.4 m in 1.0-1.2 s,
     of which the foot stands flat and still for 55 % (the stance, where a zero-velocity
     update applies) and swings for the rest: forward by the minimum-jerk profile, lifted by
     up to 12 cm, toe down by up to 35 deg after the push-off and toe up by 15 deg before the
-    heel strikes, turning a corner's half per stride. Starts with 10 s standing."""
+    heel strikes, turning a corner's half per stride. Starts with 10 s standing.
+
+    `stairs`: (start_s, strides, rise_m) flights: from the first stride starting at or after
+    start_s (s), that many strides go up (rise_m > 0) or down (< 0) a staircase, each stride
+    two steps of rise_m (m; 0.17 a usual riser) and two treads of STAIR_TREAD_M forward (the
+    other foot takes the step between), straight on; the foot rises (or falls) along the
+    swing's minimum-jerk profile, above the usual lift, and lands flat on the step. The
+    rectangle's turns resume after the flight, which lengthens a side: laps no longer close."""
     n = _n_samples(duration_s, rate_hz)
     dt = 1.0 / rate_hz
     rng = np.random.default_rng(seed)
@@ -250,7 +261,8 @@ def foot_walk(duration_s: float, rate_hz: float, seed: int = 0, origin: Origin =
     nose_up = np.zeros(n)
     stopped = np.ones(n, bool)
     changes = _rectangle_headings(rectangle_m, 1.4)
-    heading, time, k = 0.0, 10.0, 0
+    flights = sorted(stairs)
+    heading, time, k, flight, on_flight = 0.0, 10.0, 0, 0, 0
     while True:
         period = rng.uniform(1.0, 1.2)
         stride = 1.4  # the same every stride, so that each lap of the rectangle closes
@@ -258,16 +270,24 @@ def foot_walk(duration_s: float, rate_hz: float, seed: int = 0, origin: Origin =
         start = time + 0.55 * period
         if start + swing > duration_s:
             break
+        rise = None  # m per step of a stair stride
+        if flight < len(flights) and time >= flights[flight][0]:
+            rise, stride = flights[flight][2], 2.0 * STAIR_TREAD_M
+            on_flight += 1
+            if on_flight == flights[flight][1]:
+                flight, on_flight = flight + 1, 0
         span = (t >= start) & (t < start + swing)
         tau = (t[span] - start) / swing
         shape, rate = _minimum_jerk(tau)
-        turn = changes[k % len(changes)]
+        turn = changes[k % len(changes)] if rise is None else 0.0
         direction = heading + turn * shape
         speed = rate * (stride / (np.sum(rate) * dt))  # exactly `stride` over the sampled swing
         vel[span, 0] = -np.sin(direction) * speed  # yaw CCW from north: forward is (-sin, cos)
         vel[span, 1] = np.cos(direction) * speed
         lift = 0.12 * math.pi / swing * np.sin(2.0 * math.pi * tau)  # up and down again
         vel[span, 2] = lift - lift.mean()  # back on the floor exactly, whatever the sampling
+        if rise is not None:
+            vel[span, 2] += rate * (2.0 * rise / (np.sum(rate) * dt))  # exactly two steps up (down)
         yaw[span] = direction
         yaw[t >= start + swing] = heading + turn
         nose_up[span] = np.radians(-25.0) * np.sin(2.0 * math.pi * tau) * np.sin(math.pi * tau) - np.radians(
@@ -275,7 +295,8 @@ def foot_walk(duration_s: float, rate_hz: float, seed: int = 0, origin: Origin =
         stopped[span] = False
         heading += turn
         time += period
-        k += 1
+        if rise is None:
+            k += 1
     return _trajectory(rate_hz, _attitude(yaw, nose_up, np.zeros(n)), lambda quat: vel, origin, stopped)
 
 
@@ -407,7 +428,29 @@ class GnssModel:
     m added to the position while it lasts. The reported accuracies (hAcc, vAcc, sAcc) are
     the white and correlated sigmas together, as a receiver's own estimate would be, and
     grow by the multipath jump's size only if `reported_multipath` is set (a receiver often
-    does not see it)."""
+    does not see it).
+
+    Rough conditions (all off by default; none is in the reported accuracies, which is
+    what makes them hard; their random numbers come from streams of their own, so the
+    errors above stay the same with them or without):
+
+    - `outlier_fraction`: that share of the fixes (rounded, chosen at random among those
+      outside outages) each off by a horizontal distance uniform in `outlier_m` (m) in a
+      random direction, and by a vertical one uniform in `outlier_vertical_m` (m) with a
+      random sign: single-epoch blunders (a reflected signal taken for the direct one);
+    - `velocity_outliers`: (time_s, (east, north, up) m/s): the first fix valid at or
+      after that time has its velocity off by the vector (a Doppler blunder);
+    - `multipath_episodes`: (start_s, end_s, amplitude_m): a slowly wandering bias (near a
+      building, under trees): a Gauss-Markov process of time constant `multipath_tau_s`
+      (s), soft-limited (tanh) to at most `amplitude_m` horizontally (the 2-D size) and
+      vertically, faded in and out over `multipath_ramp_s` (s) raised-cosine ramps inside
+      the episode; a random walk of the receiver's solution rather than a jump;
+    - cold start: the first `cold_start_fixes` fixes (outside outages) off by
+      `cold_start_offset_m` (east, north, up; m), shrinking as exp(-(t - t_first) /
+      `cold_start_tau_s`) (inf: not at all) towards the truth, reporting
+      `cold_start_acc_m` (hAcc, vAcc; m; None: the usual accuracies): a receiver with a
+      stale almanac or a wrong time whose first solutions are kilometres off, and that
+      may well report a small accuracy for them."""
     rate_hz: float = 1.0
     h_sigma_m: float = 2.5
     v_sigma_m: float = 5.0
@@ -419,6 +462,17 @@ class GnssModel:
     outages: tuple = ()
     multipath: tuple = ()
     reported_multipath: bool = False
+    outlier_fraction: float = 0.0
+    outlier_m: tuple = (20.0, 50.0)
+    outlier_vertical_m: tuple = (0.0, 0.0)
+    velocity_outliers: tuple = ()
+    multipath_episodes: tuple = ()
+    multipath_tau_s: float = 10.0
+    multipath_ramp_s: float = 5.0
+    cold_start_offset_m: tuple = (0.0, 0.0, 0.0)
+    cold_start_fixes: int = 0
+    cold_start_tau_s: float = math.inf
+    cold_start_acc_m: tuple | None = None
 
 
 @dataclass
@@ -427,7 +481,9 @@ class GnssFixes:
     time), `t_valid` that sample's time, `t_arrival` when it reaches the board; position
     as latitude, longitude (deg) and ellipsoidal height (m), and as the truth's `pos_enu`
     plus the error (m); velocity ENU (m/s), the receiver's reported accuracies (m, m/s,
-    1 sigma), and the truth at `index`."""
+    1 sigma), and the truth at `index`. `flags`: per fix, which rough conditions of the
+    GnssModel touch it ("outlier", "velocity_outlier", "multipath" (an episode's bias
+    above 1 % of its amplitude), "cold_start"): the truth for an evaluation."""
     index: np.ndarray
     t_valid: np.ndarray
     t_arrival: np.ndarray
@@ -441,6 +497,7 @@ class GnssFixes:
     s_acc_m_s: np.ndarray
     truth_pos_enu: np.ndarray
     truth_vel_enu: np.ndarray
+    flags: dict = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.index)
@@ -486,6 +543,7 @@ def gnss_fixes(traj: NavTrajectory, model: GnssModel | None = None, seed: int = 
     if model.reported_multipath:
         h_acc = np.hypot(h_acc, np.hypot(extra[:, 0], extra[:, 1]))
         v_acc = np.hypot(v_acc, extra[:, 2])
+    flags = _rough_conditions(model, seed, t, keep, dt, offset, vel, h_acc, v_acc)
     lat0, lon0, h0 = traj.lat_deg[index], traj.lon_deg[index], traj.height_m[index]
     m, n = radii(lat0)
     lat = lat0 + np.degrees(offset[:, 1] / (m + h0))
@@ -495,7 +553,53 @@ def gnss_fixes(traj: NavTrajectory, model: GnssModel | None = None, seed: int = 
     return GnssFixes(index=index[keep], t_valid=t[keep], t_arrival=t[keep] + model.latency_s, lat_deg=lat[keep],
                      lon_deg=lon[keep], height_m=h[keep], pos_enu=pos[keep], vel_enu=vel[keep], h_acc_m=h_acc[keep],
                      v_acc_m=v_acc[keep], s_acc_m_s=np.full(int(keep.sum()), model.vel_sigma_m_s),
-                     truth_pos_enu=traj.pos_enu[index[keep]], truth_vel_enu=traj.vel_enu[index[keep]])
+                     truth_pos_enu=traj.pos_enu[index[keep]], truth_vel_enu=traj.vel_enu[index[keep]],
+                     flags={name: flag[keep] for name, flag in flags.items()})
+
+
+def _rough_conditions(model: GnssModel, seed: int, t: np.ndarray, keep: np.ndarray, dt: float, offset: np.ndarray,
+                      vel: np.ndarray, h_acc: np.ndarray, v_acc: np.ndarray) -> dict:
+    """Apply the model's rough conditions (its docstring) in place to every epoch's
+    position error `offset` (m, ENU), velocity `vel` (m/s) and reported accuracies (m),
+    `t` the epochs' times (s), `keep` those outside outages, `dt` the fix period (s).
+    Returns the flags, per epoch. Each condition draws from its own child of the seed,
+    so that none moves the others' numbers nor the white and correlated errors."""
+    m = len(t)
+    rng_outlier, rng_multipath = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
+    flags = {name: np.zeros(m, bool) for name in ("outlier", "velocity_outlier", "multipath", "cold_start")}
+    kept = np.flatnonzero(keep)
+    count = int(round(model.outlier_fraction * len(kept)))
+    if count:
+        chosen = np.sort(rng_outlier.choice(kept, size=count, replace=False))
+        size = rng_outlier.uniform(*model.outlier_m, size=count)
+        azimuth = rng_outlier.uniform(0.0, 2.0 * math.pi, size=count)
+        up = rng_outlier.uniform(*model.outlier_vertical_m, size=count) * rng_outlier.choice([-1.0, 1.0], size=count)
+        offset[chosen] += np.stack([size * np.sin(azimuth), size * np.cos(azimuth), up], axis=1)
+        flags["outlier"][chosen] = True
+    for time_s, error in model.velocity_outliers:
+        after = np.flatnonzero(keep & (t >= time_s - 1e-9))
+        if len(after):
+            vel[after[0]] += np.asarray(error, dtype=np.float64)
+            flags["velocity_outlier"][after[0]] = True
+    for start, end, amplitude in model.multipath_episodes:
+        # a 2-D Gauss-Markov vector of 2-D RMS `amplitude`, its size soft-limited below it
+        x = np.stack([_gauss_markov(rng_multipath, m, dt, model.multipath_tau_s, amplitude / math.sqrt(2.0))
+                      for _ in range(2)], axis=1)
+        size = np.linalg.norm(x, axis=1)
+        limited = amplitude * np.tanh(size / amplitude) / np.where(size > 0.0, size, 1.0)
+        up = amplitude * np.tanh(_gauss_markov(rng_multipath, m, dt, model.multipath_tau_s, amplitude) / amplitude)
+        ramp = _smooth_window(t, start, end, model.multipath_ramp_s)
+        bias = np.c_[x * limited[:, None], up] * ramp[:, None]
+        offset += bias
+        flags["multipath"] |= np.linalg.norm(bias, axis=1) > 0.01 * amplitude
+    if model.cold_start_fixes > 0:
+        cold = kept[:model.cold_start_fixes]
+        shrink = np.exp(-(t[cold] - t[cold[0]]) / model.cold_start_tau_s)
+        offset[cold] += shrink[:, None] * np.asarray(model.cold_start_offset_m, dtype=np.float64)
+        if model.cold_start_acc_m is not None:
+            h_acc[cold], v_acc[cold] = model.cold_start_acc_m
+        flags["cold_start"][cold] = True
+    return flags
 
 
 def antenna_fixes(traj: NavTrajectory, fixes: GnssFixes, arm_m) -> GnssFixes:
