@@ -798,6 +798,21 @@ static imu_real_t normalised_square(const imu_navkf_t *f, int i, imu_q30_t z, im
     return IMU_DIV_SAT(IMU_MUL_SAT(z, z, 30, &ignored), s, 16, &ignored);
 }
 
+/** The normalised innovations squared of a fix's position and velocity (Q16; 0 without velocity). */
+static void gate_squares(imu_navkf_t *f, const imu_q30_t z[6], const imu_wide_t var[6], int has_vel, imu_real_t *pos,
+                         imu_real_t *vel)
+{
+    uint32_t *sat = &f->nav.saturations;
+    int k;
+    *pos = *vel = 0;
+    for (k = 0; k < 3; ++k) {
+        *pos = IMU_ADD_SAT(*pos, normalised_square(f, POS + k, z[k], var[k]), sat);
+        if (has_vel) {
+            *vel = IMU_ADD_SAT(*vel, normalised_square(f, VEL + k, z[3 + k], var[3 + k]), sat);
+        }
+    }
+}
+
 /** A value (mm) over a standard deviation (mm, >= 1), Q16 (saturated: the gate's own saturations are not counted). */
 static imu_real_t in_sigmas(imu_real_t value, imu_real_t sigma)
 {
@@ -908,12 +923,7 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
     use_pos = 1;
     use_vel = fix->has_vel;
     if (gnss) {
-        for (k = 0; k < 3; ++k) {
-            nis_pos = IMU_ADD_SAT(nis_pos, normalised_square(f, POS + k, z[k], var[k]), sat);
-            if (fix->has_vel) {
-                nis_vel = IMU_ADD_SAT(nis_vel, normalised_square(f, VEL + k, z[3 + k], var[3 + k]), sat);
-            }
-        }
+        gate_squares(f, z, var, fix->has_vel, &nis_pos, &nis_vel);
         apart = disagreement(f, fix, at_fix, offset, &apart_h);
         if ((nis_pos > GATE_3 || nis_vel > GATE_3) && f->last_used && apart >= 0 &&
             apart <= IMU_MUL(GATE_SIGMAS, inflate, 16)) {
@@ -932,13 +942,7 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
                 imu_navcov_cap_unit_variance(&f->cov, ATT + k);
             }
             ++f->fades;
-            nis_pos = nis_vel = 0;
-            for (k = 0; k < 3; ++k) {
-                nis_pos = IMU_ADD_SAT(nis_pos, normalised_square(f, POS + k, z[k], var[k]), sat);
-                if (fix->has_vel) {
-                    nis_vel = IMU_ADD_SAT(nis_vel, normalised_square(f, VEL + k, z[3 + k], var[3 + k]), sat);
-                }
-            }
+            gate_squares(f, z, var, fix->has_vel, &nis_pos, &nis_vel);
         }
         use_pos = nis_pos <= GATE_3;
         use_vel = fix->has_vel && nis_vel <= GATE_3;
