@@ -839,8 +839,9 @@ static imu_real_t disagreement(const imu_navkf_t *f, const imu_navkf_fix_t *fix,
     }
     for (k = 0; k < 3; ++k) {
         if (fix->has_vel && f->last_fix == 2) {
-            /* mean velocity (Q20) * dt (Q30) >> 30 -> m per sample, Q20; * samples * 1000 >> 20 -> mm */
-            const imu_real_t per_sample = IMU_MUL(IMU_HALF(IMU_ADD(fix->vel[k], f->last_vel[k])), n->dt, 30);
+            /* mean velocity (Q20; the sum saturates: a velocity may lie at the type's limit) * dt (Q30)
+               >> 30 -> m per sample, Q20; * samples * 1000 >> 20 -> mm */
+            const imu_real_t per_sample = IMU_MUL(IMU_HALF(IMU_ADD_SAT(fix->vel[k], f->last_vel[k], &ignored)), n->dt, 30);
             const imu_real_t moved = IMU_WIDE_SAT(IMU_WSHR(IMU_WMUL(per_sample, f->since_fix) * 1000, 20), &ignored);
             d[k] = IMU_SUB_SAT(IMU_SUB_SAT(at_fix[k], f->last_at[k], &ignored), IMU_MUL_SAT(moved, k == 0 ? n->scale_east
                                : k == 1 ? n->scale_north : IMU_ONE_Q30, 30, &ignored), &ignored); /* offset mm */
