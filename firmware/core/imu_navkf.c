@@ -81,6 +81,12 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12, BARO_BIAS = 15 }
 #define FIELD_TOLERANCE IMU_QCONST(0.1, 24)
 #define DIP_TOLERANCE IMU_QCONST(0.05, 24)
 #define FIELD_DISTURBED IMU_QCONST(0.5, 30)
+/** The dip's reference is the mean of the dips seen in the estimate's frame while the field's
+ *  strength is the start's (its weight at least FIELD_DISTURBED): over all of them for the
+ *  first DIP_MEMORY covariance intervals, then a running mean over about as many (51 s). One
+ *  sample's attitude is no reference: a start on a running engine tilts it by degrees, and
+ *  its dip with it, which would leave the field out for good. */
+#define DIP_MEMORY 1024
 /** Without GNSS, the tilt from the accelerometer: the standard deviation of the force
  *  direction's horizontal components (Q30: 0.05, some 3 deg: the board's own accelerations
  *  between the samples the weight lets through), the weight a quarter 0.2 m/s^2 (Q24) from
@@ -406,18 +412,27 @@ static void to_earth(const imu_navkf_t *f, const imu_q30_t unit[3], imu_q30_t ea
 
 /** The magnetometer's heading: the field has no east component (the magnetic north is the
  *  north here); weight w (Q30), times how far the field's strength and dip are from the
- *  start's; a disturbed field (FIELD_DISTURBED) is left out. */
+ *  references (a disturbed field, below FIELD_DISTURBED, is left out). */
 static void field_heading(imu_navkf_t *f, const imu_real_t mag[3], imu_q30_t w)
 {
     uint32_t *sat = &f->nav.saturations;
     imu_q30_t unit[3], earth[3], dx[IMU_NAVKF_STATES], w_field, w_norm, horizontal, r[3][3];
+    imu_angle_t dip; /* rad, Q29 */
     imu_real_t norm;
     if (f->field_reference <= 0 || !imu_vec3_normalize(mag, unit, &norm)) {
         return;
     }
     to_earth(f, unit, earth);
-    w_field = imu_field_weight(norm, f->field_reference, imu_field_dip(earth, &horizontal), f->dip_reference,
-                               FIELD_TOLERANCE, DIP_TOLERANCE, &w_norm, sat);
+    dip = imu_field_dip(earth, &horizontal);
+    w_field = imu_field_weight(norm, f->field_reference, dip, f->dip_reference, FIELD_TOLERANCE, DIP_TOLERANCE,
+                               &w_norm, sat);
+    if (w_norm >= FIELD_DISTURBED) {
+        uint32_t ignored = 0;
+        f->dips_seen += f->dips_seen < DIP_MEMORY;
+        f->dip_reference = IMU_ADD(f->dip_reference, IMU_DIV_SAT(IMU_SUB(dip, f->dip_reference),
+                                                                 IMU_FROM_INT_SAT(f->dips_seen, 0, &ignored), 0,
+                                                                 &ignored));
+    }
     if (w_field < FIELD_DISTURBED) {
         return;
     }
@@ -692,6 +707,7 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
         imu_q30_t earth[3], horizontal;
         to_earth(f, unit, earth);
         f->dip_reference = f->field_reference > 0 ? imu_field_dip(earth, &horizontal) : 0;
+        f->dips_seen = 1;
     }
     for (k = 0; k < 3; ++k) {
         f->last_offset[k] = f->last_at[k] = f->last_vel[k] = 0;

@@ -95,7 +95,8 @@ typedef struct {
     int fix_stood;              /**< 1 when the last GNSS fix's speed was below REST_SPEED (0: no velocity) */
     int fix_slow;               /**< 1 when it was below SLOW_SPEED or unknown: the magnetometer gives the heading */
     imu_real_t field_reference; /**< the field's strength at the start, the mag's unit (0: none) */
-    imu_angle_t dip_reference;  /**< its dip in the start's attitude, rad, Q29 */
+    imu_angle_t dip_reference;  /**< its dip in the estimate's frame (the mean of those seen), rad, Q29 */
+    int32_t dips_seen;          /**< how many that mean is over (stops counting at DIP_MEMORY) */
     int32_t doubting;           /**< samples since the first of the current run of rejected GNSS fixes that agree
                                      with each other; -1: none */
     int32_t reset_steps;        /**< samples of such a run after which position and velocity are reset to the fixes */
