@@ -221,3 +221,23 @@ def test_extreme_protocol_input_has_no_undefined_behaviour(build, tmp_path):
     counts = dict(zip(*[iter(run.stdout.split())] * 2))
     assert counts["samples"] == "3000" and int(counts["gnss_used"]) > 0 and int(counts["markers_used"]) > 0
     assert counts["mode"] == "2"
+
+
+def test_nav_state_reports_a_reset_to_the_fixes_bit_exact(tmp_path):
+    """A cold receiver whose first fix is 1.1 km off: the board's filter starts there, rejects
+    the good fixes after it, and after the reset time puts its position and velocity on them;
+    NAV_STATE counts the reset (and any covariance fading) and the host's replica agrees bit
+    for bit."""
+    duration_s = 40.0
+    traj = nv.car_drive(duration_s, RATE, seed=5)
+    cold = nv.GnssModel(cold_start_fixes=1, cold_start_offset_m=(800.0, -755.0, 0.0))  # 1.1 km
+    feed = dict(simulation=simulate(traj, nv.datasheet_sensors(RATE), seed=5),
+                gnss=nv.gnss_fixes(traj, cold, seed=5))
+    with EmulatedBoard("native", front="tcp", filter_name="nav", duration_s=duration_s, **feed) as board:
+        hil.record(board.address, tmp_path / "cold.imulog")
+    recording = load_recording(tmp_path / "cold.imulog")
+    states = recording.nav_states.fields
+    assert states["resets"][0] == 0 and states["resets"][-1] == 1
+    assert states["rejected"][-1] >= 10
+    comparison = hil.compare(recording)
+    assert comparison.verdict.passed and comparison.verified_count == len(recording.estimates)

@@ -169,7 +169,7 @@ void imu_navfilter_nav_state(const imu_navfilter_t *f, uint32_t index, imu_proto
     out->index = index;
     out->mode = (uint8_t)(kf == 0 ? 0 : (kf->anchored ? 2 : 1));
     out->lat = out->lon = out->height_mm = out->baro_bias_mm = 0;
-    out->since_fix = out->rejected = out->zero_velocity = 0;
+    out->since_fix = out->rejected = out->zero_velocity = out->resets = out->fades = 0;
     for (k = 0; k < 3; ++k) {
         out->vel[k] = kf != 0 ? kf->nav.vel[k] : 0;
         out->acc_bias[k] = kf != 0 ? kf->nav.acc_bias[k] : 0;
@@ -189,6 +189,8 @@ void imu_navfilter_nav_state(const imu_navfilter_t *f, uint32_t index, imu_proto
         out->since_fix = (uint32_t)kf->since_fix;
         out->rejected = kf->rejected;
         out->zero_velocity = kf->zero_velocity;
+        out->resets = kf->resets;
+        out->fades = kf->fades;
     }
 }
 #endif

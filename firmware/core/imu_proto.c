@@ -937,6 +937,8 @@ size_t imu_proto_nav_state_pack(const imu_proto_nav_state_t *m, uint8_t *payload
     put_u32(payload + 125, (uint32_t)m->since_fix);
     put_u32(payload + 129, (uint32_t)m->rejected);
     put_u32(payload + 133, (uint32_t)m->zero_velocity);
+    put_u32(payload + 137, (uint32_t)m->resets);
+    put_u32(payload + 141, (uint32_t)m->fades);
     return IMU_PROTO_NAV_STATE_SIZE;
 }
 
@@ -967,6 +969,8 @@ imu_proto_result_t imu_proto_nav_state_unpack(imu_proto_nav_state_t *m, const ui
     m->since_fix = get_u32(payload + 125);
     m->rejected = get_u32(payload + 129);
     m->zero_velocity = get_u32(payload + 133);
+    m->resets = get_u32(payload + 137);
+    m->fades = get_u32(payload + 141);
     return IMU_PROTO_OK;
 }
 

@@ -130,7 +130,7 @@ int imu_proto_decoder_push(imu_proto_decoder_t *d, uint8_t byte, imu_proto_frame
 /** Protocol version ([protocol] version), sent in HELLO. */
 #define IMU_PROTO_VERSION 1u
 /** Schema hash of shared/protocol.toml (CRC-32 of its canonical form), sent in HELLO. */
-#define IMU_PROTO_SCHEMA_HASH 0x9C50E996u
+#define IMU_PROTO_SCHEMA_HASH 0xA373C5B8u
 /** Largest payload of any message, bytes. */
 #define IMU_PROTO_MAX_PAYLOAD 201u
 
@@ -466,7 +466,7 @@ imu_proto_result_t imu_proto_gnss_unpack(imu_proto_gnss_t *m, const uint8_t *pay
 size_t imu_proto_gnss_encode(const imu_proto_gnss_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 
 /** NAV_STATE payload bytes. */
-#define IMU_PROTO_NAV_STATE_SIZE 137u
+#define IMU_PROTO_NAV_STATE_SIZE 145u
 
 /** NAV_STATE (id 0x14, to_host): The navigation filter's state after a sample, following its
  *  ESTIMATE (which carries the attitude and the gyroscope bias) while NAV is the active filter.
@@ -485,6 +485,8 @@ typedef struct {
     uint32_t since_fix; /**< samples since the last GNSS fix, used or not (stops counting at a minute's) */
     uint32_t rejected; /**< GNSS fixes the gate rejected since the filter started */
     uint32_t zero_velocity; /**< zero-velocity updates since the filter started */
+    uint32_t resets; /**< times a run of rejected GNSS fixes that agreed with each other reset the position and velocity to the fixes (the filter's own divergence, a cold receiver's first fix) since the filter started */
+    uint32_t fades; /**< GNSS fixes that agreed with the last one used but not with the estimate and scaled the covariance up (a gyro bias step) since the filter started */
 } imu_proto_nav_state_t;
 
 /** @brief Payload bytes of NAV_STATE into `payload` (IMU_PROTO_NAV_STATE_SIZE bytes); returns IMU_PROTO_NAV_STATE_SIZE. */

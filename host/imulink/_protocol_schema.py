@@ -7,7 +7,7 @@ the last field only, text / bytes (length: the maximum, variable on the wire).
 """
 
 PROTOCOL_VERSION = 1
-SCHEMA_HASH = 0x9C50E996
+SCHEMA_HASH = 0xA373C5B8
 HEADER_SIZE = 3
 CRC_SIZE = 4
 MAX_PAYLOAD = 201
@@ -130,6 +130,8 @@ MESSAGES = {
         ('since_fix', 'u32', None),
         ('rejected', 'u32', None),
         ('zero_velocity', 'u32', None),
+        ('resets', 'u32', None),
+        ('fades', 'u32', None),
     )},
     'MARKER': {'id': 0x15, 'direction': 'to_host', 'fields': (
         ('timestamp_us', 'u32', None),
@@ -271,7 +273,7 @@ size_t imu_proto_gnss_pack(const imu_proto_gnss_t *m, uint8_t *payload);
 imu_proto_result_t imu_proto_gnss_unpack(imu_proto_gnss_t *m, const uint8_t *payload, size_t len);
 size_t imu_proto_gnss_encode(const imu_proto_gnss_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 #define IMU_PROTO_NAV_STATE_SIZE ...
-typedef struct { uint32_t index; uint8_t mode; int32_t lat; int32_t lon; int32_t height_mm; int32_t vel[3]; int32_t acc_bias[3]; int32_t baro_bias_mm; int32_t var_mantissa[16]; int8_t var_exponent[16]; uint32_t since_fix; uint32_t rejected; uint32_t zero_velocity; } imu_proto_nav_state_t;
+typedef struct { uint32_t index; uint8_t mode; int32_t lat; int32_t lon; int32_t height_mm; int32_t vel[3]; int32_t acc_bias[3]; int32_t baro_bias_mm; int32_t var_mantissa[16]; int8_t var_exponent[16]; uint32_t since_fix; uint32_t rejected; uint32_t zero_velocity; uint32_t resets; uint32_t fades; } imu_proto_nav_state_t;
 size_t imu_proto_nav_state_pack(const imu_proto_nav_state_t *m, uint8_t *payload);
 imu_proto_result_t imu_proto_nav_state_unpack(imu_proto_nav_state_t *m, const uint8_t *payload, size_t len);
 size_t imu_proto_nav_state_encode(const imu_proto_nav_state_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
