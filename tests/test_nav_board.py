@@ -160,10 +160,11 @@ def test_injection_into_nav_compares_its_nav_state_too(board):
     assert result.answered == result.samples == 400 and result.bit_exact, result.first_difference
     state = {"index": 3, "mode": 1, "lat": 0, "lon": 0, "height_mm": 0, "vel": [0, 0, 0], "acc_bias": [0, 0, 0],
              "baro_bias_mm": 0, "var_mantissa": [1] * 16, "var_exponent": [0] * 16, "since_fix": 0, "rejected": 0,
-             "zero_velocity": 0}
+             "zero_velocity": 0, "resets": 0, "fades": 0}
     changed = {**state, "zero_velocity": 1}
     assert hil._first_different_nav_field(state, dict(state)) is None
     assert hil._first_different_nav_field(changed, state) == "nav_state.zero_velocity"
+    assert hil._first_different_nav_field({**state, "fades": 2}, state) == "nav_state.fades"
 
 
 def test_position_fix_refusals(link):
@@ -181,13 +182,43 @@ def test_position_fix_refusals(link):
 def test_nav_settings_are_the_cores(link):
     link.command("SELECT_FILTER", filter_id=NAV_ID)
     fields = core.settings_fields("nav")
-    assert [f.name for f in fields] == ["sample_rate", "lever_arm_x", "lever_arm_y", "lever_arm_z", "gnss_latency"]
-    index = [f.name for f in fields].index("gnss_latency")
-    with pytest.raises(protocol.CommandError) as error:
-        link.command("SET_SETTING", index=index, value=core.to_fixed(1.5, 16))
-    assert error.value.reason == "OUT_OF_RANGE"
-    link.command("SET_SETTING", index=index, value=core.to_fixed(0.25, 16))
-    assert link.command("GET_SETTING", index=index).data.fields["value"] == core.to_fixed(0.25, 16)
+    assert [f.name for f in fields] == ["sample_rate", "lever_arm_x", "lever_arm_y", "lever_arm_z", "gnss_latency",
+                                        "gyro_noise", "acc_noise", "gyro_bias_walk", "acc_bias_walk", "gate",
+                                        "reset_time", "rest_rate", "rest_force"]
+    for name, bad, good in (("gnss_latency", 1.5, 0.25), ("gate", 7.0, 30.0), ("reset_time", 0.5, 5.0),
+                            ("gyro_bias_walk", 0.02, 1e-4)):
+        index = [f.name for f in fields].index(name)
+        q = fields[index].frac_bits
+        with pytest.raises(protocol.CommandError) as error:
+            link.command("SET_SETTING", index=index, value=core.to_fixed(bad, q))
+        assert error.value.reason == "OUT_OF_RANGE", name
+        link.command("SET_SETTING", index=index, value=core.to_fixed(good, q))
+        assert link.command("GET_SETTING", index=index).data.fields["value"] == core.to_fixed(good, q), name
+
+
+def test_a_tuned_board_is_bit_exact_with_the_host(tmp_path):
+    """The tuning settings reach the board's filter and the host's replica alike: a cold
+    receiver on a board whose reset time is 5 s resets sooner, with fewer fixes rejected,
+    than with the default 15 s, bit for bit with the host."""
+    from imulink.settings_file import FilterSettings
+
+    duration_s = 30.0
+    traj = nv.car_drive(duration_s, RATE, seed=5)
+    cold = nv.GnssModel(cold_start_fixes=1, cold_start_offset_m=(800.0, -755.0, 0.0))
+    feed = dict(simulation=simulate(traj, nv.datasheet_sensors(RATE), seed=5),
+                gnss=nv.gnss_fixes(traj, cold, seed=5))
+    rejected = {}
+    for reset_time in (15.0, 5.0):
+        with EmulatedBoard("native", front="tcp", filter_name="nav", duration_s=duration_s, **feed) as board:
+            hil.record(board.address, tmp_path / f"tuned{reset_time:g}.imulog",
+                       settings=FilterSettings("nav", {"reset_time": reset_time, "gyro_bias_walk": 1e-4}))
+        recording = load_recording(tmp_path / f"tuned{reset_time:g}.imulog")
+        comparison = hil.compare(recording)
+        assert comparison.verdict.passed and comparison.verified_count == len(recording.estimates)
+        states = recording.nav_states.fields
+        assert states["resets"][-1] == 1
+        rejected[reset_time] = int(states["rejected"][-1])
+    assert rejected[5.0] < rejected[15.0]
 
 
 def test_imulink_demo_filter_nav(capsys):

@@ -149,3 +149,51 @@ def test_help_lists_every_input_column_with_its_unit(capsys):
         after = text.index(name) + len(name)
         assert text[text.index("(", after) + 1:text.index(")", after)] == nav_input.column_unit(name), name
     assert "--start LAT,LON,HEIGHT[,ACCURACY]" in out
+
+
+def test_settings_tune_the_filter(walk, tmp_path, capsys):
+    """--set NAME=VALUE reaches the filter (a tighter rest bound: fewer zero-velocity updates)
+    and is echoed in the report; a settings file of the nav filter is read, --set after it."""
+    from imulink import settings_file
+
+    _, no_fix, _, start, _ = walk
+    counts = {}
+    for extra in ([], ["--set", "rest_rate=0.01"]):
+        code, stdout, err = nav_cli(capsys, no_fix, "--csv", tmp_path / "e.csv", "--start", start, "--json", *extra)
+        assert code == 0, err
+        report = json.loads(stdout)
+        counts[len(extra)] = report["zero_velocity_updates"]
+    assert report["settings"] == {"rest_rate": 0.01} and report["resets"] == 0
+    assert 0 < counts[2] < counts[0]
+    saved = tmp_path / "nav.json"
+    settings_file.save(settings_file.FilterSettings("nav", {"rest_rate": 0.01, "gate": 30.0}), saved)
+    code, stdout, err = nav_cli(capsys, no_fix, "--csv", tmp_path / "e.csv", "--start", start, "--json",
+                                "--settings", saved, "--set", "gate=20")
+    assert code == 0, err
+    report = json.loads(stdout)
+    assert report["settings"] == {"rest_rate": 0.01, "gate": 20.0} and report["zero_velocity_updates"] == counts[2]
+
+
+@pytest.mark.parametrize("argv,message", [
+    (["--set", "gate=1"], "gate=1 is outside 7.81 .. 100 chi-square (3 dof)"),
+    (["--set", "reset_time=1e9"], "reset_time=1e+09 is outside 1 .. 600 s"),
+    (["--set", "bogus=1"], "unknown setting 'bogus' for filter 'nav'"),
+    (["--set", "gate"], "is not NAME=VALUE"),
+    (["--set", "gnss_latency=0.2"], "gnss_latency is the board's"),
+])
+def test_bad_settings_are_one_line(walk, tmp_path, capsys, argv, message):
+    _, no_fix, _, start, _ = walk
+    out = tmp_path / "e.csv"
+    code, _, err = nav_cli(capsys, no_fix, "--csv", out, "--start", start, *argv)
+    assert code == 2 and message in err and len(err.strip().splitlines()) == 1, err
+    assert not out.exists()
+
+
+def test_another_filters_settings_file_is_refused(walk, tmp_path, capsys):
+    from imulink import settings_file
+
+    _, no_fix, _, start, _ = walk
+    saved = tmp_path / "eskf.json"
+    settings_file.save(settings_file.FilterSettings("eskf", {"acc_noise": 0.5}), saved)
+    code, _, err = nav_cli(capsys, no_fix, "--csv", tmp_path / "e.csv", "--start", start, "--settings", saved)
+    assert code == 2 and "the settings are eskf's, the filter is nav" in err

@@ -12,19 +12,31 @@ const imu_navfilter_settings_t imu_navfilter_default_settings = {
     IMU_QCONST(0.0, 16),   /* lever_arm_y, m */
     IMU_QCONST(0.0, 16),   /* lever_arm_z, m */
     IMU_QCONST(0.0, 16),   /* gnss_latency, s: what the receiver's fix says it is (u-blox NAV-PVT: its epoch) */
+    IMU_NAVKF_DEFAULT_TUNING,
 };
 
 /* Each field with its Q format, unit and accepted range [lo, hi] in the unit. */
 #define DESC(field, q, unit, lo, hi) \
     {#field, offsetof(imu_navfilter_settings_t, field), q, unit, IMU_QCONST(lo, q), IMU_QCONST(hi, q)}
+#define TUNING(field, q, unit, lo, hi) \
+    {#field, offsetof(imu_navfilter_settings_t, tuning.field), q, unit, IMU_QCONST(lo, q), IMU_QCONST(hi, q)}
 const imu_setting_desc_t imu_navfilter_setting_descs[] = {
     DESC(sample_rate, 16, "Hz", 10.0, 1000.0),
     DESC(lever_arm_x, 16, "m", -10.0, 10.0),
     DESC(lever_arm_y, 16, "m", -10.0, 10.0),
     DESC(lever_arm_z, 16, "m", -10.0, 10.0),
     DESC(gnss_latency, 16, "s", 0.0, 1.0),
+    TUNING(gyro_noise, 30, "rad/s/sqrt(Hz)", 1e-5, 0.1),
+    TUNING(acc_noise, 30, "m/s^2/sqrt(Hz)", 1e-4, 1.0),
+    TUNING(gyro_bias_walk, 30, "rad/s/sqrt(s)", 1e-7, 0.01),
+    TUNING(acc_bias_walk, 30, "m/s^2/sqrt(s)", 1e-6, 0.1),
+    TUNING(gate, 16, "chi-square (3 dof)", 7.81, 100.0),
+    TUNING(reset_time, 16, "s", 1.0, 600.0),
+    TUNING(rest_rate, 24, "rad/s", 0.005, 1.0),
+    TUNING(rest_force, 16, "m/s^2", 0.02, 3.0),
 };
 #undef DESC
+#undef TUNING
 const int imu_navfilter_setting_count =
     (int)(sizeof imu_navfilter_setting_descs / sizeof imu_navfilter_setting_descs[0]);
 
@@ -67,7 +79,8 @@ void imu_navfilter_update(imu_navfilter_t *f, const imu_sample_t *sample)
         const imu_real_t arm_mm[3] = {IMU_MUL(f->settings.lever_arm_x, IMU_QCONST(1000.0, 0), 16),
                                       IMU_MUL(f->settings.lever_arm_y, IMU_QCONST(1000.0, 0), 16),
                                       IMU_MUL(f->settings.lever_arm_z, IMU_QCONST(1000.0, 0), 16)};
-        f->started = imu_navkf_start(&f->kf, f->settings.sample_rate, sample->acc, sample->mag, 0, arm_mm) == IMU_OK;
+        f->started = imu_navkf_start(&f->kf, f->settings.sample_rate, sample->acc, sample->mag, 0, arm_mm) == IMU_OK &&
+                     imu_navkf_tune(&f->kf, &f->settings.tuning) == IMU_OK;
     }
 }
 

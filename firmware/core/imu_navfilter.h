@@ -26,6 +26,8 @@ typedef struct {
     imu_real_t lever_arm_y;  /**< ... y forward, m, Q16, [-10, 10] */
     imu_real_t lever_arm_z;  /**< ... z up, m, Q16, [-10, 10] */
     imu_real_t gnss_latency; /**< how long before its arrival a fix was valid, s, Q16, [0, 1] */
+    imu_navkf_tuning_t tuning; /**< noise densities, the gate, the reset time, the rest bounds (ranges in
+                                    imu_navfilter_setting_descs) */
 } imu_navfilter_settings_t;
 
 extern const imu_navfilter_settings_t imu_navfilter_default_settings;

@@ -8,14 +8,8 @@
 
 enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12, BARO_BIAS = 15 };
 
-/* Process noise per second in the states' units squared, Q54 (imu_navkf.h): twice the
- * MPU6050 data sheet's white noise (400 ug/sqrt(Hz), 0.005 deg/s/sqrt(Hz)), room for the
- * quantisation and what the first-order model leaves out; the biases' random walks
- * 1e-5 rad/s/sqrt(s) and 1e-4 m/s^2/sqrt(s). */
-#define NOISE_VEL IMU_QCONST(6.1529e-5 / 4096.0, 54) /* (2 * 3.923e-3 m/s^2/sqrt(Hz))^2 / (64 m/s)^2 */
-#define NOISE_ATT IMU_QCONST(3.0462e-8, 54)          /* (2 * 8.727e-5 rad/s/sqrt(Hz))^2 */
-#define NOISE_GYRO_BIAS IMU_QCONST(1e-9, 54)
-#define NOISE_ACC_BIAS IMU_QCONST(1e-8, 54)
+static const imu_navkf_tuning_t DEFAULT_TUNING = IMU_NAVKF_DEFAULT_TUNING;
+
 /** The barometer's bias, a random walk of 2.5 m/sqrt(h) (the weather: 30 Pa/sqrt(h)), in units of 1024 m */
 #define NOISE_BARO_BIAS IMU_QCONST(1.7e-3 / 1048576.0, 54)
 
@@ -49,12 +43,10 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12, BARO_BIAS = 15 }
 #define SCALE_HEIGHT_SEA_MM IMU_QCONST(8434675.0, 0)     /* 29.27175 m/K * 288.15 K, mm */
 #define SCALE_HEIGHT_PER_MM IMU_QCONST(0.19026636, 30)   /* 29.27175 m/K * 6.5 K/km: mm of H per mm of height */
 
-/* Rest: the bias-corrected rate below 0.05 rad/s (Q24) and the specific force within
- * 0.3 m/s^2 (Q16) of gravity for a covariance interval (50 ms: a foot's stance is some
- * 0.5 s); with GNSS, only while the last fix's speed is below REST_SPEED (m/s, Q20): a
- * car cruising straight is as still as a parked one. */
-#define REST_GYRO IMU_QCONST(0.05, 24)
-#define REST_ACC IMU_QCONST(0.3, 16)
+/* Rest: the bias-corrected rate and the specific force's distance from gravity within the
+ * tuning's bounds for a covariance interval (50 ms: a foot's stance is some 0.5 s); with
+ * GNSS, only while the last fix's speed is below REST_SPEED (m/s, Q20): a car cruising
+ * straight is as still as a parked one. */
 #define REST_SPEED IMU_QCONST(0.3, 20)
 /** Below SLOW_SPEED (m/s, Q20) the GNSS velocity's direction is too uncertain to show the
  *  heading: the magnetometer gives it, every covariance interval. */
@@ -68,7 +60,7 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12, BARO_BIAS = 15 }
 #define TREND_SLOW_TAU IMU_QCONST(1.0, 16)
 #define TREND_TOLERANCE IMU_QCONST(0.02, 24)
 /** Zero velocity's standard deviation: 0.02 m/s in units of 64 m/s, Q30 (zero rate's: the
- *  gyroscope's noise, NOISE_ATT over a sample). */
+ *  gyroscope's noise, the tuning's over a sample). */
 #define ZERO_VELOCITY_SIGMA IMU_QCONST(0.02 / 64.0, 30)
 /** The magnetometer's heading: the standard deviation of the unit field's east
  *  component (about the sine of the heading error times the field's horizontal share),
@@ -94,11 +86,10 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12, BARO_BIAS = 15 }
 #define GRAVITY_SIGMA IMU_QCONST(0.05, 30)
 #define GRAVITY_TOLERANCE IMU_QCONST(0.2, 24)
 
-/* The gate on a GNSS fix's position and, apart, its velocity: the normalised innovation
- * squared (each axis against its own predicted variance plus the fix's: the correlations
- * between the axes are small beside the fix's noise), Q16: chi-square at 99.9 % for three
- * degrees of freedom. A part beyond it is rejected and counted; the other part is used. */
-#define GATE_3 IMU_QCONST(16.27, 16)
+/* The gate on a GNSS fix's position and, apart, its velocity (the tuning's `gate`): the
+ * normalised innovation squared, each axis against its own predicted variance plus the
+ * fix's (the correlations between the axes are small beside the fix's noise). A part
+ * beyond it is rejected and counted; the other part is used. */
 /* Two consecutive fixes agree with each other when the one's position moved by the
  * receiver's mean velocity between them (without velocity: the estimate's displacement, the
  * corrections taken off) lands within GATE_SIGMAS standard deviations of the other (their
@@ -121,13 +112,10 @@ enum { POS = 0, VEL = 3, ATT = 6, GYRO_BIAS = 9, ACC_BIAS = 12, BARO_BIAS = 15 }
 #define MM_S_TO_VEL IMU_QCONST(1.0 / 64000.0, 46)
 #define Q20_TO_VEL IMU_QCONST(1.0 / 64.0, 36)
 
-/** Seconds (Q16): the covariance's interval; how long a run of rejected fixes that agree
- *  with each other lasts before the estimate is the one in doubt (its position and velocity
- *  are then reset to the fix: a cold receiver's first fix far off, a divergence); fixes
- *  further apart than GAP_TIME are not compared; the longest count kept (how long without
- *  GNSS before rest alone makes zero velocity). */
+/** Seconds (Q16): the covariance's interval; fixes further apart than GAP_TIME are not
+ *  compared; the longest count kept (how long without GNSS before rest alone makes zero
+ *  velocity). */
 #define COV_INTERVAL IMU_QCONST(0.05, 16)
-#define RESET_TIME IMU_QCONST(15.0, 16)
 #define GAP_TIME IMU_QCONST(2.5, 16)
 #define LONGEST_COUNT IMU_QCONST(60.0, 16)
 
@@ -250,10 +238,10 @@ static void covariance_step(imu_navkf_t *f)
             rows[i][GYRO_BIAS + j] = -IMU_ADD(i == j ? IMU_HALF(t) : 0, IMU_MUL(IMU_HALF(t), a[i][j], 30));
         }
         /* Q54 per second * s Q30 >> 24 -> Q60 */
-        qvar[VEL + i] = IMU_WSHR(IMU_WMUL(NOISE_VEL, t), 24);
-        qvar[ATT + i] = IMU_WSHR(IMU_WMUL(NOISE_ATT, t), 24);
-        qvar[GYRO_BIAS + i] = IMU_WSHR(IMU_WMUL(NOISE_GYRO_BIAS, t), 24);
-        qvar[ACC_BIAS + i] = IMU_WSHR(IMU_WMUL(NOISE_ACC_BIAS, t), 24);
+        qvar[VEL + i] = IMU_WSHR(IMU_WMUL(f->noise_vel, t), 24);
+        qvar[ATT + i] = IMU_WSHR(IMU_WMUL(f->noise_att, t), 24);
+        qvar[GYRO_BIAS + i] = IMU_WSHR(IMU_WMUL(f->noise_gyro_bias, t), 24);
+        qvar[ACC_BIAS + i] = IMU_WSHR(IMU_WMUL(f->noise_acc_bias, t), 24);
     }
     qvar[BARO_BIAS] = IMU_WSHR(IMU_WMUL(NOISE_BARO_BIAS, t), 24);
     imu_navcov_predict(&f->cov, rows, ATTITUDE_ROWS, 3, qvar, 60, sat);
@@ -476,19 +464,20 @@ static int still_sample(const imu_navkf_t *f, const imu_q16_t acc[3])
 {
     const imu_nav_t *n = &f->nav;
     const imu_q16_t g = IMU_SHR(n->gravity, 8); /* Q24 -> Q16 */
+    const imu_real_t rest_rate = f->tuning.rest_rate, rest_force = f->tuning.rest_force; /* Q24, Q16 */
     imu_wide_t w2 = 0, f2 = 0;                  /* Q48 (rad/s)^2, Q32 (m/s^2)^2 */
     int k;
     for (k = 0; k < 3; ++k) {
         const imu_wide_t a = (imu_wide_t)acc[k] - n->acc_bias[k]; /* Q16, within 2^32 */
         /* an axis beyond the bounds is not still (and the squares below then stay far from overflow) */
-        if (f->rate[k] > REST_GYRO || f->rate[k] < -REST_GYRO || a > g + REST_ACC || a < -(g + REST_ACC)) {
+        if (f->rate[k] > rest_rate || f->rate[k] < -rest_rate || a > g + rest_force || a < -(g + rest_force)) {
             return 0;
         }
         w2 += IMU_WMUL(f->rate[k], f->rate[k]);
         f2 += a * a;
     }
-    return w2 < IMU_WMUL(REST_GYRO, REST_GYRO) && f2 > IMU_WMUL(g - REST_ACC, g - REST_ACC) &&
-           f2 < IMU_WMUL(g + REST_ACC, g + REST_ACC);
+    return w2 < IMU_WMUL(rest_rate, rest_rate) && f2 > IMU_WMUL(g - rest_force, g - rest_force) &&
+           f2 < IMU_WMUL(g + rest_force, g + rest_force);
 }
 
 /** Samples in a time (s, Q16, at most a minute), at least one. */
@@ -677,7 +666,6 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     f->dt_per_64 = IMU_MUL(f->nav.dt, IMU_QCONST(1.0 / 64.0, 36), 30); /* s Q30 -> s / 64, Q36 */
     f->cov_steps = seconds_in_steps(f, COV_INTERVAL);
     f->rest_steps = f->cov_steps;
-    f->reset_steps = seconds_in_steps(f, RESET_TIME);
     f->gap_steps = seconds_in_steps(f, GAP_TIME);
     f->longest_steps = seconds_in_steps(f, LONGEST_COUNT);
     f->still = 0;
@@ -685,9 +673,8 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     f->baro_reference = 0;
     f->baro_steps = seconds_in_steps(f, BARO_INTERVAL);
     f->since_baro = f->baro_steps;
-    /* a sample's rate noise: twice the data sheet's density over the sample rate's band,
-     * (rad^2/s Q54) * (Hz Q16) = Q70 >> 10 -> (rad/s)^2, Q60 */
-    f->zero_rate_var = IMU_WSHR(IMU_WMUL(NOISE_ATT, rate), 10);
+    f->sample_rate = rate;
+    (void)imu_navkf_tune(f, &DEFAULT_TUNING);
     for (k = 0; k < IMU_NAVKF_STATES; ++k) {
         f->carry[k] = 0;
     }
@@ -726,6 +713,27 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     if (fix != 0 && !anchor(f, fix)) {
         return IMU_ERR_RANGE;
     }
+    return IMU_OK;
+}
+
+imu_status_t imu_navkf_tune(imu_navkf_t *f, const imu_navkf_tuning_t *tuning)
+{
+    const imu_navkf_tuning_t *t = tuning;
+    if (!(t->gyro_noise > 0 && t->acc_noise > 0 && t->gyro_bias_walk > 0 && t->acc_bias_walk > 0 && t->gate > 0 &&
+          t->reset_time > 0 && t->rest_rate > 0 && t->rest_force > 0)) {
+        return IMU_ERR_RANGE;
+    }
+    f->tuning = *t;
+    /* densities (Q30) squared, Q60 >> 6 -> Q54; the velocity's in units of 64 m/s */
+    f->noise_vel = IMU_WSHR(IMU_WMUL(IMU_MUL(t->acc_noise, IMU_QCONST(1.0 / 64.0, 30), 30),
+                                     IMU_MUL(t->acc_noise, IMU_QCONST(1.0 / 64.0, 30), 30)), 6);
+    f->noise_att = IMU_WSHR(IMU_WMUL(t->gyro_noise, t->gyro_noise), 6);
+    f->noise_gyro_bias = IMU_WSHR(IMU_WMUL(t->gyro_bias_walk, t->gyro_bias_walk), 6);
+    f->noise_acc_bias = IMU_WSHR(IMU_WMUL(t->acc_bias_walk, t->acc_bias_walk), 6);
+    /* a sample's rate noise: the density over the sample rate's band, (rad^2/s Q54) * (Hz Q16)
+     * = Q70 >> 10 -> (rad/s)^2, Q60 */
+    f->zero_rate_var = IMU_WSHR(IMU_WMUL(f->noise_att, f->sample_rate), 10);
+    f->reset_steps = seconds_in_steps(f, t->reset_time);
     return IMU_OK;
 }
 
@@ -902,6 +910,7 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
     imu_wide_t var[6]; /* the measurements' variances, Q60 */
     imu_real_t nis_pos = 0, nis_vel = 0, apart = -1, apart_h = 0; /* Q16 */
     const int gnss = fix->source == IMU_NAVKF_GNSS;
+    const imu_real_t gate = f->tuning.gate; /* Q16 */
     const imu_real_t inflate = gnss ? inflation(f) : IMU_QCONST(1.0, 16);
     /* standard deviations in the states' units, Q30: horizontal (each axis), vertical, speed */
     const imu_q30_t sigma_pos[2] = {IMU_MUL_SAT(IMU_MUL_SAT(fix->h_acc, MM_TO_POS_AXIS, 20, sat), inflate, 16, sat),
@@ -942,16 +951,17 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
     if (gnss) {
         gate_squares(f, z, var, fix->has_vel, &nis_pos, &nis_vel);
         apart = disagreement(f, fix, at_fix, offset, &apart_h);
-        if ((nis_pos > GATE_3 || nis_vel > GATE_3) && f->last_used && apart >= 0 &&
+        if ((nis_pos > gate || nis_vel > gate) && f->last_used && apart >= 0 &&
             apart <= IMU_MUL(GATE_SIGMAS, inflate, 16)) {
             /* A fix that agrees with the last one used but not with the estimate: the estimate
              * is the one in doubt (a gyro bias that stepped, a model the motion left): its
              * covariance is scaled up until the fix passes, a fading memory (counted). */
             const imu_real_t most = nis_pos > nis_vel ? nis_pos : nis_vel;
-            imu_real_t bound = IMU_MUL(GATE_3, IMU_QCONST(4.0, 16), 16); /* Q16, at most 2^30 */
+            uint32_t ignored = 0; /* a bound beyond the type's range is the range's: most is within it */
+            imu_real_t bound = IMU_MUL_SAT(gate, IMU_QCONST(4.0, 16), 16, &ignored); /* Q16 */
             int fade = 1;
             while (fade < MAX_FADE && most > bound) {
-                bound = IMU_MUL(bound, IMU_QCONST(4.0, 16), 16);
+                bound = IMU_MUL_SAT(bound, IMU_QCONST(4.0, 16), 16, &ignored);
                 ++fade;
             }
             imu_navcov_scale_up(&f->cov, fade);
@@ -961,8 +971,8 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
             ++f->fades;
             gate_squares(f, z, var, fix->has_vel, &nis_pos, &nis_vel);
         }
-        use_pos = nis_pos <= GATE_3;
-        use_vel = fix->has_vel && nis_vel <= GATE_3;
+        use_pos = nis_pos <= gate;
+        use_vel = fix->has_vel && nis_vel <= gate;
         if (apart >= 0) {
             /* the receiver's own consistency, an outlier counted as SPREAD_CAP at most */
             f->spread = IMU_ADD(f->spread, IMU_MUL(IMU_SUB(apart_h < SPREAD_CAP ? apart_h : SPREAD_CAP, f->spread),

@@ -28,9 +28,11 @@
  * position and velocity of the antenna (a lever arm from the sensor) with the receiver's
  * accuracies, back to the time the fix was valid for by the estimated velocity and
  * acceleration (a receiver's latency: tenths of a second), gated by the normalised
- * innovation (a multipath jump is rejected and counted, while dead reckoning lets the
- * covariance grow, until the fixes agree again; after 30 s of nothing but rejections the
- * filter accepts again, as the estimate is then the one in doubt); position fixes with an
+ * innovation, position and velocity apart (a multipath jump is rejected and counted, while
+ * dead reckoning lets the covariance grow, until the fixes agree again; a fix that agrees
+ * with the last one used but not with the estimate scales the covariance up; a run of
+ * rejected fixes that agree with each other for `reset_time` resets position and velocity
+ * to the fixes, as the estimate is then the one in doubt); position fixes with an
  * accuracy (markers: not gated). At rest (the bias-corrected rate and the specific force
  * still for `rest_steps`; with GNSS, only while the last fix said the board stood,
  * weighted by how steady the force is, through an outage too; after a minute without
@@ -57,6 +59,36 @@ typedef enum {
     IMU_NAVKF_MARKER = 1 /**< a known place (seed 003's markers): trusted as its accuracy says */
 } imu_navkf_source_t;
 
+/**
+ * What a mount and a receiver call for (the board's nav settings, imu_navfilter.h), in the
+ * units and Q formats given: the process noise (white densities as the filter takes them,
+ * about twice a data sheet's for the quantisation and what the model leaves out; the biases'
+ * random walks), the gate, how long a run of rejected fixes that agree with each other lasts
+ * before the estimate is the one in doubt, and the rest detector's bounds.
+ */
+typedef struct {
+    imu_real_t gyro_noise;     /**< rad/s/sqrt(Hz), Q30 */
+    imu_real_t acc_noise;      /**< m/s^2/sqrt(Hz), Q30 */
+    imu_real_t gyro_bias_walk; /**< rad/s/sqrt(s), Q30 */
+    imu_real_t acc_bias_walk;  /**< m/s^2/sqrt(s), Q30 */
+    imu_real_t gate;           /**< a fix's position and velocity, each: the normalised innovation squared, Q16 */
+    imu_real_t reset_time;     /**< s, Q16 */
+    imu_real_t rest_rate;      /**< the bias-corrected rate's bound at rest, rad/s, Q24 */
+    imu_real_t rest_force;     /**< the specific force's distance from gravity at rest, m/s^2, Q16 */
+} imu_navkf_tuning_t;
+
+/** The defaults, as an initializer: twice the MPU6050 data sheet's white noise (0.005
+ *  deg/s/sqrt(Hz), 400 ug/sqrt(Hz)), bias walks of 3.2e-5 rad/s/sqrt(s) and 1e-4
+ *  m/s^2/sqrt(s), chi-square at 99.9 % for three degrees of freedom, 15 s, 0.05 rad/s and
+ *  0.3 m/s^2: one set that serves a car, a drone, a handheld device and a foot mount
+ *  (docs/navigation.md). */
+#define IMU_NAVKF_DEFAULT_TUNING                                                                                 \
+    {                                                                                                            \
+        IMU_QCONST(1.7453293e-4, 30), IMU_QCONST(7.845320e-3, 30), IMU_QCONST(3.1622777e-5, 30),                \
+            IMU_QCONST(1e-4, 30), IMU_QCONST(16.27, 16), IMU_QCONST(15.0, 16), IMU_QCONST(0.05, 24),             \
+            IMU_QCONST(0.3, 16)                                                                                  \
+    }
+
 /** A GNSS fix, or a position fix from another source (without velocity). */
 typedef struct {
     int source;         /**< imu_navkf_source_t */
@@ -82,6 +114,7 @@ typedef struct {
     imu_wide_t carry[IMU_NAVKF_STATES]; /**< the corrections' rounding, carried to the next (velocity: Q54 of
                                              m/s; biases: Q30; 0 elsewhere and in the float build) */
     int32_t cov_steps;          /**< samples per covariance interval */
+    imu_real_t sample_rate;     /**< Hz, Q16 */
     imu_q30_t dt_per_64;        /**< sample interval / 64, s, Q36 (dv's factor) */
     int32_t still;              /**< consecutive still samples (stops counting at rest_steps) */
     int32_t rest_steps;         /**< still samples that make rest */
@@ -100,6 +133,11 @@ typedef struct {
     int32_t doubting;           /**< samples since the first of the current run of rejected GNSS fixes that agree
                                      with each other; -1: none */
     int32_t reset_steps;        /**< samples of such a run after which position and velocity are reset to the fixes */
+    imu_navkf_tuning_t tuning;  /**< imu_navkf_tune's (the defaults from imu_navkf_start) */
+    imu_wide_t noise_vel;       /**< process noise per second from the tuning, Q54 of (64 m/s)^2 */
+    imu_wide_t noise_att;       /**< ... rad^2 */
+    imu_wide_t noise_gyro_bias; /**< ... (rad/s)^2 */
+    imu_wide_t noise_acc_bias;  /**< ... (m/s^2)^2 */
     int32_t gap_steps;          /**< two fixes further apart than this (samples) are not compared */
     imu_real_t last_offset[3];  /**< the last GNSS fix's offset from the estimate then (antenna's, ENU), mm */
     imu_real_t last_at[3];      /**< its position in the origin's offsets (imu_nav_offsets), mm */
@@ -134,6 +172,12 @@ typedef struct {
  */
 imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t acc[3], const imu_real_t mag[3],
                              const imu_navkf_fix_t *fix, const imu_real_t lever_arm[3]);
+
+/**
+ * @brief Tune a started filter (before its first sample): IMU_ERR_RANGE, and nothing changed,
+ *        for a value that is not positive (the board's settings check their ranges first).
+ */
+imu_status_t imu_navkf_tune(imu_navkf_t *f, const imu_navkf_tuning_t *tuning);
 
 /**
  * @brief One IMU sample: propagation, and at the end of an interval the covariance, at rest

@@ -131,6 +131,8 @@ _DECLARATIONS = """
     typedef struct { imu_nav_t nav; uint32_t rejected; uint32_t resets; uint32_t fades; uint32_t zero_velocity; ...; } imu_navkf_t;
     imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t acc[3], const imu_real_t mag[3],
                                  const imu_navkf_fix_t *fix, const imu_real_t lever_arm[3]);
+    typedef struct { ...; } imu_navkf_tuning_t;
+    imu_status_t imu_navkf_tune(imu_navkf_t *f, const imu_navkf_tuning_t *tuning);
     void imu_navkf_position(const imu_navkf_t *f, imu_angle_t *lat, imu_angle_t *lon, imu_real_t *height);
     void imu_navkf_variance(const imu_navkf_t *f, int i, imu_real_t *mant, int32_t *exp);
     void navkf_run(imu_navkf_t *f, size_t n, const imu_rate_t *gyr, const imu_q16_t *acc, const imu_real_t *mag,

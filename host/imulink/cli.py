@@ -315,11 +315,21 @@ def _cmd_allan(args) -> int:
     return 0
 
 
+def _nav_tuning_help() -> str:
+    """The nav filter's tuning settings with their defaults, units and ranges (from the C core)."""
+    from . import core
+    from .nav import TUNING_NAMES
+
+    defaults = core.default_settings("nav")
+    return "; ".join(f"{f.name} (default {defaults[f.name]:.4g} {f.unit}, {f.minimum:.3g} to {f.maximum:.3g})"
+                     for f in core.settings_fields("nav", "float") if f.name in TUNING_NAMES)
+
+
 @_command
 def _cmd_nav(args) -> int:
     from pathlib import Path
 
-    from . import nav
+    from . import nav, settings_file
     from .files import check_output
     from .nav_input import read_nav_csv
     from .sensor_input import InputError
@@ -344,7 +354,9 @@ def _cmd_nav(args) -> int:
         elif len(inp.fix_index) == 0:
             raise InputError(f"{path} has no GNSS or position fix: the nav filter starts at the first one, or "
                              "give the place of the first sample with --start LAT,LON,HEIGHT[,ACCURACY]")
-        result = nav.run(inp, args.arith, args.lever_arm)
+        settings = dict(settings_file.for_filter(_settings_file(args), "nav") or {})
+        settings.update(_assignments(args.assignments))
+        result = nav.run(inp, args.arith, args.lever_arm, settings=settings)
         nav.write_csv(result, args.csv, inputs=[args.input])
     finally:
         status.done()
@@ -352,6 +364,7 @@ def _cmd_nav(args) -> int:
     report = {"input": str(path), "output": args.csv, "arithmetic": args.arith, "samples": len(inp),
               "start_sample": result.start, "rows_written": len(result), "rate_hz": nav.sample_rate_hz(inp.timestamp_us),
               "fixes": len(inp.fix_index), "fixes_used": used, "fixes_gated": result.rejected,
+              "resets": result.resets, "fades": result.fades, "settings": settings,
               "zero_velocity_updates": result.zero_velocity, "saturations": result.saturations,
               "start_marker": None if args.start is None else dict(zip(
                   ("lat_deg", "lon_deg", "height_m", "accuracy_m"), args.start)),
@@ -365,8 +378,9 @@ def _cmd_nav(args) -> int:
     end = report["end"]
     print(f"{args.csv}: {len(result)} rows ({args.arith} build, {report['rate_hz']:g} Hz, from line "
           f"{result.start + 2}, {'the --start marker' if args.start is not None else 'the first fix'})")
-    print(f"fixes: {used} of {report['fixes']} used, {result.rejected} gated; zero-velocity updates: "
-          f"{result.zero_velocity}; saturations: {result.saturations}")
+    print(f"fixes: {used} of {report['fixes']} used, {result.rejected} gated, {result.resets} resets to them, "
+          f"{result.fades} scaled the covariance up; zero-velocity updates: {result.zero_velocity}; "
+          f"saturations: {result.saturations}")
     print(f"end: {end['lat_deg']:.7f} deg, {end['lon_deg']:.7f} deg, {end['height_m']:.2f} m "
           f"(sd {end['sd_horizontal_m']:.2f} m horizontal, {end['sd_up_m']:.2f} m up)")
     return 0
@@ -615,6 +629,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gnss-latency", type=_in_range(float, 0.0, 1.0, "must be 0 to 1 s"), default=0.0,
                    metavar="SECONDS", help="a recording's receiver latency: how long before its arrival each fix "
                                            "was valid (default 0)")
+    p.add_argument("--settings", metavar="FILE",
+                   help="the nav filter's settings file (JSON, as `imulink settings PORT --save FILE` writes a "
+                        "board's): its tuning and lever arm")
+    p.add_argument("--set", dest="assignments", action="append", default=[], metavar="NAME=VALUE",
+                   help="one of the nav filter's settings in SI units, after --settings (repeat for more): "
+                        + _nav_tuning_help())
     _json_argument(p, "a summary of the run")
     p.set_defaults(func=_cmd_nav)
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .core import _module, to_fixed
+from .core import SettingsError, _module, resolve_settings, settings_fields, to_fixed
 from .nav_input import NavInput
 from .sensor_input import InputError
 
@@ -220,11 +220,35 @@ def with_start(inp: NavInput, lat_deg: float, lon_deg: float, height_m: float,
                    fix_s_acc_m_s=np.r_[math.nan, s_acc], fix_age_s=np.r_[0.0, age], fix_is_marker=np.r_[True, marker])
 
 
-def run(inp: NavInput, arithmetic: str = "fixed", lever_arm_m=None) -> NavResult:
+#: The nav settings that tune the filter (imu_navkf_tuning_t, in this order).
+TUNING_NAMES = ("gyro_noise", "acc_noise", "gyro_bias_walk", "acc_bias_walk", "gate", "reset_time", "rest_rate",
+                "rest_force")
+
+
+def tuning_settings(settings, rate_hz: float) -> dict[str, float]:
+    """The board's nav settings (a dict by name in SI, or a settings file's FilterSettings)
+    overlaid on the defaults, checked against the C core's ranges: SettingsError naming the
+    setting and its range for an unknown name or a value outside it, and for `gnss_latency`
+    (a recording's fixes take theirs from `--gnss-latency`, a CSV's from its rows)."""
+    values = resolve_settings("nav", rate_hz, settings)
+    for field in settings_fields("nav", "float"):
+        value = values[field.name]
+        if not (math.isfinite(value) and field.minimum <= value <= field.maximum):
+            raise SettingsError(f"{field.name}={value:g} is outside {field.minimum:g} .. {field.maximum:g} "
+                                f"{field.unit}")
+    if values["gnss_latency"] != 0.0:
+        raise SettingsError("gnss_latency is the board's; offline each fix's age comes from its row "
+                            "(imulink nav --gnss-latency for a recording)")
+    return values
+
+
+def run(inp: NavInput, arithmetic: str = "fixed", lever_arm_m=None, settings=None) -> NavResult:
     """Run the filter over `inp` (a NavInput: imulink.nav_input); `lever_arm_m` is the GNSS
     antenna's position in the sensor frame (x right, y forward, z up), m, each axis within
-    +-10 m (None: at the sensor). InputError when the input has no fix to start from or a
-    rate the filter does not take."""
+    +-10 m (None: the settings' lever_arm_x, _y, _z, by default at the sensor); `settings`
+    the board's nav settings by name (tuning_settings: the noise densities, the gate, the
+    reset time, the rest bounds), None: the defaults. InputError when the input has no fix
+    to start from or a rate the filter does not take; SettingsError for a bad setting."""
     if arithmetic not in ("fixed", "float"):
         raise ValueError(f"arithmetic must be 'fixed' or 'float', not {arithmetic!r}")
     if len(inp.fix_index) == 0:
@@ -232,7 +256,10 @@ def run(inp: NavInput, arithmetic: str = "fixed", lever_arm_m=None) -> NavResult
     rate = sample_rate_hz(inp.timestamp_us)
     if not MIN_RATE_HZ <= rate <= MAX_RATE_HZ:
         raise InputError(f"the samples come at {rate:g} Hz; the nav filter takes {MIN_RATE_HZ:g} to {MAX_RATE_HZ:g} Hz")
+    values = tuning_settings(settings, rate)
     arm = None
+    if lever_arm_m is None and any(values[f"lever_arm_{axis}"] != 0.0 for axis in "xyz"):
+        lever_arm_m = [values[f"lever_arm_{axis}"] for axis in "xyz"]
     if lever_arm_m is not None:
         arm = [float(v) for v in lever_arm_m]
         if len(arm) != 3 or not all(math.isfinite(v) and abs(v) <= MAX_LEVER_ARM_M for v in arm):
@@ -292,6 +319,13 @@ def run(inp: NavInput, arithmetic: str = "fixed", lever_arm_m=None) -> NavResult
     if lib.imu_navkf_start(state, rate_value, start_acc, start_mag, ffi.addressof(fixes[0]), arm_mm) != 0:
         raise InputError(f"the nav filter cannot start at line {start + 2}: a fix out of range (latitude beyond "
                          "85 deg, a height beyond 10 km) or an accelerometer that reads nothing")
+    tuned = [field for field in settings_fields("nav", arithmetic) if field.name in TUNING_NAMES]
+    tuning = ffi.new("imu_navkf_tuning_t *")  # the settings' member `tuning`, from their first tuning field on
+    for field in tuned:
+        target = ffi.cast(f"{real} *", ffi.cast("char *", tuning) + field.offset - tuned[0].offset)
+        target[0] = to_fixed(values[field.name], field.frac_bits, field.name) if fixed else values[field.name]
+    if lib.imu_navkf_tune(state, tuning) != 0:
+        raise SettingsError("the nav filter's tuning takes positive values only")
 
     state0 = ffi.new("imu_navkf_t *", state[0])  # the start, kept for its row
     n = len(inp) - start - 1
