@@ -184,7 +184,7 @@ def test_nav_settings_are_the_cores(link):
     fields = core.settings_fields("nav")
     assert [f.name for f in fields] == ["sample_rate", "lever_arm_x", "lever_arm_y", "lever_arm_z", "gnss_latency",
                                         "gyro_noise", "acc_noise", "gyro_bias_walk", "acc_bias_walk", "gate",
-                                        "reset_time", "rest_rate", "rest_force"]
+                                        "reset_time", "rest_rate", "rest_force", "acc_range"]
     for name, bad, good in (("gnss_latency", 1.5, 0.25), ("gate", 7.0, 30.0), ("reset_time", 0.5, 5.0),
                             ("gyro_bias_walk", 0.02, 1e-4)):
         index = [f.name for f in fields].index(name)

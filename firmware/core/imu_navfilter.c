@@ -34,6 +34,7 @@ const imu_setting_desc_t imu_navfilter_setting_descs[] = {
     TUNING(reset_time, 16, "s", 1.0, 600.0),
     TUNING(rest_rate, 24, "rad/s", 0.005, 1.0),
     TUNING(rest_force, 16, "m/s^2", 0.02, 3.0),
+    TUNING(acc_range, 16, "m/s^2", 19.6, 200.0),
 };
 #undef DESC
 #undef TUNING

@@ -238,7 +238,7 @@ static void covariance_step(imu_navkf_t *f)
             rows[i][GYRO_BIAS + j] = -IMU_ADD(i == j ? IMU_HALF(t) : 0, IMU_MUL(IMU_HALF(t), a[i][j], 30));
         }
         /* Q54 per second * s Q30 >> 24 -> Q60 */
-        qvar[VEL + i] = IMU_WSHR(IMU_WMUL(f->noise_vel, t), 24);
+        qvar[VEL + i] = IMU_WSHR(IMU_WMUL(f->noise_vel, t), 24) + f->clipped_var;
         qvar[ATT + i] = IMU_WSHR(IMU_WMUL(f->noise_att, t), 24);
         qvar[GYRO_BIAS + i] = IMU_WSHR(IMU_WMUL(f->noise_gyro_bias, t), 24);
         qvar[ACC_BIAS + i] = IMU_WSHR(IMU_WMUL(f->noise_acc_bias, t), 24);
@@ -260,6 +260,7 @@ static void restart_interval(imu_navkf_t *f)
     for (k = 0; k < 3; ++k) {
         f->dv[k] = 0;
     }
+    f->clipped_var = 0;
     f->steps = 0;
 }
 
@@ -720,7 +721,7 @@ imu_status_t imu_navkf_tune(imu_navkf_t *f, const imu_navkf_tuning_t *tuning)
 {
     const imu_navkf_tuning_t *t = tuning;
     if (!(t->gyro_noise > 0 && t->acc_noise > 0 && t->gyro_bias_walk > 0 && t->acc_bias_walk > 0 && t->gate > 0 &&
-          t->reset_time > 0 && t->rest_rate > 0 && t->rest_force > 0)) {
+          t->reset_time > 0 && t->rest_rate > 0 && t->rest_force > 0 && t->acc_range > 0)) {
         return IMU_ERR_RANGE;
     }
     f->tuning = *t;
@@ -734,6 +735,17 @@ imu_status_t imu_navkf_tune(imu_navkf_t *f, const imu_navkf_tuning_t *tuning)
      * = Q70 >> 10 -> (rad/s)^2, Q60 */
     f->zero_rate_var = IMU_WSHR(IMU_WMUL(f->noise_att, f->sample_rate), 10);
     f->reset_steps = seconds_in_steps(f, t->reset_time);
+    /* A clipped sample's force lay anywhere beyond the full scale: its velocity step is
+     * uncertain by about half the full scale times dt (m/s^2 Q16 / 128 -> half of it in
+     * units of 64 m/s per s, * s Q30 >> 16 -> Q30), squared, Q60: a heel strike's clipped peak
+     * then shows in the covariance, and the zero-velocity update after it takes back the
+     * position it moved too (foot mounts: 6-12 g strikes on a +-8 g accelerometer). The
+     * level: 1/64 below the full scale (a calibration scales it a little). */
+    f->clip_level = IMU_SUB(t->acc_range, IMU_MUL(t->acc_range, IMU_QCONST(1.0 / 64.0, 30), 30));
+    {
+        const imu_q30_t half_step = IMU_MUL(IMU_MUL(t->acc_range, IMU_QCONST(1.0 / 128.0, 30), 30), f->nav.dt, 16);
+        f->clip_var = IMU_WMUL(half_step, half_step);
+    }
     return IMU_OK;
 }
 
@@ -770,6 +782,12 @@ void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc
     int k;
     for (k = 0; k < 3; ++k) {
         f->rate[k] = IMU_SUB_SAT(gyr[k], f->nav.gyro_bias[k], &f->nav.saturations);
+    }
+    for (k = 0; k < 3; ++k) {
+        if (acc[k] >= f->clip_level || acc[k] <= -f->clip_level) {
+            f->clipped_var += f->clip_var;
+            break;
+        }
     }
     f->still = still_sample(f, acc) ? (f->still < f->rest_steps ? f->still + 1 : f->still) : 0;
     f->since_fix += f->since_fix < f->longest_steps;

@@ -75,18 +75,19 @@ typedef struct {
     imu_real_t reset_time;     /**< s, Q16 */
     imu_real_t rest_rate;      /**< the bias-corrected rate's bound at rest, rad/s, Q24 */
     imu_real_t rest_force;     /**< the specific force's distance from gravity at rest, m/s^2, Q16 */
+    imu_real_t acc_range;      /**< the accelerometer's full scale, m/s^2, Q16: a sample at it clipped */
 } imu_navkf_tuning_t;
 
 /** The defaults, as an initializer: twice the MPU6050 data sheet's white noise (0.005
- *  deg/s/sqrt(Hz), 400 ug/sqrt(Hz)), bias walks of 3.2e-5 rad/s/sqrt(s) and 1e-4
+ *  deg/s/sqrt(Hz), 400 ug/sqrt(Hz)), bias walks of 1e-5 rad/s/sqrt(s) and 1e-4
  *  m/s^2/sqrt(s), chi-square at 99.9 % for three degrees of freedom, 15 s, 0.05 rad/s and
- *  0.3 m/s^2: one set that serves a car, a drone, a handheld device and a foot mount
+ *  0.3 m/s^2, the MPU6050's +-8 g (the GY-86 profile's): one set that serves a car, a drone, a handheld device and a foot mount
  *  (docs/navigation.md). */
 #define IMU_NAVKF_DEFAULT_TUNING                                                                                 \
     {                                                                                                            \
-        IMU_QCONST(1.7453293e-4, 30), IMU_QCONST(7.845320e-3, 30), IMU_QCONST(3.1622777e-5, 30),                \
+        IMU_QCONST(1.7453293e-4, 30), IMU_QCONST(7.845320e-3, 30), IMU_QCONST(1e-5, 30),                        \
             IMU_QCONST(1e-4, 30), IMU_QCONST(16.27, 16), IMU_QCONST(15.0, 16), IMU_QCONST(0.05, 24),             \
-            IMU_QCONST(0.3, 16)                                                                                  \
+            IMU_QCONST(0.3, 16), IMU_QCONST(78.4532, 16)                                                         \
     }
 
 /** A GNSS fix, or a position fix from another source (without velocity). */
@@ -138,6 +139,9 @@ typedef struct {
     imu_wide_t noise_att;       /**< ... rad^2 */
     imu_wide_t noise_gyro_bias; /**< ... (rad/s)^2 */
     imu_wide_t noise_acc_bias;  /**< ... (m/s^2)^2 */
+    imu_q16_t clip_level;       /**< a specific force at or beyond this on an axis is clipped, m/s^2, Q16 */
+    imu_wide_t clip_var;        /**< velocity variance per clipped sample, Q60 of (64 m/s)^2 */
+    imu_wide_t clipped_var;     /**< ... summed over the covariance interval so far */
     int32_t gap_steps;          /**< two fixes further apart than this (samples) are not compared */
     imu_real_t last_offset[3];  /**< the last GNSS fix's offset from the estimate then (antenna's, ENU), mm */
     imu_real_t last_at[3];      /**< its position in the origin's offsets (imu_nav_offsets), mm */

@@ -222,7 +222,7 @@ def with_start(inp: NavInput, lat_deg: float, lon_deg: float, height_m: float,
 
 #: The nav settings that tune the filter (imu_navkf_tuning_t, in this order).
 TUNING_NAMES = ("gyro_noise", "acc_noise", "gyro_bias_walk", "acc_bias_walk", "gate", "reset_time", "rest_rate",
-                "rest_force")
+                "rest_force", "acc_range")
 
 
 def tuning_settings(settings, rate_hz: float) -> dict[str, float]:
