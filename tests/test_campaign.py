@@ -48,7 +48,7 @@ FILTER_SOURCES = [p for p in sorted(CORE.glob("imu_*.c")) if p.name not in NOT_F
 STRICT = ["-std=c99", "-Wall", "-Wextra", "-Werror", "-pedantic"]
 FILTERS = ("eecf", "kf1d", "eskf", "nav")
 #: The header that documents a filter's settings, where it is not imu_<filter>.h.
-SETTINGS_HEADERS = {"nav": "imu_navfilter.h"}
+SETTINGS_HEADERS = {"nav": ("imu_navfilter.h", "imu_navkf.h")}  # nav's tuning is imu_navkf_tuning_t
 #: The fast rate of the campaign: 5 kHz, or the filter's largest below it.
 FAST_RATES = {"nav": "1kHz"}
 GCC = shutil.which("gcc")
@@ -508,8 +508,11 @@ def range_mismatches(rows: dict) -> list[str]:
     outside the documentation, is a mismatch (tolerance: one unit in the last place of Q)."""
     problems = []
     for filt in FILTERS:
-        header = SETTINGS_HEADERS.get(filt, f"imu_{filt}.h")
-        docs = documented_ranges(CORE / header)
+        headers = SETTINGS_HEADERS.get(filt, (f"imu_{filt}.h",))
+        header = " or ".join(headers)
+        docs = {}
+        for name in headers:
+            docs.update(documented_ranges(CORE / name))
         for (f, name), (q, lo_raw, hi_raw, unit) in sorted(rows.items()):
             if f != filt:
                 continue

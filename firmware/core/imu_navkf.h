@@ -64,30 +64,32 @@ typedef enum {
  * units and Q formats given: the process noise (white densities as the filter takes them,
  * about twice a data sheet's for the quantisation and what the model leaves out; the biases'
  * random walks), the gate, how long a run of rejected fixes that agree with each other lasts
- * before the estimate is the one in doubt, and the rest detector's bounds.
+ * before the estimate is the one in doubt, and the rest detector's bounds. The ranges are
+ * the board's settings' (imu_navfilter.c); the noise's upper bounds keep a covariance
+ * interval's process noise (density^2 * 0.25 s at most, Q54 * Q30) within int64.
  */
 typedef struct {
-    imu_real_t gyro_noise;     /**< rad/s/sqrt(Hz), Q30 */
-    imu_real_t acc_noise;      /**< m/s^2/sqrt(Hz), Q30 */
-    imu_real_t gyro_bias_walk; /**< rad/s/sqrt(s), Q30 */
-    imu_real_t acc_bias_walk;  /**< m/s^2/sqrt(s), Q30 */
-    imu_real_t gate;           /**< a fix's position and velocity, each: the normalised innovation squared, Q16 */
-    imu_real_t reset_time;     /**< s, Q16 */
-    imu_real_t rest_rate;      /**< the bias-corrected rate's bound at rest, rad/s, Q24 */
-    imu_real_t rest_force;     /**< the specific force's distance from gravity at rest, m/s^2, Q16 */
-    imu_real_t acc_range;      /**< the accelerometer's full scale, m/s^2, Q16: a sample at it clipped */
+    imu_real_t gyro_noise;     /**< rad/s/sqrt(Hz), Q30, [1e-5, 1e-3] */
+    imu_real_t acc_noise;      /**< m/s^2/sqrt(Hz), Q30, [1e-4, 0.08] */
+    imu_real_t gyro_bias_walk; /**< rad/s/sqrt(s), Q30, [1e-7, 1e-3] */
+    imu_real_t acc_bias_walk;  /**< m/s^2/sqrt(s), Q30, [1e-6, 1e-3] */
+    imu_real_t gate;           /**< chi-square bound of a fix's position, and of its velocity, Q16, [7.81, 100] */
+    imu_real_t reset_time;     /**< s, Q16, [1, 600] */
+    imu_real_t rest_rate;      /**< the bias-corrected rate's bound at rest, rad/s, Q24, [0.005, 1] */
+    imu_real_t rest_force;     /**< the specific force's distance from gravity at rest, m/s^2, Q16, [0.02, 3] */
+    imu_real_t acc_range;      /**< the accelerometer's full scale (a sample at it clipped), m/s^2, Q16, [19.6, 200] */
 } imu_navkf_tuning_t;
 
 /** The defaults, as an initializer: twice the MPU6050 data sheet's white noise (0.005
  *  deg/s/sqrt(Hz), 400 ug/sqrt(Hz)), bias walks of 1e-5 rad/s/sqrt(s) and 1e-4
  *  m/s^2/sqrt(s), chi-square at 99.9 % for three degrees of freedom, 15 s, 0.05 rad/s and
- *  0.3 m/s^2, the MPU6050's +-8 g (the GY-86 profile's): one set that serves a car, a drone, a handheld device and a foot mount
- *  (docs/navigation.md). */
-#define IMU_NAVKF_DEFAULT_TUNING                                                                                 \
-    {                                                                                                            \
-        IMU_QCONST(1.7453293e-4, 30), IMU_QCONST(7.845320e-3, 30), IMU_QCONST(1e-5, 30),                        \
-            IMU_QCONST(1e-4, 30), IMU_QCONST(16.27, 16), IMU_QCONST(15.0, 16), IMU_QCONST(0.05, 24),             \
-            IMU_QCONST(0.3, 16), IMU_QCONST(78.4532, 16)                                                         \
+ *  0.3 m/s^2, the MPU6050's +-8 g (the GY-86 profile's): one set that serves a car, a
+ *  drone, a handheld device and a foot mount (docs/navigation.md). */
+#define IMU_NAVKF_DEFAULT_TUNING                                                              \
+    {                                                                                         \
+        IMU_QCONST(1.7453293e-4, 30), IMU_QCONST(7.845320e-3, 30), IMU_QCONST(1e-5, 30),     \
+            IMU_QCONST(1e-4, 30), IMU_QCONST(16.27, 16), IMU_QCONST(15.0, 16),                \
+            IMU_QCONST(0.05, 24), IMU_QCONST(0.3, 16), IMU_QCONST(78.4532, 16)                \
     }
 
 /** A GNSS fix, or a position fix from another source (without velocity). */
