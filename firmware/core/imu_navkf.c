@@ -86,10 +86,6 @@ static const imu_navkf_tuning_t DEFAULT_TUNING = IMU_NAVKF_DEFAULT_TUNING;
 #define GRAVITY_SIGMA IMU_QCONST(0.05, 30)
 #define GRAVITY_TOLERANCE IMU_QCONST(0.2, 24)
 
-/* The gate on a GNSS fix's position and, apart, its velocity (the tuning's `gate`): the
- * normalised innovation squared, each axis against its own predicted variance plus the
- * fix's (the correlations between the axes are small beside the fix's noise). A part
- * beyond it is rejected and counted; the other part is used. */
 /* Two consecutive fixes agree with each other when the one's position moved by the
  * receiver's mean velocity between them (without velocity: the estimate's displacement, the
  * corrections taken off) lands within GATE_SIGMAS standard deviations of the other (their
@@ -840,7 +836,10 @@ static imu_real_t normalised_square(const imu_navkf_t *f, int i, imu_q30_t z, im
     return IMU_DIV_SAT(IMU_MUL_SAT(z, z, 30, &ignored), s, 16, &ignored);
 }
 
-/** The normalised innovations squared of a fix's position and velocity (Q16; 0 without velocity). */
+/** The normalised innovations squared of a fix's position and velocity (Q16; 0 without velocity),
+ *  each axis against its own predicted variance plus the fix's (the correlations between the
+ *  axes are small beside the fix's noise): the gate (the tuning's `gate`) rejects and counts a
+ *  part beyond it and uses the other. */
 static void gate_squares(imu_navkf_t *f, const imu_q30_t z[6], const imu_wide_t var[6], int has_vel, imu_real_t *pos,
                          imu_real_t *vel)
 {
