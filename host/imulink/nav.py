@@ -234,8 +234,8 @@ def tuning_settings(settings, rate_hz: float) -> dict[str, float]:
     for field in settings_fields("nav", "float"):
         value = values[field.name]
         if not (math.isfinite(value) and field.minimum <= value <= field.maximum):
-            raise SettingsError(f"{field.name}={value:g} is outside {field.minimum:g} .. {field.maximum:g} "
-                                f"{field.unit}")
+            unit = "" if field.unit == "1" else f" {field.unit}"
+            raise SettingsError(f"{field.name}={value:g} is outside {field.minimum:g} .. {field.maximum:g}{unit}")
     if values["gnss_latency"] != 0.0:
         raise SettingsError("gnss_latency is the board's; offline each fix's age comes from its row "
                             "(imulink nav --gnss-latency for a recording)")
