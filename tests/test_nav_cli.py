@@ -14,15 +14,10 @@ from imulink import nav, nav_input
 from imulink.cli import main
 from imulink.sim import navigation as nv
 from imulink.sim import simulate
+from test_navkf import nav_cli  # the `imulink nav` runner the offline tests share
 
 RATE = 100.0
 ACCURACY_M = 0.5
-
-
-def nav_cli(capsys, *argv):
-    code = main(["nav", *(str(a) for a in argv)])
-    out, err = capsys.readouterr()
-    return code, out, err
 
 
 @pytest.fixture(scope="module")

@@ -383,12 +383,10 @@ static void zero_component(imu_navkf_t *f, const imu_q30_t u[3], const imu_q30_t
     measure_row(f, h, z, IMU_WMUL(sigma, sigma), w, NULL, dx);
 }
 
-/** A sensor-frame unit vector (Q30) in the estimate's earth frame (ENU, Q30). */
-static void to_earth(const imu_navkf_t *f, const imu_q30_t unit[3], imu_q30_t earth[3])
+/** A sensor-frame unit vector (Q30) in the earth frame (ENU, Q30) of the attitude matrix r. */
+static void to_earth(imu_q30_t r[3][3], const imu_q30_t unit[3], imu_q30_t earth[3])
 {
-    imu_q30_t r[3][3];
     int k;
-    matrix(f->nav.q, r);
     for (k = 0; k < 3; ++k) {
         earth[k] = IMU_ADD(IMU_ADD(IMU_MUL(r[k][0], unit[0], 30), IMU_MUL(r[k][1], unit[1], 30)),
                            IMU_MUL(r[k][2], unit[2], 30));
@@ -407,7 +405,8 @@ static void field_heading(imu_navkf_t *f, const imu_real_t mag[3], imu_q30_t w)
     if (f->field_reference <= 0 || !imu_vec3_normalize(mag, unit, &norm)) {
         return;
     }
-    to_earth(f, unit, earth);
+    matrix(f->nav.q, r);
+    to_earth(r, unit, earth);
     dip = imu_field_dip(earth, &horizontal);
     w_field = imu_field_weight(norm, f->field_reference, dip, f->dip_reference, FIELD_TOLERANCE, DIP_TOLERANCE,
                                &w_norm, sat);
@@ -422,7 +421,6 @@ static void field_heading(imu_navkf_t *f, const imu_real_t mag[3], imu_q30_t w)
         return;
     }
     clear(dx);
-    matrix(f->nav.q, r);
     zero_component(f, unit, r[0], FIELD_EAST_SIGMA, IMU_MUL(w, w_field, 30), dx);
     apply(f, dx);
 }
@@ -686,11 +684,14 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     f->fix_slow = 1;
     {
         imu_real_t norm = 0;
-        imu_q30_t unit[3];
+        imu_q30_t unit[3], earth[3], horizontal, r[3][3];
         f->field_reference = imu_vec3_normalize(mag, unit, &norm) ? norm : 0;
-        imu_q30_t earth[3], horizontal;
-        to_earth(f, unit, earth);
-        f->dip_reference = f->field_reference > 0 ? imu_field_dip(earth, &horizontal) : 0;
+        f->dip_reference = 0;
+        if (f->field_reference > 0) {
+            matrix(f->nav.q, r);
+            to_earth(r, unit, earth);
+            f->dip_reference = imu_field_dip(earth, &horizontal);
+        }
         f->dips_seen = 1;
     }
     for (k = 0; k < 3; ++k) {
@@ -926,6 +927,7 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
     imu_q30_t z[6], dx[IMU_NAVKF_STATES], r[3][3];
     imu_wide_t var[6]; /* the measurements' variances, Q60 */
     imu_real_t nis_pos = 0, nis_vel = 0, apart = -1, apart_h = 0; /* Q16 */
+    int agrees = 0; /* the fix agrees with the last one (within GATE_SIGMAS, inflated) */
     const int gnss = fix->source == IMU_NAVKF_GNSS;
     const imu_real_t gate = f->tuning.gate; /* Q16 */
     const imu_real_t inflate = gnss ? inflation(f) : IMU_QCONST(1.0, 16);
@@ -968,8 +970,8 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
     if (gnss) {
         gate_squares(f, z, var, fix->has_vel, &nis_pos, &nis_vel);
         apart = disagreement(f, fix, at_fix, offset, &apart_h);
-        if ((nis_pos > gate || nis_vel > gate) && f->last_used && apart >= 0 &&
-            apart <= IMU_MUL(GATE_SIGMAS, inflate, 16)) {
+        agrees = apart >= 0 && apart <= IMU_MUL(GATE_SIGMAS, inflate, 16);
+        if ((nis_pos > gate || nis_vel > gate) && f->last_used && agrees) {
             /* A fix that agrees with the last one used but not with the estimate: the estimate
              * is the one in doubt (a gyro bias that stepped, a model the motion left): its
              * covariance is scaled up until the fix passes, a fading memory (counted). */
@@ -1008,7 +1010,7 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
         f->since_fix = 0;
         if (!use_pos || use_vel != fix->has_vel) {
             ++f->rejected;
-            if (f->doubting >= 0 && apart >= 0 && apart <= IMU_MUL(GATE_SIGMAS, inflate, 16)) {
+            if (f->doubting >= 0 && agrees) {
                 /* a run of rejected fixes that agree with each other: the estimate is in doubt */
                 if (f->doubting >= f->reset_steps) {
                     return reset_to_fix(f, fix);

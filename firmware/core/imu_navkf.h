@@ -152,7 +152,8 @@ typedef struct {
     int last_used;              /**< 1 when its position was used */
     imu_real_t moved[3];        /**< the position corrections applied since the last GNSS fix, ENU, mm */
     imu_real_t spread;          /**< how far consecutive fixes disagree beside their accuracy, a running mean
-                                     of their normalised squared disagreement, Q16 (1: as reported) */
+                                     of their normalised horizontal disagreement, Q16 (RAYLEIGH_MEAN: as
+                                     reported) */
     uint32_t rejected;          /**< GNSS fixes rejected by the gate (position or velocity), in all */
     uint32_t resets;            /**< position and velocity reset to the fixes (the filter's own divergence) */
     uint32_t fades;             /**< fixes that scaled the covariance up (the estimate in doubt) */

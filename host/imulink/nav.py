@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .core import SettingsError, _module, resolve_settings, settings_fields, to_fixed
+from .core import SettingsError, _module, _settings_struct, resolve_settings, settings_fields, to_fixed
 from .nav_input import NavInput
 from .sensor_input import InputError
 
@@ -319,12 +319,10 @@ def run(inp: NavInput, arithmetic: str = "fixed", lever_arm_m=None, settings=Non
     if lib.imu_navkf_start(state, rate_value, start_acc, start_mag, ffi.addressof(fixes[0]), arm_mm) != 0:
         raise InputError(f"the nav filter cannot start at line {start + 2}: a fix out of range (latitude beyond "
                          "85 deg, a height beyond 10 km) or an accelerometer that reads nothing")
-    tuned = [field for field in settings_fields("nav", arithmetic) if field.name in TUNING_NAMES]
-    tuning = ffi.new("imu_navkf_tuning_t *")  # the settings' member `tuning`, from their first tuning field on
-    for field in tuned:
-        target = ffi.cast(f"{real} *", ffi.cast("char *", tuning) + field.offset - tuned[0].offset)
-        target[0] = to_fixed(values[field.name], field.frac_bits, field.name) if fixed else values[field.name]
-    if lib.imu_navkf_tune(state, tuning) != 0:
+    board_settings = _settings_struct(mod, arithmetic, "nav", values)
+    tuning = next(field for field in settings_fields("nav", arithmetic) if field.name == TUNING_NAMES[0])
+    # the settings' member `tuning` starts at its first field
+    if lib.imu_navkf_tune(state, ffi.cast("imu_navkf_tuning_t *", board_settings + tuning.offset)) != 0:
         raise SettingsError("the nav filter's tuning takes positive values only")
 
     state0 = ffi.new("imu_navkf_t *", state[0])  # the start, kept for its row
