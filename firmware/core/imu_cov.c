@@ -843,20 +843,24 @@ void imu_cov_cap_unit_variance(imu_cov_t *c, int i)
     cap_unit_variance(c, i);
 }
 
-void imu_cov_scale_up(imu_cov_t *c, int k)
+void imu_cov_scale_up(imu_cov_t *c, const int k[])
 {
     int i;
 #ifdef IMU_FIXED
     for (i = 0; i < c->n; ++i) {
-        c->e[i] += k; /* P_ij 2^(e_i + e_j): 4^k */
+        c->e[i] += k[i]; /* P_ij 2^(e_i + e_j): 2^(k_i + k_j) */
     }
 #else
-    double factor = 1.0;
-    for (i = 0; i < k; ++i) {
-        factor *= 4.0;
-    }
-    for (i = 0; i < IMU_COV_CELLS; ++i) {
-        c->p[i] *= factor;
+    int j;
+    for (i = 0; i < c->n; ++i) {
+        for (j = i; j < c->n; ++j) {
+            double factor = 1.0;
+            int d;
+            for (d = 0; d < k[i] + k[j]; ++d) {
+                factor *= 2.0;
+            }
+            c->p[cell(i, j)] *= factor;
+        }
     }
 #endif
 }

@@ -106,10 +106,11 @@ void imu_cov_reset_state(imu_cov_t *c, int i, imu_wide_t var, int var_q, uint32_
 void imu_cov_cap_unit_variance(imu_cov_t *c, int i);
 
 /**
- * @brief P <- 4^k P, k in [0, 16]: every state's uncertainty doubled k times, the
- *        correlations kept (a fading memory: the filter trusts its past less).
+ * @brief P <- D P D, D = diag(2^k[i]), each k[i] in [0, 16]: state i's standard deviation
+ *        doubled k[i] times, the correlations kept (a fading memory: the filter trusts its
+ *        past less, in the states named).
  */
-void imu_cov_scale_up(imu_cov_t *c, int k);
+void imu_cov_scale_up(imu_cov_t *c, const int k[]);
 
 /**
  * @brief Element (i, j) as mantissa and exponent: P_ij = mant * 2^(exp - 30) in the

@@ -37,7 +37,7 @@ int imu_navcov_update(imu_navcov_t *c, const imu_q30_t h[], imu_wide_t r, int r_
                       const imu_navcov_map_t *gain_map, imu_q30_t dx[], uint32_t *sat);
 void imu_navcov_reset_state(imu_navcov_t *c, int i, imu_wide_t var, int var_q, uint32_t *sat);
 void imu_navcov_cap_unit_variance(imu_navcov_t *c, int i);
-void imu_navcov_scale_up(imu_navcov_t *c, int k);
+void imu_navcov_scale_up(imu_navcov_t *c, const int k[]);
 void imu_navcov_get(const imu_navcov_t *c, int i, int j, imu_real_t *mant, int32_t *exp);
 imu_real_t imu_navcov_element_q30(const imu_navcov_t *c, int i, int j, uint32_t *sat);
 

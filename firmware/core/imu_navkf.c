@@ -48,8 +48,8 @@ static const imu_navkf_tuning_t DEFAULT_TUNING = IMU_NAVKF_DEFAULT_TUNING;
  * GNSS, only while the last fix's speed is below REST_SPEED (m/s, Q20): a car cruising
  * straight is as still as a parked one. */
 #define REST_SPEED IMU_QCONST(0.3, 20)
-/** Below SLOW_SPEED (m/s, Q20) the GNSS velocity's direction is too uncertain to show the
- *  heading: the magnetometer gives it, every covariance interval. */
+/** Below SLOW_SPEED (m/s, Q20) the board walks: through an outage, rest is the sensors' (a
+ *  car cruising through a tunnel is as still as a foot in its stance, but not as slow). */
 #define SLOW_SPEED IMU_QCONST(2.0, 20)
 /* ... and, with GNSS, weighted by how steady the specific force is: its low-passes over
  * 0.1 s and 1 s (weights per sample dt / tau) apart by 0.02 m/s^2 (Q24) on an axis weigh a
@@ -73,6 +73,10 @@ static const imu_navkf_tuning_t DEFAULT_TUNING = IMU_NAVKF_DEFAULT_TUNING;
 #define FIELD_TOLERANCE IMU_QCONST(0.1, 24)
 #define DIP_TOLERANCE IMU_QCONST(0.05, 24)
 #define FIELD_DISTURBED IMU_QCONST(0.5, 30)
+/** ... and a heading that departs from the estimate's by more than 3 standard deviations of
+ *  their difference (a chi-square bound, Q16) is left out too: a field a few microtesla
+ *  off in strength and dip, which the weight lets through, turns the heading by degrees. */
+#define FIELD_GATE IMU_QCONST(9.0, 16)
 /** The dip's reference is the mean of the dips seen in the estimate's frame while the field's
  *  strength is the start's (its weight at least FIELD_DISTURBED): over all of them for the
  *  first DIP_MEMORY covariance intervals, then a running mean over about as many (51 s). One
@@ -98,8 +102,14 @@ static const imu_navkf_tuning_t DEFAULT_TUNING = IMU_NAVKF_DEFAULT_TUNING;
 #define RAYLEIGH_MEAN IMU_QCONST(1.2533141, 16)
 #define SPREAD_CAP IMU_QCONST(5.0, 16)
 #define SPREAD_WEIGHT IMU_QCONST(1.0 / 16.0, 30)
-/** The most a fix scales the covariance by: 4^MAX_FADE. */
+/** The most a fix scales the covariance by: each standard deviation doubled up to MAX_FADE
+ *  times (until the fix passes the gate), the attitude's ATTITUDE_FADE times at most (an
+ *  estimate in doubt is most often a bias that stepped: the attitude's error is that bias
+ *  integrated since, a few degrees, and the magnetometer and gravity keep observing it;
+ *  freed further, the attitude would absorb what a fix's velocity says about the tilt as a
+ *  heading error while the board accelerates). */
 #define MAX_FADE 5
+#define ATTITUDE_FADE 2
 
 /** Unit conversions into the states' units (Q30): mm to 1024 m (Q50 factor, >> 20),
  *  mm/s to 64 m/s (Q46, >> 16), m/s Q20 to 64 m/s (Q36, >> 26). */
@@ -361,15 +371,32 @@ static void at_rest(imu_navkf_t *f, imu_q30_t w)
     ++f->zero_velocity;
 }
 
+/** z^2 / (h P h^T + sigma^2) of a measurement on the attitude alone (h: its three
+ *  coefficients, Q30; z, sigma Q30), Q16 (the gate's own saturations are not counted). */
+static imu_real_t attitude_nis(const imu_navkf_t *f, const imu_q30_t h[3], imu_q30_t z, imu_q30_t sigma)
+{
+    uint32_t ignored = 0;
+    imu_real_t s = IMU_MUL_SAT(sigma, sigma, 30, &ignored); /* Q30 */
+    int i, j;
+    for (i = 0; i < 3; ++i) {
+        for (j = 0; j < 3; ++j) {
+            const imu_real_t p = imu_navcov_element_q30(&f->cov, ATT + i, ATT + j, &ignored);
+            s = IMU_ADD_SAT(s, IMU_MUL_SAT(h[i], IMU_MUL_SAT(h[j], p, 30, &ignored), 30, &ignored), &ignored);
+        }
+    }
+    return s > 0 ? IMU_DIV_SAT(IMU_MUL_SAT(z, z, 30, &ignored), s, 16, &ignored) : 0;
+}
+
 /**
  * An update that the component of a sensor-frame unit vector u (Q30), turned into ENU, along
  * an ENU unit vector e is zero. With R = R^ (I + [dtheta x]), e . R u = r . u + r . (dtheta x u)
  * = r . u + dtheta . (u x r), r = R^T e (for e = an axis, that row of R^): h = u x r on the
  * attitude error, z = -r . u; variance
  * sigma^2 / w (sigma Q30, w Q30 in [0, 1]). Only the attitude moves (through P the rest too).
+ * A gate (Q16, > 0) leaves out an innovation whose square beyond it (against h P h^T + sigma^2).
  */
 static void zero_component(imu_navkf_t *f, const imu_q30_t u[3], const imu_q30_t r[3], imu_q30_t sigma, imu_q30_t w,
-                           imu_q30_t dx[IMU_NAVKF_STATES])
+                           imu_real_t gate, imu_q30_t dx[IMU_NAVKF_STATES])
 {
     uint32_t *sat = &f->nav.saturations;
     imu_q30_t h[IMU_NAVKF_STATES];
@@ -379,6 +406,9 @@ static void zero_component(imu_navkf_t *f, const imu_q30_t u[3], const imu_q30_t
     imu_vec3_cross(u, r, &h[ATT]);
     for (k = 0; k < 3; ++k) {
         z = IMU_SUB_SAT(z, IMU_MUL(r[k], u[k], 30), sat);
+    }
+    if (gate > 0 && attitude_nis(f, &h[ATT], z, sigma) > gate) {
+        return;
     }
     measure_row(f, h, z, IMU_WMUL(sigma, sigma), w, NULL, dx);
 }
@@ -421,7 +451,7 @@ static void field_heading(imu_navkf_t *f, const imu_real_t mag[3], imu_q30_t w)
         return;
     }
     clear(dx);
-    zero_component(f, unit, r[0], FIELD_EAST_SIGMA, IMU_MUL(w, w_field, 30), dx);
+    zero_component(f, unit, r[0], FIELD_EAST_SIGMA, IMU_MUL(w, w_field, 30), FIELD_GATE, dx);
     apply(f, dx);
 }
 
@@ -449,8 +479,8 @@ static void gravity_tilt(imu_navkf_t *f, const imu_q16_t acc[3])
     }
     clear(dx);
     matrix(f->nav.q, r);
-    zero_component(f, unit, r[0], GRAVITY_SIGMA, w, dx);
-    zero_component(f, unit, r[1], GRAVITY_SIGMA, w, dx);
+    zero_component(f, unit, r[0], GRAVITY_SIGMA, w, 0, dx);
+    zero_component(f, unit, r[1], GRAVITY_SIGMA, w, 0, dx);
     apply(f, dx);
 }
 
@@ -540,22 +570,21 @@ static int accuracies_in_range(const imu_navkf_fix_t *fix)
            fix->s_acc >= 1 && fix->s_acc <= (1 << 30);
 }
 
-/** Whether the board stands and moves slowly, from a GNSS fix's speed: a fix without velocity
- *  (NMEA's GGA) does not say: no rest from GNSS then, and the heading from the field. */
+/** Whether the board stands, from a GNSS fix's speed: a fix without velocity (NMEA's GGA)
+ *  does not say: no rest from GNSS then. */
 static void note_speed(imu_navkf_t *f, const imu_navkf_fix_t *fix)
 {
     imu_wide_t speed2 = 0; /* Q40 */
-    int fast = 0;          /* an axis at SLOW_SPEED or beyond: neither (its square is not needed) */
+    int fast = 0;          /* an axis at REST_SPEED or beyond: not at rest (its square is not needed) */
     int k;
     for (k = 0; k < 3 && fix->has_vel; ++k) {
-        if (fix->vel[k] >= SLOW_SPEED || fix->vel[k] <= -SLOW_SPEED) {
+        if (fix->vel[k] >= REST_SPEED || fix->vel[k] <= -REST_SPEED) {
             fast = 1;
         } else {
             speed2 += IMU_WMUL(fix->vel[k], fix->vel[k]);
         }
     }
     f->fix_stood = fix->has_vel && !fast && speed2 < IMU_WMUL(REST_SPEED, REST_SPEED);
-    f->fix_slow = !fix->has_vel || (!fast && speed2 < IMU_WMUL(SLOW_SPEED, SLOW_SPEED));
 }
 
 /** The position (and the velocity, when the fix has one) taken from `fix` at the origin it
@@ -681,7 +710,6 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
     }
     f->since_fix = f->longest_steps; /* no GNSS yet: rest is the sensors' */
     f->fix_stood = 1;
-    f->fix_slow = 1;
     {
         imu_real_t norm = 0;
         imu_q30_t unit[3], earth[3], horizontal, r[3][3];
@@ -817,9 +845,10 @@ void imu_navkf_step(imu_navkf_t *f, const imu_rate_t gyr[3], const imu_q16_t acc
         if (!with_gnss) {
             gravity_tilt(f, acc); /* the attitude as an attitude filter keeps it */
         }
-        if (mag != 0 && (!with_gnss || f->fix_slow)) {
-            /* the heading from the field, while GNSS is too slow to show it or absent; at rest
-             * weighed as the rest updates are */
+        if (mag != 0) {
+            /* the heading from the field, at any speed: a fix's velocity shows the heading only
+             * while the board accelerates, and a gyro bias that steps while it cruises would
+             * turn it unseen; at rest weighed as the rest updates are */
             field_heading(f, mag, at_rest_now ? w : IMU_ONE_Q30);
         }
     }
@@ -974,21 +1003,22 @@ int imu_navkf_fix(imu_navkf_t *f, const imu_navkf_fix_t *fix)
         if ((nis_pos > gate || nis_vel > gate) && f->last_used && agrees) {
             /* A fix that agrees with the last one used but not with the estimate: the estimate
              * is the one in doubt (a gyro bias that stepped, a model the motion left): its
-             * covariance is scaled up until the fix passes, a fading memory (counted). */
-            const imu_real_t most = nis_pos > nis_vel ? nis_pos : nis_vel;
-            uint32_t ignored = 0; /* a bound beyond the type's range is the range's: most is within it */
-            imu_real_t bound = IMU_MUL_SAT(gate, IMU_QCONST(4.0, 16), 16, &ignored); /* Q16 */
-            int fade = 1;
-            while (fade < MAX_FADE && most > bound) {
-                bound = IMU_MUL_SAT(bound, IMU_QCONST(4.0, 16), 16, &ignored);
-                ++fade;
+             * covariance is scaled up, a doubling at a time, until the fix passes, a fading
+             * memory (counted). */
+            int doubled[IMU_NAVKF_STATES]; /* each state's standard deviation doubled once more, or not */
+            const int position_in_doubt = nis_pos > gate; /* else only what the velocity depends on */
+            int fade;
+            for (fade = 1; fade <= MAX_FADE && (nis_pos > gate || nis_vel > gate); ++fade) {
+                for (k = 0; k < IMU_NAVKF_STATES; ++k) {
+                    doubled[k] = (k >= VEL || position_in_doubt) && !(k >= ATT && k < ATT + 3 && fade > ATTITUDE_FADE);
+                }
+                imu_navcov_scale_up(&f->cov, doubled);
+                gate_squares(f, z, var, fix->has_vel, &nis_pos, &nis_vel);
             }
-            imu_navcov_scale_up(&f->cov, fade);
             for (k = 0; k < 3; ++k) {
                 imu_navcov_cap_unit_variance(&f->cov, ATT + k);
             }
             ++f->fades;
-            gate_squares(f, z, var, fix->has_vel, &nis_pos, &nis_vel);
         }
         use_pos = nis_pos <= gate;
         use_vel = fix->has_vel && nis_vel <= gate;

@@ -37,9 +37,9 @@
  * still for `rest_steps`; with GNSS, only while the last fix said the board stood,
  * weighted by how steady the force is, through an outage too; after a minute without
  * GNSS, or from a start without it, on the sensors alone), zero velocity and zero rate
- * (the gyroscope reads its bias). The magnetometer's heading every interval while the last
- * fix's speed is too low to show the heading (below 2 m/s) or without GNSS; without GNSS
- * the accelerometer's tilt too (the attitude kept as an attitude filter keeps it).
+ * (the gyroscope reads its bias). The magnetometer's heading every interval (a field whose
+ * strength or dip is off is left out); without GNSS the accelerometer's tilt too (the
+ * attitude kept as an attitude filter keeps it).
  *
  * Fixed build formats are written where each value is declared; the float build holds the
  * same quantities in the same units (one source).
@@ -129,7 +129,6 @@ typedef struct {
     imu_q30_t slow_weight;
     int32_t since_fix;          /**< samples since the last GNSS fix, used or not (stops counting at a minute) */
     int fix_stood;              /**< 1 when the last GNSS fix's speed was below REST_SPEED (0: no velocity) */
-    int fix_slow;               /**< 1 when it was below SLOW_SPEED or unknown: the magnetometer gives the heading */
     imu_real_t field_reference; /**< the field's strength at the start, the mag's unit (0: none) */
     imu_angle_t dip_reference;  /**< its dip in the estimate's frame (the mean of those seen), rad, Q29 */
     int32_t dips_seen;          /**< how many that mean is over (stops counting at DIP_MEMORY) */
@@ -188,8 +187,8 @@ imu_status_t imu_navkf_tune(imu_navkf_t *f, const imu_navkf_tuning_t *tuning);
 
 /**
  * @brief One IMU sample: propagation, and at the end of an interval the covariance, at rest
- *        zero velocity and zero rate, the magnetometer's heading (GNSS too slow to show it,
- *        or none) and without GNSS the accelerometer's tilt.
+ *        zero velocity and zero rate, the magnetometer's heading and without GNSS the
+ *        accelerometer's tilt.
  * @param gyr rad/s, Q24; @param acc specific force, m/s^2, Q16
  * @param mag field in the sensor frame, any unit (Q16 uT on the wire), or NULL / zero: none
  */
