@@ -77,6 +77,17 @@ static const imu_navkf_tuning_t DEFAULT_TUNING = IMU_NAVKF_DEFAULT_TUNING;
  *  their difference (a chi-square bound, Q16) is left out too: a field a few microtesla
  *  off in strength and dip, which the weight lets through, turns the heading by degrees. */
 #define FIELD_GATE IMU_QCONST(9.0, 16)
+/** The field's turn against the gyroscope (field_still): the sine of 2 deg (Q29) beyond its
+ *  low-pass over 2 s (the weight per covariance interval, 50 ms / 2 s, Q30) turns it out
+ *  (some five times the data sheet's noise in a horizontal field of 20 uT); within the sine
+ *  of 1 deg of where it was it is back; held out 1200 intervals (60 s) at
+ *  most. Below FIELD_MIN_HORIZONTAL (Q30) of horizontal share (near a magnetic pole) the
+ *  field shows no heading. */
+#define FIELD_TURN IMU_QCONST(0.0348995, 29)
+#define FIELD_TURN_BACK IMU_QCONST(0.0174524, 29)
+#define FIELD_TURN_WEIGHT IMU_QCONST(0.025, 30)
+#define FIELD_TURN_HOLD 1200
+#define FIELD_MIN_HORIZONTAL IMU_QCONST(0.1, 30)
 /** The dip's reference is the mean of the dips seen in the estimate's frame while the field's
  *  strength is the start's (its weight at least FIELD_DISTURBED): over all of them for the
  *  first DIP_MEMORY covariance intervals, then a running mean over about as many (51 s). One
@@ -312,6 +323,16 @@ static void measure(imu_navkf_t *f, int i, imu_q30_t z, imu_wide_t r, imu_q30_t 
     measure_row(f, h, z, r, w, NULL, dx);
 }
 
+/** A sensor-frame unit vector (Q30) in the earth frame (ENU, Q30) of the attitude matrix r. */
+static void to_earth(imu_q30_t r[3][3], const imu_q30_t unit[3], imu_q30_t earth[3])
+{
+    int k;
+    for (k = 0; k < 3; ++k) {
+        earth[k] = IMU_ADD(IMU_ADD(IMU_MUL(r[k][0], unit[0], 30), IMU_MUL(r[k][1], unit[1], 30)),
+                           IMU_MUL(r[k][2], unit[2], 30));
+    }
+}
+
 /** The corrections dx (the states' units, Q30) applied to the strapdown state. */
 static void apply(imu_navkf_t *f, const imu_q30_t dx[IMU_NAVKF_STATES])
 {
@@ -339,6 +360,22 @@ static void apply(imu_navkf_t *f, const imu_q30_t dx[IMU_NAVKF_STATES])
                                                                    &f->carry[BARO_BIAS], sat), sat);
     for (k = 0; k < 3; ++k) {
         f->moved[k] = IMU_ADD_SAT(f->moved[k], IMU_WIDE_SAT(IMU_WSHR(step[k], 15), sat), sat); /* mm */
+    }
+    if (f->field_turned >= 0) {
+        /* the correction turns the field seen in the estimate's frame, e -> e + phi x e (phi =
+         * R theta, in ENU): its east share by phi_n up - phi_u north (per horizontal), which
+         * the field's turn against the gyroscope is not (field_still) */
+        imu_q30_t r[3][3], north = 0, up = 0; /* phi's, Q30 */
+        uint32_t ignored = 0; /* corrections of the attitude below a radian, but for input that makes no sense */
+        matrix(n->q, r);
+        for (k = 0; k < 3; ++k) {
+            north = IMU_ADD_SAT(north, IMU_MUL(r[1][k], theta[k], 30), &ignored);
+            up = IMU_ADD_SAT(up, IMU_MUL(r[2][k], theta[k], 30), &ignored);
+        }
+        f->field_after = IMU_ADD_SAT(f->field_after,
+                                     IMU_SUB_SAT(IMU_MUL_SAT(north, f->field_up, 25, &ignored),
+                                                 IMU_MUL_SAT(up, f->field_north, 30, &ignored), &ignored),
+                                     &ignored);
     }
     imu_nav_move(n, step);
     imu_quat_integrate(n->q, theta);
@@ -413,14 +450,58 @@ static void zero_component(imu_navkf_t *f, const imu_q30_t u[3], const imu_q30_t
     measure_row(f, h, z, IMU_WMUL(sigma, sigma), w, NULL, dx);
 }
 
-/** A sensor-frame unit vector (Q30) in the earth frame (ENU, Q30) of the attitude matrix r. */
-static void to_earth(imu_q30_t r[3][3], const imu_q30_t unit[3], imu_q30_t earth[3])
+/** The field's east component over its horizontal one (the sine of its heading in the
+ *  estimate's frame), Q29 (0 where the field is all but vertical). */
+static imu_angle_t east_share(imu_q30_t east, imu_q30_t horizontal)
 {
-    int k;
-    for (k = 0; k < 3; ++k) {
-        earth[k] = IMU_ADD(IMU_ADD(IMU_MUL(r[k][0], unit[0], 30), IMU_MUL(r[k][1], unit[1], 30)),
-                           IMU_MUL(r[k][2], unit[2], 30));
+    uint32_t ignored = 0; /* |east| <= horizontal: within the range */
+    return horizontal >= FIELD_MIN_HORIZONTAL ? IMU_DIV_SAT(east, horizontal, 29, &ignored) : 0;
+}
+
+/** Whether the field's heading stays where the gyroscope says it should: its turn against
+ *  the estimate since the last interval's update (what the gyroscope did not see) summed,
+ *  against that sum's low-pass over 2 s. A gyro bias turns it slowly (0.5 deg/s
+ *  leaves it 1 deg behind); a field that turns (iron, a magnet; also one that keeps its
+ *  strength and dip, which the weight cannot see) turns it at once: beyond FIELD_TURN the
+ *  field is left out until it turns back to where it was, or for FIELD_TURN_HOLD at most
+ *  (then the field as it is now is the field). */
+static int field_still(imu_navkf_t *f, const imu_q30_t earth[3], imu_q30_t horizontal)
+{
+    uint32_t ignored = 0; /* sines, within [-1, 1], and sums of them over a minute at most */
+    const imu_angle_t share = east_share(earth[0], horizontal);
+    imu_angle_t turn; /* since the last interval, Q29 */
+    if (horizontal >= FIELD_MIN_HORIZONTAL) {
+        /* how a correction of the attitude moves the share (apply): north / horizontal, Q29;
+         * up / horizontal, Q24 (within +-10 at FIELD_MIN_HORIZONTAL) */
+        f->field_north = IMU_DIV_SAT(earth[1], horizontal, 29, &ignored);
+        f->field_up = IMU_DIV_SAT(earth[2], horizontal, 24, &ignored);
     }
+    if (f->field_turned < 0) { /* the first heading: nothing to compare with yet */
+        f->field_turned = 0;
+        f->field_after = share;
+        return 1;
+    }
+    turn = IMU_SUB_SAT(share, f->field_after, &ignored);
+    f->field_after = share;
+    if (f->field_turned == 0) {
+        /* the turn summed minus its low-pass: (apart + turn) (1 - weight) */
+        const imu_angle_t summed = IMU_ADD_SAT(f->field_apart, turn, &ignored);
+        f->field_apart = IMU_SUB(summed, IMU_MUL(summed, FIELD_TURN_WEIGHT, 30));
+        if (f->field_apart <= FIELD_TURN && f->field_apart >= -FIELD_TURN) {
+            return 1;
+        }
+        f->field_turned = 1;
+        f->field_away = f->field_apart;
+        return 0;
+    }
+    f->field_away = IMU_ADD_SAT(f->field_away, turn, &ignored);
+    if ((f->field_away <= FIELD_TURN_BACK && f->field_away >= -FIELD_TURN_BACK) || f->field_turned >= FIELD_TURN_HOLD) {
+        f->field_turned = 0;
+        f->field_apart = 0;
+        return 1;
+    }
+    ++f->field_turned;
+    return 0;
 }
 
 /** The magnetometer's heading: the field has no east component (the magnetic north is the
@@ -447,7 +528,7 @@ static void field_heading(imu_navkf_t *f, const imu_real_t mag[3], imu_q30_t w)
                                                                  IMU_FROM_INT_SAT(f->dips_seen, 0, &ignored), 0,
                                                                  &ignored));
     }
-    if (w_field < FIELD_DISTURBED) {
+    if (!field_still(f, earth, horizontal) || w_field < FIELD_DISTURBED) {
         return;
     }
     clear(dx);
@@ -721,6 +802,9 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
             f->dip_reference = imu_field_dip(earth, &horizontal);
         }
         f->dips_seen = 1;
+        f->field_apart = f->field_away = f->field_after = 0;
+        f->field_north = f->field_up = 0;
+        f->field_turned = -1;
     }
     for (k = 0; k < 3; ++k) {
         f->last_offset[k] = f->last_at[k] = f->last_vel[k] = 0;

@@ -132,6 +132,15 @@ typedef struct {
     imu_real_t field_reference; /**< the field's strength at the start, the mag's unit (0: none) */
     imu_angle_t dip_reference;  /**< its dip in the estimate's frame (the mean of those seen), rad, Q29 */
     int32_t dips_seen;          /**< how many that mean is over (stops counting at DIP_MEMORY) */
+    imu_angle_t field_apart;    /**< the field's heading turned against the estimate's (what the gyroscope did not
+                                     see), summed over the intervals, minus that sum's low-pass over 2 s; as
+                                     sines, Q29 */
+    imu_angle_t field_away;     /**< while the field is left out for turning: how far it is from where it was, Q29 */
+    imu_angle_t field_after;    /**< the last interval's field heading against the estimate's, as a sine, Q29,
+                                     moved by the corrections since */
+    imu_real_t field_north;     /**< the field's north over its horizontal component, Q29 (a correction's effect) */
+    imu_real_t field_up;        /**< its up over its horizontal component, Q24 */
+    int32_t field_turned;       /**< intervals the field has been left out for turning (0: not; -1: no heading yet) */
     int32_t doubting;           /**< samples since the first of the current run of rejected GNSS fixes that agree
                                      with each other; -1: none */
     int32_t reset_steps;        /**< samples of such a run after which position and velocity are reset to the fixes */
