@@ -80,9 +80,9 @@ static const imu_navkf_tuning_t DEFAULT_TUNING = IMU_NAVKF_DEFAULT_TUNING;
 /** The field's turn against the gyroscope (field_still): the sine of 2 deg (Q29) beyond its
  *  low-pass over 2 s (the weight per covariance interval, 50 ms / 2 s, Q30) turns it out
  *  (some five times the data sheet's noise in a horizontal field of 20 uT); within the sine
- *  of 1 deg of where it was it is back; held out 1200 intervals (60 s) at
- *  most. Below FIELD_MIN_HORIZONTAL (Q30) of horizontal share (near a magnetic pole) the
- *  field shows no heading. */
+ *  of 1 deg of where it was it is back; held out 1200 intervals (60 s) at most. Below
+ *  FIELD_MIN_HORIZONTAL (Q30) of horizontal share (near a magnetic pole) the field shows no
+ *  heading. */
 #define FIELD_TURN IMU_QCONST(0.0348995, 29)
 #define FIELD_TURN_BACK IMU_QCONST(0.0174524, 29)
 #define FIELD_TURN_WEIGHT IMU_QCONST(0.025, 30)

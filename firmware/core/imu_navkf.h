@@ -37,9 +37,10 @@
  * still for `rest_steps`; with GNSS, only while the last fix said the board stood,
  * weighted by how steady the force is, through an outage too; after a minute without
  * GNSS, or from a start without it, on the sensors alone), zero velocity and zero rate
- * (the gyroscope reads its bias). The magnetometer's heading every interval (a field whose
- * strength or dip is off is left out); without GNSS the accelerometer's tilt too (the
- * attitude kept as an attitude filter keeps it).
+ * (the gyroscope reads its bias). The magnetometer's heading every interval, at any speed
+ * (left out: a field whose strength or dip is off, a heading beyond 3 standard deviations
+ * of the estimate's, a field that turns against the gyroscope); without GNSS the
+ * accelerometer's tilt too (the attitude kept as an attitude filter keeps it).
  *
  * Fixed build formats are written where each value is declared; the float build holds the
  * same quantities in the same units (one source).
