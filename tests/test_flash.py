@@ -10,6 +10,7 @@ midway (and flashing again works), a NACK, an image that does not fit, the wrong
 """
 from __future__ import annotations
 
+import dataclasses
 import os
 import re
 import select
@@ -307,3 +308,54 @@ def test_enter_by_command_on_a_board_without_a_bootloader(image):
     with EmulatedBoard(duration_s=1.0) as emulated, pytest.raises(flash.FlashError) as error:
         flash.flash_uart(image, emulated.address, enter="command", log=quiet)
     assert "refused ENTER_BOOTLOADER (NOT_SUPPORTED)" in str(error.value) and "--enter manual" in str(error.value)
+
+
+def foreign_image(tmp_path, name: str, address: int, vector_table: bool = True):
+    """A raw image that is not imulink's: a vector table (stack pointer in SRAM, a Thumb reset
+    handler just after it) and an endless loop, or the same bytes without the table."""
+    words = [0x2002_0000, address + 8 + 1] if vector_table else [0xDEAD_BEEF, 0x0000_0000]
+    path = tmp_path / name
+    path.write_bytes(b"".join(w.to_bytes(4, "little") for w in words) + b"\xfe\xe7" * 8)  # b . (Thumb)
+    return load_image(path, address)
+
+
+@pytest.mark.parametrize("address", (FLASH_BASE, 0x0800_8000))
+def test_a_foreign_image_with_force_is_started_where_it_was_flashed(tmp_path, address):
+    """An image without imulink's identification, flashed with --force: started at its own
+    vector table (before: Go at the start of flash, the boot loader in front of it) and not
+    asked for a HELLO it cannot send (before: "no HELLO from the firmware", exit 2)."""
+    image = foreign_image(tmp_path, "foreign.bin", address)
+    started = []
+    chip = Stm32Bootloader()
+    with BootloaderPort(chip, on_go=lambda at, flash_bytes: started.append(at)) as port:
+        result = flash.flash_uart(image, port.address, force=True, log=quiet)
+    assert result.started and result.started_at == address == chip.go_address and started == [address]
+    assert result.hello is None and "no imulink identification" in result.note
+    assert flashed_bytes(chip, image) == image.bytes_at(image.start, image.size)
+
+
+def test_cli_flash_force_of_a_foreign_image_succeeds_and_says_so(tmp_path, capsys):
+    image_path = tmp_path / "foreign.bin"
+    image_path.write_bytes(foreign_image(tmp_path, "foreign.bin", 0x0800_8000).bytes_at(0x0800_8000, 24))
+    with BootloaderPort(Stm32Bootloader()) as port:
+        code = main(["flash", str(image_path), port.address, "--address", "0x08008000", "--force"])
+    out = capsys.readouterr().out
+    assert code == 0 and "started at 0x08008000 (no imulink identification: its HELLO is not asked for)" in out
+
+
+def test_an_image_without_a_vector_table_is_flashed_and_not_started(tmp_path):
+    image = foreign_image(tmp_path, "blob.bin", 0x0800_4000, vector_table=False)
+    chip = Stm32Bootloader()
+    with BootloaderPort(chip) as port:
+        result = flash.flash_uart(image, port.address, force=True, log=quiet)
+    assert not result.started and chip.go_address is None and "no vector table at" in result.note
+    assert flashed_bytes(chip, image) == image.bytes_at(image.start, image.size)
+
+
+def test_force_flashes_an_image_of_another_schema(image):
+    other = dataclasses.replace(image.identification, schema_hash=protocol.SCHEMA_HASH ^ 1)
+    foreign = dataclasses.replace(image, identification=other)
+    with pytest.raises(flash.FlashError, match="speaks protocol schema .*--force flashes it anyway"):
+        flash.check_identification(foreign, force=False)
+    assert flash.check_identification(foreign, force=True) == other
+    assert "not this host's" in flash.unasked_hello(other) and flash.unasked_hello(image.identification) == ""

@@ -1095,10 +1095,12 @@ def _cmd_flash(args) -> int:
         except swd.SwdError as exc:
             raise flash.FlashError(str(exc)) from None
         print(summary, file=sys.stderr)
-        hello = (flash.check_hello(args.link, args.link_baud, ident) if args.link and not args.dry_run else None)
+        note = flash.unasked_hello(ident)
+        hello = (flash.check_hello(args.link, args.link_baud, ident)
+                 if args.link and not args.dry_run and not note else None)
         result = flash.FlashResult(image, method, args.target, "", [], 0 if args.dry_run else image.size,
                                    not args.no_verify and not args.dry_run, not args.dry_run, hello,
-                                   time.monotonic() - started, args.dry_run)
+                                   time.monotonic() - started, args.dry_run, note=note)
     if result.dry_run:
         print(f"dry run: nothing written ({result.method})")
         return 0
@@ -1109,7 +1111,13 @@ def _cmd_flash(args) -> int:
         line += (f"; running: {hello['board']} firmware {hello['firmware_major']}.{hello['firmware_minor']}."
                  f"{hello['firmware_patch']}, schema 0x{hello['schema_hash']:08X}, as built")
     elif result.started:
-        line += "; started (no --link port to check its HELLO)" if result.method != "uart" else "; started"
+        line += "; started" + (f" at 0x{result.started_at:08X}" if result.started_at is not None else "")
+        if result.note:
+            line += f" ({result.note})"
+        elif result.method != "uart":
+            line += " (no --link port to check its HELLO)"
+    elif result.note:
+        line += f"; {result.note}"
     print(line)
     return 0
 
@@ -1259,8 +1267,9 @@ def _add_hil_commands(sub) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Flash IMAGE (ELF, Intel HEX, or .bin with --address) and check that what runs is what was\n"
                     "built: the image's identification block (board, chip, version, schema hash) must suit the\n"
-                    "chip, only the sectors it needs are erased, every byte is read back, and after the start the\n"
-                    "firmware's HELLO must report the image's board, version and schema hash.\n\n"
+                    "chip, only the sectors it needs are erased, every byte is read back, and after the start (at\n"
+                    "the image's own vector table) the firmware's HELLO must report the image's board, version and\n"
+                    "schema hash. An image flashed with --force that is not imulink's is started, not asked for one.\n\n"
                     "PORT is one of:\n"
                     "  /dev/ttyUSB0, COM3, ...   the serial port wired to USART1 (PA9/PA10): the chip's system\n"
                     "                            bootloader (AN3155), at --baud; the same port carries the\n"

@@ -13,8 +13,10 @@ Over the chip's system-memory bootloader on USART1 (:mod:`imulink.stm32boot`, AN
    there means readout protection is on;
 4. only the sectors the image touches are erased (the F405/407's sectors are 16, 64 and
    128 KiB), then written in 256-byte blocks, then read back and compared;
-5. Go at the start of flash, and the firmware's HELLO on the same port (the link's own
-   rate) must report the image's board, firmware version and schema hash.
+5. Go at the image's own vector table (where it was flashed), and the firmware's HELLO on
+   the same port (the link's own rate) must report the image's board, firmware version and
+   schema hash; an image flashed with --force that is not imulink's (or speaks another
+   schema) is started and not asked for a HELLO.
 
 Over SWD the same checks frame :func:`imulink.swd.flash_swd` (pyOCD or openocd).
 Progress goes to a `progress(phase, done, total)` callback (:class:`imulink.progress.Bars`).
@@ -84,6 +86,8 @@ class FlashResult:
     hello: dict | None
     duration_s: float
     dry_run: bool
+    started_at: int | None = None  # where Go started it: the image's vector table
+    note: str = ""  # why it was not started, or why its HELLO was not asked for
 
 
 def sectors_for(image: FirmwareImage, chip: Chip) -> list[int]:
@@ -105,10 +109,35 @@ def check_identification(image: FirmwareImage, force: bool) -> Identification | 
     if ident is not None and ident.board.startswith(EMULATED_BOARD_PREFIX) and not force:
         raise FlashError(f"{image.path} is the image of {ident.board}, an emulated board (QEMU), not of a real "
                          "one: flash build/stm32f407/imulink-stm32f407-gy86.elf (--force flashes it anyway)")
-    if ident is not None and ident.schema_hash != protocol.SCHEMA_HASH:
+    if ident is not None and ident.schema_hash != protocol.SCHEMA_HASH and not force:
         raise FlashError(f"{image.path} speaks protocol schema 0x{ident.schema_hash:08X}, this host "
-                         f"0x{protocol.SCHEMA_HASH:08X}: build the firmware and the host from the same checkout")
+                         f"0x{protocol.SCHEMA_HASH:08X}: build the firmware and the host from the same checkout "
+                         "(--force flashes it anyway, its HELLO unchecked)")
     return ident
+
+
+def unasked_hello(ident: Identification | None) -> str:
+    """Why a started image's HELLO is not asked for ("" when it is: an imulink image of this
+    host's schema)."""
+    if ident is None:
+        return "no imulink identification: its HELLO is not asked for"
+    if ident.schema_hash != protocol.SCHEMA_HASH:
+        return f"protocol schema 0x{ident.schema_hash:08X}, not this host's: its HELLO is not asked for"
+    return ""
+
+
+#: Where a Cortex-M4's initial stack pointer may point on these chips: SRAM and CCM RAM.
+_STACK_RANGES = ((0x2000_0000, 0x2002_0000), (0x1000_0000, 0x1001_0000))
+
+
+def vector_table_start(image: FirmwareImage) -> int | None:
+    """The image's start when a vector table is there (Go takes its stack pointer and reset
+    handler from it, AN3155 3.5): an initial stack pointer in RAM and a Thumb reset handler
+    inside the image; None otherwise."""
+    head = image.bytes_at(image.start, 8)
+    stack, reset = int.from_bytes(head[:4], "little"), int.from_bytes(head[4:], "little")
+    in_ram = any(low < stack <= high for low, high in _STACK_RANGES)
+    return image.start if in_ram and reset & 1 and image.start <= reset & ~1 < image.end else None
 
 
 def check_chip(image: FirmwareImage, ident: Identification | None, device_id: int, flash_bytes: int) -> Chip:
@@ -201,10 +230,11 @@ def flash_uart(image: FirmwareImage, url: str, *, enter: str = "manual", baud: i
         boot = Bootloader(port)
         try:
             result = _program(boot, image, ident, verify, dry_run, unprotect, force, progress, log)
-            if start and not dry_run:
-                boot.go(CHIPS[result.device_id].flash_base)
-                if enter == "dtr-rts":
-                    port.rts = True  # BOOT0 low again: the next reset starts the firmware too
+            started_at = vector_table_start(image) if start and not dry_run else None
+            if started_at is not None:
+                boot.go(started_at)
+            if start and not dry_run and enter == "dtr-rts":
+                port.rts = True  # BOOT0 low again: the next reset starts the firmware too
         except NoAnswer as exc:
             if boot.info is None:  # it never answered: no bootloader there
                 raise FlashError(str(exc)) from None
@@ -217,10 +247,16 @@ def flash_uart(image: FirmwareImage, url: str, *, enter: str = "manual", baud: i
             raise FlashError(str(exc)) from None
     finally:
         port.close()
-    hello = check_hello(url, link_baud, ident) if start and not dry_run else None
+    note = ""
+    if start and not dry_run and started_at is None:
+        note = (f"not started: no vector table at the image's start 0x{image.start:08X} (a stack pointer in RAM, "
+                "a reset handler in the image); reset the board with BOOT0 low to run what it boots")
+    elif started_at is not None:
+        note = unasked_hello(ident)
+    hello = check_hello(url, link_baud, ident) if started_at is not None and not note else None
     return FlashResult(image, "uart", "/".join(CHIPS[result.device_id].names), result.bootloader_version,
-                       result.sectors, 0 if dry_run else image.size, verify and not dry_run, start and not dry_run,
-                       hello, time.monotonic() - begun, dry_run)
+                       result.sectors, 0 if dry_run else image.size, verify and not dry_run, started_at is not None,
+                       hello, time.monotonic() - begun, dry_run, started_at, note)
 
 
 @dataclass
