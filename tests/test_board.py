@@ -346,6 +346,22 @@ def test_tcp_board_greets_every_client():
                 assert len([m for m in stream(link, 20) if m.name == "ESTIMATE"]) >= 20
 
 
+def test_the_native_board_ends_on_sigterm_whenever_it_comes():
+    """SIGTERM while the board works (not waiting in poll, where it interrupts the wait) must
+    end it too: before, the signal set a flag the idle wait did not see, the board slept on
+    until killed 5 s later (two stops in six), and every demo and emulate ended 5 s late."""
+    for wait_s in (0.2, 0.5, 0.8, 1.1, 1.4, 1.7):
+        board = EmulatedBoard(front="tcp", duration_s=1.0)
+        with board:
+            with Link(board.address) as link:
+                link.connect()
+                end = time.monotonic() + wait_s
+                while time.monotonic() < end:
+                    link.receive(0.05)
+            process = board._process
+        assert process.returncode == 0, f"stopped after {wait_s} s: killed, not ended by SIGTERM"
+
+
 # ---------------------------------------------------------------------------- the fault proxy and the reference
 
 

@@ -61,11 +61,21 @@ static struct {
 } native;
 
 static volatile sig_atomic_t stop_requested;
+/** A pipe the signal handler writes to, which board_idle's poll watches: a signal that comes
+ *  while the application runs (not in poll, where it would interrupt the wait) would
+ *  otherwise be seen only after the next event, which may never come. */
+static int wake_pipe[2] = {-1, -1};
 
 static void on_signal(int signum)
 {
+    const int saved = errno;
     (void)signum;
     stop_requested = 1;
+    if (wake_pipe[1] >= 0) {
+        ssize_t ignored = write(wake_pipe[1], "", 1); /* full: a wake-up is pending already */
+        (void)ignored;
+    }
+    errno = saved;
 }
 
 static uint64_t now_ns(void)
@@ -269,7 +279,7 @@ int board_gnss_read(uint64_t now_us, imu_proto_gnss_t *fix)
 
 void board_idle(void)
 {
-    struct pollfd p[2];
+    struct pollfd p[3];
     nfds_t n = 0;
     int timeout_ms = -1;
     const int fd = link_fd();
@@ -280,6 +290,10 @@ void board_idle(void)
     if (fd >= 0) {
         p[n].fd = fd;
         p[n++].events = (short)(POLLIN | (native.out_len > 0 ? POLLOUT : 0));
+    }
+    if (wake_pipe[0] >= 0) {
+        p[n].fd = wake_pipe[0];
+        p[n++].events = POLLIN;
     }
     if (native.clock_running) {
         if (!native.fast) {
@@ -431,6 +445,13 @@ int main(int argc, char **argv)
     }
     feed_init(&native.feed);
 
+    if (pipe(wake_pipe) != 0) {
+        fail("cannot create the signal pipe");
+    }
+    for (i = 0; i < 2; ++i) {
+        fcntl(wake_pipe[i], F_SETFL, O_NONBLOCK);
+        fcntl(wake_pipe[i], F_SETFD, FD_CLOEXEC);
+    }
     memset(&action, 0, sizeof action);
     action.sa_handler = on_signal; /* no SA_RESTART: poll() returns at once */
     sigaction(SIGINT, &action, NULL);
