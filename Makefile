@@ -27,9 +27,10 @@ firmware: system-packages
 demo: setup
 	$(BIN)/imulink demo
 
-## test: the whole test suite
+## test: the whole test suite, in parallel on every core (pytest-xdist); a test that hangs
+## fails after 10 min with its name (pytest-timeout); the 15 slowest are listed at the end
 test: setup
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n auto --timeout=600 --durations=15
 
 ## bench: throughput and Cortex-M4 cost benchmarks (results in docs/performance.md)
 bench: setup
