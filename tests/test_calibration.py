@@ -89,8 +89,10 @@ def test_coverage_of_a_full_sphere_and_of_one_plane():
 def test_mag_turned_in_one_plane_is_no_ellipsoid():
     res = sim.simulate(sim.turntable(60.0, RATE, rate_dps=30.0),
                        SensorSuite(GyroModel.ideal(), AccModel(), MagModel(hard_iron=HARD_IRON)), seed=1)
-    with pytest.raises(cal.CalibrationError, match="more directions"):
+    with pytest.raises(cal.CalibrationError, match="more directions") as error:
         cal.mag_ellipsoid(record_of(res.gyr, res.acc, res.mag), P)
+    # it names the directions the turn never gave (about z: the field never along +z or -z)
+    assert "the field never lay along -z, +z of the board" in str(error.value)
 
 
 # ---------------------------------------------------------------------------- gyroscope
@@ -244,7 +246,8 @@ def test_cli_refuses_missing_directions_and_positions(tmp_path):
     res = sim.simulate(sim.turntable(60.0, RATE, rate_dps=30.0),
                        SensorSuite(GyroModel.ideal(), AccModel(), MagModel(hard_iron=HARD_IRON)), seed=1)
     write_csv(tmp_path / "flat.csv", record_of(res.gyr, res.acc, res.mag))
-    assert_error(run_cli("calibrate", "mag", tmp_path / "flat.csv", "-o", tmp_path / "c.json"), "more directions")
+    assert_error(run_cli("calibrate", "mag", tmp_path / "flat.csv", "-o", tmp_path / "c.json"),
+                 "more directions; the field never lay along -z, +z of the board")
     assert_error(run_cli("calibrate", "accel", tmp_path / "flat.csv", "-o", tmp_path / "c.json"),
                  "the six-position method needs each axis up and down")
     assert not (tmp_path / "c.json").exists()

@@ -374,11 +374,17 @@ def mag_ellipsoid(record: SensorRecord, profile: SensorProfile) -> SensorCalibra
     if len(points) < MIN_MAG_SAMPLES:
         raise CalibrationError(f"{record.description}: {len(points)} magnetometer sample(s) within the register's "
                                f"range; an ellipsoid fit needs at least {MIN_MAG_SAMPLES}")
-    centre, a = fit_ellipsoid(points)
-    if axis_ratio(a) > MAX_AXIS_RATIO:
-        raise CalibrationError(f"{record.description}: the fitted ellipsoid's axes differ by a factor of "
-                               f"{axis_ratio(a):.3g} (soft iron does not do that): the readings do not "
-                               "span the directions; turn the board through more directions")
+    try:
+        centre, a = fit_ellipsoid(points)
+        if axis_ratio(a) > MAX_AXIS_RATIO:
+            raise CalibrationError(f"{record.description}: the fitted ellipsoid's axes differ by a factor of "
+                                   f"{axis_ratio(a):.3g} (soft iron does not do that): the readings do not "
+                                   "span the directions; turn the board through more directions")
+    except CalibrationError as exc:
+        # no fit: the directions the readings lack, seen from their mean (a turn about one axis
+        # leaves that axis's two directions empty)
+        lacking = coverage(points - points.mean(axis=0)).missing_axes
+        raise CalibrationError(f"{exc}; {missing_advice(lacking)}" if lacking else str(exc)) from None
     radius = float(np.mean(np.linalg.norm(points - centre, axis=1)))
     if radius * profile.mag_scale < MIN_FIELD_NORM_UT:
         raise CalibrationError(f"{record.description}: the magnetometer readings lie within "
