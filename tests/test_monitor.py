@@ -376,6 +376,25 @@ def test_layout_is_remembered_between_runs(qt, eskf_recording):
         window.close()
 
 
+def test_a_narrow_window_leaves_the_plots_the_room(qt, eskf_recording):
+    """In a window 800 pixels wide the side column scrolls instead of taking its natural
+    width (some 380 px: the plots got half the window), and it folds away entirely."""
+    from imulink.monitor.sources import ReplaySource
+
+    window = open_window(ReplaySource(eskf_recording))
+    try:
+        window.resize(800, 600)
+        wait_until(qt, lambda: window.splitter.width() <= 800, what="the window narrowed")
+        for _ in range(5):
+            qt.processEvents()
+        assert window.plots_widget.width() >= 0.7 * window.splitter.width()
+        window.splitter.setSizes([800, 0])  # the column folded away
+        qt.processEvents()
+        assert window.splitter.sizes()[1] == 0 and window.plots_widget.width() >= 0.95 * window.splitter.width()
+    finally:
+        window.close()
+
+
 def test_screenshot_from_the_command_line(qt, tmp_path, eskf_recording, capsys):
     png = tmp_path / "shot.png"
     assert main(["monitor", str(eskf_recording), "--speed", "5", "--screenshot", str(png), "--exit-after", "1"]) == 0

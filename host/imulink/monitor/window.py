@@ -28,6 +28,8 @@ from .sources import ESTIMATE_COLUMNS, FILTER_NAMES, MAX_SPAN_S, NAV_COLUMNS, SA
 FRAME_HZ = 30
 SPANS_S = (2.0, 5.0, 10.0, 30.0, MAX_SPAN_S)
 HEALTH_EVERY = 8  # frames between health panel updates (about 4 a second)
+#: The side column's narrowest (px): it scrolls below its natural width.
+SIDE_MIN_WIDTH = 160
 #: Bins per curve handed to pyqtgraph (two points each, decimate.peaks): a plot is some 450 pixels wide.
 DRAWN_BINS = 300
 _COLORS = ("#e41a1c", "#4daf4a", "#377eb8")
@@ -172,11 +174,20 @@ class MonitorWindow(QtWidgets.QMainWindow):
         if problem is not None and self.view_3d:
             self._log(f"3D view not shown: {problem}")
 
+        # The side column scrolls rather than taking its natural width (some 380 px of controls):
+        # in a narrow window the plots keep three quarters of it; the splitter can also fold the
+        # column away (drag it to the edge)
+        side_scroll = QtWidgets.QScrollArea()
+        side_scroll.setWidget(side)
+        side_scroll.setWidgetResizable(True)
+        side_scroll.setMinimumWidth(SIDE_MIN_WIDTH)
         self.splitter = QtWidgets.QSplitter()
         self.splitter.addWidget(self.plots_widget)
-        self.splitter.addWidget(side)
+        self.splitter.addWidget(side_scroll)
         self.splitter.setStretchFactor(0, 3)
         self.splitter.setStretchFactor(1, 1)
+        self.splitter.setCollapsible(0, False)
+        self.splitter.setCollapsible(1, True)
         self.setCentralWidget(self.splitter)
         self._toolbar()
         self.readout = QtWidgets.QLabel()
