@@ -499,7 +499,7 @@ def test_a_board_that_disconnects(tmp_path):
     path = tmp_path / "gone.imulog"
     board = EmulatedBoard(front="pty", duration_s=600.0, realtime=True).start()
     try:
-        process = _start_record(board.address, path)
+        process = _start_record(board.address, path, "--reconnect", "2")  # not the default 30 s wait for it
         _wait_for(path, 50)
     finally:
         board.stop()
