@@ -229,3 +229,51 @@ def test_receive_until_returns_up_to_the_wanted_message_or_names_what_came(board
         link.send_command("GET_VERSION")
         with pytest.raises(ReceiveTimeout, match=r"within 0.3 s \(received: HELLO, ACK\)"):
             link.receive_until(lambda m: m.name == "ESTIMATE", 0.3)
+
+
+@pytest.mark.parametrize("opener", ["link", "proxy"])
+def test_a_greeting_that_comes_at_once_is_kept(monkeypatch, opener):
+    """A peer that greets each new client at once (the native board greets the proxy, the
+    proxy's TCP front greets every client): pyserial's socket port empties its input at the
+    end of open(), which lost a greeting already in (the proxy's board greeting: one run in
+    six under load, and test_tcp_board_greets_every_client with it). The connection is slowed
+    here so that the greeting is always in before open() ends."""
+    import serial.urlhandler.protocol_socket as pyserial_socket
+
+    from imulink.proxy import Proxy
+
+    server = socket.create_server(("127.0.0.1", 0))
+    greeting = hello()
+
+    def serve():
+        client, _ = server.accept()
+        client.sendall(greeting)
+        time.sleep(2.0)
+        client.close()
+
+    threading.Thread(target=serve, daemon=True).start()
+    connect = pyserial_socket.socket.create_connection
+
+    def slow_connect(*args, **kwargs):
+        sock = connect(*args, **kwargs)
+        time.sleep(0.3)  # the greeting arrives meanwhile
+        return sock
+
+    monkeypatch.setattr(pyserial_socket.socket, "create_connection", slow_connect)
+    url = f"socket://127.0.0.1:{server.getsockname()[1]}"
+    try:
+        if opener == "link":
+            with Link(url) as link:
+                assert [r.message.name for r in link.receive(1.0)] == ["HELLO"]
+        else:
+            port = Proxy._open_board(url, 921600, 2.0)
+            try:
+                received, deadline = b"", time.monotonic() + 1.0
+                while len(received) < len(greeting) and time.monotonic() < deadline:
+                    received += port.read(4096)
+                    time.sleep(0.01)
+                assert received == greeting
+            finally:
+                port.close()
+    finally:
+        server.close()

@@ -160,8 +160,16 @@ def qt():
 
 @pytest.fixture(autouse=True)
 def own_settings(tmp_path, monkeypatch):
-    """QSettings in a directory of the test's own, not the user's."""
+    """QSettings in a directory of the test's own, not the user's nor another test's (Qt reads
+    XDG_CONFIG_HOME once a process: under pytest-xdist a worker runs many tests, so the path
+    is set through QSettings too)."""
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
+    try:
+        from imulink.monitor.qt import QtCore
+    except Exception:  # noqa: BLE001 - without Qt there are no settings to keep apart
+        return
+    for fmt in (QtCore.QSettings.Format.NativeFormat, QtCore.QSettings.Format.IniFormat):
+        QtCore.QSettings.setPath(fmt, QtCore.QSettings.Scope.UserScope, str(tmp_path / "config"))
 
 
 def wait_until(app, predicate, timeout: float = 20.0, what: str = "") -> None:

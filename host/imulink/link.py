@@ -63,6 +63,19 @@ _POLL_S = 0.05
 _RATE_WINDOW_S = 1.0
 
 
+def open_keeping_input(port, url: str) -> None:
+    """`port.open()` (a pyserial port made with do_not_open), keeping what the peer sent at
+    once: pyserial's socket port empties its input at the end of open(), after the
+    connection is made, and a board (or the proxy) that greets each new client (HELLO)
+    would lose the greeting whenever it came that fast."""
+    if url.startswith("socket://"):
+        port.reset_input_buffer = lambda: None
+    try:
+        port.open()
+    finally:
+        port.__dict__.pop("reset_input_buffer", None)
+
+
 class LinkError(Exception):
     """A link problem reported to the user as one line (port, peer, disconnect, timeout)."""
 
@@ -195,17 +208,10 @@ class Link:
             raise PortError(f"cannot open {url}: {exc}") from None
         if hasattr(port, "exclusive"):
             port.exclusive = True  # a second program on the same device gets "busy", not half the bytes
-        if url.startswith("socket://"):
-            # pyserial's socket port empties its input at the end of open(), after the
-            # connection is made: a board that greets each new client at once (HELLO)
-            # would lose the greeting whenever it came that fast.
-            port.reset_input_buffer = lambda: None
         try:
-            port.open()
+            open_keeping_input(port, url)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise PortError(_describe_port_error(url, exc)) from None
-        finally:
-            port.__dict__.pop("reset_input_buffer", None)
         return port
 
     def _port_fileno(self) -> int | None:

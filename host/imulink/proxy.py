@@ -32,7 +32,7 @@ import serial
 from cobs import cobs
 
 from . import protocol
-from .link import PortError
+from .link import PortError, open_keeping_input
 
 #: Bytes from the board that may wait for a slow host before the proxy stops reading the board.
 BACKLOG_BYTES = 1 << 16
@@ -459,7 +459,8 @@ class Proxy:
         deadline = time.monotonic() + timeout_s
         while True:
             try:
-                port = serial.serial_for_url(url, baudrate=baud, timeout=0)
+                port = serial.serial_for_url(url, baudrate=baud, timeout=0, do_not_open=True)
+                open_keeping_input(port, url)  # the board greets the proxy at once
                 if url.startswith("socket://"):
                     port._socket.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
                 return port
