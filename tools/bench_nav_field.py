@@ -33,7 +33,7 @@ from imulink import nav  # noqa: E402
 from imulink.nav_input import simulated_input  # noqa: E402
 from imulink.sim import nav_scenarios as ns  # noqa: E402
 from imulink.sim import navigation as nv  # noqa: E402
-from imulink.sim.sensors import Vibration, extra_field, rotated_field, simulate  # noqa: E402
+from imulink.sim.sensors import extra_field, rotated_field, simulate  # noqa: E402
 
 STARTS_S = (150.0, 300.0, 500.0, 620.0)
 CASES = (("none", "extra", 0.0, False), ("extra field 3 uT", "extra", 3.0, False),
@@ -55,8 +55,7 @@ def heading_rmse_deg(kind: str, size: float, bias_step: bool, seed: int) -> floa
     else:
         sensors.mag.disturbances = [rotated_field(sensors.mag, s, s + 30.0, declination_change_deg=size * (-1) ** (i + 1))
                                     for i, s in enumerate(STARTS_S)]
-    vibration = Vibration(acc_rms_m_s2=0.7, gyro_rms_rad_s=math.radians(2.0), freq_min_hz=20.0, freq_max_hz=45.0)
-    imu = simulate(base.traj, sensors, seed=seed, vibration=vibration)
+    imu = simulate(base.traj, sensors, seed=seed, vibration=ns.CAR_VIBRATION)
     result = nav.run(simulated_input(imu, base.fixes), "fixed")
     heading = nav.errors(result, base.traj)["heading"]
     settled = base.traj.t[result.start:] >= ns.SETTLE_S

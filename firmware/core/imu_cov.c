@@ -851,15 +851,17 @@ void imu_cov_scale_up(imu_cov_t *c, const int k[])
         c->e[i] += k[i]; /* P_ij 2^(e_i + e_j): 2^(k_i + k_j) */
     }
 #else
+    double scale[IMU_COV_MAX]; /* 2^k_i */
     int j;
     for (i = 0; i < c->n; ++i) {
+        scale[i] = 1.0;
+        for (j = 0; j < k[i]; ++j) {
+            scale[i] *= 2.0;
+        }
+    }
+    for (i = 0; i < c->n; ++i) {
         for (j = i; j < c->n; ++j) {
-            double factor = 1.0;
-            int d;
-            for (d = 0; d < k[i] + k[j]; ++d) {
-                factor *= 2.0;
-            }
-            c->p[cell(i, j)] *= factor;
+            c->p[cell(i, j)] *= scale[i] * scale[j];
         }
     }
 #endif

@@ -114,6 +114,11 @@ def heel_strikes(traj: nv.NavTrajectory) -> np.ndarray:
     return np.flatnonzero(np.diff(rest) == 1) + 1
 
 
+#: A running engine shaking the board (car_rough; tools/bench_nav_field.py): 0.7 m/s^2 and 2 deg/s
+#: RMS at 20-45 Hz and its 2nd order, each axis its own phase.
+CAR_VIBRATION = Vibration(acc_rms_m_s2=0.7, gyro_rms_rad_s=math.radians(2.0), freq_min_hz=20.0, freq_max_hz=45.0)
+
+
 def car_rough(seed: int) -> Scenario:
     """A 12 min car drive with the MPU6050 of the data sheet, its engine shaking the board
     (0.7 m/s^2 and 2 deg/s RMS at 20-45 Hz and its 2nd order, each axis its own phase), a
@@ -130,8 +135,7 @@ def car_rough(seed: int) -> Scenario:
     multipath_s = float(rng.uniform(SETTLE_S + 30.0, duration - 60.0))
     sensors = nv.datasheet_sensors(RATE_HZ)
     sensors.gyro.bias_steps = [(step_s, step)]
-    vibration = Vibration(acc_rms_m_s2=0.7, gyro_rms_rad_s=math.radians(2.0), freq_min_hz=20.0, freq_max_hz=45.0)
-    imu = simulate(traj, sensors, seed=seed, vibration=vibration)
+    imu = simulate(traj, sensors, seed=seed, vibration=CAR_VIBRATION)
     clean_imu = simulate(traj, nv.datasheet_sensors(RATE_HZ), seed=seed)
     model = nv.GnssModel(outlier_fraction=0.02, outlier_m=(20.0, 50.0),
                          multipath_episodes=((multipath_s, multipath_s + 20.0, 5.0),))
