@@ -3,9 +3,14 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 
-.PHONY: setup system-packages firmware demo test bench clean
+.PHONY: help setup system-packages firmware demo test check bench clean
 
-$(BIN)/imulink: pyproject.toml setup.py host/imulink/_build_core.py host/imulink/_protocol_schema.py \
+## help: this list
+help:
+	@awk '/^## [a-z-]+: / {sub(/^## /, ""); split($$0, a, ": "); printf "%-8s %s\n", a[1], substr($$0, length(a[1]) + 3); next} \
+	     /^## / {sub(/^## /, ""); printf "%-8s %s\n", "", $$0}' $(MAKEFILE_LIST)
+
+$(BIN)/imulink: pyproject.toml setup.py host/imulink/core/_build.py host/imulink/protocol/_schema.py \
 		$(wildcard firmware/core/*.c firmware/core/*.h)
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
@@ -32,12 +37,19 @@ demo: setup
 test: setup
 	$(BIN)/python -m pytest -q -n auto --timeout=600 --durations=15
 
+## check: lint (ruff), types (mypy) and generated files up to date (tools/gen_protocol.py --check)
+check: setup
+	$(BIN)/ruff check host tests tools
+	$(BIN)/mypy
+	$(BIN)/python tools/gen_protocol.py --check
+
 ## bench: throughput and Cortex-M4 cost benchmarks (results in docs/performance.md)
 bench: setup
 	$(BIN)/python tools/bench_core.py
 	$(BIN)/python tools/bench_protocol.py
 	$(BIN)/python tools/bench_arm.py
 
+## clean: remove the virtualenv, every build and the generated C of the cffi modules
 clean:
-	rm -rf $(VENV) build firmware/build host/*.egg-info host/imulink/_core_*.so host/imulink/_core_*.c \
+	rm -rf $(VENV) build firmware/build host/*.egg-info host/imulink/core/_*.so host/imulink/core/_fixed.c host/imulink/core/_float.c \
 		host/imulink/firmware

@@ -1,4 +1,4 @@
-"""Build hooks: the C core compiled twice through cffi (host/imulink/_build_core.py), and the
+"""Build hooks: the C core compiled twice through cffi (host/imulink/core/_build.py), and the
 native board (firmware/boards/native, built by firmware/Makefile) installed inside the
 package, so that `imulink demo` and `imulink emulate` work from any install."""
 import shutil
@@ -15,7 +15,7 @@ ROOT = Path(__file__).resolve().parent
 class BuildExtAndNativeBoard(build_ext):
     def run(self):
         super().run()
-        package_dir = Path(self.get_ext_fullpath("imulink._core_fixed")).parent
+        package_dir = Path(self.get_ext_fullpath("imulink.core._fixed")).parent.parent
         target = package_dir / "firmware" / "native" / "imulink-native"
         with tempfile.TemporaryDirectory() as build:
             subprocess.run(["make", "--no-print-directory", "-C", str(ROOT / "firmware"), "native", f"BUILD={build}"],
@@ -24,5 +24,5 @@ class BuildExtAndNativeBoard(build_ext):
             shutil.copy2(Path(build) / "native" / "imulink-native", target)
 
 
-setup(cffi_modules=["host/imulink/_build_core.py:ffi_fixed", "host/imulink/_build_core.py:ffi_float"],
+setup(cffi_modules=["host/imulink/core/_build.py:ffi_fixed", "host/imulink/core/_build.py:ffi_float"],
       cmdclass={"build_ext": BuildExtAndNativeBoard})

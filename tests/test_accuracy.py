@@ -7,8 +7,9 @@ results in docs/accuracy.md. The ESKF's own experiments are in test_eskf.py.
 import numpy as np
 import pytest
 
-from imulink import core, scenarios, sim
-from imulink.analysis import angle_difference, quat_to_euler, wrap_deg
+from imulink import core, sim
+from imulink.analysis import scenarios
+from imulink.analysis.attitude import angle_difference, quat_to_euler, wrap_deg
 
 RATE = scenarios.RATE_HZ
 

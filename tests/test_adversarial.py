@@ -25,8 +25,8 @@ import pytest
 from scipy.io import savemat
 
 from imulink import hil, protocol
-from imulink.emulator import EmulatedBoard
-from imulink.recording import KIND_HEADER, KIND_RECEIVED, MAGIC, load_recording, read_records
+from imulink.board.emulator import EmulatedBoard
+from imulink.io.recording import KIND_HEADER, KIND_RECEIVED, MAGIC, load_recording, read_records
 
 #: `imulink`, taking SIGINT as Ctrl-C even when the suite runs as a background job of a
 #: non-interactive shell: such a job starts with SIGINT ignored, and Python then keeps it so.

@@ -1,4 +1,4 @@
-"""Allan deviation (imulink.allan, `imulink allan`): the curve against allantools, the
+"""Allan deviation (imulink.analysis.allan, `imulink allan`): the curve against allantools, the
 intervals against their stated confidence, the noise terms against noise of known
 coefficients (the simulator's GyroModel among them), the filter settings against the C
 core's ranges, and the command line on CSV files, an emulated board's recording and bad
@@ -22,12 +22,13 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from imulink import allan, cli, core, sensor_input
-from imulink.allan import AllanError, FLOOR_OVER_BIAS_INSTABILITY, allan_curve, axis_terms
-from imulink.sensor_input import InputError
+from imulink import cli, core
+from imulink.analysis import allan
+from imulink.analysis.allan import FLOOR_OVER_BIAS_INSTABILITY, AllanError, allan_curve, axis_terms
+from imulink.io import sensor_input
+from imulink.io.sensor_input import InputError
 from imulink.sim.sensors import GyroModel
 
-BROAD = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "broad"
 CLI = [sys.executable, "-c", "import sys\nfrom imulink.cli import main\nsys.exit(main())"]
 
 
@@ -254,7 +255,8 @@ def test_settings_for_a_moving_board_add_the_motion_allowance():
     assert allan.settings_from_terms(broad, "kf1d") == pytest.approx({"q_angle": kf1d["q_angle"]}, rel=1e-12)
     noisy = dict(broad, gyro_arw=[4e-3] * 3, gyro_rrw=[2e-5] * 3, acc_vrw=[0.05] * 3)
     settings = allan.settings_from_terms(noisy, "eskf")
-    assert settings["gyro_arw"] == pytest.approx(math.hypot(4e-3, math.sqrt(allan.motion_allowance("eskf")["gyro_arw"])))
+    allowance = allan.motion_allowance("eskf")["gyro_arw"]
+    assert settings["gyro_arw"] == pytest.approx(math.hypot(4e-3, math.sqrt(allowance)))
     assert settings["gyro_arw"] > 4e-3 and settings["acc_noise"] > 0.05 * math.sqrt(285.7 / 3.0)
     assert settings["gyro_rrw"] == 2e-5
     quiet = dict(broad, gyro_arw=[1e-6] * 3, acc_vrw=[1e-5] * 3)
@@ -280,9 +282,8 @@ def test_rate_gaps_and_order():
         sensor_input.rate_from_timestamps(np.concatenate([t[:10], t[11:12], t[10:11], t[12:]]), "x")
 
 
-@pytest.mark.skipif(not BROAD.is_dir(), reason="BROAD data not present beside the repository")
-def test_broad_rest():
-    record = allan.load_static(BROAD / "02_undisturbed_slow_rotation_B.mat")
+def test_broad_rest(broad_dir):
+    record = allan.load_static(broad_dir / "02_undisturbed_slow_rotation_B.mat")
     assert "longest rest" in record.description and 35 < record.duration_s < 45
     result = allan.analyse(record)
     for sensor, white in (("gyro", "arw"), ("acc", "vrw")):
@@ -387,7 +388,7 @@ def test_cli_recording_of_an_emulated_board(tmp_path):
     sample on the accelerometer), recorded as fast as the link goes: its timestamps are the
     host's pace, so the board's declared rate is used."""
     from imulink import hil
-    from imulink.emulator import EmulatedBoard
+    from imulink.board.emulator import EmulatedBoard
 
     path = tmp_path / "still.imulog"
     with EmulatedBoard(front="tcp", scenario="static", duration_s=120.0, rate_hz=100.0, filter_name="kf1d") as board:

@@ -3,7 +3,7 @@ protocol, the live stream, injection, start-up options, sensor failures; and the
 pieces around it (the fault proxy, the firmware reference model).
 
 Each protocol test runs twice: on the native board (the application as a host process)
-and on the ARM image in QEMU, driven through imulink.link over a pty as a host drives a
+and on the ARM image in QEMU, driven through imulink.board.link over a pty as a host drives a
 real board. Between tests the board is RESET, so every test starts from its defaults.
 """
 from __future__ import annotations
@@ -20,11 +20,11 @@ import numpy as np
 import pytest
 
 from imulink import __version__, core, protocol, sim
-from imulink.chips import ms5611
-from imulink.emulator import BARO_HEIGHT_M, BARO_TEMPERATURE_CDEG, EmulatedBoard, find_image
-from imulink.link import Link
-from imulink.proxy import FaultConfig, FaultInjector
-from imulink.reference import FirmwareFilter
+from imulink.board.chips import ms5611
+from imulink.board.emulator import BARO_HEIGHT_M, BARO_TEMPERATURE_CDEG, EmulatedBoard, find_image
+from imulink.board.link import Link
+from imulink.board.proxy import FaultConfig, FaultInjector
+from imulink.hil.replica import FirmwareFilter
 from imulink.sim import navigation
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -262,7 +262,8 @@ def test_vector_driver_rejects_incomplete_or_unknown_settings(sanitized_driver, 
         parts[2] = str(int(parts[2]) + 1)
         lines[i] = " ".join(parts)
 
-    for edit, needle in ((drop_first_setting, "missing"), (add_unknown_setting, "warp"), (change_q_format, "in the C core")):
+    for edit, needle in ((drop_first_setting, "missing"), (add_unknown_setting, "warp"),
+                         (change_q_format, "in the C core")):
         proc = run_driver(sanitized_driver, _damaged_copy(tmp_path, edit))
         assert proc.returncode == 1 and needle in proc.stderr, (edit.__name__, proc.stderr)
 

@@ -1,4 +1,4 @@
-"""Sensor calibration (imulink.calibration, `imulink calibrate`): gyroscope bias at rest,
+"""Sensor calibration (imulink.analysis.calibration, `imulink calibrate`): gyroscope bias at rest,
 accelerometer six-position (and misalignment), magnetometer ellipsoid fit with coverage;
 the calibration file; the command line."""
 from __future__ import annotations
@@ -11,9 +11,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from imulink import calibration as cal, live_calibration, sim
-from imulink.counts import DEFAULT_PROFILE, STANDARD_GRAVITY, si_to_counts
-from imulink.sensor_input import SensorRecord
+from imulink import sim
+from imulink.analysis import calibration as cal
+from imulink.core import calibration as calfmt
+from imulink.core.counts import DEFAULT_PROFILE, STANDARD_GRAVITY, si_to_counts
+from imulink.hil import live_calibration
+from imulink.io import calibration_file
+from imulink.io.sensor_input import SensorRecord
 from imulink.sim.sensors import AccModel, GyroModel, MagModel, SensorSuite
 
 CLI = [sys.executable, "-m", "imulink.cli"]
@@ -89,7 +93,7 @@ def test_coverage_of_a_full_sphere_and_of_one_plane():
 def test_mag_turned_in_one_plane_is_no_ellipsoid():
     res = sim.simulate(sim.turntable(60.0, RATE, rate_dps=30.0),
                        SensorSuite(GyroModel.ideal(), AccModel(), MagModel(hard_iron=HARD_IRON)), seed=1)
-    with pytest.raises(cal.CalibrationError, match="more directions") as error:
+    with pytest.raises(calfmt.CalibrationError, match="more directions") as error:
         cal.mag_ellipsoid(record_of(res.gyr, res.acc, res.mag), P)
     # it names the directions the turn never gave (about z: the field never along +z or -z)
     assert "the field never lay along -z, +z of the board" in str(error.value)
@@ -111,7 +115,7 @@ def test_gyro_bias_at_rest():
 
 def test_gyro_bias_needs_a_rest():
     res = sim.make_scenario("random", 30.0, RATE, seed=1)
-    with pytest.raises(cal.CalibrationError, match="lies still for 0.0 s"):
+    with pytest.raises(calfmt.CalibrationError, match="lies still for 0.0 s"):
         cal.gyro_bias(record_of(res.gyr, res.acc, res.mag), P)
 
 
@@ -166,13 +170,13 @@ def test_misalignment_from_tilted_positions():
     scale_only = cal.accel_six_position(record, P)
     assert (result.report["norm_error_after_m_s2"]["rms"]
             < 0.3 * scale_only.report["norm_error_after_m_s2"]["rms"])
-    with pytest.raises(cal.CalibrationError, match="6 distinct position"):
+    with pytest.raises(calfmt.CalibrationError, match="6 distinct position"):
         cal.accel_six_position(positions_record(SIX, distortion, ACC_OFFSET), P, misalignment=True)
 
 
 def test_six_position_names_the_missing_position():
     record = positions_record([d for d in SIX if d != (0, -1, 0)], np.eye(3), ACC_OFFSET)
-    with pytest.raises(cal.CalibrationError, match=r"no rest with -y up"):
+    with pytest.raises(calfmt.CalibrationError, match=r"no rest with -y up"):
         cal.accel_six_position(record, P)
 
 
@@ -180,21 +184,21 @@ def test_six_position_names_the_missing_position():
 
 
 def test_fixed_point_and_file_round_trip(tmp_path):
-    c = cal.SensorCalibration("mag", np.array([100.25, -3.5, 0.0]), SOFT_IRON)
-    offset, matrix = cal.to_fixed(c)
+    c = calfmt.SensorCalibration("mag", np.array([100.25, -3.5, 0.0]), SOFT_IRON)
+    offset, matrix = calfmt.to_fixed(c)
     assert offset == [25664, -896, 0] and matrix[0] == round(1.10 * 2**24)
-    back = cal.from_fixed("mag", offset, matrix)
+    back = calfmt.from_fixed("mag", offset, matrix)
     np.testing.assert_allclose(back.matrix, SOFT_IRON, atol=2**-25)
-    calibration = cal.Calibration(P, {"mag": c})
-    cal.save(calibration, tmp_path / "c.json")
-    loaded = cal.load(tmp_path / "c.json")
+    calibration = calfmt.Calibration(P, {"mag": c})
+    calibration_file.save(calibration, tmp_path / "c.json")
+    loaded = calibration_file.load(tmp_path / "c.json")
     assert loaded.profile == P and loaded.sensor("gyr").offset.tolist() == [0, 0, 0]
     np.testing.assert_array_equal(loaded.sensors["mag"].matrix, SOFT_IRON)
-    with pytest.raises(cal.CalibrationError, match="beyond"):
-        cal.to_fixed(cal.SensorCalibration("acc", np.array([7e4, 0, 0]), np.eye(3)))
+    with pytest.raises(calfmt.CalibrationError, match="beyond"):
+        calfmt.to_fixed(calfmt.SensorCalibration("acc", np.array([7e4, 0, 0]), np.eye(3)))
     (tmp_path / "bad.json").write_text('{"format": "imulink-calibration", "format_version": 1, "profile": {}}')
-    with pytest.raises(cal.CalibrationError, match="not a valid calibration file"):
-        cal.load(tmp_path / "bad.json")
+    with pytest.raises(calfmt.CalibrationError, match="not a valid calibration file"):
+        calibration_file.load(tmp_path / "bad.json")
 
 
 # ---------------------------------------------------------------------------- the command line
@@ -238,7 +242,7 @@ def test_cli_calibrates_each_sensor_into_one_file(tmp_path):
     assert set(saved["sensors"]) == {"mag", "acc"} and saved["profile"]["name"] == "gy86-default"
     np.testing.assert_allclose(np.array(saved["sensors"]["mag"]["offset_counts"]) * P.mag_scale, HARD_IRON,
                                atol=0.1)
-    loaded = cal.load(out)
+    loaded = calibration_file.load(out)
     assert loaded.sensors["acc"].report["input"] == "CSV six.csv"
 
 
@@ -270,11 +274,11 @@ def test_cli_refuses_missing_directions_and_positions(tmp_path):
 
 
 #: A calibration of every sensor with odd values: sub-count offsets, scales, cross terms.
-BOARD_CALIBRATION = cal.Calibration(P, {
-    "gyr": cal.SensorCalibration("gyr", np.array([3.7, -2.25, 1.5]), np.eye(3)),
-    "acc": cal.SensorCalibration("acc", np.array([-41.3, 17.0, 60.9]),
+BOARD_CALIBRATION = calfmt.Calibration(P, {
+    "gyr": calfmt.SensorCalibration("gyr", np.array([3.7, -2.25, 1.5]), np.eye(3)),
+    "acc": calfmt.SensorCalibration("acc", np.array([-41.3, 17.0, 60.9]),
                                  np.array([[1.012, 0.003, -0.002], [0.003, 0.987, 0.001], [-0.002, 0.001, 1.004]])),
-    "mag": cal.SensorCalibration("mag", np.array([130.75, -76.3, 217.9]), np.linalg.inv(SOFT_IRON)),
+    "mag": calfmt.SensorCalibration("mag", np.array([130.75, -76.3, 217.9]), np.linalg.inv(SOFT_IRON)),
 })
 
 
@@ -282,7 +286,8 @@ def test_fixed_point_correction_is_the_documented_integer_arithmetic():
     """imu_sample_from_raw_calibrated (fixed build) against the arithmetic imu_sensor.h
     states, computed with Python integers: c = raw 2^8 - offset; corrected = the sum of
     Q24 products rounded to Q8 and saturated; then the scale, its shift 8 bits longer."""
-    from imulink import _core_fixed, core
+    from imulink import core
+    from imulink.core import _fixed as _core_fixed
 
     ffi, lib = _core_fixed.ffi, _core_fixed.lib
     rng = np.random.default_rng(5)
@@ -299,20 +304,20 @@ def test_fixed_point_correction_is_the_documented_integer_arithmetic():
     saturations = 0
     for trial in range(200):
         matrix_scale = 100.0 if trial % 10 == 9 else 1.5  # every tenth: saturating corrections
-        c = cal.Calibration(P, {name: cal.SensorCalibration(name, rng.uniform(-3e4, 3e4, 3),
+        c = calfmt.Calibration(P, {name: calfmt.SensorCalibration(name, rng.uniform(-3e4, 3e4, 3),
                                                             rng.uniform(-matrix_scale, matrix_scale, (3, 3)))
-                                for name in cal.SENSORS})
+                                for name in calfmt.SENSORS})
         struct = core.calibration_struct(_core_fixed, "fixed", c, P)
         raw = ffi.new("imu_raw_sample_t *")
-        counts = {name: rng.integers(-32768, 32768, 3) for name in cal.SENSORS}
+        counts = {name: rng.integers(-32768, 32768, 3) for name in calfmt.SENSORS}
         counts["mag"] = rng.integers(-2048, 2048, 3)
-        for name in cal.SENSORS:
+        for name in calfmt.SENSORS:
             setattr(raw, name, counts[name].tolist())
         out, count = ffi.new("imu_sample_t *"), ffi.new("uint32_t *")
         lib.imu_sample_from_raw_calibrated(sensor, struct, raw, out, count)
         expected_sat = 0
-        for name in cal.SENSORS:
-            offset, matrix = cal.to_fixed(c.sensor(name))
+        for name in calfmt.SENSORS:
+            offset, matrix = calfmt.to_fixed(c.sensor(name))
             d = [int(counts[name][j]) * 256 - offset[j] for j in range(3)]
             for i in range(3):
                 corrected = shift_round(sum(matrix[3 * i + j] * d[j] for j in range(3)), 24)
@@ -329,7 +334,8 @@ def test_counts_scaled_as_the_identity_calibration_scales_them():
     """imu_sample_from_raw scales the raw counts straight (imu_sensor.c): every output and
     saturation equals imu_sample_from_raw_calibrated's with the identity calibration (counts
     in Q8, the shift 8 bits longer), with scales of every size, saturating ones included."""
-    from imulink import _core_fixed, core
+    from imulink import core
+    from imulink.core import _fixed as _core_fixed
 
     ffi, lib = _core_fixed.ffi, _core_fixed.lib
     rng = np.random.default_rng(6)
@@ -362,10 +368,10 @@ def test_core_runs_a_calibration_in_both_builds():
     calibration from the data themselves brings the heading back; a calibration of
     another profile or beyond the board's range is refused."""
     from imulink import core
-    from imulink.analysis import attitude_errors, rmse
+    from imulink.analysis.attitude import attitude_errors, rmse
 
     res = rotating_mag(seconds=120.0, seed=8)
-    board = cal.Calibration(P, {"mag": cal.mag_ellipsoid(record_of(res.gyr, res.acc, res.mag), P)})
+    board = calfmt.Calibration(P, {"mag": cal.mag_ellipsoid(record_of(res.gyr, res.acc, res.mag), P)})
     runs = {arithmetic: core.run("eskf", res.gyr, res.acc, res.mag, RATE, arithmetic, calibration=board)
             for arithmetic in core.ARITHMETICS}
     raw = core.run("eskf", res.gyr, res.acc, res.mag, RATE, "fixed")
@@ -375,10 +381,10 @@ def test_core_runs_a_calibration_in_both_builds():
     assert without > 3.0 and with_cal < without / 3.0, (without, with_cal)
     fixed_vs_float = rmse(attitude_errors(runs["fixed"].quat, runs["float"].quat))["total"]
     assert fixed_vs_float < 0.05
-    from imulink.counts import BROAD_PROFILE
+    from imulink.core.counts import BROAD_PROFILE
     with pytest.raises(core.SettingsError, match="profile gy86-default"):
         core.Filter("eskf", RATE, profile=BROAD_PROFILE, calibration=board)
-    from imulink import _core_fixed
+    from imulink.core import _fixed as _core_fixed
     struct = core.calibration_struct(_core_fixed, "fixed", None, P)
     struct.acc.offset[1] = 65536 * 256 + 1
     handle = _core_fixed.ffi.new("imu_filter_t *")
@@ -394,9 +400,9 @@ def test_emulated_board_applies_a_calibration_bit_exact(tmp_path, target, second
     report it back, the recording keeps it, and the host's run with it reproduces every
     estimate bit for bit (which the identity calibration would not)."""
     from imulink import hil, protocol
-    from imulink.emulator import EmulatedBoard
-    from imulink.link import Link
-    from imulink.recording import load_recording
+    from imulink.board.emulator import EmulatedBoard
+    from imulink.board.link import Link
+    from imulink.io.recording import load_recording
 
     path = tmp_path / "calibrated.imulog"
     with EmulatedBoard(target, duration_s=seconds, rate_hz=100.0, filter_name="eskf") as board:
@@ -405,8 +411,8 @@ def test_emulated_board_applies_a_calibration_bit_exact(tmp_path, target, second
             assert hil.read_calibration(link).sensors["mag"].matrix.tolist() == np.eye(3).tolist()
             hil.set_calibration(link, BOARD_CALIBRATION)
             back = hil.read_calibration(link)
-            for name in cal.SENSORS:
-                assert cal.to_fixed(back.sensor(name)) == cal.to_fixed(BOARD_CALIBRATION.sensor(name))
+            for name in calfmt.SENSORS:
+                assert calfmt.to_fixed(back.sensor(name)) == calfmt.to_fixed(BOARD_CALIBRATION.sensor(name))
             for args, reason in (({"sensor": 3, "axis": 0}, "BAD_ARGUMENT"), ({"sensor": 0, "axis": 3}, "BAD_ARGUMENT"),
                                  ({"sensor": 1, "axis": 0, "offset": 65536 * 256 + 1}, "OUT_OF_RANGE")):
                 with pytest.raises(protocol.CommandError) as refused:
@@ -417,10 +423,11 @@ def test_emulated_board_applies_a_calibration_bit_exact(tmp_path, target, second
         hil.record(board.address, path)
     recording = load_recording(path)
     stored = recording.calibration()
-    for name in cal.SENSORS:
-        assert cal.to_fixed(stored.sensor(name)) == cal.to_fixed(BOARD_CALIBRATION.sensor(name))
+    for name in calfmt.SENSORS:
+        assert calfmt.to_fixed(stored.sensor(name)) == calfmt.to_fixed(BOARD_CALIBRATION.sensor(name))
     snapshot = next(e for e in recording.events if e["event"] == "snapshot")
-    assert snapshot["calibration"]["mag"]["offset_counts"] == [130.75, -19533 / 256, 55782 / 256]  # Q8: the nearest 1/256 count
+    # Q8: the nearest 1/256 count
+    assert snapshot["calibration"]["mag"]["offset_counts"] == [130.75, -19533 / 256, 55782 / 256]
     comparison = hil.compare(recording)
     assert comparison.bit_exact and len(recording.estimates) == round(seconds * 100)
     # without the calibration the host computes something else: the test is not vacuous
@@ -431,10 +438,10 @@ def test_emulated_board_applies_a_calibration_bit_exact(tmp_path, target, second
 
 
 def test_cli_apply(tmp_path, capsys):
+    from imulink.board.emulator import EmulatedBoard
     from imulink.cli import main
-    from imulink.emulator import EmulatedBoard
 
-    cal.save(BOARD_CALIBRATION, tmp_path / "board.json")
+    calibration_file.save(BOARD_CALIBRATION, tmp_path / "board.json")
     with EmulatedBoard(duration_s=5.0) as board:
         assert main(["calibrate", "apply", str(tmp_path / "board.json"), board.address]) == 0
         out = capsys.readouterr().out
@@ -450,8 +457,8 @@ def test_calibrate_gyro_from_a_recording_of_the_emulated_board(tmp_path, capsys)
     computed by `imulink calibrate gyro` from the recording (the board's counts, its profile
     from the header)."""
     from imulink import hil
+    from imulink.board.emulator import EmulatedBoard
     from imulink.cli import main
-    from imulink.emulator import EmulatedBoard
 
     with EmulatedBoard(scenario="static", duration_s=30.0, rate_hz=100.0) as board:
         hil.record(board.address, tmp_path / "still.imulog")
@@ -482,7 +489,7 @@ def test_live_coverage_waits_for_the_board_to_turn():
 @pytest.mark.parametrize("text, port", [("socket://127.0.0.1:5760", True), ("/dev/ttyUSB7", True), ("COM3", True),
                                         ("/dev/null", True), ("turned.imulog", False), ("README.md", False)])
 def test_calibrate_mag_tells_a_port_from_a_file(text, port):
-    from imulink.cli import _is_port
+    from imulink.cli.calibrate import _is_port
 
     assert _is_port(text) is port
 
@@ -492,9 +499,9 @@ def test_calibrate_mag_live_on_an_emulated_board(tmp_path, capsys):
     and soft iron, streams while it turns; the fit recovers the distortion, the file is
     written, and the board takes the calibration (read back)."""
     from imulink import hil
+    from imulink.board.emulator import EmulatedBoard
+    from imulink.board.link import Link
     from imulink.cli import main
-    from imulink.emulator import EmulatedBoard
-    from imulink.link import Link
 
     # turned fast (up to some 1000 deg/s): every direction within about 10 s of the 60 s run, which
     # the board streams in real time, so the collection stops well before the run ends
@@ -513,14 +520,14 @@ def test_calibrate_mag_live_on_an_emulated_board(tmp_path, capsys):
     assert report["coverage"]["missing"] == [] and report["samples"] < len(turned.mag) / 2  # stopped once covered
     np.testing.assert_allclose(np.array(printed["offset_counts"]) * P.mag_scale, HARD_IRON, atol=0.3)
     assert report["norm_spread_before_uT"] > 5.0 > 20 * report["norm_spread_after_uT"]
-    written = cal.load(output)
-    assert cal.to_fixed(on_board.sensor("mag")) == cal.to_fixed(written.sensor("mag"))
-    assert cal.to_fixed(on_board.sensor("gyr")) == cal.to_fixed(cal.SensorCalibration.identity("gyr"))
+    written = calibration_file.load(output)
+    assert calfmt.to_fixed(on_board.sensor("mag")) == calfmt.to_fixed(written.sensor("mag"))
+    assert calfmt.to_fixed(on_board.sensor("gyr")) == calfmt.to_fixed(calfmt.SensorCalibration.identity("gyr"))
 
 
 def test_calibrate_mag_live_refuses_a_board_that_did_not_turn(tmp_path, capsys):
+    from imulink.board.emulator import EmulatedBoard
     from imulink.cli import main
-    from imulink.emulator import EmulatedBoard
 
     output = tmp_path / "board.json"
     with EmulatedBoard(scenario="static", duration_s=60.0, rate_hz=RATE, realtime=True) as board:
@@ -537,5 +544,5 @@ def test_mag_of_a_still_board_is_refused():
     """A still board's readings are noise about one point: they fit a sphere of a fraction of
     a uT that "covers" every direction; no calibration comes of them."""
     still = sim.make_scenario("static", 30.0, RATE, seed=2)
-    with pytest.raises(cal.CalibrationError, match="the board hardly turned"):
+    with pytest.raises(calfmt.CalibrationError, match="the board hardly turned"):
         cal.mag_ellipsoid(record_of(still.gyr, still.acc, still.mag), P)

@@ -430,7 +430,8 @@ def test_checked_build_computes_the_same_integers(tmp_path):
     answers = []
     for checked in ([], ["-DIMU_CHECK_NARROWING"]):
         exe = tmp_path / f"vector_driver{len(checked)}"
-        _check(_run([GCC, *STRICT, "-O1", "-DIMU_FIXED", *checked, f"-I{CORE}", ROOT / "tests" / "c" / "vector_driver.c",
+        _check(_run([GCC, *STRICT, "-O1", "-DIMU_FIXED", *checked, f"-I{CORE}",
+                     ROOT / "tests" / "c" / "vector_driver.c",
                      *([stub] if checked else []), *FILTER_SOURCES, "-o", exe]), f"vector driver {checked}")
         runs = [(v.name, _run([exe, v])) for v in vectors]
         answers.append([(name, proc.returncode, proc.stdout + proc.stderr) for name, proc in runs])

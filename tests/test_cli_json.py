@@ -12,11 +12,11 @@ import sys
 import pytest
 
 from imulink import core, protocol, sim
-from imulink.analysis import attitude_errors, rmse
+from imulink.analysis.attitude import attitude_errors, rmse
+from imulink.board.emulator import EmulatedBoard
 from imulink.cli import main
-from imulink.counts import BROAD_PROFILE, fixed_scales
-from imulink.emulator import EmulatedBoard
-from imulink.recording import KIND_EVENT, KIND_RECEIVED, RecordingWriter, load_recording, read_records
+from imulink.core.counts import BROAD_PROFILE, fixed_scales
+from imulink.io.recording import KIND_EVENT, KIND_RECEIVED, RecordingWriter, load_recording, read_records
 
 CLI = [sys.executable, "-c", "import sys; from imulink.cli import main; sys.exit(main())"]
 

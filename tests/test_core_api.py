@@ -8,8 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from imulink import _core_fixed, core, sim
-from imulink.counts import BROAD_PROFILE, DEFAULT_PROFILE, SensorDataError
+from imulink import core, sim
+from imulink.core import _fixed as _core_fixed
+from imulink.core.counts import BROAD_PROFILE, DEFAULT_PROFILE, SensorDataError
 
 RATE = 100.0
 FILTER_NAMES = sorted(core.FILTERS)

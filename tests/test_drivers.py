@@ -1,7 +1,7 @@
 """The GY-86 sensor drivers (firmware/drivers) against register-level chip models.
 
 The C drivers are compiled at test time into a cffi module (out-of-line API mode) whose
-i2c_bus_t is implemented by `extern "Python"` callbacks on an imulink.chips.I2CBus
+i2c_bus_t is implemented by `extern "Python"` callbacks on an imulink.board.chips.I2CBus
 carrying an MPU6050 model with an HMC5883L model on its auxiliary bus (the GY-86).
 
 Sections:
@@ -20,12 +20,12 @@ import subprocess
 from pathlib import Path
 
 import pytest
-from cffi_module import build
 
-from imulink.chips import FAILURES, HMC5883L, MPU6050, STATUS_CODES, I2CBus
-from imulink.chips import hmc5883l as hmc_model
+from cffi_module import build
+from imulink.board.chips import FAILURES, HMC5883L, MPU6050, STATUS_CODES, I2CBus
+from imulink.board.chips import hmc5883l as hmc_model
 from imulink.core import to_fixed
-from imulink.counts import STANDARD_GRAVITY, SensorProfile
+from imulink.core.counts import STANDARD_GRAVITY, SensorProfile
 
 ROOT = Path(__file__).resolve().parents[1]
 DRIVERS = ROOT / "firmware" / "drivers"

@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 
 from imulink import core, sim
-from imulink.analysis import angle_difference, attitude_errors
+from imulink.analysis.attitude import angle_difference, attitude_errors
 
 RATE = 100.0
 #: Agreement required between the fixed build and the float twin, deg.

@@ -1,4 +1,4 @@
-"""imulink.emulator around the firmware: the feed, finding and checking images, the truth
+"""imulink.board.emulator around the firmware: the feed, finding and checking images, the truth
 of recorded samples, and the errors a user meets (a missing or wrong image, a bad option)."""
 from __future__ import annotations
 
@@ -8,11 +8,18 @@ import numpy as np
 import pytest
 
 from imulink import protocol, sim
-from imulink.chips import ms5611
+from imulink.board.chips import ms5611
+from imulink.board.emulator import (
+    BARO_HEIGHT_M,
+    BARO_TEMPERATURE_CDEG,
+    EmulatedBoard,
+    EmulatorError,
+    baro_due,
+    feed_frames,
+    find_image,
+)
 from imulink.cli import main
-from imulink.counts import BROAD_PROFILE, SensorProfile
-from imulink.emulator import (BARO_HEIGHT_M, BARO_TEMPERATURE_CDEG, EmulatedBoard, EmulatorError, baro_due, feed_frames,
-                              find_image)
+from imulink.core.counts import BROAD_PROFILE, SensorProfile
 from imulink.sim import navigation, simulate
 
 
@@ -89,7 +96,7 @@ def test_images_are_found_and_checked(tmp_path):
 
 
 def test_a_missing_build_says_how_to_make_it(tmp_path, monkeypatch):
-    monkeypatch.setattr("imulink.emulator.firmware_build_dirs", lambda: [tmp_path])
+    monkeypatch.setattr("imulink.board.emulator.firmware_build_dirs", lambda: [tmp_path])
     with pytest.raises(EmulatorError, match=r"not built: run `make -C firmware qemu`"):
         find_image("qemu")
 

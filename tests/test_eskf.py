@@ -3,8 +3,9 @@ robustness, covariance health (short version of tools/soak_eskf.py)."""
 import numpy as np
 import pytest
 
-from imulink import core, scenarios, sim, soak
-from imulink.analysis import angle_difference, attitude_errors
+from imulink import core, sim
+from imulink.analysis import scenarios, soak
+from imulink.analysis.attitude import angle_difference, attitude_errors
 
 RATE = scenarios.RATE_HZ
 

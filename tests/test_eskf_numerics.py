@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from imulink import core, sim
-from imulink.analysis import angle_difference, attitude_errors
+from imulink.analysis.attitude import angle_difference, attitude_errors
 from imulink.sim import quat as Q
 
 RATE = 100.0

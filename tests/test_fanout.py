@@ -1,4 +1,4 @@
-"""Fan-out: one board, several clients on its TCP front (imulink.proxy.TcpFront), the
+"""Fan-out: one board, several clients on its TCP front (imulink.board.proxy.TcpFront), the
 first commanding and the others listening, with the emulated board behind the proxy."""
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ import time
 import pytest
 
 from imulink import hil, protocol
+from imulink.board.emulator import EmulatedBoard
+from imulink.board.link import Busy, Link
 from imulink.cli import main
-from imulink.emulator import EmulatedBoard
-from imulink.link import Busy, Link
-from imulink.recording import load_recording
+from imulink.io.recording import load_recording
 
 
 @pytest.fixture

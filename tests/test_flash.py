@@ -1,5 +1,5 @@
 """`imulink flash` over the UART bootloader, against an emulator of the STM32 system
-bootloader that follows AN3155 byte for byte (imulink.chips.stm32_bootloader), over a pty.
+bootloader that follows AN3155 byte for byte (imulink.board.chips.stm32_bootloader), over a pty.
 
 The end-to-end proof: the reference board's image is flashed into the emulator, the
 emulator's Go boots the flashed bytes in QEMU (the same chip family), and the flashing
@@ -23,11 +23,12 @@ from pathlib import Path
 
 import pytest
 
-from imulink import flash, protocol
-from imulink.chips.stm32_bootloader import BootloaderPort, Stm32Bootloader
+from imulink import protocol
+from imulink.board import flash
+from imulink.board.chips.stm32_bootloader import BootloaderPort, Stm32Bootloader
+from imulink.board.emulator import EmulatedBoard, find_qemu
 from imulink.cli import main
-from imulink.emulator import EmulatedBoard, find_qemu
-from imulink.firmware_image import ImageError, load_image
+from imulink.io.firmware_image import ImageError, load_image
 
 ROOT = Path(__file__).resolve().parents[1]
 STM32F407_ELF = ROOT / "firmware" / "build" / "stm32f407" / "imulink-stm32f407-gy86.elf"

@@ -1,5 +1,5 @@
 """The GNSS receiver driver (firmware/drivers/gnss.c) against the u-blox receiver model
-(imulink.chips.ublox): found at any baud, configured with ACKs, fixes delivered; an absent
+(imulink.board.chips.ublox): found at any baud, configured with ACKs, fixes delivered; an absent
 receiver, damaged checksums, a receiver at another baud, a lost fix, a reboot, a receiver
 that speaks NMEA only and one that refuses the rate."""
 from __future__ import annotations
@@ -7,9 +7,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-from cffi_module import build
 
-from imulink.chips.ublox import UbloxReceiver
+from cffi_module import build
+from imulink.board.chips.ublox import UbloxReceiver
 
 ROOT = Path(__file__).resolve().parents[1]
 DRIVERS = ROOT / "firmware" / "drivers"

@@ -1,7 +1,7 @@
 """The reference board's GNSS receiver on USART2 (firmware/boards/stm32f407/gnss_usart2.c):
 the board's own code, built for the Cortex-M4, run in the unicorn emulator against a
 register-level model of the STM32F4 USART (RM0090 section 30.6) with the message-level
-u-blox receiver model (imulink.chips.ublox) on its lines.
+u-blox receiver model (imulink.board.chips.ublox) on its lines.
 
 The USART model: SR, DR, BRR, CR1-CR3; a byte written to DR leaves at once (TXE and TC stay
 set: a synchronous model, as uart.h allows) at the baud BRR gives from the bus clock, a
@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from imulink.chips.ublox import UbloxReceiver
+from imulink.board.chips.ublox import UbloxReceiver
 
 ROOT = Path(__file__).resolve().parents[1]
 FIRMWARE = ROOT / "firmware"

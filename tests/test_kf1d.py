@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from imulink import core, sim
-from imulink.analysis import quat_to_euler
+from imulink.analysis.attitude import quat_to_euler
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
 from agreement import agreement_chunked  # noqa: E402

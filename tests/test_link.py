@@ -1,4 +1,4 @@
-"""The host link (imulink.link): ports, the handshake, commands, counters, failures.
+"""The host link (imulink.board.link): ports, the handshake, commands, counters, failures.
 
 Peers: the emulated board (the firmware as a native process) over a pty, pyserial's loop://, and scripted TCP peers on
 127.0.0.1 that answer (or not) exactly as each test needs.
@@ -13,9 +13,9 @@ import time
 import pytest
 
 from imulink import protocol
-from imulink.emulator import EmulatedBoard
-from imulink.link import CommandTimeout, Disconnected, Link, NotABoard, PortError, ReceiveTimeout
-from imulink.proxy import FaultConfig
+from imulink.board.emulator import EmulatedBoard
+from imulink.board.link import CommandTimeout, Disconnected, Link, NotABoard, PortError, ReceiveTimeout
+from imulink.board.proxy import FaultConfig
 
 
 class ScriptedPeer:
@@ -240,7 +240,7 @@ def test_a_greeting_that_comes_at_once_is_kept(monkeypatch, opener):
     here so that the greeting is always in before open() ends."""
     import serial.urlhandler.protocol_socket as pyserial_socket
 
-    from imulink.proxy import Proxy
+    from imulink.board.proxy import Proxy
 
     server = socket.create_server(("127.0.0.1", 0))
     greeting = hello()

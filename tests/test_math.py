@@ -1,14 +1,15 @@
 """The math helpers of firmware/core (imu_math.h) against independent numpy references.
 
-Called through the cffi modules: imulink._core_fixed (Q formats of imu_arith.h:
-angles Q29 rad, unit values Q30, rates Q24) and imulink._core_float (doubles).
+Called through the cffi modules: imulink.core._fixed (Q formats of imu_arith.h:
+angles Q29 rad, unit values Q30, rates Q24) and imulink.core._float (doubles).
 """
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from imulink import _core_fixed, _core_float
+from imulink.core import _fixed as _core_fixed
+from imulink.core import _float as _core_float
 
 Q29 = 2.0**29
 Q30 = 2.0**30

@@ -19,13 +19,13 @@ import numpy as np
 import pytest
 
 from imulink import hil, protocol
+from imulink.board.emulator import EmulatedBoard
 from imulink.cli import main
-from imulink.emulator import EmulatedBoard
+from imulink.io.recording import KIND_RECEIVED, load_recording, read_records
 from imulink.monitor import missing_dependencies
 from imulink.monitor.check import LiveCheck
 from imulink.monitor.decimate import peaks
 from imulink.monitor.ring import RingBuffer
-from imulink.recording import KIND_RECEIVED, load_recording, read_records
 
 # ---------------------------------------------------------------------------- without Qt
 
@@ -113,9 +113,9 @@ def test_filter_select_and_reset_keep_the_live_check_going():
 def test_the_live_check_follows_the_boards_calibration():
     """A board corrects its counts with a calibration before the filter: the monitor reads it
     (GET_CALIBRATION) and the host runs with it, so a calibrated board is bit-exact too."""
-    from imulink.calibration import Calibration, SensorCalibration
-    from imulink.counts import DEFAULT_PROFILE
-    from imulink.link import Link
+    from imulink.board.link import Link
+    from imulink.core.calibration import Calibration, SensorCalibration
+    from imulink.core.counts import DEFAULT_PROFILE
     from imulink.monitor.sources import LiveSource
 
     calibration = Calibration(DEFAULT_PROFILE, {
@@ -420,7 +420,7 @@ def test_screenshot_from_the_command_line(qt, tmp_path, eskf_recording, capsys):
 def test_board_view_turns_the_board_by_the_estimate(qt):
     """The board's rotation from the Euler angles the window shows is the estimate's own
     (the sensor-to-earth rotation of the quaternion they came from)."""
-    from imulink.analysis import quat_to_euler
+    from imulink.analysis.attitude import quat_to_euler
     from imulink.monitor import board3d
     from imulink.sim import quat
 

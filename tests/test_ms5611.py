@@ -1,5 +1,5 @@
 """The MS5611 barometer driver (firmware/drivers/ms5611.c) against its data sheet and the
-command-level chip model (imulink.chips.ms5611).
+command-level chip model (imulink.board.chips.ms5611).
 
 (a) the compensation: the data sheet's worked example, and the C driver against the
     model's independently written algorithm over the whole input range, second order
@@ -16,10 +16,10 @@ import random
 from pathlib import Path
 
 import pytest
-from cffi_module import build
 
-from imulink.chips import STATUS_CODES, I2CBus
-from imulink.chips import ms5611 as model
+from cffi_module import build
+from imulink.board.chips import STATUS_CODES, I2CBus
+from imulink.board.chips import ms5611 as model
 
 ROOT = Path(__file__).resolve().parents[1]
 DRIVERS = ROOT / "firmware" / "drivers"

@@ -15,10 +15,11 @@ import numpy as np
 import pytest
 
 from imulink import core, hil, protocol
+from imulink.board.emulator import EmulatedBoard
+from imulink.board.link import Link
 from imulink.cli import main
-from imulink.emulator import EmulatedBoard
-from imulink.link import Link
-from imulink.recording import load_recording
+from imulink.hil import injection
+from imulink.io.recording import load_recording
 from imulink.sim import navigation as nv
 from imulink.sim import simulate
 
@@ -162,9 +163,9 @@ def test_injection_into_nav_compares_its_nav_state_too(board):
              "baro_bias_mm": 0, "var_mantissa": [1] * 16, "var_exponent": [0] * 16, "since_fix": 0, "rejected": 0,
              "zero_velocity": 0, "resets": 0, "fades": 0}
     changed = {**state, "zero_velocity": 1}
-    assert hil._first_different_nav_field(state, dict(state)) is None
-    assert hil._first_different_nav_field(changed, state) == "nav_state.zero_velocity"
-    assert hil._first_different_nav_field({**state, "fades": 2}, state) == "nav_state.fades"
+    assert injection._first_different_nav_field(state, dict(state)) is None
+    assert injection._first_different_nav_field(changed, state) == "nav_state.zero_velocity"
+    assert injection._first_different_nav_field({**state, "fades": 2}, state) == "nav_state.fades"
 
 
 def test_position_fix_refusals(link):
@@ -200,7 +201,7 @@ def test_a_tuned_board_is_bit_exact_with_the_host(tmp_path):
     """The tuning settings reach the board's filter and the host's replica alike: a cold
     receiver on a board whose reset time is 5 s resets sooner, with fewer fixes rejected,
     than with the default 15 s, bit for bit with the host."""
-    from imulink.settings_file import FilterSettings
+    from imulink.io.settings_file import FilterSettings
 
     duration_s = 30.0
     traj = nv.car_drive(duration_s, RATE, seed=5)

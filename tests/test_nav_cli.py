@@ -10,8 +10,9 @@ import math
 import numpy as np
 import pytest
 
-from imulink import nav, nav_input
+from imulink.analysis import nav
 from imulink.cli import main
+from imulink.io import nav_input
 from imulink.sim import navigation as nv
 from imulink.sim import simulate
 from test_navkf import nav_cli  # the `imulink nav` runner the offline tests share
@@ -149,7 +150,7 @@ def test_help_lists_every_input_column_with_its_unit(capsys):
 def test_settings_tune_the_filter(walk, tmp_path, capsys):
     """--set NAME=VALUE reaches the filter (a tighter rest bound: fewer zero-velocity updates)
     and is echoed in the report; a settings file of the nav filter is read, --set after it."""
-    from imulink import settings_file
+    from imulink.io import settings_file
 
     _, no_fix, _, start, _ = walk
     counts = {}
@@ -185,7 +186,7 @@ def test_bad_settings_are_one_line(walk, tmp_path, capsys, argv, message):
 
 
 def test_another_filters_settings_file_is_refused(walk, tmp_path, capsys):
-    from imulink import settings_file
+    from imulink.io import settings_file
 
     _, no_fix, _, start, _ = walk
     saved = tmp_path / "eskf.json"

@@ -1,12 +1,12 @@
-"""The navigation CSV (imulink.nav_input): a simulated drive written and read back, and
+"""The navigation CSV (imulink.io.nav_input): a simulated drive written and read back, and
 every kind of bad input refused in one line naming the line."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from imulink import nav_input
-from imulink.sensor_input import InputError
+from imulink.io import nav_input
+from imulink.io.sensor_input import InputError
 from imulink.sim import navigation as nv
 from imulink.sim import simulate
 

@@ -11,8 +11,8 @@ import math
 import numpy as np
 import pytest
 
-from imulink import nav
-from imulink.nav_input import simulated_input
+from imulink.analysis import nav
+from imulink.io.nav_input import simulated_input
 from imulink.sim import navigation as nv
 from imulink.sim import simulate
 from imulink.sim.sensors import rotated_field
@@ -148,7 +148,7 @@ def test_clipped_heel_strikes_do_not_lift_a_foot_walk(arithmetic):
     clips at the accelerometer's +-8 g: the clipped samples' velocity uncertainty lets the
     zero-velocity update after each strike take back the height the lost force moved (3.9 m
     off without it, after 5 min). acc_range set beyond the clipping shows the difference."""
-    from imulink.sim import nav_scenarios as ns
+    from imulink.analysis import nav_scenarios as ns
 
     scenario = ns.build("foot_rough", 1)
     assert scenario.events["acc_clipped"] > 100
@@ -164,7 +164,7 @@ def test_a_bias_step_while_cruising_does_not_turn_the_heading(seed):
     2: no velocity shows the heading then; before the magnetometer at speed, 2.69 deg RMSE and
     17 deg after the step) and on y (seed 3: the fading freed the attitude, and the velocity's
     tilt signal turned the heading 15 deg): every target of the scenario met in both builds."""
-    from imulink.sim import nav_scenarios as ns
+    from imulink.analysis import nav_scenarios as ns
 
     scenario = ns.build("car_rough", seed)
     for arithmetic in ("fixed", "float"):

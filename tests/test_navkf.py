@@ -1,5 +1,5 @@
 """The `nav` filter (firmware/core/imu_navkf.c) against the navigation simulator, in both
-builds through imulink.nav (cffi): a car drive with the MPU6050 data sheet's noise and
+builds through imulink.analysis.nav (cffi): a car drive with the MPU6050 data sheet's noise and
 turn-on biases and a 1 Hz receiver (issue 16's numbers), GNSS outages, a multipath jump,
 a receiver's latency, a foot-mounted walk with zero-velocity updates and no GNSS, a
 handheld walk with a marker each minute; the fixed build against the float twin; and the
@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from imulink import nav
-from imulink.nav_input import simulated_input
-from imulink.sensor_input import InputError
+from imulink.analysis import nav
+from imulink.io.nav_input import simulated_input
+from imulink.io.sensor_input import InputError
 from imulink.sim import navigation as nv
 from imulink.sim import simulate
 
@@ -326,7 +326,7 @@ def test_the_core_is_clean_under_the_sanitizers(drivers, scenario):
         reference = nav.run(inp, build)
         assert len(rows) == len(reference) - 1
         # the driver prints a sample's state before the fix or barometer sample that follows
-        # it, imulink.nav after
+        # it, imulink.analysis.nav after
         same = ~np.isin(np.arange(1, len(reference)), np.r_[inp.fix_index, inp.baro_index])
         np.testing.assert_allclose(rows[same, 3:6], reference.vel_enu[1:][same], atol=1e-6)
         d = nv.local_offsets(rows[same, 0], rows[same, 1], rows[same, 2], reference.lat_deg[1:][same],
@@ -347,7 +347,7 @@ def nav_cli(capsys, *argv):
 @pytest.fixture(scope="module")
 def drive_csv(tmp_path_factory):
     """Two minutes of the car drive as a navigation CSV, with the truth (ignored by readers)."""
-    from imulink.nav_input import write_nav_csv
+    from imulink.io.nav_input import write_nav_csv
 
     traj = nv.car_drive(120.0, RATE, seed=2)
     imu = simulate(traj, sensors(), seed=2)

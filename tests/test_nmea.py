@@ -8,6 +8,7 @@ from functools import reduce
 from pathlib import Path
 
 import pytest
+
 from cffi_module import build
 
 ROOT = Path(__file__).resolve().parents[1]

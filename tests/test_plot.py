@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from imulink import hil
+from imulink.board.emulator import EmulatedBoard
+from imulink.board.proxy import FaultConfig
 from imulink.cli import main
-from imulink.emulator import EmulatedBoard
-from imulink.proxy import FaultConfig
-from imulink.recording import load_recording, sample_times
+from imulink.io.recording import load_recording, sample_times
 
 pytest.importorskip("matplotlib", reason="the plot extra (matplotlib) is not installed")
 

@@ -1,4 +1,4 @@
-"""`imulink ports` (imulink.ports): the listing from pyserial's comports(), the adapter
+"""`imulink ports` (imulink.board.ports): the listing from pyserial's comports(), the adapter
 guesses, the table, and probing: an emulated board on a pty answers, a pty nobody
 reads stays silent and must be reported within the bound, a port in use is busy.
 """
@@ -13,8 +13,8 @@ import serial
 from serial.tools import list_ports as serial_ports
 from serial.tools.list_ports_common import ListPortInfo
 
-from imulink import ports
-from imulink.emulator import EmulatedBoard
+from imulink.board import ports
+from imulink.board.emulator import EmulatedBoard
 
 
 def fake_port(device: str, vid=None, pid=None, serial_number=None, description="n/a") -> ListPortInfo:

@@ -27,8 +27,8 @@ from cobs import cobs
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from imulink import _protocol_schema as schema
 from imulink import protocol
+from imulink.protocol import _schema as schema
 
 ROOT = Path(__file__).resolve().parents[1]
 GENERATOR = ROOT / "tools" / "gen_protocol.py"
@@ -592,11 +592,11 @@ def test_check_names_every_stale_file(project_copy):
         '{ name = "battery_mv", type = "u16", doc = "supply voltage" },\n    { name = "injection_mode", type = "u8",'))
     proc = _run_generator("--check", "--root", project_copy)
     assert proc.returncode == 1
-    for name in ("imu_proto.h", "imu_proto.c", "_protocol_schema.py", "protocol.md"):
+    for name in ("imu_proto.h", "imu_proto.c", "_schema.py", "protocol.md"):
         assert name in proc.stderr, proc.stderr
     assert _run_generator("--root", project_copy).returncode == 0
     assert _run_generator("--check", "--root", project_copy).returncode == 0
-    assert "battery_mv" in (project_copy / "host" / "imulink" / "_protocol_schema.py").read_text()
+    assert "battery_mv" in (project_copy / "host" / "imulink" / "protocol" / "_schema.py").read_text()
 
 
 def test_a_hand_edit_of_a_generated_file_is_stale(project_copy):

@@ -21,10 +21,21 @@ from cobs import cobs
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from imulink import _core_fixed, _core_float, core, protocol
-from imulink import _protocol_schema as schema
-from test_protocol import (ARGS, DAMAGE, FIELDS, HYPOTHESIS, MESSAGE_NAMES, damage_stream, number_frames,
-                           random_damaged_stream, random_fields)
+from imulink import core, protocol
+from imulink.core import _fixed as _core_fixed
+from imulink.core import _float as _core_float
+from imulink.protocol import _schema as schema
+from test_protocol import (
+    ARGS,
+    DAMAGE,
+    FIELDS,
+    HYPOTHESIS,
+    MESSAGE_NAMES,
+    damage_stream,
+    number_frames,
+    random_damaged_stream,
+    random_fields,
+)
 
 ffi, lib = _core_fixed.ffi, _core_fixed.lib
 

@@ -15,20 +15,18 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from imulink import core, hil, sim
+from imulink.board.emulator import EmulatedBoard
+from imulink.board.link import Link
 from imulink.cli import main
-from imulink.counts import BROAD_PROFILE, DEFAULT_PROFILE, si_to_counts
-from imulink.emulator import EmulatedBoard
-from imulink.link import Link
-from imulink.recording import load_recording
+from imulink.core.counts import BROAD_PROFILE, DEFAULT_PROFILE, si_to_counts
+from imulink.io.recording import load_recording
 
-BROAD = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "broad"
-BROAD_TRIAL = BROAD / "25_disturbed_tapping_B.mat"  # taps up to 155 m/s^2: the +-16 g profile's reason to exist
+BROAD_TRIAL = "25_disturbed_tapping_B.mat"  # taps up to 155 m/s^2: the +-16 g profile's reason to exist
 PROFILES = {"gy86-default": DEFAULT_PROFILE, "gy86-broad": BROAD_PROFILE}
 
 
@@ -68,10 +66,9 @@ def test_injected_simulated_run_is_bit_exact(qemu_board, filter_name):
     assert result.bit_exact, result.first_difference
 
 
-@pytest.mark.skipif(not BROAD_TRIAL.is_file(), reason="BROAD data not present beside the repository")
 @pytest.mark.parametrize("filter_name", list(core.FILTERS))
-def test_injected_broad_trial_is_bit_exact(filter_name):
-    trial = hil.load_injection_input(str(BROAD_TRIAL))
+def test_injected_broad_trial_is_bit_exact(broad_dir, filter_name):
+    trial = hil.load_injection_input(str(broad_dir / BROAD_TRIAL))
     n = 3000  # 10.5 s of the trial: injection into QEMU runs at a few hundred samples/s
     source = hil.InjectionInput(trial.description, trial.gyr[:n], trial.acc[:n], trial.mag[:n], trial.rate_hz,
                                 trial.profile)

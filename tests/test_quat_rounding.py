@@ -15,7 +15,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from imulink import _core_fixed, _core_float
+from imulink.core import _fixed as _core_fixed
+from imulink.core import _float as _core_float
 
 Q30 = 2.0**30
 #: The old drift per step and axis, rad (one Q31 LSB of half angle, doubled).

@@ -1,4 +1,4 @@
-"""Recording files (imulink.recording): the record format, crash-safe reading, decoding.
+"""Recording files (imulink.io.recording): the record format, crash-safe reading, decoding.
 
 The writer's records read back exactly; a tail cut anywhere (or zero-filled, as a crash
 may leave it) is ignored and everything before it kept; damage anywhere else (a flipped
@@ -22,10 +22,10 @@ import numpy as np
 import pytest
 
 from imulink import core, protocol
-from imulink.reference import FirmwareFilter
-from imulink.counts import BROAD_PROFILE, DEFAULT_PROFILE, fixed_scales
-from imulink import recording as recording_module
-from imulink.recording import (
+from imulink.core.counts import BROAD_PROFILE, DEFAULT_PROFILE, fixed_scales
+from imulink.hil.replica import FirmwareFilter
+from imulink.io import recording as recording_module
+from imulink.io.recording import (
     KIND_EVENT,
     KIND_HEADER,
     KIND_RECEIVED,
@@ -48,7 +48,9 @@ def _setting_frames(seq: int = 0) -> bytes:
     """SETTING frames for every eecf setting, as a board answers GET_SETTING."""
     fields = core.settings_fields("eecf")
     return b"".join(protocol.encode("SETTING", seq + i, filter_id=1, index=i, setting_count=len(fields),
-                                    value=SETTINGS[f.name], frac_bits=f.frac_bits, name=f.name, unit=f.unit, min=core.to_fixed(f.minimum, f.frac_bits), max=core.to_fixed(f.maximum, f.frac_bits))
+                                    value=SETTINGS[f.name], frac_bits=f.frac_bits, name=f.name, unit=f.unit,
+                                    min=core.to_fixed(f.minimum, f.frac_bits),
+                                    max=core.to_fixed(f.maximum, f.frac_bits))
                     for i, f in enumerate(fields))
 
 

@@ -6,10 +6,11 @@ import json
 
 import pytest
 
-from imulink import core, hil, settings_file
+from imulink import core, hil
+from imulink.board.emulator import EmulatedBoard
+from imulink.board.link import Link
 from imulink.cli import main
-from imulink.emulator import EmulatedBoard
-from imulink.link import Link
+from imulink.io import settings_file
 
 
 @pytest.fixture

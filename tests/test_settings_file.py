@@ -1,4 +1,4 @@
-"""Settings files (imulink.settings_file): written by `imulink allan --settings F --write`,
+"""Settings files (imulink.io.settings_file): written by `imulink allan --settings F --write`,
 taken by core.run, `imulink record`, `inject` and `emulate` (--settings FILE)."""
 from __future__ import annotations
 
@@ -9,11 +9,12 @@ import sys
 import numpy as np
 import pytest
 
-from imulink import core, hil, settings_file, sim
+from imulink import core, hil, sim
+from imulink.board.emulator import EmulatedBoard
+from imulink.board.link import Link
 from imulink.cli import main
-from imulink.emulator import EmulatedBoard
-from imulink.link import Link
-from imulink.recording import load_recording
+from imulink.io import settings_file
+from imulink.io.recording import load_recording
 
 ESKF = settings_file.FilterSettings("eskf", {"gyro_arw": 0.00095, "gyro_rrw": 4.5e-05, "acc_noise": 0.5})
 
@@ -34,7 +35,8 @@ def test_round_trip_and_what_is_refused(tmp_path):
     assert data["filter"] == "eskf" and data["units"]["gyro_arw"] == "rad/s^0.5"
     assert settings_file.load(path) == ESKF
     bad = {"format": "imulink-settings", "format_version": 1, "filter": "eskf"}
-    for settings, fragment in (({"gyro_arw": 0.495}, "out of range"), ({"gyro_arw": 1.0}, "does not fit"), ({"kp": 1.0}, "unknown setting 'kp'"),
+    for settings, fragment in (({"gyro_arw": 0.495}, "out of range"), ({"gyro_arw": 1.0}, "does not fit"),
+                               ({"kp": 1.0}, "unknown setting 'kp'"),
                                ({"sample_rate": 100.0}, "sample_rate is not a setting"),
                                ({"acc_noise": "0.3"}, "not a finite number")):
         path.write_text(json.dumps({**bad, "settings": settings}))

@@ -6,7 +6,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from imulink import sim
-from imulink.counts import DEFAULT_PROFILE, STANDARD_GRAVITY
+from imulink.core.counts import DEFAULT_PROFILE, STANDARD_GRAVITY
 from imulink.sim import quat as Q
 from imulink.sim.sensors import AccModel, GyroModel, MagModel, SensorSuite
 

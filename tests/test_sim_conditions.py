@@ -1,7 +1,7 @@
 """The simulator's rough conditions (imulink.sim.sensors: vibration, bias steps, shocks,
 magnetic disturbances; imulink.sim.navigation: GNSS outliers, velocity blunders,
 multipath episodes, cold start, stairs) each do what they say, a run without them is bit
-for bit what it was before they existed, and the scenario suite (imulink.sim.nav_scenarios)
+for bit what it was before they existed, and the scenario suite (imulink.analysis.nav_scenarios)
 measures what it says. No number of the nav filter is asserted here: the filter changes."""
 from __future__ import annotations
 
@@ -12,12 +12,21 @@ import numpy as np
 import pytest
 
 from imulink import sim
-from imulink.counts import DEFAULT_PROFILE
-from imulink.sim import nav_scenarios as ns
+from imulink.analysis import nav_scenarios as ns
+from imulink.core.counts import DEFAULT_PROFILE
 from imulink.sim import navigation as nv
 from imulink.sim import quat as Q
-from imulink.sim.sensors import (AccModel, GyroModel, MagModel, SensorSuite, Shock, Vibration, extra_field,
-                                 norm_change, rotated_field)
+from imulink.sim.sensors import (
+    AccModel,
+    GyroModel,
+    MagModel,
+    SensorSuite,
+    Shock,
+    Vibration,
+    extra_field,
+    norm_change,
+    rotated_field,
+)
 
 
 def digest(*arrays, scale=None) -> str:
@@ -312,7 +321,7 @@ def truth_result(scenario: ns.Scenario):
     filter counts, zero)."""
     import dataclasses
 
-    from imulink.nav import STATES, NavResult
+    from imulink.analysis.nav import STATES, NavResult
 
     traj, inp = scenario.traj, scenario.inp
     given = dict(start=0, timestamp_us=inp.timestamp_us, lat_deg=traj.lat_deg, lon_deg=traj.lon_deg,

@@ -1,4 +1,4 @@
-"""The STM32F405/407 bootloader model (imulink.chips.stm32_bootloader) against AN3155.
+"""The STM32F405/407 bootloader model (imulink.board.chips.stm32_bootloader) against AN3155.
 
 The expected bytes are written out from AN3155's command descriptions (Rev 20, section
 numbers in the docstrings): what the host sends and what the chip answers, checksums
@@ -21,7 +21,7 @@ from functools import reduce
 import pytest
 import serial
 
-from imulink.chips.stm32_bootloader import BootloaderPort, LogEntry, Stm32Bootloader
+from imulink.board.chips.stm32_bootloader import BootloaderPort, LogEntry, Stm32Bootloader
 
 A = b"\x79"  # ACK
 N = b"\x1f"  # NACK

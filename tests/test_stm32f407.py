@@ -11,7 +11,7 @@
     error), injection is bit-exact with the host fixed-point build for every filter,
     RESET restarts it, ENTER_BOOTLOADER restarts it through the system-memory jump.
 (c) The I2C code against a register-level model of the STM32F4 I2C peripheral (RM0090
-    section 27) with the GY-86 chip models (imulink.chips) behind it, in the unicorn
+    section 27) with the GY-86 chip models (imulink.board.chips) behind it, in the unicorn
     emulator: the GY-86 bring-up and reads over the real board code, every receive length's
     ending, NACKs, timeouts, bus errors, recovery and the start-up bus clear.
 
@@ -32,11 +32,11 @@ from pathlib import Path
 import pytest
 
 from imulink import core, protocol
-from imulink.chips import HMC5883L, MPU6050, MS5611, STATUS_CODES, I2CBus, RegisterDevice
-from imulink.counts import DEFAULT_PROFILE
+from imulink.board.chips import HMC5883L, MPU6050, MS5611, STATUS_CODES, I2CBus, RegisterDevice
+from imulink.board.link import Link, LinkError
+from imulink.core.counts import DEFAULT_PROFILE
 from imulink.hil import load_injection_input
-from imulink.link import Link, LinkError
-from imulink.reference import FirmwareFilter
+from imulink.hil.replica import FirmwareFilter
 
 ROOT = Path(__file__).resolve().parents[1]
 FIRMWARE = ROOT / "firmware"
@@ -365,7 +365,7 @@ SCL, SDA = 8, 9
 
 class I2CPeripheral:
     """STM32F4 I2C1 in master mode (RM0090 section 27), at the level of its registers and of
-    whole bytes on the bus, in front of an imulink.chips.I2CBus.
+    whole bytes on the bus, in front of an imulink.board.chips.I2CBus.
 
     Modelled from the reference manual: START -> SB (+MSL, BUSY), SB cleared by an SR1 read
     then a DR write (the address byte); address ACK -> ADDR (TRA = write) or NACK -> AF;

@@ -1,10 +1,10 @@
-"""Flashing over SWD (imulink.swd) without a probe: both backends against stand-ins.
+"""Flashing over SWD (imulink.board.flash.swd) without a probe: both backends against stand-ins.
 
 - OpenOCD: a fake `openocd` script first on the PATH. It checks its arguments as the real
   one would use them, copies the HEX file it is told to program to a file the test reads,
   prints OpenOCD's phase banners, and on request fails with OpenOCD's own error texts
   (src/jtag/drivers/stlink_usb.c, src/target/target.c, src/flash/startup.tcl).
-- pyOCD: fake `pyocd` modules in sys.modules with the few names imulink.swd uses
+- pyOCD: fake `pyocd` modules in sys.modules with the few names imulink.board.flash.swd uses
   (ConnectHelper, MemoryLoader, the exceptions) around a target whose flash is a
   bytearray, so that programming, verifying, resetting, dry runs and a verify mismatch
   all run. pyOCD itself is an optional dependency and is not needed here.
@@ -21,9 +21,9 @@ from types import SimpleNamespace
 
 import pytest
 
-from imulink import swd
-from imulink.firmware_image import FirmwareImage, Segment, load_image
-from imulink.swd import SwdError, flash_swd
+from imulink.board.flash import swd
+from imulink.board.flash.swd import SwdError, flash_swd
+from imulink.io.firmware_image import FirmwareImage, Segment, load_image
 
 FLASH_BASE, FLASH_SIZE = 0x0800_0000, 1 << 20
 
@@ -313,7 +313,7 @@ class FakeTarget:
 
 
 def make_fake_pyocd(world: SimpleNamespace) -> dict[str, types.ModuleType]:
-    """The modules `pyocd...` that imulink.swd imports, acting on `world`."""
+    """The modules `pyocd...` that imulink.board.flash.swd imports, acting on `world`."""
     exceptions = types.ModuleType("pyocd.core.exceptions")
 
     class Error(RuntimeError):

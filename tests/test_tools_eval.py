@@ -13,7 +13,6 @@ from imulink import sim
 from imulink.sim import quat as Q
 
 TOOLS = Path(__file__).resolve().parents[1] / "tools"
-BROAD = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "broad"
 
 
 def _load(name):
@@ -251,9 +250,8 @@ def test_vqf_reference_column(tmp_path, capsys):
     assert ("ESKF fixed beats VQF's mean" if row["beats"] else "ESKF fixed does NOT beat VQF's mean") in markdown
 
 
-@pytest.mark.skipif(not BROAD.is_dir(), reason="BROAD data not present beside the repository")
 @pytest.mark.skipif(not _has_vqf(), reason="vqf not installed (pip install 'imulink[bench]')")
-def test_vqf_on_a_broad_trial():
-    trial = eval_broad.load_trial(BROAD / "02_undisturbed_slow_rotation_B.mat")
+def test_vqf_on_a_broad_trial(broad_dir):
+    trial = eval_broad.load_trial(broad_dir / "02_undisturbed_slow_rotation_B.mat")
     err = eval_broad.broad_errors(eval_broad.run_vqf(trial), trial.quat_ref, trial.movement)
     assert err["total"] < 3.0  # VQF's published accuracy class (1.4 deg here)

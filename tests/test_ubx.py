@@ -8,6 +8,7 @@ import struct
 from pathlib import Path
 
 import pytest
+
 from cffi_module import build
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -67,7 +68,8 @@ def random_pvt(rng: random.Random) -> dict:
             values[name] = bytes(4)
         else:
             size = struct.calcsize(fmt)
-            low, high = (-(1 << (8 * size - 1)), (1 << (8 * size - 1)) - 1) if fmt.islower() else (0, (1 << (8 * size)) - 1)
+            signed = (-(1 << (8 * size - 1)), (1 << (8 * size - 1)) - 1)
+            low, high = signed if fmt.islower() else (0, (1 << (8 * size)) - 1)
             values[name] = rng.randint(low, high)
     values["fix_type"] = rng.randrange(6)
     return values

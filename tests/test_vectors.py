@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from imulink import _core_fixed, core
+from imulink import core
+from imulink.core import _fixed as _core_fixed
 
 ROOT = Path(__file__).resolve().parents[1]
 VECTOR_DIR = ROOT / "shared" / "vectors"

@@ -22,7 +22,7 @@ saturation count) and a pass/fail against ``--limit`` (default 0.05 deg).
 With ``--static SEEDS`` it instead runs the static check: for each seed a
 ``make_scenario("static", 120, 100, seed)`` recording through the fixed build, and
 the roll / pitch / heading errors against the truth after t = 10 s (Euler angles
-in the core's convention, :func:`imulink.analysis.quat_to_euler`): their standard
+in the core's convention, :func:`imulink.analysis.attitude.quat_to_euler`): their standard
 deviation and maximum absolute value, degrees.
 
 Examples::
@@ -206,7 +206,7 @@ def static_errors(filter_name: str, seed: int, settings: dict | None = None, ari
                   duration_s: float = 120.0, skip_s: float = 10.0) -> dict:
     """Roll/pitch/heading errors (deg) of a filter on a simulated static recording, after `skip_s`."""
     from imulink import core, sim
-    from imulink.analysis import quat_to_euler, wrap_deg
+    from imulink.analysis.attitude import quat_to_euler, wrap_deg
 
     data = sim.make_scenario("static", duration_s, 100, seed)
     out = core.run(filter_name, data.gyr, data.acc, data.mag, rate_hz=data.rate_hz, arithmetic=arithmetic,
@@ -327,7 +327,8 @@ def main(argv=None) -> int:
                   f"| {r['t_max_s']:.1f} | {r['saturations_fixed']} |")
     else:
         print(f"fixed vs float, random motion {args.duration:g} s @ {args.rate:g} Hz")
-        print(f"{'filter':8s} {'seed':>4s} {'max deg':>9s} {'p99 deg':>9s} {'mean deg':>9s} {'t(max) s':>9s} {'sat fix':>8s}")
+        print(f"{'filter':8s} {'seed':>4s} {'max deg':>9s} {'p99 deg':>9s} {'mean deg':>9s} {'t(max) s':>9s} "
+              f"{'sat fix':>8s}")
         for f, seed, r in rows:
             print(f"{f:8s} {seed:4d} {r['max_deg']:9.4f} {r['p99_deg']:9.4f} {r['mean_deg']:9.5f} "
                   f"{r['t_max_s']:9.1f} {r['saturations_fixed']:8d}")

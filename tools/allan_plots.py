@@ -23,13 +23,15 @@ from pathlib import Path
 
 import numpy as np
 
-from imulink import allan, hil, plotting
-from imulink.emulator import EmulatedBoard
+from imulink import hil
+from imulink.analysis import allan, plotting
+from imulink.board.emulator import EmulatedBoard
+from imulink.io.broad import data_dir as broad_data_dir
 from imulink.sim import AccModel, GyroModel
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
 DOCS = REPO_ROOT / "docs"
-BROAD = REPO_ROOT / ".." / "shared" / "data" / "broad"
+BROAD = broad_data_dir()
 DEG = 180.0 / math.pi
 
 
@@ -96,7 +98,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--hours", type=float, default=2.0, help="length of the simulated run (default: 2)")
     parser.add_argument("--rate", type=float, default=100.0, help="its sample rate, Hz (default: 100)")
     parser.add_argument("--trial", default="02_undisturbed_slow_rotation_B", help="the BROAD trial")
-    parser.add_argument("--broad", type=Path, default=BROAD, help="the BROAD directory (default: ../shared/data/broad)")
+    parser.add_argument("--broad", type=Path, default=BROAD,
+                        help="the BROAD directory (default: $IMULINK_BROAD_DIR, else shared/data/broad beside the "
+                             "repository)")
     args = parser.parse_args(argv)
     plotting.check_plotting()
     simulated(args.hours, args.rate)

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Time and memory of the Allan analysis (imulink.allan.analyse) on a long static record.
+"""Time and memory of the Allan analysis (imulink.analysis.allan.analyse) on a long static record.
 
 Not a test (timings on shared machines are noisy): run it and read the numbers. The
 input is white noise on three gyroscope axes (no accelerometer: the same work again),
@@ -23,7 +23,7 @@ import tracemalloc
 
 import numpy as np
 
-from imulink import allan
+from imulink.analysis import allan
 
 
 def main(argv: list[str] | None = None) -> int:

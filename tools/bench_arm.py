@@ -69,9 +69,8 @@ from cobs import cobs
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import arm_cycles  # noqa: E402  (tools/arm_cycles.py)
-
 from imulink import core, protocol, sim
-from imulink.counts import DEFAULT_PROFILE
+from imulink.core.counts import DEFAULT_PROFILE
 
 try:
     import unicorn

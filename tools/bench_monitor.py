@@ -48,7 +48,7 @@ def main() -> int:
     args = parser.parse_args()
     os.environ["XDG_CONFIG_HOME"] = tempfile.mkdtemp(prefix="imulink-bench-")  # the default layout
 
-    from imulink.emulator import EmulatedBoard
+    from imulink.board.emulator import EmulatedBoard
     from imulink.monitor.qt import QtWidgets
     from imulink.monitor.sources import LiveSource
     from imulink.monitor.window import FRAME_HZ, SPANS_S, MonitorWindow

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Accuracy and Cortex-M4 cost of the `nav` filter (issue 16; firmware/core/imu_navkf.c).
 
-Accuracy: the filter through imulink.nav (the C core via cffi), fixed point and float twin,
+Accuracy: the filter through imulink.analysis.nav (the C core via cffi), fixed point and float twin,
 on the navigation simulator's scenarios with the MPU6050 data sheet's noise and turn-on
 biases (`imulink.sim.navigation.datasheet_sensors`), seed 0, 100 Hz:
 
@@ -26,10 +26,10 @@ drive with its barometer: instructions per IMU step (imu_navkf_step; every fifth
 also propagates the covariance), per GNSS fix (imu_navkf_fix) and per barometer sample
 (imu_navkf_baro: an update once a second), the deepest stack, sizeof(imu_navkf_t).
 After every sample the position, velocity and attitude are read back and compared with
-the x86 fixed build (imulink.nav): the benchmark fails at the first difference.
+the x86 fixed build (imulink.analysis.nav): the benchmark fails at the first difference.
 
 Rough conditions (`--rough`, instead of the accuracy scenarios above): every scenario of
-imulink.sim.nav_scenarios (engine vibration, GNSS outliers and multipath, a gyro bias
+imulink.analysis.nav_scenarios (engine vibration, GNSS outliers and multipath, a gyro bias
 step, a magnetic disturbance, an indoor outage, a cold start, a velocity blunder, heel
 strikes that clip and stairs) over seeds 0..N-1 (`--seeds`, default 3), both builds; one
 table per scenario: each metric's worst seed (not the best) in each build, beside the
@@ -61,9 +61,9 @@ sys.path.insert(0, str(ROOT / "tools"))
 sys.path.insert(0, str(ROOT / "host"))
 
 import bench_arm  # noqa: E402
-from imulink import nav  # noqa: E402
-from imulink.nav_input import simulated_input  # noqa: E402
-from imulink.sim import nav_scenarios as ns  # noqa: E402
+from imulink.analysis import nav  # noqa: E402
+from imulink.analysis import nav_scenarios as ns  # noqa: E402
+from imulink.io.nav_input import simulated_input  # noqa: E402
 from imulink.sim import navigation as nv  # noqa: E402
 from imulink.sim import simulate  # noqa: E402
 
@@ -456,7 +456,7 @@ def main() -> int:
     parser.add_argument("--no-arm", action="store_true", help="skip the Cortex-M4 cost")
     parser.add_argument("--json", action="store_true", help="print the results as JSON")
     parser.add_argument("--rough", action="store_true",
-                        help="the rough scenarios (imulink.sim.nav_scenarios) instead of the accuracy ones")
+                        help="the rough scenarios (imulink.analysis.nav_scenarios) instead of the accuracy ones")
     parser.add_argument("--seeds", type=int, default=3, help="with --rough: seeds 0..N-1 of each scenario (default 3)")
     parser.add_argument("--case-timeout", type=float, default=300.0,
                         help="with --rough: seconds a scenario and seed may take before it counts as failed "

@@ -2,7 +2,7 @@
 """The `nav` filter's heading through magnetic disturbances while a car drives
 (docs/navigation.md, "The magnetometer at speed").
 
-Each case is car_rough's drive (imulink.sim.nav_scenarios: 12 min, engine vibration, GNSS at
+Each case is car_rough's drive (imulink.analysis.nav_scenarios: 12 min, engine vibration, GNSS at
 1 Hz with its outliers and a multipath episode) with four 30 s field disturbances, at 150,
 300, 500 and 620 s, instead of its gyro bias step (or beside a 0.5 deg/s step on z at 6 min,
 where the case says so):
@@ -29,9 +29,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "host"))
 
-from imulink import nav  # noqa: E402
-from imulink.nav_input import simulated_input  # noqa: E402
-from imulink.sim import nav_scenarios as ns  # noqa: E402
+from imulink.analysis import nav  # noqa: E402
+from imulink.analysis import nav_scenarios as ns  # noqa: E402
+from imulink.io.nav_input import simulated_input  # noqa: E402
 from imulink.sim import navigation as nv  # noqa: E402
 from imulink.sim.sensors import extra_field, rotated_field, simulate  # noqa: E402
 
@@ -53,7 +53,8 @@ def heading_rmse_deg(kind: str, size: float, bias_step: bool, seed: int) -> floa
     if kind == "extra":
         sensors.mag.disturbances = [extra_field(s, s + 30.0, size, rng.standard_normal(3)) for s in STARTS_S]
     else:
-        sensors.mag.disturbances = [rotated_field(sensors.mag, s, s + 30.0, declination_change_deg=size * (-1) ** (i + 1))
+        sensors.mag.disturbances = [rotated_field(sensors.mag, s, s + 30.0,
+                                                  declination_change_deg=size * (-1) ** (i + 1))
                                     for i, s in enumerate(STARTS_S)]
     imu = simulate(base.traj, sensors, seed=seed, vibration=ns.CAR_VIBRATION)
     result = nav.run(simulated_input(imu, base.fixes), "fixed")

@@ -28,14 +28,14 @@ import time
 
 import numpy as np
 import pandas as pd
-
 import pyins
 from pyins import filters, inertial_sensor, measurements, transform
 
-from imulink import nav
-from imulink.nav_input import simulated_input
-from imulink.sim import navigation as nv, simulate
+from imulink.analysis import nav
+from imulink.io.nav_input import simulated_input
+from imulink.sim import navigation as nv
 from imulink.sim import quat as Q
+from imulink.sim import simulate
 
 ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
                              formatter_class=argparse.RawDescriptionHelpFormatter, epilog=__doc__)

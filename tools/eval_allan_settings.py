@@ -24,14 +24,15 @@ from pathlib import Path
 
 import numpy as np
 
-from imulink import allan, core, sim
-from imulink.scenarios import euler_errors_deg
+from imulink import core, sim
+from imulink.analysis import allan
+from imulink.analysis.scenarios import euler_errors_deg
+from imulink.io.broad import data_dir as broad_data_dir
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import eval_broad  # noqa: E402 - the BROAD metric of tools/eval_broad.py
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
-BROAD = REPO_ROOT / ".." / "shared" / "data" / "broad"
+BROAD = broad_data_dir()
 RATE_HZ = 100.0
 SETTLE_S = 10.0
 SCENARIOS = ("rests", "random", "static", "turntable")

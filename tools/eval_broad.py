@@ -3,7 +3,7 @@
 
 For every trial (``*.mat`` in ``--data``) and every filter x arithmetic, the filter
 runs on the recorded IMU data through :func:`imulink.core.run` (with
-:data:`imulink.counts.BROAD_PROFILE`, so nothing saturates), and the error against
+:data:`imulink.core.counts.BROAD_PROFILE`, so nothing saturates), and the error against
 the optical reference is computed as the dataset README defines it:
 
 * ``e = q_est ⊗ q_ref⁻¹`` (both w-first, sensor-to-earth, ENU), in the earth frame;
@@ -40,12 +40,12 @@ from pathlib import Path
 
 import numpy as np
 
-from imulink.analysis import attitude_errors, rmse
-from imulink.broad import BroadError, BroadTrial, load_broad
-from imulink.counts import BROAD_PROFILE, si_to_counts
+from imulink.analysis.attitude import attitude_errors, rmse
+from imulink.core.counts import BROAD_PROFILE, si_to_counts
+from imulink.io.broad import BroadError, BroadTrial, load_broad
+from imulink.io.broad import data_dir as broad_data_dir
 
-REPO_ROOT = Path(__file__).resolve().parent.parent
-DEFAULT_DATA = REPO_ROOT / ".." / "shared" / "data" / "broad"
+DEFAULT_DATA = broad_data_dir()
 
 #: Exit code for a missing data directory, missing trial files or a file that is not a trial.
 EXIT_NO_DATA = 2
@@ -62,7 +62,7 @@ ERROR_KINDS = ("total", "heading", "inclination")
 
 
 def load_trial(path) -> BroadTrial:
-    """Load one BROAD trial (:func:`imulink.broad.load_broad`); BroadError when it lacks
+    """Load one BROAD trial (:func:`imulink.io.broad.load_broad`); BroadError when it lacks
     the optical reference or the movement mask the metric needs."""
     trial = load_broad(path)
     if trial.quat_ref is None or trial.movement is None:
@@ -185,7 +185,7 @@ def comparison_lines(results, filters, arithmetics) -> list[str]:
 def run_filter(trial: BroadTrial, filter_name: str, arithmetic: str, settings: dict | None = None):
     """Run one filter on one trial with the BROAD register profile; returns a RunResult."""
     from imulink import core
-    from imulink.counts import BROAD_PROFILE
+    from imulink.core.counts import BROAD_PROFILE
 
     return core.run(filter_name, trial.gyr, trial.acc, trial.mag, rate_hz=trial.rate_hz,
                     arithmetic=arithmetic, profile=BROAD_PROFILE, settings=settings)
@@ -327,8 +327,8 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(
         description="RMSE of the imulink filters on the BROAD subset (the dataset's own metric).")
     p.add_argument("--data", type=Path, default=DEFAULT_DATA,
-                   help="directory with the BROAD .mat files (default: ../shared/data/broad "
-                        "relative to the repository root)")
+                   help="directory with the BROAD .mat files (default: $IMULINK_BROAD_DIR, else "
+                        "shared/data/broad beside the repository)")
     p.add_argument("--filters", default=",".join(core.FILTERS),
                    type=lambda v: csv_choice(v, list(core.FILTERS), "filter"),
                    help=f"comma-separated filters (default: {','.join(core.FILTERS)})")

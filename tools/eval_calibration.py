@@ -23,8 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from imulink import calibration, cli, core, sim
-from imulink.analysis import attitude_errors, rmse
+from imulink import cli, core, sim
+from imulink.analysis.attitude import attitude_errors, rmse
+from imulink.core import calibration as calfmt
+from imulink.io import calibration_file
 from imulink.sim.sensors import AccModel, MagModel, SensorSuite
 
 HARD_IRON_UT = (12.0, -7.0, 20.0)
@@ -63,10 +65,10 @@ def main() -> int:
         if status != 0:
             return status
         report = json.loads(printed.getvalue())["report"]
-        board = calibration.load(output)
+        board = calibration_file.load(output)
 
     # the exact inverse of the distortion, for comparison: what a perfect calibration gives
-    truth = calibration.Calibration(board.profile, {"mag": calibration.SensorCalibration(
+    truth = calfmt.Calibration(board.profile, {"mag": calfmt.SensorCalibration(
         "mag", np.asarray(HARD_IRON_UT) / board.profile.mag_scale, np.linalg.inv(SOFT_IRON))})
     run = sim.simulate(sim.motion_with_rests(args.duration, RATE_HZ, seed=args.seed), suite(), seed=args.seed)
     settle = int(SETTLE_S * RATE_HZ)

@@ -28,7 +28,7 @@ whose errors are far smaller than the filter's prior, and the magnetometer's
 dip-learning phase).
 
 Scenarios (default sensors of the simulator, magnetometer free of disturbances,
-filter settings :data:`imulink.scenarios.SIM_SETTINGS` as ``tools/eval_sim.py`` uses):
+filter settings :data:`imulink.analysis.scenarios.SIM_SETTINGS` as ``tools/eval_sim.py`` uses):
 
 * ``static``: at rest;
 * ``slow``: slow random rotation (:func:`imulink.sim.random_motion` with
@@ -175,7 +175,7 @@ class Config:
 
     def filter_settings(self) -> dict:
         """ESKF settings: SIM_SETTINGS, the --matched noise, --acc-bias, then the overrides."""
-        from imulink import scenarios
+        from imulink.analysis import scenarios
 
         s = dict(scenarios.SIM_SETTINGS["eskf"])
         if self.matched:
@@ -190,7 +190,7 @@ class Config:
 def simulate_run(scenario: str, seed: int, cfg: Config, settings: dict):
     """Simulated readings of one run (:class:`imulink.sim.SimResult`) and the true accelerometer bias (m/s^2)."""
     from imulink import core, sim
-    from imulink.analysis import quat_to_euler
+    from imulink.analysis.attitude import quat_to_euler
     from imulink.sim import quat as Q
 
     if scenario not in SCENARIOS:

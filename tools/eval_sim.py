@@ -6,7 +6,7 @@
 - turntable: heading error while turning at 10 deg/s (seed 000's figure 8);
 - gyro bias: seconds until the bias estimate stays within 0.05 deg/s of the truth.
 
-Settings: imulink.scenarios.SIM_SETTINGS (the simulated sensors' noise).
+Settings: imulink.analysis.scenarios.SIM_SETTINGS (the simulated sensors' noise).
 
     python tools/eval_sim.py [--markdown]
 """
@@ -16,7 +16,8 @@ import argparse
 
 import numpy as np
 
-from imulink import core, scenarios
+from imulink import core
+from imulink.analysis import scenarios
 
 
 def main() -> int:

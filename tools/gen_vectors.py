@@ -31,7 +31,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from imulink import core, sim
-from imulink.counts import BROAD_PROFILE, DEFAULT_PROFILE, SensorProfile
+from imulink.core.counts import BROAD_PROFILE, DEFAULT_PROFILE, SensorProfile
 
 ROOT = Path(__file__).resolve().parents[1]
 VECTOR_DIR = ROOT / "shared" / "vectors"

@@ -2,7 +2,7 @@
 """24 simulated hours of the fixed-point ESKF (8.64 million samples at 100 Hz).
 
 Every hour: motion with rests, saturating taps, free fall, a spin beyond the
-gyroscope's range and a magnetic disturbance (imulink.soak). After each twelfth of
+gyroscope's range and a magnetic disturbance (imulink.analysis.soak). After each twelfth of
 an hour the full covariance is read back: it must stay symmetric and positive
 definite. Prints one line per hour and a summary; exit status 1 if any check fails.
 
@@ -16,7 +16,7 @@ import time
 
 import numpy as np
 
-from imulink import soak
+from imulink.analysis import soak
 
 
 def main() -> int:

@@ -5,7 +5,7 @@ The board is a flat box in its own frame: x to the right (red), y forward (green
 edge the arrow marks), z up out of the top face (blue). Its transform is the
 sensor-to-earth rotation R of the estimate, vertex_earth = R vertex_board, with R from the
 Euler angles in imulink's convention, R = Rz(-heading) Rx(pitch) Ry(roll) (heading
-clockwise from north; imulink.analysis.quat_to_euler is its inverse). The earth axes are
+clockwise from north; imulink.analysis.attitude.quat_to_euler is its inverse). The earth axes are
 fixed: east (x), north (y), up (z).
 
 Where no OpenGL context can be made (Qt's offscreen platform, a remote display without
@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from .qt import QtGui
+from imulink.monitor.qt import QtGui
 
 #: The board's half sizes in its frame (x, y, z), scene units: a GY-86 carrier's 2:3 outline.
 BOARD_HALF_SIZE = (1.0, 1.5, 0.08)
@@ -31,7 +31,7 @@ def opengl_problem() -> str | None:
         import pyqtgraph.opengl  # noqa: F401
     except ImportError as exc:
         return f"no OpenGL bindings ({exc.name}: pip install 'imulink[monitor]')"
-    from .qt import QtWidgets
+    from imulink.monitor.qt import QtWidgets
 
     if QtWidgets.QApplication.platformName() == "offscreen":
         return "Qt's offscreen platform has no OpenGL"

@@ -1,7 +1,7 @@
 """The live bit-exact check of the monitor: the board's estimates against the host build
 of the same C, as they arrive.
 
-It follows the stream as :func:`imulink.recording.load_recording` follows a file: the
+It follows the stream as :func:`imulink.io.recording.load_recording` follows a file: the
 active filter and its raw settings come from the SETTING frames (the board's own
 answers to GET_SETTING) and from the SET_SETTING / SELECT_FILTER commands the monitor
 sent (registered with :meth:`LiveCheck.expect` before their ACK is processed), the
@@ -24,11 +24,12 @@ from itertools import islice
 
 import numpy as np
 
-from .. import core, protocol
-from ..analysis import angle_difference
-from ..calibration import SENSORS, Calibration, CalibrationError, calibration_from_frames
-from ..counts import SensorProfile
-from ..reference import FirmwareFilter
+from imulink import core, protocol
+from imulink.analysis.attitude import angle_difference
+from imulink.core.calibration import SENSORS, Calibration, CalibrationError
+from imulink.core.counts import SensorProfile
+from imulink.hil.replica import FirmwareFilter
+from imulink.protocol.calibration import calibration_from_frames
 
 _RESTARTING_IDS = {protocol.COMMAND_IDS[name] for name in protocol.RESTARTING_COMMANDS}
 _SET_SETTING = protocol.COMMAND_IDS["SET_SETTING"]

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 
-from .qt import QtCore, QtGui, QtWidgets
+from imulink.monitor.qt import QtCore, QtGui, QtWidgets
 
 _SKY, _GROUND = QtGui.QColor(58, 130, 201), QtGui.QColor(132, 94, 56)
 _MARK = QtGui.QColor(255, 204, 0)

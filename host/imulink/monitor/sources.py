@@ -29,14 +29,17 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import core, hil, protocol
-from ..analysis import angle_difference
-from ..counts import DEFAULT_PROFILE, SensorProfile
-from ..files import FileError, check_writable_target, create_beside, publish
-from ..link import DEFAULT_BAUD, Disconnected, Link, LinkError
-from ..recording import RecordingError, RecordingWriter, load_recording, sample_times
-from .check import CheckSummary, LiveCheck
-from .ring import RingBuffer
+from imulink import core, hil, protocol
+from imulink.analysis.attitude import angle_difference
+from imulink.board.emulator import EmulatedBoard
+from imulink.board.link import DEFAULT_BAUD, Link, LinkError
+from imulink.core.counts import DEFAULT_PROFILE, SensorProfile
+from imulink.io.files import FileError, check_writable_target, create_beside, publish
+from imulink.io.recording import RecordingError, RecordingWriter, load_recording, sample_times
+from imulink.io.recording import sample_rows as recorded_sample_rows
+from imulink.monitor.check import CheckSummary, LiveCheck
+from imulink.monitor.ring import RingBuffer
+from imulink.sim.navigation import local_offsets
 
 SAMPLE_COLUMNS = ("t", "gyr_x", "gyr_y", "gyr_z", "acc_x", "acc_y", "acc_z", "mag_x", "mag_y", "mag_z")
 ESTIMATE_COLUMNS = ("t", "roll", "pitch", "heading", "bias_x", "bias_y", "bias_z", "sigma_att_x", "sigma_att_y",
@@ -82,8 +85,6 @@ def nav_rows(times, mode, lat, lon, height_mm, vel, origin: tuple[float, float, 
     """Rows of NAV_COLUMNS from raw NAV_STATE fields ((N,) and (N,3) integer arrays), those
     with a position (mode 2), east and north from `origin` (lat, lon deg, height m; None:
     the first of these). Returns the rows and the origin."""
-    from ..sim.navigation import local_offsets
-
     has = np.asarray(mode) == 2
     if not has.any():
         return np.empty((0, len(NAV_COLUMNS))), origin
@@ -115,7 +116,7 @@ class LiveSource:
 
     The sensor profile is the one the board states in its HELLO; `profile` (None: any) is
     the one expected: a board that states another is refused (shown, and tried again).
-    `emulated`: an :class:`imulink.emulator.EmulatedBoard` the source owns and stops on close.
+    `emulated`: an :class:`imulink.board.emulator.EmulatedBoard` the source owns and stops on close.
     `listen`: show a board another client commands (a fan-out TCP front) without sending
     it anything: its settings and calibration are the frames that pass, the window's board
     controls are refused.
@@ -329,7 +330,8 @@ class LiveSource:
 
     def _note_setting(self, fields: dict) -> None:
         with self._lock:
-            others = [s for s in self._settings if s["filter_id"] == fields["filter_id"] and s["index"] != fields["index"]]
+            others = [s for s in self._settings
+                      if s["filter_id"] == fields["filter_id"] and s["index"] != fields["index"]]
             self._settings = sorted(others + [fields], key=lambda s: s["index"])
 
     def _serve_requests(self) -> None:
@@ -470,7 +472,8 @@ class ReplaySource:
     def _nav_times(self) -> np.ndarray:
         """Each NAV_STATE at its sample's playback time."""
         states = self.recording.nav_states
-        return self._playback_times(states.host_time, hil.sample_rows(self.recording, states.segment, states.index))
+        rows = recorded_sample_rows(self.recording, states.segment, states.index)
+        return self._playback_times(states.host_time, rows)
 
     def now(self) -> float:
         if self.playing:
@@ -507,8 +510,8 @@ class ReplaySource:
                                different=int((c.verified & ~c.identical & shown).sum()),
                                unverifiable=int((~c.verified & shown).sum()),
                                first_difference=str(c.first_difference) if c.first_difference else None,
-                               fixed_float_max_deg=float(np.nanmax(self.estimate_rows[shown, ESTIMATE_COLUMNS.index("fixed_float")],
-                                                                  initial=0.0)))
+                               fixed_float_max_deg=float(np.nanmax(
+                                   self.estimate_rows[shown, ESTIMATE_COLUMNS.index("fixed_float")], initial=0.0)))
         return Health("replay", f"{self.path.name}: {self._position:.1f} of {self.duration:.1f} s at "
                                 f"{self.speed:g}x", counters=rec.counters, hello=rec.hello, status=rec.status,
                       check=summary)
@@ -536,7 +539,6 @@ def open_source(target: str | None, *, emulate: bool = False, baud: int = DEFAUL
     `profile`, default gy86-default), else the board on the port `target` (`profile`: the
     one it must state, None: any)."""
     if emulate:
-        from ..emulator import EmulatedBoard
 
         board = EmulatedBoard(front="tcp", realtime=True, profile=profile or DEFAULT_PROFILE,
                               **(emulation or {})).start()

@@ -15,14 +15,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import core, hil, protocol
-from ..counts import describe_profile
-from ..files import FileError, create_beside
-from .decimate import peaks
-from . import board3d
-from .horizon import HorizonWidget
-from .qt import QtCore, QtGui, QtWidgets, pg
-from .sources import ESTIMATE_COLUMNS, FILTER_NAMES, MAX_SPAN_S, NAV_COLUMNS, SAMPLE_COLUMNS, Health
+from imulink import core, hil, protocol
+from imulink.core.counts import describe_profile
+from imulink.io.files import FileError, create_beside
+from imulink.monitor import board3d
+from imulink.monitor.decimate import peaks
+from imulink.monitor.horizon import HorizonWidget
+from imulink.monitor.qt import QtCore, QtGui, QtWidgets, pg
+from imulink.monitor.sources import ESTIMATE_COLUMNS, FILTER_NAMES, MAX_SPAN_S, NAV_COLUMNS, SAMPLE_COLUMNS, Health
 
 #: Redraws per second, whatever the sample rate.
 FRAME_HZ = 30
@@ -457,7 +457,8 @@ class MonitorWindow(QtWidgets.QMainWindow):
             rows.append(f"{_escape(h.hello['board'])} firmware {h.hello['firmware_major']}.{h.hello['firmware_minor']}."
                         f"{h.hello['firmware_patch']}, protocol v{h.hello['protocol_version']} schema "
                         f"0x{h.hello['schema_hash']:08X}"
-                        + (" (this host's)" if h.hello["schema_hash"] == protocol.SCHEMA_HASH else " (NOT this host's)"))
+                        + (" (this host's)" if h.hello["schema_hash"] == protocol.SCHEMA_HASH
+                           else " (NOT this host's)"))
             try:
                 rows.append("sensors " + _escape(describe_profile(hil.board_profile(h.hello))))
             except hil.HilError as exc:  # a board that states no usable sensitivities
@@ -466,7 +467,8 @@ class MonitorWindow(QtWidgets.QMainWindow):
         if s:
             name = FILTER_NAMES.get(s["active_filter"], str(s["active_filter"]))
             cost = (f", filter {s['filter_cycles'] / s['cycle_hz'] * 1e6:.1f} µs/sample" if s["cycle_hz"] else "")
-            rows.append(f"filter {name} at {s['sample_rate_mhz'] / 1000:g} Hz, CPU load {s['cpu_load_permille'] / 10:.1f} %"
+            rows.append(f"filter {name} at {s['sample_rate_mhz'] / 1000:g} Hz, "
+                        f"CPU load {s['cpu_load_permille'] / 10:.1f} %"
                         f"{cost}; dropped samples {s['dropped_samples']}, saturations {s['filter_saturations']}")
             if self.source.live and self.filter_box.currentText() != name and not self.filter_box.view().isVisible():
                 self.filter_box.setCurrentText(name)

@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import numbers
 
-from . import quat
-from .sensors import AccModel, GyroModel, MagModel, SensorSuite, SimResult, simulate
-from .trajectories import (
+from imulink.sim import quat
+from imulink.sim.sensors import AccModel, GyroModel, MagModel, SensorSuite, SimResult, simulate
+from imulink.sim.trajectories import (
     DEFAULT_INITIAL,
     MAX_SAMPLES,
     ScenarioError,

@@ -24,9 +24,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import quat as Q
-from .sensors import AccModel, GyroModel, MagModel, SensorSuite, _smooth_window
-from .trajectories import Trajectory, _lowpass_noise, _n_samples, integrate_gyro
+from imulink.sim import quat as Q
+from imulink.sim.sensors import AccModel, GyroModel, MagModel, SensorSuite, _smooth_window
+from imulink.sim.trajectories import Trajectory, _lowpass_noise, _n_samples, integrate_gyro
 
 # WGS-84 (NIMA TR8350.2): semi-major axis, flattening, first eccentricity squared.
 WGS84_A = 6_378_137.0

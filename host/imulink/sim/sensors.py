@@ -2,7 +2,7 @@
 
 Units: gyroscope rad/s (body frame), accelerometer specific force m/s^2 (body frame;
 reads ``R^T [0, 0, +g]`` at rest, 0 in free fall), magnetometer uT (body frame).
-Readings are quantised to register counts with :func:`imulink.counts.si_to_counts`,
+Readings are quantised to register counts with :func:`imulink.core.counts.si_to_counts`,
 and the SI arrays of a :class:`SimResult` are exactly ``counts * scale``.
 """
 from __future__ import annotations
@@ -11,9 +11,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..counts import DEFAULT_PROFILE, STANDARD_GRAVITY, SensorProfile, si_to_counts
-from . import quat as Q
-from .trajectories import RAMP_S, Trajectory
+from imulink.core.counts import DEFAULT_PROFILE, STANDARD_GRAVITY, SensorProfile, si_to_counts
+from imulink.sim import quat as Q
+from imulink.sim.trajectories import RAMP_S, Trajectory
 
 __all__ = ["GyroModel", "AccModel", "MagModel", "SensorSuite", "SimResult", "simulate", "Vibration", "Shock",
            "extra_field", "norm_change", "rotated_field"]
@@ -361,7 +361,7 @@ class SensorSuite:
 
     Attributes:
         gyro, acc, mag: error models.
-        profile: full-scale settings (:class:`imulink.counts.SensorProfile`).
+        profile: full-scale settings (:class:`imulink.core.counts.SensorProfile`).
         saturate: if True (default) the SI readings are clipped to the register
             range like the real sensor; if False they are quantised but not clipped
             (the int16 counts are always clipped; ``saturated`` counts the clipping).

@@ -23,7 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import quat as Q
+from imulink.errors import ImulinkError
+from imulink.sim import quat as Q
 
 __all__ = [
     "Trajectory",
@@ -104,7 +105,7 @@ def integrate_gyro(q0, gyr, dt: float) -> np.ndarray:
 MAX_SAMPLES = 18_000_000
 
 
-class ScenarioError(ValueError):
+class ScenarioError(ImulinkError, ValueError):
     """Simulation arguments no trajectory can be made of (the message says which)."""
 
 

@@ -1,0 +1,6 @@
+"""`python -m imulink.cli`: the `imulink` command."""
+import sys
+
+from imulink.cli import main
+
+sys.exit(main())

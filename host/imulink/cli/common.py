@@ -1,0 +1,338 @@
+"""What every command shares: exit statuses, the one-line error, argument types
+and the arguments several commands take."""
+from __future__ import annotations
+
+import argparse
+import math
+import signal
+import sys
+import time
+
+from imulink import core, hil
+from imulink.board import emulator
+from imulink.board.link import DEFAULT_BAUD
+from imulink.errors import ImulinkError
+
+EXIT_MISMATCH = 1
+
+
+
+EXIT_ERROR = 2
+
+
+
+EXIT_INTERRUPTED = 130
+
+
+
+EXIT_STATUS_HELP = """exit status:
+  0    success
+  1    not proven bit-exact: an estimate differs from the host build, fewer than
+       --min-verified of them could be verified, or the recording is damaged
+       (compare, replay, inject, demo)
+  2    a usage error or a failure (argument, port, board, file, disk), said in one line
+       "imulink: error: ..."
+  130  interrupted (Ctrl-C or SIGTERM); a recording is closed and readable"""
+
+
+
+class UsageError(ImulinkError):
+    """Arguments that do not make sense together (each alone passed its type check)."""
+
+
+
+class Parser(argparse.ArgumentParser):
+    """Usage errors in one line, like every other error."""
+
+    def error(self, message):
+        self.exit(EXIT_ERROR, f"imulink: error: {message} (see `{self.prog} --help`)\n")
+
+
+
+def one_line_errors(func):
+    """Run a command: an ImulinkError (every error imulink raises for a user) or an OSError
+    prints `imulink: error: ...` and exits 2; Ctrl-C and SIGTERM exit 130."""
+
+    def run(args) -> int:
+        signal.signal(signal.SIGTERM, interrupt)  # `kill` stops a command as cleanly as Ctrl-C
+        try:
+            return func(args)
+        except (ImulinkError, OSError) as exc:
+            print(f"imulink: error: {exc}", file=sys.stderr)
+            return EXIT_ERROR
+        except KeyboardInterrupt:
+            print("imulink: interrupted", file=sys.stderr)
+            return EXIT_INTERRUPTED
+
+    run.__doc__ = func.__doc__
+    return run
+
+
+
+def interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+
+def json_value(value):
+    """`value` with every non-finite float as null: JSON has no NaN or infinity."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {key: json_value(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_value(item) for item in value]
+    return value
+
+
+
+def print_json(report: dict) -> None:
+    """--json: the command's one JSON object, alone on stdout (progress and messages are on stderr)."""
+    import json
+
+    print(json.dumps(json_value(report), indent=1, allow_nan=False))
+
+
+
+def json_argument(p, what: str) -> None:
+    p.add_argument("--json", action="store_true",
+                   help=f"print {what} as one JSON object on stdout (progress and messages on stderr; keys in "
+                        "docs/cli.md)")
+
+
+
+def text_columns(rows: list[tuple[str, ...]]) -> str:
+    """Rows of cells as lines, each column as wide as its widest cell (names of any length line up)."""
+    widths = [max(len(row[k]) for row in rows) for k in range(len(rows[0]))]
+    return "\n".join(" ".join(cell.ljust(width) for cell, width in zip(row, widths)).rstrip() for row in rows)
+
+
+
+def assignments_of(texts: list[str]) -> dict[str, float]:
+    """NAME=VALUE arguments as a dict (UsageError for anything else)."""
+    values = {}
+    for text in texts:
+        name, sep, value = text.partition("=")
+        try:
+            number = float(value)
+        except ValueError:
+            number = math.nan
+        if not sep or not name or not math.isfinite(number):
+            raise UsageError(f"{text!r} is not NAME=VALUE with a finite number (e.g. acc_noise=0.4)")
+        values[name.strip()] = number
+    return values
+
+
+
+#: A job that ends within this many seconds shows no progress at all.
+PROGRESS_AFTER_S = 2.0
+
+
+
+def late_progress():
+    """A status line on stderr (hil.Progress) that appears only once the job has run for
+    PROGRESS_AFTER_S: returns (status, phase), phase(name) giving a (done, total) callback."""
+    from imulink.hil import Progress
+
+    status, started = Progress(), time.monotonic()
+
+    def phase(name: str):
+        def report(done: int, total: int) -> None:
+            if time.monotonic() - started >= PROGRESS_AFTER_S:
+                status.update(f"{name}: {100.0 * done / max(total, 1):3.0f} %")
+        return report
+
+    return status, phase
+
+
+
+def parse_filters(text: str, known=None) -> list[str]:
+    """Filter names (comma-separated, or all) among `known` (default: the attitude filters)."""
+    from imulink import core
+
+    known = core.FILTERS if known is None else known
+    names = [n.strip() for n in text.split(",") if n.strip()] if text != "all" else list(known)
+    unknown = [n for n in names if n not in known]
+    if unknown or not names:
+        raise UsageError(f"unknown filter(s) {', '.join(unknown) or repr(text)}; choose from "
+                         f"{', '.join(known)} (comma-separated) or all")
+    return names
+
+
+
+def profile_list() -> str:
+    from imulink.core.counts import PROFILES, describe_profile
+
+    return ", ".join(describe_profile(p) for p in PROFILES.values())
+
+
+
+def profile_named(name: str):
+    from imulink.core.counts import PROFILES
+
+    try:
+        return PROFILES[name]
+    except KeyError:
+        raise argparse.ArgumentTypeError(f"unknown sensor profile {name!r}; choose from {', '.join(PROFILES)}") \
+            from None
+
+
+
+def in_range(parse, low, high, requirement: str):
+    """An argument type: `parse(text)` within [low, high] (NaN never is), else `requirement`
+    in the error. Every number from the user is bounded, so none can ask for an
+    impossible allocation or wait."""
+
+    def convert(text: str):
+        try:
+            value = parse(text)
+        except ValueError:
+            value = None
+        if value is None or not low <= value <= high:
+            raise argparse.ArgumentTypeError(f"{requirement}, not {text!r}")
+        return value
+
+    return convert
+
+
+
+positive_float = in_range(float, math.ulp(0.0), sys.float_info.max, "must be a positive finite number")
+
+
+
+non_negative_float = in_range(float, 0.0, sys.float_info.max, "must be a finite number from 0")
+
+
+
+probability = in_range(float, 0.0, 1.0, "must be a probability from 0 to 1")
+
+
+
+seed_number = in_range(int, 0, 2**32 - 1, "must be an integer from 0 to 4294967295")
+
+
+
+tcp_port = in_range(int, 0, 65535, "must be a TCP port from 0 to 65535 (0: any free port)")
+
+
+
+baud_rate = in_range(int, 1, 100_000_000, "must be a baud rate from 1 to 100000000")
+
+
+
+u32_number = in_range(lambda text: int(text, 0), 0, 0xFFFFFFFF,
+                 "must be an integer from 0 to 0xFFFFFFFF (e.g. 0x1234ABCD)")
+
+
+
+def fault_config(args):
+    from imulink.board.proxy import FaultConfig
+
+    return FaultConfig(drop_byte=args.drop_byte, flip_bit=args.flip_bit, garbage=args.garbage, stall=args.stall,
+                       stall_s=args.stall_duration, seed=args.fault_seed)
+
+
+
+def serve_until_interrupted(describe: str, error) -> int:
+    """Wait for Ctrl-C or SIGTERM (or a failure that `error()` reports); 0 when stopped by the user."""
+    print(describe + " Ctrl-C stops it.", file=sys.stderr)
+    try:
+        while error() is None:
+            time.sleep(0.2)
+    except KeyboardInterrupt:
+        return 0
+    print(f"imulink: error: {error()}", file=sys.stderr)
+    return EXIT_ERROR
+
+
+
+def settings_from_file(args):
+    """The --settings FILE of a command, loaded (None without it)."""
+    if args.settings is None:
+        return None
+    from imulink.io import settings_file
+
+    return settings_file.load(args.settings)
+
+
+
+def scenario_for(args, filter_name: str | None = None) -> str:
+    """The emulated board's simulated run: --scenario, else the car drive for the nav filter
+    (its GNSS receiver and barometer) and rests for the others."""
+    from imulink.board.emulator import NAV_SCENARIO
+
+    if args.scenario is not None:
+        return args.scenario
+    return NAV_SCENARIO if (filter_name or args.filter) == "nav" else "rests"
+
+
+
+def settings_argument(p, what: str):
+    p.add_argument("--settings", metavar="FILE",
+                   help=f"a settings file (JSON: a filter and its settings by name in SI, as `imulink allan "
+                        f"--settings FILTER --write FILE` writes it): {what}")
+
+
+def port_arguments(p):
+    p.add_argument("port", metavar="PORT", help="serial device (/dev/ttyACM0, COM3) or pyserial URL "
+                                                 "(socket://HOST:PORT, rfc2217://HOST:PORT, loop://)")
+    p.add_argument("--baud", type=baud_rate, default=DEFAULT_BAUD,
+                   help=f"line rate of a real serial port (default: {DEFAULT_BAUD}; ignored by sockets and ptys)")
+
+
+def simulation_arguments(p, duration: float):
+    p.add_argument("--scenario", choices=emulator.SCENARIOS,
+                   help=f"simulated run (default: {emulator.NAV_SCENARIO} for --filter nav, rests for the "
+                        f"others); {emulator.NAV_SCENARIO}: a drive with a GNSS receiver at 1 Hz and the "
+                        f"barometer")
+    p.add_argument("--duration", type=positive_float, default=duration,
+                   help=f"seconds of simulated data (default: {duration:g})")
+    p.add_argument("--rate", type=positive_float, default=100.0, help="sample rate in Hz (default: 100)")
+    p.add_argument("--seed", type=seed_number, default=0, help="seed of the simulation (default: 0)")
+    p.add_argument("--filter", default="eskf", choices=list(core.BOARD_FILTERS),
+                   help="filter active at start-up (default: eskf)")
+
+
+def target_arguments(p):
+    p.add_argument("--target", choices=("native", "qemu"), default="native",
+                   help="the firmware as a native process (default) or its ARM image in QEMU's netduinoplus2")
+    p.add_argument("--image", metavar="FILE", help="firmware to run instead of the built one "
+                                                   "(the native executable or the QEMU ELF)")
+
+
+def front_arguments(p, what: str, baud: bool = True):
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--tcp", type=tcp_port, nargs="?", const=0, metavar="PORT",
+                       help=f"serve {what} on 127.0.0.1:PORT instead of a pty (no PORT: any free port)")
+    where.add_argument("--serial", metavar="URL", help=f"serve {what} on this serial port or pyserial URL (e.g. "
+                                                       "one end of a null-modem cable)")
+    if baud:
+        p.add_argument("--baud", type=baud_rate, default=DEFAULT_BAUD,
+                       help=f"line rate for --serial (default: {DEFAULT_BAUD})")
+
+
+def min_verified_argument(p, what: str):
+    p.add_argument("--min-verified", type=probability, default=hil.MIN_VERIFIED, metavar="FRACTION",
+                   help=f"the least share of {what} that must be verified for a bit-exact pass (default: "
+                        f"{hil.MIN_VERIFIED:g}); below it the verdict is \"not proven\" and the exit status 1, "
+                        "even when every verified one is identical")
+
+
+def fault_arguments(p):
+    p.add_argument("--schema-hash", type=u32_number, default=None,
+                   help="rewrite HELLO to report this schema hash (a board built from another protocol definition)")
+    faults = p.add_argument_group("fault injection (board-to-host bytes; deterministic for a seed)")
+    faults.add_argument("--drop-byte", type=probability, default=0.0, metavar="P",
+                        help="probability that each byte is dropped")
+    faults.add_argument("--flip-bit", type=probability, default=0.0, metavar="P",
+                        help="probability that each byte has a bit flipped")
+    faults.add_argument("--garbage", type=probability, default=0.0, metavar="P",
+                        help="probability that random bytes precede a frame")
+    faults.add_argument("--stall", type=probability, default=0.0, metavar="P",
+                        help="probability that the board goes silent (both ways) before a frame")
+    faults.add_argument("--stall-duration", type=non_negative_float, default=0.05, metavar="S",
+                        help="length of a stall in s (default: 0.05)")
+    faults.add_argument("--fault-seed", type=seed_number, default=0, metavar="N",
+                        help="seed of the faults (default: 0)")
+
+

@@ -1,0 +1,445 @@
+"""Re-run a recording on the host (fixed build and float twin) and compare every
+verifiable estimate bit for bit."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from imulink import core, protocol
+from imulink.analysis.attitude import angle_difference, wrap_deg
+from imulink.core.counts import SensorProfile
+from imulink.hil.common import ESTIMATE_FRAC_BITS
+from imulink.hil.replica import FirmwareFilter
+from imulink.hil.report import board_json, link_json
+from imulink.io.recording import Estimates, Recording, RecordingError, matching_rows, sample_rows
+from imulink.sim.navigation import local_offsets
+
+#: ESTIMATE fields the host computes (Estimates.COMPARED) and the shape of one sample's value.
+_ESTIMATE_SHAPES = {"filter_id": (), "quat": (4,), "gyro_bias": (3,), "euler": (3,), "cov_mantissa": (9,),
+                    "cov_exponent": (9,), "saturations": (), "weights": (2,)}
+
+
+@dataclass
+class HostRun:
+    """The host's computation for each recorded sample (arrays aligned with
+    recording.samples). fixed: the fixed-point build's ESTIMATE fields (raw integers);
+    float_quat / float_euler / float_gyro_bias: the float twin (SI, rad and rad/s);
+    verifiable: the sample's segment is complete from index 0 up to it, so the host
+    saw exactly what the board saw."""
+
+    fixed: dict[str, np.ndarray]
+    float_quat: np.ndarray
+    float_euler: np.ndarray
+    float_gyro_bias: np.ndarray
+    verifiable: np.ndarray
+    #: where the nav filter ran: the NAV_STATE fields of the fixed build (name -> array over
+    #: the recorded samples; rows of other filters zero), and the float twin's position
+    #: (lat, lon deg, height m; NaN elsewhere and before its first fix)
+    nav: dict[str, np.ndarray] | None = None
+    nav_rows: np.ndarray | None = None
+    float_position: np.ndarray | None = None
+
+
+def _events_after(table, segment: int, sample_index: np.ndarray) -> np.ndarray:
+    """Per row of `table` (BARO, GNSS, MARKER), the position in `sample_index` (a segment's
+    recorded samples) of the sample it came after; -1 for another segment or a lost sample."""
+    where = np.full(len(table), -1, np.int64)
+    mine = np.flatnonzero(table.segment == segment)
+    at = np.searchsorted(sample_index, table.index[mine])
+    found = (at < len(sample_index)) & (sample_index[np.minimum(at, len(sample_index) - 1)] == table.index[mine])
+    where[mine[found]] = at[found]
+    return where
+
+
+def nav_inputs(recording: Recording, segment: int, sample_index: np.ndarray) -> dict:
+    """What the board's nav filter took besides the samples of a segment, for
+    core.Filter.run_nav_counts: its barometer readings, receiver's fixes and markers, each
+    at the position of its sample among `sample_index` (the segment's recorded indices)."""
+    baro, gnss, markers = recording.baro, recording.gnss, recording.markers
+    b = _events_after(baro, segment, sample_index)
+    g = _events_after(gnss, segment, sample_index)
+    m = _events_after(markers, segment, sample_index)
+    gnss_fields = [name for name, _, _ in protocol.message_fields("GNSS") if name not in ("timestamp_us", "index")]
+    fixes = [{name: (getattr(gnss, name)[k].tolist()) for name in gnss_fields} for k in np.flatnonzero(g >= 0)]
+    marker_rows = markers.rows()
+    return {"baro_after": b[b >= 0], "baro_pa": baro.pressure_pa[b >= 0], "gnss_after": g[g >= 0], "gnss": fixes,
+            "marker_after": m[m >= 0], "markers": [marker_rows[k] for k in np.flatnonzero(m >= 0)]}
+
+
+def host_run(recording: Recording) -> HostRun:
+    """Re-run the recorded samples through both builds of the filter the board ran (the
+    nav filter with the barometer readings, fixes and markers the board gave it)."""
+    samples = recording.samples
+    n = len(samples)
+    fixed = {name: np.zeros((n,) + shape, np.int64) for name, shape in _ESTIMATE_SHAPES.items()}
+    float_quat, float_euler, float_bias = np.full((n, 4), np.nan), np.full((n, 3), np.nan), np.full((n, 3), np.nan)
+    verifiable = np.zeros(n, bool)
+    nav = nav_rows = float_position = None
+    for segment in np.unique(samples.segment).tolist():
+        rows = np.flatnonzero(samples.segment == segment)
+        name, raw_settings = recording.filter_settings(_segment_filter(recording, segment), segment)
+        counts = samples.gyr[rows], samples.acc[rows], samples.mag[rows]
+        calibration = recording.calibration(segment)
+        reference = FirmwareFilter(name, raw_settings, recording.profile, calibration)
+        twin = core.Filter(name, reference.si_settings["sample_rate"], "float", reference.si_settings,
+                           recording.profile, calibration)
+        if name == "nav":
+            inputs = nav_inputs(recording, segment, samples.index[rows])
+            board = reference.core.run_nav_counts(*counts, **inputs)
+            fixed["filter_id"][rows] = reference.filter_id
+            for key in ("quat", "gyro_bias", "euler"):
+                fixed[key][rows] = board.raw[key]
+            fixed["saturations"][rows] = board.saturations
+            if nav is None:
+                nav = {key: np.zeros((n,) + values.shape[1:], np.int64) for key, values in board.nav_states.items()}
+                nav_rows, float_position = np.zeros(n, bool), np.full((n, 3), np.nan)
+            for key, values in board.nav_states.items():
+                nav[key][rows] = values
+            nav["index"][rows] = samples.index[rows]
+            nav_rows[rows] = True
+            result = twin.run_nav_counts(*counts, **inputs)
+            anchored = board.nav_states["mode"] == 2
+            float_position[rows[anchored]] = np.c_[result.lat_deg, result.lon_deg, result.height_m][anchored]
+        else:
+            for key, values in fixed_outputs(name, raw_settings, recording.profile, *counts, calibration).items():
+                fixed[key][rows] = values
+            result = twin.run_counts(*counts)
+        float_quat[rows], float_euler[rows], float_bias[rows] = result.quat, result.euler, result.gyro_bias
+        complete = samples.index[rows] == np.arange(len(rows))
+        verifiable[rows] = np.cumprod(complete).astype(bool)
+    return HostRun(fixed, float_quat, float_euler, float_bias, verifiable, nav, nav_rows, float_position)
+
+
+def fixed_outputs(filter_name: str, raw_settings: dict[str, int], profile: SensorProfile, gyr, acc, mag,
+                  calibration=None) -> dict:
+    """The ESTIMATE fields (arrays, one row per sample) the firmware computes for a filter
+    run from its start over these counts (with the board's calibration: None is identity).
+
+    One batch call to the core when that gives every field: not for the ESKF (its
+    covariance is read after each sample), and not when the saturation counter moved
+    (its value after each sample is needed); then one sample at a time, as the board.
+    """
+    n = len(gyr)
+    reference = FirmwareFilter(filter_name, raw_settings, profile, calibration)
+    if filter_name != "eskf":
+        batch = reference.core.run_counts(gyr, acc, mag)
+        if batch.saturations == 0:  # the counter never decreases: zero at the end means zero throughout
+            return {"filter_id": np.full(n, reference.filter_id), "quat": batch.raw["quat"],
+                    "gyro_bias": batch.raw["gyro_bias"], "euler": batch.raw["euler"],
+                    "cov_mantissa": np.zeros((n, 9), np.int64), "cov_exponent": np.zeros((n, 9), np.int64),
+                    "saturations": np.zeros(n, np.int64), "weights": np.zeros((n, 2), np.int64)}
+        reference = FirmwareFilter(filter_name, raw_settings, profile, calibration)  # again, sample by sample
+    out = {name: np.zeros((n,) + shape, np.int64) for name, shape in _ESTIMATE_SHAPES.items()}
+    for k in range(n):
+        for key, value in reference.step(k, gyr[k], acc[k], mag[k]).items():
+            if key in out:
+                out[key][k] = value
+    return out
+
+
+def _segment_filter(recording: Recording, segment: int) -> int:
+    ids = recording.estimates.filter_id[recording.estimates.segment == segment]
+    if len(ids):
+        return int(ids[0])
+    if recording.active_filter is None:
+        raise RecordingError(f"{recording.path}: no STATUS or ESTIMATE says which filter the board ran")
+    return recording.active_filter
+
+
+#: Default least share of a run that must be verified for a bit-exact "yes" (--min-verified):
+#: a few hundred identical estimates out of thousands prove little about the rest.
+MIN_VERIFIED = 0.99
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """Bit-exact or not, and how much of the run that covers: `verified` of `total` (the
+    recorded estimates, or the injected samples: `what`) were checked against the host
+    fixed-point build and `identical` of those were equal. It passes only when something
+    was verified, all of it identical, at least `min_verified` of the total, and the
+    recording is not `damaged`."""
+
+    total: int
+    verified: int
+    identical: int
+    what: str = "recorded estimates"
+    damaged: bool = False
+    min_verified: float = MIN_VERIFIED
+
+    @property
+    def coverage(self) -> float:
+        """The share of the total that was verified (0 when there is nothing)."""
+        return self.verified / self.total if self.total else 0.0
+
+    @property
+    def different(self) -> int:
+        return self.verified - self.identical
+
+    @property
+    def passed(self) -> bool:
+        return (self.verified > 0 and not self.different and not self.damaged
+                and self.coverage >= self.min_verified)
+
+    def __str__(self) -> str:
+        """The verdict line: "bit-exact: yes (542 of 550 recorded estimates verified, all identical)"."""
+        covered = f"{self.verified} of {self.total} {self.what} verified"
+        if self.different:
+            return f"bit-exact: NO ({self.different} of the {self.verified} verified differ; {covered})"
+        if not self.verified:
+            return f"bit-exact: no estimate to verify ({covered})"
+        if self.damaged:
+            return f"bit-exact: not proven: the recording is damaged ({covered}, all identical)"
+        if self.coverage < self.min_verified:
+            shown = math.floor(self.coverage * 1000) / 10  # never rounded up to the minimum
+            return (f"bit-exact: not proven: only {covered} ({shown:g} %, below the minimum "
+                    f"{self.min_verified * 100:g} % of --min-verified), all identical")
+        return f"bit-exact: yes ({covered}, all identical)"
+
+    def to_json(self) -> dict:
+        return {"passed": self.passed, "line": str(self), "counted": self.what, "total": self.total,
+                "verified": self.verified, "identical": self.identical, "different": self.different,
+                "verified_fraction": self.coverage, "min_verified_fraction": self.min_verified,
+                "damaged": self.damaged}
+
+
+@dataclass
+class Difference:
+    """The first estimate that differs from the host: where, which field, both values."""
+
+    estimate: int  # position among the recorded estimates
+    segment: int
+    index: int
+    field: str
+    board: object
+    host: object
+
+    def __str__(self) -> str:
+        return (f"estimate #{self.estimate} (segment {self.segment}, sample index {self.index}): {self.field}: "
+                f"board {self.board}, host {self.host}")
+
+    def to_json(self) -> dict:
+        return {"estimate": self.estimate, "segment": self.segment, "sample_index": self.index,
+                "field": self.field, "board": self.board, "host": self.host}
+
+
+@dataclass
+class Comparison:
+    """Bit-exactness of a recording's estimates and the fixed-vs-float agreement.
+
+    Per estimate (arrays aligned with recording.estimates): sample_row, the row of its
+    SAMPLE in recording.samples (-1 when that SAMPLE was lost); verified, whether the
+    host could reproduce it (its filter run complete up to it); identical, verified and
+    equal in every field. fixed_vs_float: over the verified estimates, the rotation angle
+    between the board's quaternion and the float twin's (deg: max, mean, rms), the
+    largest Euler angle difference (deg) and gyro bias difference (deg/s). damaged: the
+    recording's damaged spans; what they held was not compared, so a damaged recording
+    is never bit-exact. leftover: per estimate, whether it came from a stream the board
+    was already sending before the recording began (not part of the recorded run).
+    min_verified: the least share of the recorded estimates to verify for a pass.
+    """
+
+    sample_row: np.ndarray
+    verified: np.ndarray
+    identical: np.ndarray
+    first_difference: Difference | None
+    fixed_vs_float: dict
+    damaged: list[tuple[int, int]]
+    leftover: np.ndarray
+    min_verified: float = MIN_VERIFIED
+
+    @property
+    def estimates(self) -> int:
+        return len(self.verified)
+
+    @property
+    def verified_count(self) -> int:
+        return int(self.verified.sum())
+
+    @property
+    def identical_count(self) -> int:
+        return int(self.identical.sum())
+
+    @property
+    def recorded_count(self) -> int:
+        """The estimates of the recorded run (all but the leftovers of an earlier stream)."""
+        return int((~self.leftover).sum())
+
+    @property
+    def bit_exact(self) -> bool:
+        """Every verified estimate identical (at least one) and the file undamaged, however
+        few were verified: :attr:`verdict` also weighs the coverage."""
+        return self.verified_count > 0 and self.identical_count == self.verified_count and not self.damaged
+
+    @property
+    def verdict(self) -> Verdict:
+        return Verdict(self.recorded_count, self.verified_count, self.identical_count, damaged=bool(self.damaged),
+                       min_verified=self.min_verified)
+
+
+def _sample_rows(recording: Recording) -> np.ndarray:
+    """Per estimate, the row of the SAMPLE with the same segment and index (-1: lost)."""
+    return sample_rows(recording, recording.estimates.segment, recording.estimates.index)
+
+
+def _nav_state_rows(recording: Recording) -> np.ndarray:
+    """Per estimate, the row of the NAV_STATE with the same segment and index (-1: none)."""
+    states, estimates = recording.nav_states, recording.estimates
+    return matching_rows(estimates.segment, estimates.index, states.segment, states.index)
+
+
+def nav_state_position(fields: dict, rows=slice(None)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Latitude, longitude (deg) and height (m) of NAV_STATE fields (Q29 rad, mm) at `rows`."""
+    return (np.degrees(fields["lat"][rows] / 2.0**29), np.degrees(fields["lon"][rows] / 2.0**29),
+            fields["height_mm"][rows] / 1000.0)
+
+
+def compare(recording: Recording, run: HostRun | None = None, min_verified: float = MIN_VERIFIED) -> Comparison:
+    """Compare every verifiable board estimate with the host fixed-point build, bit for bit;
+    its verdict passes with at least `min_verified` of the recorded estimates verified."""
+    run = run or host_run(recording)
+    estimates = recording.estimates
+    sample_row = _sample_rows(recording)
+    verified = sample_row >= 0
+    verified[verified] = run.verifiable[sample_row[verified]]
+    state_row = _nav_state_rows(recording)
+    if run.nav_rows is not None:
+        # the nav filter's estimate is verified with its NAV_STATE: both must have arrived
+        nav = verified.copy()
+        nav[verified] = run.nav_rows[sample_row[verified]]
+        verified &= ~nav | (state_row >= 0)
+    positions, rows = np.flatnonzero(verified), sample_row[verified]
+
+    def board_and_host(name: str):
+        """A compared field's values at the verified estimates: the board's and the host's
+        (NAV_STATE fields, "nav_state.<name>", only where the nav filter ran)."""
+        if not name.startswith("nav_state."):
+            return getattr(estimates, name)[positions], run.fixed[name][rows]
+        field = name.split(".", 1)[1]
+        states = np.flatnonzero(run.nav_rows[rows])
+        return (recording.nav_states.fields[field][state_row[positions[states]]],
+                run.nav[field][rows[states]])
+
+    compared = list(Estimates.COMPARED)
+    if run.nav is not None:
+        compared += [f"nav_state.{name}" for name, _, _ in protocol.message_fields("NAV_STATE")]
+    equal = np.ones(len(positions), bool)
+    for name in compared:
+        board, host = board_and_host(name)
+        same = board == host if board.ndim == 1 else np.all(board == host, axis=1)
+        if name.startswith("nav_state."):
+            equal[np.flatnonzero(run.nav_rows[rows])] &= same
+        else:
+            equal &= same
+    identical = np.zeros(len(verified), bool)
+    identical[positions] = equal
+    first = None
+    if not equal.all():
+        k = int(np.flatnonzero(~equal)[0])
+        position, row = int(positions[k]), int(rows[k])
+        for name in compared:
+            if name.startswith("nav_state."):
+                field = name.split(".", 1)[1]
+                board_value = recording.nav_states.fields[field][state_row[position]]
+                host_value = run.nav[field][row]
+            else:
+                board_value, host_value = getattr(estimates, name)[position], run.fixed[name][row]
+            if np.any(board_value != host_value):
+                first = Difference(position, int(estimates.segment[position]), int(estimates.index[position]), name,
+                                   board_value.tolist(), host_value.tolist())
+                break
+    fixed_vs_float = _fixed_vs_float(estimates, positions, run.float_quat[rows], run.float_euler[rows],
+                                     run.float_gyro_bias[rows])
+    if run.nav is not None and len(positions):
+        fixed_vs_float.update(_position_fixed_vs_float(recording, run, state_row[positions], rows))
+    return Comparison(sample_row, verified, identical, first, fixed_vs_float, recording.damaged,
+                      np.asarray(estimates.leftover, bool), min_verified)
+
+
+def _position_fixed_vs_float(recording: Recording, run: HostRun, state_rows: np.ndarray, rows: np.ndarray) -> dict:
+    """The largest distance (m) between the board's nav position (its NAV_STATE) and the
+    float twin's, over the verified samples where both have a position."""
+    states = recording.nav_states.fields
+    usable = (state_rows >= 0) & ~np.isnan(run.float_position[rows, 0])
+    usable[usable] &= states["mode"][state_rows[usable]] == 2
+    if not usable.any():
+        return {}
+    board = state_rows[usable]
+    twin = run.float_position[rows[usable]]
+    d = local_offsets(*nav_state_position(states, board), twin[:, 0], twin[:, 1], twin[:, 2])
+    return {"position_max_m": float(np.linalg.norm(d, axis=1).max())}
+
+
+def _fixed_vs_float(estimates: Estimates, positions, float_quat, float_euler, float_bias) -> dict:
+    """Attitude agreement of the board (fixed build) and the float twin over the verified estimates."""
+    if not len(positions):
+        return {}
+    quat = estimates.quat[positions] / 2.0**ESTIMATE_FRAC_BITS["quat"]
+    angle = angle_difference(quat, float_quat)
+    euler = np.degrees(estimates.euler[positions] / 2.0**ESTIMATE_FRAC_BITS["euler"])
+    bias = estimates.gyro_bias[positions] / 2.0**ESTIMATE_FRAC_BITS["gyro_bias"]
+    return {"angle_max_deg": float(angle.max()), "angle_mean_deg": float(angle.mean()),
+            "angle_rms_deg": float(np.sqrt(np.mean(angle**2))),
+            "euler_max_deg": float(np.abs(wrap_deg(euler - np.degrees(float_euler))).max()),
+            "gyro_bias_max_deg_s": float(np.degrees(np.abs(bias - float_bias)).max())}
+
+
+def format_comparison(recording: Recording, comparison: Comparison) -> str:
+    """The human report of `imulink compare`."""
+    counters = recording.counters
+    lines = [f"recording: {recording.path}"]
+    if recording.hello:
+        h = recording.hello
+        lines.append(f"board: {h['board']} firmware {h['firmware_major']}.{h['firmware_minor']}."
+                     f"{h['firmware_patch']}, sensor profile {recording.profile.name}")
+    lines.append(f"link: {counters['frames']} frames, {counters['bytes']} bytes, CRC errors {counters['crc_errors']}, "
+                 f"resyncs {counters['resyncs']}, lost frames {counters['lost_frames']}; "
+                 f"{recording.segments} filter run(s)"
+                 + (f"; ignored a truncated tail of {recording.truncated_bytes} bytes"
+                    if recording.truncated_bytes else ""))
+    if recording.damaged:
+        spans = ", ".join(f"{length} bytes at byte {offset}" for offset, length in recording.damaged[:5])
+        more = f" and {len(recording.damaged) - 5} more" if len(recording.damaged) > 5 else ""
+        lines.append(f"DAMAGED FILE: skipped {len(recording.damaged)} span(s) that are not valid records "
+                     f"({spans}{more}); the frames they held are missing")
+    c = comparison
+    unverifiable = ~c.verified
+    leftover = int((unverifiable & recording.estimates.leftover).sum())
+    lost = int(unverifiable.sum()) - leftover
+    reasons = [text for count, text in (
+        (leftover, f"{leftover} left over from a stream the board was already sending when the recording began"),
+        (lost, f"{lost} after a lost sample of their filter run")) if count]
+    lines.append(f"estimates: {c.estimates} received, {c.verified_count} verifiable, {c.identical_count} identical, "
+                 f"{c.verified_count - c.identical_count} different, {c.estimates - c.verified_count} unverifiable"
+                 + (f" ({'; '.join(reasons)})" if reasons else ""))
+    if c.first_difference is not None:
+        lines.append(f"first difference: {c.first_difference}")
+    lines.append(str(c.verdict))
+    ff = comparison.fixed_vs_float
+    if ff:
+        lines.append(f"fixed vs float: attitude max {ff['angle_max_deg']:.5f} deg, RMS {ff['angle_rms_deg']:.5f} deg; "
+                     f"Euler max {ff['euler_max_deg']:.5f} deg; gyro bias max {ff['gyro_bias_max_deg_s']:.2e} deg/s")
+    return "\n".join(lines)
+
+
+def comparison_json(recording: Recording, comparison: Comparison) -> dict:
+    """What `imulink compare --json` prints: the facts of :func:`format_comparison`."""
+    c = comparison
+    unverifiable = ~c.verified
+    leftover = int((unverifiable & c.leftover).sum())
+    counters = recording.counters
+    return {
+        "recording": str(recording.path), "board": board_json(recording.hello),
+        "sensor_profile": recording.profile.name,
+        "link": {**link_json(counters), "filter_runs": recording.segments,
+                 "truncated_tail_bytes": recording.truncated_bytes},
+        "damaged_spans": [{"offset_bytes": offset, "length_bytes": length} for offset, length in recording.damaged],
+        "estimates": {"received": c.estimates, "recorded": c.recorded_count, "verifiable": c.verified_count,
+                      "identical": c.identical_count, "different": c.verified_count - c.identical_count,
+                      "unverifiable": c.estimates - c.verified_count, "unverifiable_left_over": leftover,
+                      "unverifiable_after_lost_sample": int(unverifiable.sum()) - leftover},
+        "first_difference": c.first_difference.to_json() if c.first_difference is not None else None,
+        "verdict": c.verdict.to_json(),
+        "fixed_vs_float": dict(c.fixed_vs_float) or None,
+    }

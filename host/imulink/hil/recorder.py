@@ -1,0 +1,393 @@
+"""Record a board: snapshot, restart its filter, stream, write every received byte."""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import NoReturn
+
+from imulink import protocol
+from imulink.board.link import (
+    COMMAND_ATTEMPTS,
+    DEFAULT_BAUD,
+    CommandTimeout,
+    Disconnected,
+    Link,
+    LinkError,
+    ReceiveTimeout,
+)
+from imulink.core.counts import SensorProfile
+from imulink.hil.board_setup import apply_settings, check_profile, leave_injection_mode, read_calibration, read_settings
+from imulink.hil.common import HilError, name_of_filter
+from imulink.hil.report import Progress, board_json, board_log, link_json, link_summary
+from imulink.io.files import check_writable_target, create_beside, publish
+from imulink.io.recording import RecordingError, RecordingWriter
+
+#: Attempts of each command of the recorder: over a link that loses 1 % of its bytes a
+#: SETTING and its ACK both arrive about one time in two, and the snapshot is some twenty
+#: commands, each of which must get through.
+RECORD_COMMAND_ATTEMPTS = 12
+#: A stream that sends no frame for this long (or for SILENCE_PERIODS sample periods at the
+#: board's rate, whichever is longer) has gone silent: the board hangs or stopped unannounced.
+SILENCE_MIN_S = 2.0
+SILENCE_PERIODS = 20
+INTERRUPTED = "interrupted"
+#: Seconds `record` waits by default for a board that went away (a reset, a USB re-enumeration).
+RECONNECT_S = 30.0
+#: Seconds between attempts to open a port that went away.
+REOPEN_INTERVAL_S = 0.5
+
+
+@dataclass
+class RecordResult:
+    path: Path
+    hello: dict
+    filter_name: str
+    samples: int
+    estimates: int
+    filter_restarts: int
+    stop_reason: str
+    duration_s: float
+    counters: dict
+    reconnects: int = 0  # the board went away (or started again) and came back; each began a new segment
+
+    @property
+    def interrupted(self) -> bool:
+        """Whether Ctrl-C (or SIGTERM) ended the recording."""
+        return self.stop_reason == INTERRUPTED
+
+    def to_json(self) -> dict:
+        """The summary of `imulink record --json`."""
+        return {"recording": str(self.path), "board": board_json(self.hello), "filter": self.filter_name,
+                "samples": self.samples, "estimates": self.estimates, "duration_s": self.duration_s,
+                "stop_reason": self.stop_reason, "interrupted": self.interrupted,
+                "filter_restarts": self.filter_restarts, "reconnects": self.reconnects,
+                "link": link_json(self.counters)}
+
+
+def default_silence_timeout(status: dict) -> float:
+    """Seconds without a frame after which a stream at the STATUS's sample rate is silent."""
+    rate_hz = status["sample_rate_mhz"] / 1000.0
+    return max(SILENCE_MIN_S, SILENCE_PERIODS / rate_hz) if rate_hz > 0 else SILENCE_MIN_S
+
+
+def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAULT_BAUD,
+           profile: SensorProfile | None = None, resync: bool = True, silence_timeout_s: float | None = None,
+           force: bool = False, progress: Progress | None = None, settings=None,
+           reconnect_s: float = RECONNECT_S, listen: bool = False) -> RecordResult:
+    """Record a board's stream to `path` until `duration_s` s have passed, the board stops
+    streaming (STATUS.streaming = 0), or Ctrl-C (then `interrupted`).
+
+    An existing `path` is refused before the port is opened unless `force`. The file is
+    written under a temporary name beside `path` until the board has answered the
+    handshake and the snapshot; only then does it take the name `path` (replacing the
+    old file with `force`): a wrong port, a peer that is not a board, a failure before
+    streaming leave no file behind and the old one untouched.
+
+    A board that goes away (its port fails: a USB re-enumeration, a TCP board that stops)
+    or starts again (a HELLO with sequence number 0: a reset) is waited for up to
+    `reconnect_s` seconds (0: not at all); when it answers again, the snapshot is taken
+    again (with `settings` given again) and the recording goes on in a new segment of the
+    same file.
+
+    listen: record a board another client commands (a fan-out TCP front, see
+    imulink.board.proxy.TcpFront) without sending anything: the file starts with the board's last
+    HELLO, STATUS, SETTING and CALIBRATION frames the front passes on, then the stream from
+    wherever it is (estimates verify from the next filter run that starts at sample 0);
+    a silent stream ends the recording normally. `settings` cannot be given then.
+
+    The file keeps everything received up to a failure, and is closed cleanly: a board
+    gone for longer raises Disconnected; a stream silent for `silence_timeout_s` (default
+    :func:`default_silence_timeout`) raises ReceiveTimeout; a write error (a full disk)
+    raises RecordingError at once.
+
+    settings: an imulink.io.settings_file.FilterSettings given to the board (its filter
+    made active) before the snapshot, so the recording runs with them. profile: the sensor
+    profile the caller expects (None: whatever the board states); HilError, and no file,
+    when the board states another.
+    """
+    path = Path(path)
+    if listen and settings is not None:
+        raise HilError("a listener cannot give the board settings: the client that commands it can")
+    check_writable_target(path, replace=force)
+    fd, temporary = create_beside(path)
+    writer = RecordingWriter(path, url, profile, fd=fd)
+    try:
+        # the file holds every byte from the moment the port opens
+        link = Link(url, baud, tap=writer.received, attempts=RECORD_COMMAND_ATTEMPTS)
+        try:
+            if listen:
+                hello, filter_id, filter_name, status = _listen(link, writer, profile), 0, "unknown", None
+            else:
+                hello, filter_id, filter_name, status = snapshot(link, writer, settings, profile)
+            writer.check()
+            publish(temporary, path, replace=force)
+        except BaseException:
+            link.close()
+            raise
+    except BaseException:
+        writer.close()
+        temporary.unlink(missing_ok=True)
+        raise
+    silence = silence_timeout_s or (default_silence_timeout(status) if status else SILENCE_MIN_S)
+    recorder = _StreamRecorder(link, writer, filter_id, resync and not listen, progress, listen=listen,
+                               reopen=lambda: Link(url, baud, tap=writer.received, attempts=RECORD_COMMAND_ATTEMPTS),
+                               settings=settings, profile=profile, reconnect_s=reconnect_s)
+    with writer:
+        try:
+            return recorder.run(hello, filter_name, duration_s, silence)
+        finally:
+            recorder.link.close()  # the last one (closing twice is harmless)
+
+
+def snapshot(link: Link, writer: RecordingWriter | None, settings=None,
+             profile: SensorProfile | None = None) -> tuple[dict, int, str, dict]:
+    """Handshake (HilError when the board states another sensor profile than `profile`,
+    None: any), quiet the board (and give it `settings`), read its state, settings and
+    calibration (into the recording, when there is one), and restart its filter so that
+    the stream starts at sample index 0. Returns the HELLO fields, the active filter's id
+    and name, and the STATUS fields."""
+    hello = link.connect()
+    check_profile(profile, hello)
+    if writer is not None:
+        writer.event("connected", hello=hello)
+    link.command("STOP_STREAM")
+    leave_injection_mode(link)
+    if settings is not None:
+        apply_settings(link, settings)
+    status = link.command("GET_STATUS").data.fields
+    filter_id, settings = read_settings(link)
+    filter_name = name_of_filter(filter_id)
+    if writer is not None:
+        calibration = read_calibration(link)
+        writer.event("snapshot", status=status, filter=filter_name,
+                     settings={s["name"]: s["value"] for s in settings.values()},
+                     calibration={name: {"offset_counts": c.offset.tolist(), "matrix": c.matrix.tolist()}
+                                  for name, c in calibration.sensors.items()})
+    link.command("SELECT_FILTER", filter_id=filter_id)
+    return hello, filter_id, filter_name, status
+
+
+def _listen(link: Link, writer: RecordingWriter, profile: SensorProfile | None) -> dict:
+    """The start of a listener's recording: the board's HELLO as the front passes it on."""
+    hello = link.listen()
+    check_profile(profile, hello)
+    writer.event("connected", hello=hello, listening=True)
+    return hello
+
+
+class _BoardRestarted(Exception):
+    """A HELLO with sequence number 0 in the stream: the board started again."""
+
+
+def _sum_counters(first: dict, second: dict) -> dict:
+    """Counters of two links one after the other: the counts add up, the rates are the second's."""
+    out = dict(second)
+    for key in ("frames", "bytes", "crc_errors", "resyncs", "lost_frames", "sequence_restarts"):
+        out[key] = first.get(key, 0) + second.get(key, 0)
+    return out
+
+
+class _StreamRecorder:
+    """The streaming part of :func:`record`: follows the stream, restarts the board's
+    filter after a lost SAMPLE (when `resync`), waits for a board that went away or started
+    again (`reopen`, `settings`, `profile`, `reconnect_s`: see record), shows progress,
+    stops the stream."""
+
+    RESTART_TIMEOUT_S = 1.0
+
+    def __init__(self, link: Link, writer: RecordingWriter, filter_id: int, resync: bool, progress: Progress | None,
+                 *, listen: bool, reopen, settings, profile: SensorProfile | None, reconnect_s: float):
+        self.link, self.writer, self.filter_id = link, writer, filter_id
+        self.resync, self.progress = resync, progress
+        self.samples = self.estimates = self.restarts = self.reconnects = 0
+        self.listen = listen  # record without commanding (see record)
+        self.reopen = reopen  # () -> a new Link on the same port
+        self.settings, self.profile, self.reconnect_s = settings, profile, reconnect_s
+        self._earlier_counters: dict = {}  # the counters of the links closed before
+        self._link_open = True  # self.link's counters are not among the earlier ones yet
+        self._expected_index = 0
+        self._segment_complete = True
+        self._restart: tuple | None = None  # (PendingCommand, time sent) of a filter restart in flight
+        self._start_ack = None  # the START_STREAM ACK: messages before it belong to the snapshot
+        self._streaming = False
+        self._last_heard = 0.0
+        self.stop_reason: str | None = None
+
+    def counters(self) -> dict:
+        return _sum_counters(self._earlier_counters, self.link.counters()) if self._link_open else (
+            dict(self._earlier_counters))
+
+    def _close_link(self) -> None:
+        if self._link_open:
+            self._earlier_counters, self._link_open = self.counters(), False
+        self.link.close()
+
+    def _use_link(self, link: Link) -> None:
+        self._close_link()
+        self.link, self._link_open = link, True
+
+    def _follow(self, message: protocol.Message) -> None:
+        name, fields = message.name, message.fields
+        if name == "SAMPLE":
+            self.samples += 1
+            index = fields["index"]
+            if index == 0:
+                self._segment_complete = True  # a (re)started filter run
+            elif index != self._expected_index:
+                self._segment_complete = False  # a SAMPLE was lost: the rest of this run cannot be verified
+            self._expected_index = index + 1
+        elif name == "ESTIMATE":
+            self.estimates += 1
+            self.filter_name = name_of_filter(fields["filter_id"])
+        elif name in ("ACK", "NACK") and self._restart and fields["command_seq"] == self._restart[0].command_seq:
+            self._restart = None
+            if name == "ACK":  # every frame of the old run came before this: the next SAMPLE must be index 0
+                self._segment_complete, self._expected_index = True, 0
+        elif name == "STATUS" and not fields["streaming"] and not (self.listen and self.samples == 0):
+            # (a listener's first STATUS may be the front's copy from before the stream started)
+            self.stop_reason = "the board stopped streaming"
+        elif name == "LOG":
+            board_log(self.progress, fields)
+        elif name == "HELLO" and message.seq == 0 and not (self.listen and self.samples == 0):
+            raise _BoardRestarted  # (a listener's first HELLO is the front's copy)
+
+    def _restart_if_needed(self) -> None:
+        if not self.resync or self._segment_complete:
+            return
+        if self._restart is None or time.monotonic() - self._restart[1] > self.RESTART_TIMEOUT_S:
+            self._restart = (self.link.send_command("SELECT_FILTER", filter_id=self.filter_id), time.monotonic())
+            self.restarts += 1
+
+    def _start_stream(self, filter_name: str) -> None:
+        self.filter_name = filter_name
+        if self.listen:  # the stream is whatever the board sends
+            self._start_ack, self._streaming, self._last_heard = None, True, time.monotonic()
+            self.writer.event("listening")
+            return
+        self._start_ack = self.link.command("START_STREAM").ack
+        self._streaming, self._last_heard = False, time.monotonic()
+        self._expected_index, self._segment_complete, self._restart = 0, True, None
+        self.writer.event("stream_started", filter=filter_name)
+
+    def run(self, hello: dict, filter_name: str, duration_s: float | None, silence_s: float) -> RecordResult:
+        self._start_stream(filter_name)
+        # the duration counts from the board's ACK: on a lossy link START_STREAM's retries may take seconds
+        started = time.monotonic()
+        try:
+            while self.stop_reason is None:
+                try:
+                    try:
+                        self._follow_stream(started, duration_s, silence_s)
+                    except _BoardRestarted:
+                        if self.reconnect_s > 0:  # else its silence ends the recording, as before
+                            self._resume("the board started again (a HELLO with sequence number 0)")
+                except (Disconnected, CommandTimeout) as exc:  # also while the snapshot is taken again
+                    self._await_board(str(exc))
+        except KeyboardInterrupt:
+            self.stop_reason = INTERRUPTED
+        self._stop_stream()
+        counters = self.counters()
+        self.writer.event("stopped", reason=self.stop_reason, counters=counters)
+        elapsed = time.monotonic() - started
+        if self.progress is not None:
+            self.progress.update(self._status_line(elapsed, counters), force=True)
+            self.progress.done()
+        return RecordResult(self.writer.path, hello, self.filter_name, self.samples, self.estimates, self.restarts,
+                            self.stop_reason, elapsed, counters, self.reconnects)
+
+    def _follow_stream(self, started: float, duration_s: float | None, silence_s: float) -> None:
+        """Follow the stream until a stop reason (or an exception: the board went away or
+        started again)."""
+        link, writer = self.link, self.writer
+        while self.stop_reason is None:
+            received = link.receive(timeout=0.1)
+            now = time.monotonic()
+            if received:
+                self._last_heard = now
+            for item in received:
+                if self._streaming:
+                    self._follow(item.message)
+                self._streaming = self._streaming or item.message is self._start_ack
+            if writer.failure is not None:
+                self._stop_stream()
+                self._abort(RecordingError, f"{writer.failure}; the recording ends there", "is readable up to there")
+            if now - self._last_heard > silence_s and self.listen:
+                self.stop_reason = f"nothing received for {silence_s:g} s: the stream stopped"
+            elif now - self._last_heard > silence_s:
+                self._abort(ReceiveTimeout, f"{link.url} sent nothing for {silence_s:g} s: the board stopped "
+                                            "streaming unannounced or hangs (--silence-timeout sets the wait)")
+            self._restart_if_needed()
+            elapsed = now - started
+            if duration_s is not None and elapsed >= duration_s:
+                self.stop_reason = f"{duration_s:g} s recorded"
+            if self.progress is not None and self.progress.due():
+                self.progress.update(self._status_line(elapsed, self.counters()))
+
+    def _say(self, text: str) -> None:
+        if self.progress is not None:
+            self.progress.message(text)
+
+    def _await_board(self, reason: str) -> None:
+        """The link failed: wait up to reconnect_s for the port to open and the board to
+        answer, then go on in a new segment; Disconnected (the file closed cleanly) if it
+        does not come back."""
+        if self.reconnect_s <= 0:
+            self._abort(Disconnected, reason)
+        self.writer.event("disconnected", reason=reason)
+        self._close_link()
+        self._say(f"{self.link.url}: {reason}; waiting up to {self.reconnect_s:g} s for the board to come back")
+        lost_at = time.monotonic()
+        while True:
+            try:
+                link = self.reopen()
+            except LinkError as exc:
+                failure = str(exc)
+            else:
+                self.writer.received(b"\0", time.time())  # ends a frame the old link left half received
+                self._use_link(link)
+                try:
+                    self._resume(f"the board is back after {time.monotonic() - lost_at:.1f} s")
+                    return
+                except (LinkError, protocol.ProtocolError) as exc:  # it went away again, or is not answering yet
+                    failure = str(exc)
+                    self._close_link()
+            if time.monotonic() - lost_at > self.reconnect_s:
+                self._abort(Disconnected, f"{reason}; the board did not come back within {self.reconnect_s:g} s "
+                                          f"(--reconnect sets the wait; last attempt: {failure})")
+            time.sleep(REOPEN_INTERVAL_S)
+
+    def _resume(self, why: str) -> None:
+        """Take the snapshot again (the board's settings and calibration go into the file
+        for the new segment) and start the stream again."""
+        self.writer.event("reconnected", reason=why)
+        if self.listen:
+            _listen(self.link, self.writer, self.profile)
+            filter_name = self.filter_name
+        else:
+            _, self.filter_id, filter_name, _ = snapshot(self.link, self.writer, self.settings, self.profile)
+        self.reconnects += 1
+        self._start_stream(filter_name)
+        self._say(f"{self.link.url}: {why}: the recording goes on in a new segment")
+
+    def _stop_stream(self) -> None:
+        if self.listen:
+            return  # not this client's to stop
+        try:  # the recording is complete either way, and the board may be gone: no long retries
+            self.link.command("STOP_STREAM", attempts=COMMAND_ATTEMPTS)
+        except (LinkError, protocol.ProtocolError):
+            pass
+
+    def _abort(self, error: type[Exception], reason: str, kept: str | None = None) -> NoReturn:
+        """End the recording on a failure: a last event, and `error` saying what the file keeps."""
+        counters = self.counters()
+        self.writer.event("stopped", reason=reason, counters=counters)
+        if self.progress is not None:
+            self.progress.done()
+        kept = kept or f"keeps the {counters['frames']} frames received before (complete and readable)"
+        raise error(f"{reason}; {self.writer.path} {kept}")
+
+    def _status_line(self, elapsed: float, counters: dict) -> str:
+        return (f"recording {elapsed:6.1f} s: {self.samples} samples, {link_summary(counters)}"
+                + (f", filter restarts {self.restarts}" if self.restarts else "")
+                + (f", reconnects {self.reconnects}" if self.reconnects else ""))
