@@ -54,7 +54,7 @@ def moving_then_rests(duration_s: float, seed: int, first_motion_s: float = 30.0
 
 
 def simulate(traj: sim.Trajectory, seed: int, bias_dps=(0.2, -0.3, 0.1)) -> sim.SimResult:
-    """Default sensors (seed 000's gyro noise) with the given turn-on gyro bias."""
+    """Default sensors ([seed 000]'s gyro noise) with the given turn-on gyro bias."""
     suite = sim.SensorSuite.default()
     suite.gyro = sim.GyroModel.seed000(bias_dps=bias_dps)
     return sim.simulate(traj, suite, seed=seed)

@@ -7,8 +7,8 @@
 #include "imu_math.h"
 
 /* Defaults. kp, kp_mag and the alignment's are tuned on BROAD (docs/accuracy.md); the
- * others follow from the sensors' data: seed 000's gyroscope (ARW 0.049 deg/sqrt(s)), the
- * MPU6050's accelerometer (0.02 m/s^2 rms at 100 Hz) and zero-rate offset (+-20 deg/s),
+ * others follow from the sensors' data: [seed 000]'s gyroscope (ARW 0.049 deg/sqrt(s);
+ * docs/filters.md, Bibliography), the MPU6050's accelerometer (0.02 m/s^2 rms at 100 Hz) and zero-rate offset (+-20 deg/s),
  * the HMC5883L's field noise (0.2 uT on a horizontal field near 19 uT). */
 const imu_eecf_settings_t imu_eecf_default_settings = {
     IMU_QCONST(100.0, 16),    /* sample_rate, Hz */
@@ -323,7 +323,7 @@ static void window_mean(imu_q16_t window[IMU_EECF_AVG_LEN][3], int n, imu_q16_t 
     }
 }
 
-/** One alignment step: seed 004 eq. 4-8. The rest tests of this sample ran before. */
+/** One alignment step: [seed 004] eq. 4-8. The rest tests of this sample ran before. */
 static void align_step(imu_eecf_t *f, const imu_sample_t *s)
 {
     const int slot = f->sample_count % IMU_EECF_AVG_LEN;

@@ -1,6 +1,6 @@
 /**
  * @file imu_eskf.h
- * @brief 9-state error-state Kalman filter (seed 000: docs/filters.md, Bibliography), with
+ * @brief 9-state error-state Kalman filter ([seed 000]: docs/filters.md, Bibliography), with
  *        its gaps fixed.
  *
  * Error state x = [dtheta (3), dbg (3), dba (3)]: attitude error angle in the
@@ -22,7 +22,7 @@
  * re-align the attitude. Inputs beyond 1024 m/s^2 or 1024 uT are clamped and count as
  * clipped.
  *
- * The design, equation by equation, and why it departs from seed 000: docs/filters.md,
+ * The design, equation by equation, and why it departs from [seed 000]: docs/filters.md,
  * "ESKF".
  */
 #ifndef IMU_ESKF_H

@@ -1,9 +1,10 @@
 /**
  * @file imu_kf1d.h
- * @brief Per-axis angle/bias Kalman filter (seeds 002 and 003).
+ * @brief Per-axis angle/bias Kalman filter ([seed 002] and [seed 003]:
+ *        docs/filters.md, Bibliography).
  *
  * Three independent 2-state filters, x = [angle, rate bias], one per Euler angle
- * (roll, pitch, heading; conventions in imu_math.h). Prediction (seed 002):
+ * (roll, pitch, heading; conventions in imu_math.h). Prediction ([seed 002]):
  * angle += (rate - bias) dt, P = A P A^T + Q dt with A = [[1, -dt], [0, 1]].
  * Measurements: roll and pitch from the accelerometer, heading from the
  * tilt-compensated magnetometer, each with H = [1, 0]; innovations and angles are
