@@ -9,8 +9,8 @@
 
 enum { ATT = 0, GYRO_BIAS = 3, ACC_BIAS = 6 };
 
-/* Defaults: [seed 000]'s angle random walk (docs/filters.md, Bibliography); the rest chosen on the BROAD trials
- * (one set for all, docs/accuracy.md): a rate random walk below [seed 000]'s (its
+/* Defaults: [seed 000]'s angle random walk (docs/filters.md, Bibliography); the rest
+ * chosen on the BROAD trials (one set for all, docs/accuracy.md): a rate random walk below [seed 000]'s (its
  * 520 deg/h^1.5 makes the bias wander faster than MEMS parts of the GY-86 class
  * do), no accelerometer-bias states (without rotation they absorb translation
  * accelerations, docs/filters.md). */
@@ -793,7 +793,7 @@ static void filter_step(imu_eskf_t *f)
          * and by this step's rotation: P turns with both. (Turned by the step alone, P's
          * unobservable heading direction lags the estimated vertical after every tilt
          * correction, and the gravity updates then shrink the heading variance although
-         * they carry no heading information: without a magnetometer the filter became
+         * they carry no heading information: without a magnetometer the filter becomes
          * overconfident in heading. The first-order reset I - [dtheta/2 x] halves that.) */
         imu_quat_mul(f->injected, dq, turn);
         predict_covariance(f, turn);
