@@ -475,8 +475,8 @@ def simulate(traj: Trajectory, suite: SensorSuite | None = None, seed: int = 0,
             directions (heel strikes, knocks), clipped like everything else.
 
     The vibration and the shocks draw from streams of their own (spawned after the four
-    above), so that a run without them is bit for bit what it was before they existed,
-    and adding them leaves the other errors as they were.
+    above), so that a run without them is bit for bit a run of the four alone, and adding
+    them leaves the other errors unchanged.
 
     Returns:
         :class:`SimResult`.
