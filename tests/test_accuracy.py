@@ -24,7 +24,7 @@ def test_quat_to_euler_matches_the_core_convention():
 @pytest.mark.parametrize("name", ["eecf", "kf1d"])
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_static_after_alignment(name, seed):
-    """Seed 000's band: roll/pitch within +-0.2 deg after alignment (first 10 s
+    """[seed 000]'s band: roll/pitch within +-0.2 deg after alignment (first 10 s
     excluded); heading +-0.1 deg as a standard deviation (the magnetometer and gyro
     noise of the simulated sensors allow no tighter peak, docs/accuracy.md)."""
     err = scenarios.static_errors(name, seed)

@@ -430,7 +430,7 @@ def test_a_malformed_event_behind_a_valid_crc_is_refused(files):
 
 def test_a_full_disk_ends_the_recording_at_once_with_a_readable_file(tmp_path):
     """The file-size limit (`ulimit -f`) as a full disk: one line, exit 2, a readable file,
-    no hang (the reader thread used to die and the recorder to wait forever)."""
+    no hang (a reader thread that dies must not leave the recorder waiting forever)."""
     path = tmp_path / "full.imulog"
     with EmulatedBoard(front="tcp", duration_s=60.0, rate_hz=1000.0) as board:
         result = imulink("record", board.address, "-o", path, limit_file_kib=256)
@@ -477,7 +477,7 @@ def _finish(process: subprocess.Popen) -> subprocess.CompletedProcess:
 
 def test_a_silent_board_ends_the_recording(tmp_path):
     """A board that stops sending (here: its process stopped) is noticed after the silence
-    timeout; it used to be waited for forever."""
+    timeout, not waited for forever."""
     path = tmp_path / "silent.imulog"
     with EmulatedBoard(front="tcp", duration_s=600.0, realtime=True) as board:
         process = _start_record(board.address, path, "--silence-timeout", "1")

@@ -202,7 +202,7 @@ def test_white_flicker_and_random_walk_each_read_where_they_dominate():
 
 
 def test_gyro_model_seed000():
-    """The simulator's gyroscope with seed 000's Table 1 (per axis), eight hours at 50 Hz:
+    """The simulator's gyroscope with [seed 000]'s Table 1 (per axis), eight hours at 50 Hz:
     the angle and rate random walks come back within their uncertainty. The bias
     instability of a Gauss-Markov process has no flat floor: the reading must match the
     minimum of the model's own ADEV (white + Gauss-Markov + random walk) / 0.664."""
@@ -384,7 +384,7 @@ def test_cli_plot_without_matplotlib(csv_file, tmp_path, monkeypatch, capsys):
 
 
 def test_cli_recording_of_an_emulated_board(tmp_path):
-    """A static run of the emulated board (the simulator's seed 000 gyros, 0.02 m/s^2 per
+    """A static run of the emulated board (the simulator's [seed 000] gyros, 0.02 m/s^2 per
     sample on the accelerometer), recorded as fast as the link goes: its timestamps are the
     host's pace, so the board's declared rate is used."""
     from imulink import hil

@@ -43,47 +43,12 @@ bench_arm = _load_tool()
 SAMPLES = 300
 
 #: Ceilings on the mean instructions of imu_filter_update_raw over the 300 samples of
-#: this test: measured with arm-none-eabi-gcc 12.2.1 (12.2.rel1), -O2, unicorn 2.1.4 on
-#: 2026-11-23 (EECF 12 897, KF1D 19 905, ESKF 6 states 20 263, ESKF 9 states 34 495),
-#: plus about 10 %. KF1D measured again at 22 312 after it became a quaternion filter
-#: whose biases reach the angles by the attitude (two more sincos per update; its get
-#: fell from 3 688 to 37, so update + get is cheaper than before). ESKF 6 states measured
-#: again at 22 755 after the heading update became a Schmidt update and the updates at rest
-#: got gain maps (covariance consistency, docs/accuracy.md). ESKF 9 states measured again at
-#: 38 990 after its gravity update got a norm row with a second-order term read from P
-#: (consistency at rest, docs/accuracy.md). EECF and KF1D measured again at 4 104 and
-#: 5 524 after atan2, sin/cos, the square root and the 64-by-32-bit divisions stopped
-#: running bit by bit (docs/numerics.md). Both ESKF ceilings lowered after the covariance
-#: code skipped zero terms and counted leading zeros and the same math changes (see the
-#: measurement below). Both ESKF ceilings lowered again (measured at 8 326 and 12 854) after
-#: the covariance prediction and update stopped shifting every product (rows of phi as int32
-#: multipliers with an exponent each, a measurement's change of P as 32-bit products, P
-#: stored in its new exponents at once) and the gain maps became per-block descriptions.
-#: All four lowered (measured at EECF 3 508, KF1D 5 080, ESKF 7 598 and 11 466) after the
-#: saturation checks and long shifts went to 32-bit words where the values fit, the EECF
-#: integrated once per sample and stopped normalising the field, and KF1D computed each
-#: gain once per measurement. All four lowered again (measured at EECF 3 145, KF1D 3 896,
-#: ESKF 7 336 and 11 205) after KF1D turned its attitude by its corrections with a
-#: second-order step, shared one reciprocal between a measurement's two gains and took its
-#: tilt from the magnitudes at hand, and the measurement weight became one division
-#: (docs/performance.md). Both ESKF ceilings lowered again (measured at 7 159 and 10 839)
-#: after its fusion step computed the attitude's rotation matrix once for all its
-#: measurements and read each element of P it needs once; all four (measured at EECF 2 979,
-#: KF1D 3 747, ESKF 7 105 and 10 768) after the saturating sums became 32-bit additions
-#: with an overflow test; the EECF's (measured at 2 897) after its rest detector's running
-#: means took their weight 1/(n + 1) from one 32-bit division. KF1D and both ESKF ceilings
-#: lowered again (measured at KF1D 3 634, ESKF 6 647 and 9 707) after KF1D's gain products
-#: were inlined and the covariance update made fewer passes over the states. Both ESKF
-#: ceilings lowered again (measured at 6 389 and 9 228) after the covariance scaled its int32
-#: values and narrowed its wide ones with 32-bit shifts. KF1D and both ESKF ceilings lowered
-#: again (measured at KF1D 3 447, ESKF 6 110 and 8 914) after KF1D read its predicted
-#: attitude's sines and cosines from the axes its angles come from, the square root's last
-#: checks became 32-bit products and the ESKF's fusion step lost a 64-bit division, the
-#: product by the identity quaternion, an output integration it discarded and the unit
-#: vectors of the norms it reads alone.
+#: this test (arm-none-eabi-gcc 12.2.1 (12.2.rel1), -O2, unicorn 2.1.4): measured at
+#: EECF 2 897, KF1D 3 447, ESKF 6 states 6 110 and ESKF 9 states 8 914, plus about 10 %.
 #: Instruction counts from an emulator are deterministic for a given
 #: compiler: a failure means the code got slower (or the compiler changed; then measure
-#: again with `tools/bench_arm.py --samples 300` and update these with the reason).
+#: again with `tools/bench_arm.py --samples 300` and update these, with the reason in the
+#: commit message). How the counts came down: docs/performance-log.md.
 UPDATE_CEILING = {
     "eecf": 3_190,
     "kf1d": 3_790,
@@ -103,16 +68,8 @@ GET_CEILING = {
 }
 
 #: Ceilings on the deepest stack imu_filter_update_raw used (bytes, painted stack) over the
-#: same samples: measured at EECF 428 (436 before the quaternion integration was split for
-#: imu_quat_from_rotation) and KF1D 388, plus about 5 % (EECF 404 before the heading's tilt compensation
-#: took its sines and cosines in a function of its own, KF1D 404 between the magnitudes it
-#: kept at hand and the 32-bit saturating sums); the ESKF's is the issue's target, 1 KiB
-#: (measured at 960 with 6 and 9 states; 968 before the fusion step's norms went without
-#: their unit vectors, 976 before the covariance's 32-bit shifts, 944 before the covariance
-#: update's passes over the states were merged; 2 076 before the covariance
-#: prediction stored P in its new exponents at once and used phi's rows as its multipliers,
-#: 1 756 before it took only the moving rows of phi and the covariance code stopped keeping
-#: wide copies of P and arrays it could share).
+#: same samples: measured at EECF 428 and KF1D 388, plus about 5 %; the ESKF's is the
+#: issue's target, 1 KiB (measured at 960 with 6 and 9 states).
 STACK_CEILING = {
     "eecf": 460,
     "kf1d": 410,
@@ -324,12 +281,12 @@ def test_codec_frames_match_python_codec(build, data):
 
 #: Ceilings on the nav filter's mean instructions (tools/bench_nav.py over the first 3 s of
 #: the car drive, at rest: every 50 ms the covariance is propagated and a zero-velocity and
-#: zero-rate update and a magnetometer heading are made): per IMU step, measured at 16 623
-#: (19 316 when these ceilings were first set); per GNSS fix (with the covariance brought up
-#: to its sample), 68 815 (83 620); per barometer sample (an update once a second), 963
-#: (1 087); plus about 10 %.
+#: zero-rate update and a magnetometer heading are made): per IMU step, measured at 16 623;
+#: per GNSS fix (with the covariance brought up to its sample, the velocity gate and the
+#: fixes compared with each other), 76 548; per barometer sample (an update once a second),
+#: 963; plus about 10 %.
 NAV_STEP_CEILING = 18_290
-NAV_FIX_CEILING = 84_200  # 76 548 with the velocity gate and the fixes compared with each other (issue 37), + 10 %
+NAV_FIX_CEILING = 84_200
 NAV_BARO_CEILING = 1_060
 
 

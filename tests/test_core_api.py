@@ -154,7 +154,7 @@ def test_mismatched_shapes(shapes):
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
 def test_nan_or_infinite_si_input_is_refused(data, arithmetic, bad):
     """NaN has no sensor count and an infinite reading is a broken input: neither may
-    become an arbitrary count (an all-NaN input used to give an identity quaternion)."""
+    become an arbitrary count (an all-NaN input would give an identity quaternion)."""
     acc = data.acc.copy()
     acc[17, 1] = bad
     with pytest.raises(SensorDataError, match=r"acc: 1 value\(s\) are NaN or infinite \(the first in sample 17\)"):
@@ -171,7 +171,7 @@ def test_nan_or_infinite_si_input_is_refused(data, arithmetic, bad):
     (np.full((50, 3), "1"), "counts must be integers"),
 ])
 def test_counts_that_a_register_cannot_hold_are_refused(values, message):
-    """Counts beyond int16 used to wrap and fractions to be cut, silently."""
+    """Counts beyond int16 must not wrap, nor fractions be cut, silently."""
     zeros = np.zeros((50, 3), np.int16)
     with pytest.raises(SensorDataError, match=message):
         core.run_counts("eecf", values, zeros, zeros, RATE)

@@ -54,7 +54,7 @@ def moving_then_rests(duration_s: float, seed: int, first_motion_s: float = 30.0
 
 
 def simulate(traj: sim.Trajectory, seed: int, bias_dps=(0.2, -0.3, 0.1)) -> sim.SimResult:
-    """Default sensors (seed 000's gyro noise) with the given turn-on gyro bias."""
+    """Default sensors ([seed 000]'s gyro noise) with the given turn-on gyro bias."""
     suite = sim.SensorSuite.default()
     suite.gyro = sim.GyroModel.seed000(bias_dps=bias_dps)
     return sim.simulate(traj, suite, seed=seed)
@@ -188,9 +188,9 @@ def test_fixed_matches_float_twin(case):
 @pytest.mark.parametrize("seed", [0, 1, 2, 3])
 def test_fixed_matches_float_twin_at_high_rates(rate, seed):
     """Three seconds of random motion (the 2 s alignment and the first second of
-    filtering) at the requirement's high rates. Before the weight kept dt's bits the
-    builds parted by 0.03 to 0.2 deg here; now by about 0.001 deg: the bound, a fifth
-    of the requirement, leaves room for rounding and none for a wrong time constant."""
+    filtering) at the requirement's high rates. The builds part by about 0.001 deg here,
+    a low-pass weight rounded to a wrong time constant by 0.03 to 0.2 deg: the bound, a
+    fifth of the requirement, leaves room for rounding and none for a wrong time constant."""
     data = sim.make_scenario("random", 3, rate, seed)
     fixed = core.run("eecf", data.gyr, data.acc, data.mag, rate, "fixed")
     twin = core.run("eecf", data.gyr, data.acc, data.mag, rate, "float")

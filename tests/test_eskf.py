@@ -1,5 +1,5 @@
-"""The 9-state error-state Kalman filter: seed 000's experiments on simulation,
-robustness, covariance health (short version of tools/soak_eskf.py)."""
+"""The 9-state error-state Kalman filter: [seed 000]'s experiments on simulation
+(docs/filters.md, Bibliography), robustness, covariance health (short version of tools/soak_eskf.py)."""
 import numpy as np
 import pytest
 
@@ -12,8 +12,8 @@ RATE = scenarios.RATE_HZ
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_static_roll_pitch_within_seed_000_band(seed):
-    """Seed 000: static roll/pitch within +-0.2 deg. Heading: the filter's own steady
-    state with seed 000's gyro noise is about 0.06 deg (one sigma), so +-0.1 deg holds
+    """[seed 000]: static roll/pitch within +-0.2 deg. Heading: the filter's own steady
+    state with [seed 000]'s gyro noise is about 0.06 deg (one sigma), so +-0.1 deg holds
     as a standard deviation, not as a peak (docs/accuracy.md)."""
     err = scenarios.static_errors("eskf", seed)
     assert np.max(np.abs(err[:, 0])) < 0.2
@@ -23,7 +23,7 @@ def test_static_roll_pitch_within_seed_000_band(seed):
 
 
 def test_turntable_heading_tracks_the_table():
-    """Seed 000: on a turntable at 10 deg/s the heading follows the table."""
+    """[seed 000]: on a turntable at 10 deg/s the heading follows the table."""
     err = scenarios.turntable_heading_errors("eskf", seed=4)
     assert np.sqrt(np.mean(err**2)) < 0.2
     assert np.max(np.abs(err)) < 0.5

@@ -1,6 +1,6 @@
 """The ESKF at the edges of its legal settings and inputs (issue 8's numerical review).
 
-Each test reproduces one reported defect: it fails on the filter before the fix.
+Each test reproduces one reported defect.
 Undefined behaviour (signed overflow) is caught by the sanitized campaign
 (tests/test_campaign.py); the tests here check the numbers the builds produce.
 """
@@ -67,7 +67,8 @@ def test_spin_beyond_one_radian_per_filter_step_is_followed():
 
 @pytest.mark.parametrize("name,value,state", [("init_gyro_bias_std", 1e-5, 3), ("init_acc_bias_std", 1e-4, 6)])
 def test_small_initial_variances_keep_their_value(name, value, state):
-    """Item 4: a variance was quantised to Q30 before its exponent was chosen (1e-10 became 0.25)."""
+    """Item 4: a variance chooses its exponent before it is rounded (rounded to Q30 first,
+    1e-10 would become 0.25)."""
     data = sim.make_scenario("static", 0.02, RATE, seed=1)
     expected = value**2 if name == "init_gyro_bias_std" else (value / 9.80665) ** 2
     for arithmetic in ("fixed", "float"):

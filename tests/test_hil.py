@@ -417,8 +417,8 @@ def test_replay_never_writes_over_its_recording(tmp_path, capsys):
 
 
 def test_compare_reports_a_damaged_length_field_and_keeps_the_rest(tmp_path, capsys):
-    """One flipped bit in a length field mid-file used to hide two thirds of the samples
-    as a 'truncated tail' while compare still said bit-exact with exit 0."""
+    """One flipped bit in a length field mid-file must not hide two thirds of the samples
+    as a 'truncated tail' while compare says bit-exact with exit 0."""
     path = tmp_path / "length.imulog"
     _synthetic_recording(path, tamper=None)
     records = read_records(path).records
@@ -476,7 +476,7 @@ def test_leftover_frames_of_an_earlier_stream_are_named_as_such(tmp_path, capsys
 
 
 def test_record_never_destroys_an_existing_file(tmp_path, capsys):
-    """A mistyped port used to delete yesterday's recording."""
+    """A mistyped port must not delete yesterday's recording."""
     path = tmp_path / "yesterday.imulog"
     path.write_bytes(b"yesterday's recording")
     code, _, err = run_cli(capsys, "record", "/dev/imulink-no-such-port", "-o", path)
@@ -731,7 +731,7 @@ def test_inject_mat_needs_a_board_that_states_the_broad_profile(tmp_path, capsys
 
 def test_inject_counts_unanswered_samples_and_measures_accuracy_over_the_answered(capsys):
     """Some answers lost on the way: the report says how many, and the accuracy is over
-    the answered samples (it used to be NaN)."""
+    the answered samples (not NaN)."""
     with EmulatedBoard(duration_s=1.0, faults=FaultConfig(drop_byte=5e-4, seed=3)) as board:
         code, out, _ = run_cli(capsys, "inject", board.address, "--input", "sim:rests:15:50:1")
     answered, unanswered = (int(x) for x in re.search(r": (\d+) answered, (\d+) unanswered \(", out).groups())

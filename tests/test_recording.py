@@ -145,8 +145,8 @@ def test_a_flipped_bit_anywhere_costs_only_its_record(tmp_path):
 
 
 def test_flipped_length_bit_mid_file_keeps_the_rest(tmp_path):
-    """The reported fault: one flipped bit in a length field used to turn the rest of the
-    file into a 'truncated tail'."""
+    """One flipped bit in a length field must not turn the rest of the file into a
+    'truncated tail'."""
     chunks = [_setting_frames()] + [_stream_frames([k], seq=100 + 2 * k) for k in range(30)]
     path = _write(tmp_path / "l.imulog", chunks)
     spans = _record_spans(path)

@@ -134,7 +134,7 @@ def test_eskf_gyro_bias_covariance_describes_its_error_at_rest(scenario):
 def test_eskf_nine_states_heading_at_rest_is_not_overconfident():
     """Issue 8 (consistency): with the accelerometer bias estimated, a board at rest cannot
     tell a tilt from that bias, and the field's vertical part turns the tilt error into a
-    heading innovation (tan(dip) times it): left out of H, the heading NEES was 406."""
+    heading innovation (tan(dip) times it): left out of H, the heading NEES would be 406."""
     assert _mean_nees_per_dof("static", "heading", acc_bias=True) < 2.5
 
 

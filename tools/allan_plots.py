@@ -2,7 +2,7 @@
 """Regenerate the Allan-deviation figures of docs/calibration.md and print their terms.
 
 - docs/allan_sim_gy86.png: a static run of the emulated GY-86 board (the firmware as a
-  native process, its sensors fed by the simulator: seed 000's gyroscopes, 0.02 m/s^2
+  native process, its sensors fed by the simulator: [seed 000]'s gyroscopes, 0.02 m/s^2
   per sample on the accelerometer), recorded as `imulink record` records a board and
   analysed as `imulink allan` analyses the recording; the table compares each term
   with the simulator's setting.

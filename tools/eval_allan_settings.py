@@ -7,7 +7,7 @@ with its defaults, with the derived settings (the sensor's terms plus the allowa
 moving board, the default) and with `--sensor-only` (the sensor's terms alone), and the
 mean total attitude RMSE is printed:
 
-- simulated: a still run of the simulator's default sensors (seed 000's gyroscopes,
+- simulated: a still run of the simulator's default sensors ([seed 000]'s gyroscopes,
   0.02 m/s^2 per sample on the accelerometer) analysed for terms, then the scenarios
   rests, random, static and turntable (--seconds each, seeds 0-2, 10 s settling left out);
 - BROAD: the longest rest of 02_undisturbed_slow_rotation_B analysed for terms, then the

@@ -1,9 +1,10 @@
 #!/usr/bin/env python3
-"""Seed 000's and seed 004's experiments on the simulator, for every filter.
+"""[seed 000]'s and [seed 004]'s experiments on the simulator, for every filter
+(docs/filters.md, Bibliography).
 
 - static: standard deviation and largest error of pitch / roll / heading after the
-  first 10 s of 120 s at rest (seeds 1-3 pooled), the way seed 004's table reports;
-- turntable: heading error while turning at 10 deg/s (seed 000's figure 8);
+  first 10 s of 120 s at rest (seeds 1-3 pooled), the way [seed 004]'s table reports;
+- turntable: heading error while turning at 10 deg/s ([seed 000]'s figure 8);
 - gyro bias: seconds until the bias estimate stays within 0.05 deg/s of the truth.
 
 Settings: imulink.analysis.scenarios.SIM_SETTINGS (the simulated sensors' noise).

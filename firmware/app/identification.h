@@ -5,7 +5,7 @@
  *
  * Each ARM board defines one `app_identification` (APP_IDENTIFICATION below); the linker
  * script keeps it right after the vector table (section .imulink_id). A flashing tool finds
- * it in any image format by its magic (host/imulink/firmware_image.py reads it), refuses an
+ * it in any image format by its magic (host/imulink/io/firmware_image.py reads it), refuses an
  * image built for another board or chip, and after flashing checks that the board's HELLO
  * reports the same version and schema hash. HELLO's board name is the block's.
  *

@@ -7,8 +7,8 @@
 #include "imu_math.h"
 
 /* Defaults. kp, kp_mag and the alignment's are tuned on BROAD (docs/accuracy.md); the
- * others follow from the sensors' data: seed 000's gyroscope (ARW 0.049 deg/sqrt(s)), the
- * MPU6050's accelerometer (0.02 m/s^2 rms at 100 Hz) and zero-rate offset (+-20 deg/s),
+ * others follow from the sensors' data: [seed 000]'s gyroscope (ARW 0.049 deg/sqrt(s);
+ * docs/filters.md, Bibliography), the MPU6050's accelerometer (0.02 m/s^2 rms at 100 Hz) and zero-rate offset (+-20 deg/s),
  * the HMC5883L's field noise (0.2 uT on a horizontal field near 19 uT). */
 const imu_eecf_settings_t imu_eecf_default_settings = {
     IMU_QCONST(100.0, 16),    /* sample_rate, Hz */
@@ -70,12 +70,12 @@ void imu_eecf_init(imu_eecf_t *f)
  *
  * The numerator keeps all of dt's bits (Q30 * 2^16 / Q16 -> Q30, below 2^43 before
  * the division). Rounded to Q16 it would carry the time constant's error: at 5 kHz
- * dt is 13.1 LSB of Q16, rounded to 13, and every low-pass ran 0.8 % slow (at 1 kHz
- * 65.5 LSB, 0.7 % fast), which moved the fixed build's alignment up to 0.2 deg away
- * from the float twin's. The denominator's Q16 rounding (at most 2^-17 s) is small
- * beside tau + dt. With tau near zero it may lift the quotient above one: clamped
- * there (the float value is one). dt >= 2^15 (rates below 32768 Hz): the
- * denominator is at least 2.
+ * dt is 13.1 LSB of Q16, rounded to 13, and every low-pass would run 0.8 % slow (at
+ * 1 kHz 65.5 LSB, 0.7 % fast), which moves the fixed build's alignment away from the
+ * float twin's (docs/filters.md, EECF, fixed point at high sample rates). The
+ * denominator's Q16 rounding (at most 2^-17 s) is small beside tau + dt. With tau near
+ * zero it may lift the quotient above one: clamped there (the float value is one).
+ * dt >= 2^15 (rates below 32768 Hz): the denominator is at least 2.
  */
 static imu_q30_t lowpass_weight(imu_q30_t dt, imu_q16_t tau, uint32_t *sat)
 {
@@ -323,7 +323,7 @@ static void window_mean(imu_q16_t window[IMU_EECF_AVG_LEN][3], int n, imu_q16_t 
     }
 }
 
-/** One alignment step: seed 004 eq. 4-8. The rest tests of this sample ran before. */
+/** One alignment step: [seed 004] eq. 4-8. The rest tests of this sample ran before. */
 static void align_step(imu_eecf_t *f, const imu_sample_t *s)
 {
     const int slot = f->sample_count % IMU_EECF_AVG_LEN;

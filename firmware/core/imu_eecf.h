@@ -1,8 +1,9 @@
 /**
  * @file imu_eecf.h
- * @brief Enhanced explicit complementary filter with initial alignment (seed 004).
+ * @brief Enhanced explicit complementary filter with initial alignment ([seed 004]:
+ *        docs/filters.md, Bibliography).
  *
- * Alignment (seed 004 eq. 3-8, 14): for `align_time` seconds the accelerometer
+ * Alignment ([seed 004] eq. 3-8, 14): for `align_time` seconds the accelerometer
  * and magnetometer are averaged over a moving window of IMU_EECF_AVG_LEN
  * samples, roll and pitch come from the averaged specific force, heading from the
  * tilt-compensated magnetic field, and a first-order complementary filter with

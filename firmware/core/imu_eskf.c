@@ -9,14 +9,14 @@
 
 enum { ATT = 0, GYRO_BIAS = 3, ACC_BIAS = 6 };
 
-/* Defaults: seed 000's angle random walk; the rest chosen on the BROAD trials
- * (one set for all, docs/accuracy.md): a rate random walk below seed 000's (its
+/* Defaults: [seed 000]'s angle random walk (docs/filters.md, Bibliography); the rest
+ * chosen on the BROAD trials (one set for all, docs/accuracy.md): a rate random walk below [seed 000]'s (its
  * 520 deg/h^1.5 makes the bias wander faster than MEMS parts of the GY-86 class
  * do), no accelerometer-bias states (without rotation they absorb translation
  * accelerations, docs/filters.md). */
 const imu_eskf_settings_t imu_eskf_default_settings = {
     IMU_QCONST(100.0, 16),    /* sample_rate, Hz */
-    IMU_QCONST(8.7e-4, 32),   /* gyro_arw, rad/sqrt(s) (seed 000 table 1: 3 deg/sqrt(h)) */
+    IMU_QCONST(8.7e-4, 32),   /* gyro_arw, rad/sqrt(s) ([seed 000] table 1: 3 deg/sqrt(h)) */
     IMU_QCONST(1e-5, 40),     /* gyro_rrw, rad/s/sqrt(s) (124 deg/h^1.5) */
     IMU_QCONST(1e-4, 32),     /* acc_bias_rw, m/s^2/sqrt(s) */
     IMU_QCONST(0.3, 24),      /* acc_noise, m/s^2 */
@@ -115,7 +115,7 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
     }
     /* rrw Q40 * T Q30 >> 30 -> Q40, * rrw Q40 -> Q80, >> 16 -> Q64: the angle variances are
      * Q64 and the bias variances Q80, and bringing the angle ones to Q80 would overflow, so
-     * all are Q64 (seed 000's rrw still keeps 2^28 of resolution). */
+     * all are Q64 ([seed 000]'s rrw still keeps 2^28 of resolution). */
     t = IMU_MUL(s->gyro_rrw, f->period, 30);
     for (k = 0; k < 3; ++k) {
         f->process_var[GYRO_BIAS + k] = IMU_WSHR(IMU_WMUL(t, s->gyro_rrw), 16);
@@ -172,7 +172,7 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
     return IMU_OK;
 }
 
-/** Attitude from a specific force and a field alone: tilt + tilt-compensated heading (seed 004 eq. 3-5, 14). */
+/** Attitude from a specific force and a field alone: tilt + tilt-compensated heading ([seed 004] eq. 3-5, 14). */
 static void align_to(imu_eskf_t *f, const imu_q16_t acc[3], const imu_q16_t mag[3])
 {
     imu_angle_t euler[3] = {0, 0, 0};
@@ -793,7 +793,7 @@ static void filter_step(imu_eskf_t *f)
          * and by this step's rotation: P turns with both. (Turned by the step alone, P's
          * unobservable heading direction lags the estimated vertical after every tilt
          * correction, and the gravity updates then shrink the heading variance although
-         * they carry no heading information: without a magnetometer the filter became
+         * they carry no heading information: without a magnetometer the filter becomes
          * overconfident in heading. The first-order reset I - [dtheta/2 x] halves that.) */
         imu_quat_mul(f->injected, dq, turn);
         predict_covariance(f, turn);

@@ -1,80 +1,29 @@
 /**
  * @file imu_eskf.h
- * @brief 9-state error-state Kalman filter (seed 000), with its gaps fixed.
+ * @brief 9-state error-state Kalman filter ([seed 000]: docs/filters.md, Bibliography), with
+ *        its gaps fixed.
  *
  * Error state x = [dtheta (3), dbg (3), dba (3)]: attitude error angle in the
  * sensor frame (rad; twice the seed's error-quaternion vector part, true =
  * estimate (x) exp(dtheta)), gyro bias error (rad/s), accelerometer bias error (in
- * units of g, so that every measurement coefficient is at most 1).
+ * units of g, so that every measurement coefficient is at most 1). The covariance is
+ * stored in block-floating form (imu_cov.h).
  *
- * Propagation (eq. 15-16): gyro samples are consumed three at a time; their
- * bias-corrected increments (each limited to 1 rad: a sample rate far too low for the
- * motion) form the three-sample rotation vector
- * phi = t1 + t2 + t3 + 33/80 t1 x t3 + 57/80 t2 x (t3 - t1) (up to 5.3 rad, kept wide),
- * and q <- q (x) exp(phi).
- * The filter (covariance and measurements) therefore runs at a third of the
- * sensor rate, whatever that rate is (a sensor rate that is not a multiple of
- * three gives a non-integer filter rate, which is fine: T = 3 / sample_rate).
- * Between filter steps the output is the attitude propagated by the increments
- * received so far, so every sample has an up-to-date estimate; an incomplete
- * group at the end of a stream is simply not yet fused.
+ * Gyro samples are consumed three at a time (three-sample rotation vector), so the
+ * covariance and the measurements run at a third of the sensor rate, T = 3 / sample_rate
+ * (any sensor rate: the filter rate need not be an integer). Between filter steps the
+ * output is the attitude propagated by the increments received so far; an incomplete
+ * group at the end of a stream is not yet fused.
  *
- * Covariance (eq. 17-18): Phi = [[R(phi)^T, -T I, 0], [0, I, 0], [0, 0, I]], the exact
- * transition of the attitude error (the seed's first-order I - [phi x] inflates the
- * variance step after step in fast rotation), and Q = diag(arw^2, rrw^2, acc_bias_rw^2) T,
- * the Allan-variance
- * angle random walk and rate random walk directly; the seed's
- * Gamma = (I + T F) G T adds only terms of order T^2 to this Q, dropped here.
- * Stored in block-floating form (imu_cov.h); the attitude variances are kept below
- * 1 rad^2 (imu_cov_cap_unit_variance).
+ * Measurements: gravity (from the specific force low-passed in the estimated earth frame),
+ * heading (east share of the unit field, correcting only the vertical attitude and gyro
+ * bias components) and, at rest (imu_rest.h), the gyro bias; each is down-weighted
+ * smoothly as its input departs from its model. Clipped sensors skip their update or
+ * re-align the attitude. Inputs beyond 1024 m/s^2 or 1024 uT are clamped and count as
+ * clipped.
  *
- * Measurements (eq. 8-9), as sequential scalar updates (no matrix inverse):
- * - gravity: a / g = v + [v x] dtheta + ba, where v is the estimated up direction
- *   in the sensor frame, read along the estimated east and north and (9 states) as
- *   the norm of a / g - ba, which does not depend on the attitude. The accelerometer bias is
- *   observable through rotations (it is not in the seed's H); it can be switched
- *   off (`estimate_acc_bias` = 0: 6 states).
- * - heading: the east share of the unit magnetic field in the estimated earth
- *   frame, z = m_E, with H = [m_N v^T - m_U n^T, 0, 0] (n the estimated north): the
- *   heading error and the tilt about north that the field's vertical part turns
- *   into east. The seed's 2[m x] would let the magnetometer tilt roll and pitch;
- *   here it never does: a gain map (imu_cov_update) lets this update correct only
- *   the vertical components of the attitude and the gyro bias, and P, in Joseph's
- *   form for that gain, keeps the tilt's uncertainty.
- * - rest (imu_rest.h): the low-passed rate measures the gyro bias; at rest gravity
- *   and the field correct everything but the gyro bias and the rest measurement the
- *   gyro bias alone (the same gyroscope noise drives the attitude they observe).
- * Gravity is measured from the specific force low-passed in the estimated earth
- * frame (time constant acc_lowpass): rotations do not change gravity there, while
- * the accelerations of a back-and-forth translation average out.
- * Robustness: a specific-force norm away from g (taps, translation, free fall) and
- * a field whose norm or dip departs from the reference (a magnet nearby)
- * down-weight their measurement smoothly: w = 1 / (1 + d^2)^2 with d the
- * deviation over its tolerance; the effective variance is R / w. The reference
- * field is acquired from the first plausible field (5-500 uT, unclipped, with a
- * horizontal share; an HMC5883L reads zeros before its first conversion: the heading
- * is then aligned when the first plausible field comes); its norm and dip are learnt
- * during the next 10 s (time constant 1 s: one sample's noise and an unconverged
- * attitude), then follow slow changes (time constant 30 s) while the field is
- * undisturbed. A disturbed field that keeps one norm and dip in the earth frame for
- * 20 s while the board turns (faster than 20 deg/s) is fixed to the earth, not to the
- * board: it becomes the new reference.
- *
- * Rest (imu_rest.h): when the board lies still, the gyroscope reads its bias; the
- * low-passed rate is then a measurement of the bias states (variance arw^2 / T).
- *
- * A sensor at its register limit is not trusted: a clipped accelerometer or
- * magnetometer skips its update for that step; after a clipped gyroscope (an
- * unknown part of the rotation lost, possibly half a turn) the attitude is
- * re-aligned from gravity and the field at the first step whose specific force is
- * within acc_tolerance of g, with the initial attitude uncertainty.
- *
- * After each filter step the error is injected (q <- q (x) exp(dtheta), dtheta
- * limited to 1 rad; biases += their errors) and the error state restarts at zero; the
- * next prediction turns P by that correction as well as by the step's rotation.
- *
- * Inputs beyond 1024 m/s^2 or 1024 uT (beyond every MPU6050 and HMC5883L range; only
- * scale settings no real sensor has produce them) are clamped and count as clipped.
+ * The design, equation by equation, and why it departs from [seed 000]: docs/filters.md,
+ * "ESKF".
  */
 #ifndef IMU_ESKF_H
 #define IMU_ESKF_H

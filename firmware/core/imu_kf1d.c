@@ -248,7 +248,7 @@ void imu_kf1d_update(imu_kf1d_t *f, const imu_sample_t *s)
     /* The specific force's part in the sensor's x-z plane and its magnitude, m/s^2 Q16
      * (saturated beyond 2^15 m/s^2, where the tilt measurements' weight is zero). The
      * magnitude is rounded: floored, it would bias the tilt weights against the float
-     * build's (the fixed-vs-float difference of an hour at 100 Hz grew fourfold). */
+     * build's (docs/performance-log.md, KF1D's tilt measurement). */
     const imu_real_t acc_xz = imu_hypot(s->acc[0], s->acc[2]);
     const imu_real_t acc_norm = imu_vec3_norm(s->acc);
     const int have_tilt = acc_norm != 0;
@@ -343,9 +343,8 @@ void imu_kf1d_update(imu_kf1d_t *f, const imu_sample_t *s)
     }
     if (have_mag) {
         /* Tilt compensation by the corrected roll and pitch, whose sines and cosines also
-         * give the weight. (By the predicted ones, which the prediction has at hand, the
-         * simulated static heading noise of tools/eval_sim.py grew from 0.100 to 0.101 deg
-         * and the turntable's largest heading error from 0.297 to 0.299 deg.) */
+         * give the weight. (The predicted ones, which the prediction has at hand, are
+         * slightly less accurate: docs/performance-log.md, KF1D's heading measurement.) */
         imu_q30_t sr, cr, sp, cp;
         imu_sincos(f->axis[ROLL].angle, &sr, &cr);
         imu_sincos(f->axis[PITCH].angle, &sp, &cp);

@@ -1,9 +1,10 @@
 /**
  * @file imu_kf1d.h
- * @brief Per-axis angle/bias Kalman filter (seeds 002 and 003).
+ * @brief Per-axis angle/bias Kalman filter ([seed 002] and [seed 003]:
+ *        docs/filters.md, Bibliography).
  *
  * Three independent 2-state filters, x = [angle, rate bias], one per Euler angle
- * (roll, pitch, heading; conventions in imu_math.h). Prediction (seed 002):
+ * (roll, pitch, heading; conventions in imu_math.h). Prediction ([seed 002]):
  * angle += (rate - bias) dt, P = A P A^T + Q dt with A = [[1, -dt], [0, 1]].
  * Measurements: roll and pitch from the accelerometer, heading from the
  * tilt-compensated magnetometer, each with H = [1, 0]; innovations and angles are
@@ -45,9 +46,9 @@ extern const int imu_kf1d_setting_count;
 typedef struct {
     imu_angle_t angle; /**< rad, Q29: read from quat at the prediction, then corrected */
     imu_q30_t bias;    /**< rad/s, Q30 (+-2 rad/s), in the sense of this angle's rate. Its
-                            correction per sample is a few Q24 steps at 1 kHz: held in
-                            Q24, the fixed and float builds part by 1.0 deg in an hour
-                            of random motion at 1 kHz (2.1 deg at 5 kHz) */
+                            correction per sample is a few Q24 steps at 1 kHz, too coarse
+                            for the fixed build to follow the float twin (docs/filters.md,
+                            KF1D, fixed-point precision) */
     imu_real_t p00;    /**< rad^2, Q35 */
     imu_real_t p01;    /**< rad^2/s, Q40 */
     imu_real_t p11;    /**< rad^2/s^2, Q42 */

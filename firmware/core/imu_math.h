@@ -3,7 +3,8 @@
  * @brief Vector, quaternion and angle helpers on the arithmetic layer's types.
  *
  * Conventions: quaternions are w-first, sensor-to-earth, earth frame ENU; the
- * sensor (body) frame has x to the right, y forward, z up (seeds 000 and 004).
+ * sensor (body) frame has x to the right, y forward, z up ([seed 000] and [seed 004]:
+ * docs/filters.md, Bibliography).
  * Euler angles are [roll, pitch, heading] in rad with R = Rz(-heading) Rx(pitch)
  * Ry(roll): pitch lifts the y axis above the horizon, roll turns about y (right
  * side down positive), heading is the compass heading of the y axis (from north,

@@ -61,7 +61,7 @@ void imu_navfilter_update(imu_navfilter_t *f, const imu_sample_t *sample);
 int imu_navfilter_gnss(imu_navfilter_t *f, const imu_proto_gnss_t *fix);
 
 /**
- * @brief A position fix from a known place (seed 003's markers), trusted as its accuracy says.
+ * @brief A position fix from a known place ([seed 003]'s markers: docs/filters.md, Bibliography), trusted as its accuracy says.
  * @param lat_1e7deg, lon_1e7deg 1e-7 deg; @param height_mm above the ellipsoid
  * @param h_acc_mm, v_acc_mm accuracies, 1 .. 2^30 mm
  * @return 1 when used, 0 when out of range or before the start.

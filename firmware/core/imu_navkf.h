@@ -1,9 +1,9 @@
 /**
  * @file imu_navkf.h
  * @brief The `nav` filter: loosely coupled GNSS/INS navigation, a 16-state error-state
- *        Kalman filter around the strapdown propagation of imu_nav.h (seed 002, sections 4
+ *        Kalman filter around the strapdown propagation of imu_nav.h ([seed 002], sections 4
  *        and 5), with zero-velocity updates at rest and position fixes from any source
- *        (seed 003's markers).
+ *        ([seed 003]'s markers; sources: docs/filters.md, Bibliography).
  *
  * Error state (the covariance's states, each block in a unit of its own so that every
  * innovation, correction and transition entry is a Q30 value below 2):
@@ -57,7 +57,7 @@
 /** Where a fix comes from. */
 typedef enum {
     IMU_NAVKF_GNSS = 0,  /**< a receiver: gated, and its speed tells whether the board stands */
-    IMU_NAVKF_MARKER = 1 /**< a known place (seed 003's markers): trusted as its accuracy says */
+    IMU_NAVKF_MARKER = 1 /**< a known place ([seed 003]'s markers): trusted as its accuracy says */
 } imu_navkf_source_t;
 
 /**

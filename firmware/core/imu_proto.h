@@ -167,15 +167,15 @@ typedef enum {
     IMU_PROTO_CMD_SET_INJECTION_MODE = 11, /**< 1: the filter runs on INJECT_SAMPLE data and the sensors are ignored; 0: back to the sensors */
     IMU_PROTO_CMD_SET_CALIBRATION = 12, /**< Set one axis of a sensor's calibration (the offset of that axis and its row of the correction matrix, Q formats as CALIBRATION reports them); the active filter restarts with it */
     IMU_PROTO_CMD_GET_CALIBRATION = 13, /**< Read one axis of a sensor's calibration */
-    IMU_PROTO_CMD_POSITION_FIX = 14, /**< A position fix from a known place (seed 003's markers) for the NAV filter: trusted as its accuracy says, never gated */
+    IMU_PROTO_CMD_POSITION_FIX = 14, /**< A position fix from a known place ([seed 003]'s markers) for the NAV filter: trusted as its accuracy says, never gated */
 } imu_proto_command_id_t;
 
 /** Filter ids (the same values as imu_filter_id_t in firmware/core/imu_filter.h). */
 typedef enum {
-    IMU_PROTO_FILTER_EECF = 1, /**< enhanced explicit complementary filter (seed 004) */
-    IMU_PROTO_FILTER_KF1D = 2, /**< per-axis angle/bias Kalman filter (seeds 002, 003) */
-    IMU_PROTO_FILTER_ESKF = 3, /**< 9-state error-state Kalman filter (seed 000) */
-    IMU_PROTO_FILTER_NAV = 4, /**< loosely coupled GNSS/INS navigation, 16-state error-state Kalman filter (seeds 002, 003): NAV_STATE besides ESTIMATE */
+    IMU_PROTO_FILTER_EECF = 1, /**< enhanced explicit complementary filter ([seed 004]) */
+    IMU_PROTO_FILTER_KF1D = 2, /**< per-axis angle/bias Kalman filter ([seed 002], [seed 003]) */
+    IMU_PROTO_FILTER_ESKF = 3, /**< 9-state error-state Kalman filter ([seed 000]) */
+    IMU_PROTO_FILTER_NAV = 4, /**< loosely coupled GNSS/INS navigation, 16-state error-state Kalman filter ([seed 002], [seed 003]): NAV_STATE besides ESTIMATE */
 } imu_proto_filter_t;
 
 /** Reason code of an ACK (always OK) or a NACK (why the command was refused). */

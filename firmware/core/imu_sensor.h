@@ -77,7 +77,7 @@ void imu_sample_from_raw(const imu_sensor_settings_t *settings, const imu_raw_sa
  * corrected[i] = sum_j matrix[3 i + j] (raw[j] - offset[j]), in counts.
  * Gyroscope: offset = the bias at rest, matrix = identity; accelerometer: offset and
  * scale per axis (or a symmetric matrix); magnetometer: hard iron (offset) and soft iron
- * (matrix). The host computes them (host/imulink/calibration.py).
+ * (matrix). The host computes them (host/imulink/analysis/calibration.py).
  */
 typedef struct {
     imu_real_t offset[3]; /**< counts, Q8 (|offset| <= IMU_CAL_MAX_OFFSET) */

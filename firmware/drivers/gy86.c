@@ -21,31 +21,8 @@ const gy86_config_t gy86_default_config = {
  * `sign` times HMC5883L axis `from`. The mapping is the identity: the HMC5883L's X, Y,
  * Z are parallel to the MPU6050's x, y, z.
  *
- * Derivation (sources read, no code taken from them):
- *  - MultiWii (github.com/multiwii/multiwii-firmware, def.h, block GY_86) maps both
- *    chips into the one frame its filter rotates with the gyroscope:
- *      ACC_ORIENTATION(X, Y, Z) {accADC[ROLL] = -X; accADC[PITCH] = -Y; accADC[YAW] =  Z;}
- *      MAG_ORIENTATION(X, Y, Z) {magADC[ROLL] =  X; magADC[PITCH] =  Y; magADC[YAW] = -Z;}
- *    so its field vector, written in MPU6050 axes, is -(X, Y, Z) of the HMC5883L. Its
- *    FREEIMUv043 block (same chip pair, magnetometer on the MPU6050's auxiliary bus)
- *    is identical.
- *  - "v_mpu = -v_hmc" is a point reflection, which no mounting produces between two
- *    right-handed axis sets. The MPU6050's axes are right-handed (PS-MPU-6000A,
- *    orientation of axes of sensitivity); the HMC5883L's raw axes are right-handed as
- *    ArduPilot (libraries/AP_Compass/AP_Compass_HMC5843.cpp maps them into its
- *    right-handed frame as (-X, Y, -Z)) and TauLabs/OpenPilot (pios_hmc5883.c: every
- *    mounting option is a proper rotation) use them. The overall sign is MultiWii's
- *    convention (a negated field vector rotates the same way and only turns a heading
- *    by 180 degrees); what remains is the identity.
- *  - FreeIMU (github.com/Fabio-Varesano-Association/freeimu, FreeIMU.h / FreeIMU.cpp),
- *    whose v0.4 board carries the MPU6050 + HMC5883L + MS5611 set the GY-86 copies,
- *    lists FREEIMU_v04 under HAS_AXIS_ALIGNED() and feeds the HMC5883L's raw X, Y, Z
- *    unchanged, with the MPU6050's accelerometer and gyroscope, into its AHRS.
- *
- * Bench check on hardware (not automated here): at rest in several attitudes the
- * angle between the accelerometer and the mapped field must stay the same (90 degrees
- * plus the local inclination, about 154 degrees in central Europe); a wrong sign or
- * a swapped pair of axes makes it change with attitude.
+ * How the mapping was established, and how to check it on a bench: docs/firmware.md,
+ * "The GY-86's magnetometer axes".
  */
 typedef struct {
     uint8_t from; /**< HMC5883L axis: 0 X, 1 Y, 2 Z */

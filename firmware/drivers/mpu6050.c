@@ -54,7 +54,7 @@
 
 /** rad per degree, as the host computes it (numpy.deg2rad(1.0) is this same double). */
 #define RAD_PER_DEG (3.141592653589793 / 180.0)
-/** Standard gravity, m/s^2: the data sheet's "g" (host: imulink.counts.STANDARD_GRAVITY). */
+/** Standard gravity, m/s^2: the data sheet's "g" (host: imulink.core.counts.STANDARD_GRAVITY). */
 #define STANDARD_GRAVITY 9.80665
 
 /* Folded by the compiler (static initialisers are constant expressions): no floating

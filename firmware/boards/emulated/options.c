@@ -13,7 +13,7 @@ const char options_usage[] =
     "  --rate HZ        sample rate, Hz (decimal); default 100\n"
     "  --filter NAME    filter active after start-up: eecf, kf1d, eskf or nav; default eecf\n";
 
-/** The sensor profiles of host/imulink/counts.py: the reference board's GY-86 configuration
+/** The sensor profiles of host/imulink/core/counts.py: the reference board's GY-86 configuration
  *  (+-2000 deg/s, 1090 LSB/gauss) with one accelerometer range or the other. */
 typedef struct {
     const char *name;

@@ -5,7 +5,7 @@
  *
  * `--profile NAME`  the sensor ranges the fed counts are in: gy86-default (MPU6050 at
  *                   +-2000 deg/s and +-8 g, HMC5883L at 1090 LSB/gauss) or gy86-broad
- *                   (the same at +-16 g), as in host/imulink/counts.py
+ *                   (the same at +-16 g), as in host/imulink/core/counts.py
  * `--rate HZ`       the default sample_rate of every filter, a decimal number of Hz
  * `--filter NAME`   eecf, kf1d or eskf: the filter active after start-up
  */

@@ -735,7 +735,7 @@ def settings_from_terms(terms: Mapping[str, Sequence[float | None]], filter_name
 # ---------------------------------------------------------------------------- the plot
 
 
-#: Seed 000's Table 1 (its three MEMS gyros): ARW deg/sqrt(h), bias stability deg/h,
+#: [seed 000]'s Table 1 (docs/filters.md, Bibliography; its three MEMS gyros): ARW deg/sqrt(h), bias stability deg/h,
 #: RRW deg/h/sqrt(h), drawn for comparison with a gyroscope's curve.
 SEED000_TABLE1 = {"arw": (3.3197, 2.6794, 2.885), "bias_instability": (39.8887, 36.4465, 34.5215),
                   "rrw": (520.5, 598.05, 471.84)}
@@ -744,7 +744,7 @@ SEED000_TABLE1 = {"arw": (3.3197, 2.6794, 2.885), "bias_instability": (39.8887, 
 def plot(result: AllanResult, path, reference: bool = True) -> None:
     """Draw the curves of `result` to `path` (.png or .svg), log-log, one panel per sensor:
     each axis with its intervals as error bars, the fitted -1/2 and +1/2 lines and the
-    bias-instability floor (0.664 B) where identified, and (`reference`) seed 000's Table 1
+    bias-instability floor (0.664 B) where identified, and (`reference`) [seed 000]'s Table 1
     for the gyroscope (the mean of its three gyros, grey). Gyroscope in deg/h,
     accelerometer in m/s^2."""
     fmt = plot_format(path)

@@ -1,8 +1,9 @@
 """Simulation experiments shared by the tests and tools/eval_sim.py.
 
-Each function simulates one of the source documents' experiments and returns
-plain numbers, so that a test can assert them and a tool can tabulate them.
-The filter settings passed here describe the simulated sensors (seed 000's
+Each function simulates one of the source documents' experiments (docs/filters.md,
+Bibliography) and returns plain numbers, so that a test can assert them and a tool can
+tabulate them.
+The filter settings passed here describe the simulated sensors ([seed 000]'s
 gyroscope noise, the HMC5883L data sheet's magnetometer noise), as a user would
 set them from an Allan-variance analysis; the defaults in the C core are tuned on
 real recordings instead (docs/accuracy.md).
@@ -38,7 +39,7 @@ def euler_errors_deg(estimate_quat, true_quat) -> np.ndarray:
 
 def static_errors(filter_name: str, seed: int, duration_s: float = 120.0, settle_s: float = 10.0,
                   arithmetic: str = "fixed") -> np.ndarray:
-    """Euler errors (deg) of a static run after `settle_s` (seed 000 / 004's static experiment)."""
+    """Euler errors (deg) of a static run after `settle_s` ([seed 000] / [seed 004]'s static experiment)."""
     data = sim.make_scenario("static", duration_s, RATE_HZ, seed=seed)
     out = core.run(filter_name, data.gyr, data.acc, data.mag, RATE_HZ, arithmetic,
                    settings=SIM_SETTINGS[filter_name])
@@ -47,7 +48,7 @@ def static_errors(filter_name: str, seed: int, duration_s: float = 120.0, settle
 
 def turntable_heading_errors(filter_name: str, seed: int, rate_dps: float = 10.0, duration_s: float = 120.0,
                              settle_s: float = 20.0) -> np.ndarray:
-    """Heading errors (deg) while a turntable turns at `rate_dps` (seed 000's 10 deg/s test)."""
+    """Heading errors (deg) while a turntable turns at `rate_dps` ([seed 000]'s 10 deg/s test)."""
     traj = sim.turntable(duration_s, RATE_HZ, rate_dps=rate_dps, settle_s=10.0)
     data = sim.simulate(traj, sim.SensorSuite.default(), seed=seed)
     out = core.run(filter_name, data.gyr, data.acc, data.mag, RATE_HZ, "fixed", settings=SIM_SETTINGS[filter_name])

@@ -280,7 +280,7 @@ class _StreamRecorder:
                     try:
                         self._follow_stream(started, duration_s, silence_s)
                     except _BoardRestarted:
-                        if self.reconnect_s > 0:  # else its silence ends the recording, as before
+                        if self.reconnect_s > 0:  # else (no --reconnect) its silence ends the recording
                             self._resume("the board started again (a HELLO with sequence number 0)")
                 except (Disconnected, CommandTimeout) as exc:  # also while the snapshot is taken again
                     self._await_board(str(exc))

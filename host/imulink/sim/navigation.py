@@ -623,7 +623,8 @@ def antenna_fixes(traj: NavTrajectory, fixes: GnssFixes, arm_m) -> GnssFixes:
 
 @dataclass
 class MarkerFixes:
-    """Position fixes from markers at known places (seed 003's QR codes): `index` the IMU
+    """Position fixes from markers at known places ([seed 003]'s QR codes,
+    docs/filters.md, Bibliography): `index` the IMU
     sample each is taken at, the geodetic position (deg, m) with its error, the accuracy
     given with it (m, 1 sigma, each axis), and the truth at `index`."""
     index: np.ndarray

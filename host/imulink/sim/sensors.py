@@ -88,7 +88,7 @@ class GyroModel:
 
     @classmethod
     def seed000(cls, bias_dps=(0.0, 0.0, 0.0)) -> "GyroModel":
-        """Seed 000's Table 1 (x, y, z gyros), converted to SI.
+        """[seed 000]'s Table 1 (x, y, z gyros; docs/filters.md, Bibliography), converted to SI.
 
         Bias stability 39.8887/36.4465/34.5215 deg/h, ARW 3.3197/2.6794/2.885 deg/sqrt(h),
         RRW 520.5/598.05/471.84 deg/h^1.5.
@@ -375,7 +375,7 @@ class SensorSuite:
 
     @classmethod
     def default(cls) -> "SensorSuite":
-        """Seed 000 gyros with a (0.2, -0.3, 0.1) deg/s turn-on bias, default acc and mag."""
+        """[seed 000] gyros with a (0.2, -0.3, 0.1) deg/s turn-on bias, default acc and mag."""
         return cls(gyro=GyroModel.seed000(bias_dps=(0.2, -0.3, 0.1)), acc=AccModel(), mag=MagModel())
 
 
@@ -475,8 +475,8 @@ def simulate(traj: Trajectory, suite: SensorSuite | None = None, seed: int = 0,
             directions (heel strikes, knocks), clipped like everything else.
 
     The vibration and the shocks draw from streams of their own (spawned after the four
-    above), so that a run without them is bit for bit what it was before they existed,
-    and adding them leaves the other errors as they were.
+    above), so that a run without them is bit for bit a run of the four alone, and adding
+    them leaves the other errors unchanged.
 
     Returns:
         :class:`SimResult`.
