@@ -39,7 +39,7 @@ def test_large_accelerometer_noise_setting_does_not_wrap(acc_noise):
 @pytest.mark.parametrize("rate", [30.0, 40.0, 52.0])
 def test_fast_spin_at_low_sensor_rates_matches_the_float_twin(rate):
     """Item 2: at 30-52 Hz a near-full-scale spin overflowed the three-sample rotation vector."""
-    tilted = Q.from_euler(0.4, -0.3, 0.2)
+    tilted = Q.from_zyx(0.4, -0.3, 0.2)
     traj = sim.turntable(20, rate, rate_dps=np.rad2deg(30.0), initial=tilted, settle_s=2.0)
     data = sim.simulate(traj, sim.SensorSuite.default(), seed=12)
     runs = _fixed_and_float(data, rate, {"sample_rate": rate})
@@ -52,7 +52,7 @@ def test_spin_beyond_one_radian_per_filter_step_is_followed():
     step) is integrated whole, not cut to one radian: without aiding, the attitude is the
     product of the samples' rotations."""
     rate = 30.0
-    traj = sim.turntable(20, rate, rate_dps=np.rad2deg(25.0), initial=Q.from_euler(0.4, -0.3, 0.2), settle_s=0.0)
+    traj = sim.turntable(20, rate, rate_dps=np.rad2deg(25.0), initial=Q.from_zyx(0.4, -0.3, 0.2), settle_s=0.0)
     data = sim.simulate(traj, sim.SensorSuite.default(), seed=13)
     data.acc_counts[1:] = 0
     data.mag_counts[1:] = 0
@@ -84,7 +84,7 @@ def _heading_error_deg(out, data, after_s, rate=RATE):
 def test_magnetometer_reading_zeros_at_power_up_still_gives_heading():
     """Item 5: an HMC5883L reads zeros before its first conversion; the reference came
     from the first sample unchecked and the filter never had a heading."""
-    initial = Q.from_euler(0.1, -0.05, 2.0)  # heading far from zero
+    initial = Q.from_zyx(0.1, -0.05, 2.0)  # heading far from zero
     data = sim.simulate(sim.static(60, RATE, initial=initial), sim.SensorSuite.default(), seed=14)
     data.mag_counts[:5] = 0
     data.mag[:5] = 0.0
@@ -97,7 +97,7 @@ def test_magnetometer_reading_zeros_at_power_up_still_gives_heading():
 def test_noisy_first_field_sample_does_not_spoil_the_reference():
     """Item 5: a first magnetometer sample 40 % too strong became the reference norm and
     every later (correct) field was rejected as disturbed."""
-    initial = Q.from_euler(0.1, -0.05, 1.0)
+    initial = Q.from_zyx(0.1, -0.05, 1.0)
     traj = sim.motion_with_rests(120, RATE, seed=15, accel_std=0.2, initial=initial)
     data = sim.simulate(traj, sim.SensorSuite.default(), seed=15)
     data.mag_counts[0] = np.round(data.mag_counts[0] * 1.4).astype(np.int16)
@@ -122,7 +122,7 @@ def test_covariance_follows_the_exact_transition_in_fast_rotation():
     aiding (no specific force, no field after the first sample) the filter's covariance
     must be the exact propagation P <- Phi P Phi^T + Q with Phi_att = R(phi)^T."""
     rate = 100.0
-    traj = sim.turntable(10, rate, rate_dps=np.rad2deg(30.0), initial=Q.from_euler(0.5, 0.3, 0.0), settle_s=0.0)
+    traj = sim.turntable(10, rate, rate_dps=np.rad2deg(30.0), initial=Q.from_zyx(0.5, 0.3, 0.0), settle_s=0.0)
     data = sim.simulate(traj, sim.SensorSuite.default(), seed=16)
     data.acc_counts[1:] = 0
     data.mag_counts[1:] = 0

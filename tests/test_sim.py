@@ -68,11 +68,11 @@ def test_from_rotvec_known_axis_angle():
                          from_scipy(Rotation.from_rotvec(axis / np.linalg.norm(axis) * angle)))
 
 
-def test_from_euler_and_angle_between():
+def test_from_zyx_and_angle_between():
     roll, pitch, yaw = np.deg2rad([3.0, -2.0, 30.0])
     expected = from_scipy(Rotation.from_euler("ZYX", [yaw, pitch, roll]))
-    assert same_rotation(Q.from_euler(roll, pitch, yaw), expected)
-    q1 = Q.from_euler(0.1, 0.2, 0.3)
+    assert same_rotation(Q.from_zyx(roll, pitch, yaw), expected)
+    q1 = Q.from_zyx(0.1, 0.2, 0.3)
     dq = Q.from_rotvec([1e-7, -2e-7, 0.5e-7])
     q2 = Q.multiply(q1, dq)
     assert Q.angle_between(q1, q2) == pytest.approx(np.linalg.norm([1e-7, -2e-7, 0.5e-7]), rel=1e-6)
@@ -116,7 +116,7 @@ def test_static_trajectory():
     traj = sim.static(5.0, 50.0)
     assert traj.rest.all() and not traj.gyr.any() and not traj.acc_lin.any()
     assert np.allclose(traj.quat, sim.DEFAULT_INITIAL)
-    q = Q.from_euler(0.3, 0.2, -1.0)
+    q = Q.from_zyx(0.3, 0.2, -1.0)
     assert np.allclose(sim.static(1.0, 10.0, initial=q).quat, q)
 
 

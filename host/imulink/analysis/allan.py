@@ -27,7 +27,7 @@ import math
 import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Mapping, Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 from scipy.stats import chi2
@@ -37,6 +37,7 @@ from imulink.analysis.plotting import check_plotting, plot_format
 from imulink.core.counts import STANDARD_GRAVITY
 from imulink.io import sensor_input
 from imulink.io.sensor_input import CSV_COLUMNS, InputError, SensorRecord
+from imulink.progress import CountProgress
 
 #: Default confidence of the intervals: one standard deviation of a normal distribution.
 CONFIDENCE = 0.683
@@ -86,7 +87,6 @@ class AllanError(InputError):
     """An input that cannot be analysed (too short, gaps, backwards timestamps, ...)."""
 
 
-Progress = Callable[[int, int], None]
 
 
 # ---------------------------------------------------------------------------- the curve
@@ -100,7 +100,7 @@ def cluster_sizes(samples: int) -> np.ndarray:
 
 
 def overlapping_adev(rate: np.ndarray, rate_hz: float, sizes: np.ndarray | None = None,
-                     progress: Progress | None = None) -> tuple[np.ndarray, np.ndarray]:
+                     progress: CountProgress | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Overlapping Allan deviation of one axis of a rate signal.
 
     NIST SP 1065 eq. (11) on the running sum x of the N samples (x_0 = 0,
@@ -208,7 +208,7 @@ class AllanCurve:
 
 
 def allan_curve(data: np.ndarray, rate_hz: float, confidence: float = CONFIDENCE,
-                progress: Progress | None = None) -> AllanCurve:
+                progress: CountProgress | None = None) -> AllanCurve:
     """ADEV of every column of `data` ((N,) or (N, A)) with chi-square intervals
     (:func:`interval`).
 
@@ -416,7 +416,7 @@ class StaticRecord:
         return self.samples / self.rate_hz
 
 
-def load_static(path, progress: Progress | None = None) -> StaticRecord:
+def load_static(path, progress: CountProgress | None = None) -> StaticRecord:
     """A static record from `path` (see sensor_input.read): a BROAD trial's longest rest,
     a CSV, or a recording of `imulink record`. progress: see load_recording."""
     record = sensor_input.read(path, progress)
@@ -511,7 +511,7 @@ class AllanResult:
         return self.samples / self.rate_hz
 
 
-def analyse(record: StaticRecord, confidence: float = CONFIDENCE, progress: Progress | None = None) -> AllanResult:
+def analyse(record: StaticRecord, confidence: float = CONFIDENCE, progress: CountProgress | None = None) -> AllanResult:
     """The ADEV curve and the noise terms of each sensor of `record`. progress: called
     with (steps done, steps) as the averaging times are computed."""
     inputs = {k: v for k, v in (("gyro", record.gyr), ("acc", record.acc)) if v is not None}

@@ -17,6 +17,7 @@ from imulink.cli.common import (
     profile_named,
 )
 from imulink.hil.live_calibration import DEFAULT_MAX_DURATION_S
+from imulink.progress import StatusLine
 
 #: `imulink calibrate` sensor names -> the calibration's sensor key
 CALIBRATE_SENSORS = {"gyro": "gyr", "accel": "acc", "mag": "mag"}
@@ -75,14 +76,13 @@ def _is_port(text: str) -> bool:
 
 def _live_mag_record(args):
     """The magnetometer readings of the board at args.input, collected while the user turns it."""
-    from imulink import hil
     from imulink.hil import live_calibration
 
     print(f"{args.input}: turn the board slowly through every direction (each axis up and down, and the "
           f"diagonals between); it stops when all 26 directions are covered, after {args.max_duration:g} s, or "
           "on Ctrl-C", file=sys.stderr)
     collected = live_calibration.collect_mag(args.input, args.profile, baud=args.baud,
-                                             max_duration_s=args.max_duration, progress=hil.Progress())
+                                             max_duration_s=args.max_duration, progress=StatusLine())
     seconds = collected.time_s[-1] if len(collected.time_s) else 0.0
     print(f"{args.input}: {len(collected.counts)} samples in {seconds:.1f} s ({collected.stop_reason})",
           file=sys.stderr)

@@ -12,6 +12,7 @@ from imulink import core, hil
 from imulink.board import emulator
 from imulink.board.link import DEFAULT_BAUD
 from imulink.errors import ImulinkError
+from imulink.progress import StatusLine
 
 EXIT_MISMATCH = 1
 
@@ -130,11 +131,9 @@ PROGRESS_AFTER_S = 2.0
 
 
 def late_progress():
-    """A status line on stderr (hil.Progress) that appears only once the job has run for
+    """A status line on stderr (imulink.progress.StatusLine) that appears only once the job has run for
     PROGRESS_AFTER_S: returns (status, phase), phase(name) giving a (done, total) callback."""
-    from imulink.hil import Progress
-
-    status, started = Progress(), time.monotonic()
+    status, started = StatusLine(), time.monotonic()
 
     def phase(name: str):
         def report(done: int, total: int) -> None:

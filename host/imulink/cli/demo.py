@@ -12,6 +12,7 @@ from imulink.cli.common import (
     simulation_arguments,
     target_arguments,
 )
+from imulink.progress import StatusLine
 
 
 @one_line_errors
@@ -20,7 +21,7 @@ def run(args) -> int:
 
     report = hil.demo(target=args.target, transport=args.transport, scenario=scenario_for(args),
                       duration_s=args.duration, rate_hz=args.rate, seed=args.seed, filter_name=args.filter,
-                      output=args.output, force=args.force, progress=hil.Progress(), min_verified=args.min_verified)
+                      output=args.output, force=args.force, progress=StatusLine(), min_verified=args.min_verified)
     if args.json:
         print_json(report.to_json())
     else:

@@ -14,6 +14,7 @@ from imulink.cli.common import (
     settings_argument,
     settings_from_file,
 )
+from imulink.progress import StatusLine
 
 
 @one_line_errors
@@ -21,7 +22,7 @@ def run(args) -> int:
     from imulink import hil
 
     source = hil.load_injection_input(args.input)
-    result = hil.inject(args.port, source, baud=args.baud, filter_name=args.filter, progress=hil.Progress(),
+    result = hil.inject(args.port, source, baud=args.baud, filter_name=args.filter, progress=StatusLine(),
                         settings=settings_from_file(args), min_verified=args.min_verified)
     if args.json:
         print_json(result.to_json())

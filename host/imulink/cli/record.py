@@ -15,6 +15,7 @@ from imulink.cli.common import (
     settings_argument,
     settings_from_file,
 )
+from imulink.progress import StatusLine
 
 _reconnect_wait = in_range(float, 0.0, 86400.0, "must be a number of seconds from 0 to 86400")
 
@@ -26,7 +27,7 @@ def run(args) -> int:
 
     result = hil.record(args.port, args.output, duration_s=args.duration, baud=args.baud, profile=args.profile,
                         resync=not args.no_resync, silence_timeout_s=args.silence_timeout, force=args.force,
-                        progress=hil.Progress(), settings=settings_from_file(args), reconnect_s=args.reconnect,
+                        progress=StatusLine(), settings=settings_from_file(args), reconnect_s=args.reconnect,
                         listen=args.listen)
     if args.json:
         print_json(result.to_json())

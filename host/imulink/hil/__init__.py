@@ -57,7 +57,7 @@ from imulink.hil.recorder import (
     record,
     snapshot,
 )
-from imulink.hil.report import Progress, accuracy_json, link_json, link_summary
+from imulink.hil.report import accuracy_json, link_json, link_summary
 
 __all__ = [
     "accuracy_json",
@@ -90,7 +90,6 @@ __all__ = [
     "name_of_filter",
     "nav_inputs",
     "nav_state_position",
-    "Progress",
     "read_calibration",
     "read_settings",
     "RECONNECT_S",

@@ -14,9 +14,10 @@ from imulink.board.emulator import EmulatedBoard
 from imulink.hil.common import ESTIMATE_FRAC_BITS, SETTLE_S
 from imulink.hil.comparison import MIN_VERIFIED, Comparison, compare, comparison_json, nav_state_position
 from imulink.hil.recorder import RecordResult, record
-from imulink.hil.report import Progress, accuracy_json
+from imulink.hil.report import accuracy_json
 from imulink.io.files import check_writable_target
 from imulink.io.recording import Recording, load_recording, sample_rows
+from imulink.progress import StatusLine
 from imulink.sim.navigation import local_offsets
 
 
@@ -79,7 +80,7 @@ class DemoReport:
 
 def demo(*, target: str = "native", transport: str = "tcp", scenario: str = "rests", duration_s: float = 60.0,
          rate_hz: float = 100.0, seed: int = 0, filter_name: str = "eskf", output=None, force: bool = False,
-         progress: Progress | None = None, min_verified: float = MIN_VERIFIED) -> DemoReport:
+         progress: StatusLine | None = None, min_verified: float = MIN_VERIFIED) -> DemoReport:
     """Record an emulated board's simulated run (as fast as the link goes) and verify it.
 
     `target` is "native" (the firmware as a native process) or "qemu" (the ARM image in

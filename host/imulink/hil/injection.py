@@ -15,9 +15,10 @@ from imulink.hil.board_setup import check_profile, leave_injection_mode, read_ca
 from imulink.hil.common import ESTIMATE_FRAC_BITS, FILTER_NAMES, SETTLE_S, HilError
 from imulink.hil.comparison import MIN_VERIFIED, Verdict
 from imulink.hil.replica import FirmwareFilter
-from imulink.hil.report import Progress, accuracy_json
+from imulink.hil.report import accuracy_json
 from imulink.io.broad import BroadError, load_broad
 from imulink.io.recording import Estimates, load_recording
+from imulink.progress import StatusLine
 
 
 @dataclass
@@ -172,7 +173,7 @@ def _configure_for_injection(link: Link, source: InjectionInput, filter_name: st
 
 
 def inject(url: str, source: InjectionInput, *, baud: int = DEFAULT_BAUD, filter_name: str | None = None,
-           progress: Progress | None = None,
+           progress: StatusLine | None = None,
            settings=None, min_verified: float = MIN_VERIFIED) -> InjectResult:
     """Inject every sample of `source` into the board and compare each ESTIMATE with the
     host fixed-point build (with the board's calibration) on the fly.
@@ -228,7 +229,7 @@ def _first_different_nav_field(board: dict, host: dict) -> str | None:
 
 
 def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings: dict, profile: SensorProfile,
-                    calibration, progress: Progress | None) -> InjectResult:
+                    calibration, progress: StatusLine | None) -> InjectResult:
     reference = FirmwareFilter(name, raw_settings, profile, calibration)
     n = len(source.gyr)
     answered = identical = lost = restarts = 0

@@ -35,8 +35,8 @@ from imulink.io.sensor_input import SensorRecord, unwrap_us
 
 if TYPE_CHECKING:  # the modules below load on use: `imulink --help` reads DEFAULT_MAX_DURATION_S
     from imulink.analysis.calibration import Coverage
-    from imulink.hil import Progress
     from imulink.io.sensor_input import SensorRecord
+    from imulink.progress import StatusLine
 
 #: Longest collection by default, s.
 DEFAULT_MAX_DURATION_S = 180.0
@@ -102,7 +102,7 @@ def status_line(elapsed_s: float, samples: int, found: Coverage | None) -> str:
 
 def collect_mag(url: str, profile: SensorProfile | None = None, *, baud: int,
                 max_duration_s: float = DEFAULT_MAX_DURATION_S,
-                progress: Progress | None = None) -> MagCollection:
+                progress: StatusLine | None = None) -> MagCollection:
     """Stream the board at `url` and keep its magnetometer counts until all 26 directions
     are covered (with at least MIN_MAG_SAMPLES samples), `max_duration_s` has passed, or
     Ctrl-C. The board's stream is stopped at the end; its filter and settings are not

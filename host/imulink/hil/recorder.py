@@ -19,9 +19,10 @@ from imulink.board.link import (
 from imulink.core.counts import SensorProfile
 from imulink.hil.board_setup import apply_settings, check_profile, leave_injection_mode, read_calibration, read_settings
 from imulink.hil.common import HilError, name_of_filter
-from imulink.hil.report import Progress, board_json, board_log, link_json, link_summary
+from imulink.hil.report import board_json, board_log, link_json, link_summary
 from imulink.io.files import check_writable_target, create_beside, publish
 from imulink.io.recording import RecordingError, RecordingWriter
+from imulink.progress import StatusLine
 
 #: Attempts of each command of the recorder: over a link that loses 1 % of its bytes a
 #: SETTING and its ACK both arrive about one time in two, and the snapshot is some twenty
@@ -73,7 +74,7 @@ def default_silence_timeout(status: dict) -> float:
 
 def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAULT_BAUD,
            profile: SensorProfile | None = None, resync: bool = True, silence_timeout_s: float | None = None,
-           force: bool = False, progress: Progress | None = None, settings=None,
+           force: bool = False, progress: StatusLine | None = None, settings=None,
            reconnect_s: float = RECONNECT_S, listen: bool = False) -> RecordResult:
     """Record a board's stream to `path` until `duration_s` s have passed, the board stops
     streaming (STATUS.streaming = 0), or Ctrl-C (then `interrupted`).
@@ -196,7 +197,7 @@ class _StreamRecorder:
 
     RESTART_TIMEOUT_S = 1.0
 
-    def __init__(self, link: Link, writer: RecordingWriter, filter_id: int, resync: bool, progress: Progress | None,
+    def __init__(self, link: Link, writer: RecordingWriter, filter_id: int, resync: bool, progress: StatusLine | None,
                  *, listen: bool, reopen, settings, profile: SensorProfile | None, reconnect_s: float):
         self.link, self.writer, self.filter_id = link, writer, filter_id
         self.resync, self.progress = resync, progress

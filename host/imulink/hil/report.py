@@ -1,51 +1,9 @@
-"""Progress on stderr and the link and accuracy parts of every HIL report."""
+"""The link and accuracy parts of every HIL report, and the board's LOG lines."""
 from __future__ import annotations
-
-import sys
-import time
 
 from imulink import protocol
 from imulink.hil.common import SETTLE_S
-
-
-class Progress:
-    """One status line on stderr: rewritten in place on a terminal, a plain line every
-    `interval_s` seconds otherwise."""
-
-    def __init__(self, stream=None, interval_s: float = 5.0):
-        self.stream = stream or sys.stderr
-        self.tty = self.stream.isatty()
-        self.interval_s = 0.25 if self.tty else interval_s
-        self._last = 0.0
-        self._shown = False
-
-    def due(self) -> bool:
-        """Whether an update would be shown now (so the caller can skip building it)."""
-        return time.monotonic() - self._last >= self.interval_s
-
-    def update(self, text: str, force: bool = False) -> None:
-        if not force and not self.due():
-            return
-        self._last = time.monotonic()
-        if self.tty:
-            self.stream.write("\r\x1b[K" + text)
-            self._shown = True
-        else:
-            self.stream.write(text + "\n")
-        self.stream.flush()
-
-    def message(self, text: str) -> None:
-        """A line of its own (a board LOG, a warning) that does not clobber the status line."""
-        if self._shown:
-            self.stream.write("\r\x1b[K")
-        self.stream.write(text + "\n")
-        self.stream.flush()
-
-    def done(self) -> None:
-        if self._shown:
-            self.stream.write("\n")
-            self.stream.flush()
-            self._shown = False
+from imulink.progress import StatusLine
 
 
 def link_summary(counters: dict) -> str:
@@ -83,7 +41,7 @@ def board_json(hello: dict | None) -> dict | None:
             "schema_hash": f"0x{hello['schema_hash']:08X}"}
 
 
-def board_log(progress: Progress | None, fields: dict) -> None:
+def board_log(progress: StatusLine | None, fields: dict) -> None:
     if progress is not None:
         level = {v: k for k, v in protocol.LOG_LEVELS.items()}.get(fields["level"], str(fields["level"]))
         progress.message(f"board: {level} {fields['text']}")

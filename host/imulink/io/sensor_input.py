@@ -11,7 +11,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -20,6 +19,7 @@ from imulink.errors import ImulinkError
 from imulink.io.broad import BroadError, load_broad
 from imulink.io.files import FileError, check_regular_file
 from imulink.io.recording import load_recording
+from imulink.progress import CountProgress
 
 #: Largest CSV read (a replay CSV of two hours at 1 kHz is some 3 GB).
 MAX_CSV_BYTES = 8 << 30
@@ -29,7 +29,6 @@ CSV_COLUMNS = {"gyr": ("gyr_x_rad_s", "gyr_y_rad_s", "gyr_z_rad_s"), "acc": ("ac
 #: A spacing longer than this many median spacings is a gap (lost samples).
 GAP_PERIODS = 1.5
 
-Progress = Callable[[int, int], None]
 
 
 class InputError(ImulinkError):
@@ -64,7 +63,7 @@ class SensorRecord:
         return len(self.time_s)
 
 
-def read(path, progress: Progress | None = None) -> SensorRecord:
+def read(path, progress: CountProgress | None = None) -> SensorRecord:
     """The sensor data of `path`: a BROAD trial (.mat), a CSV (.csv: `imulink replay --csv`
     or any with timestamp_us or time_s and the SI columns of CSV_COLUMNS), or a recording
     of `imulink record` (anything else). progress: see recording.load_recording.
@@ -112,7 +111,7 @@ def unwrap_us(timestamp_us: np.ndarray) -> np.ndarray:
     return np.concatenate([[0.0], np.cumsum(steps) * 1e-6])
 
 
-def _from_recording(path: Path, progress: Progress | None) -> SensorRecord:
+def _from_recording(path: Path, progress: CountProgress | None) -> SensorRecord:
     """The samples of a recording, in SI as the host's replay feeds them to its filters
     (counts times the recorded profile's scale)."""
     recording = load_recording(path, progress)

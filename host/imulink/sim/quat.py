@@ -16,7 +16,7 @@ __all__ = [
     "rotate_inverse",
     "from_rotvec",
     "from_axis_angle",
-    "from_euler",
+    "from_zyx",
     "to_rotmat",
     "from_rotmat",
     "angle_between",
@@ -92,11 +92,14 @@ def from_axis_angle(axis, angle_rad) -> np.ndarray:
     return from_rotvec(axis * np.asarray(angle_rad, dtype=np.float64)[..., None])
 
 
-def from_euler(roll_rad, pitch_rad, yaw_rad) -> np.ndarray:
+def from_zyx(roll_rad, pitch_rad, yaw_rad) -> np.ndarray:
     """Quaternion from Z-Y-X (yaw, pitch, roll) angles in radians.
 
     ``q = qz(yaw) ⊗ qy(pitch) ⊗ qx(roll)``: roll about body x, pitch about body y,
     yaw about the earth up axis (counter-clockwise from east seen from above, ENU).
+    This is the simulator's way to build an orientation, not the inverse of the angles
+    the filters report (imulink.analysis.attitude.quat_to_euler: R = Rz(-heading)
+    Rx(pitch) Ry(roll), heading clockwise from north).
     """
     ex = np.array([1.0, 0.0, 0.0])
     ey = np.array([0.0, 1.0, 0.0])

@@ -36,8 +36,8 @@ __all__ = [
     "motion_with_rests",
 ]
 
-#: Default initial attitude: roll 3 deg, pitch -2 deg, yaw 30 deg (see :func:`quat.from_euler`).
-DEFAULT_INITIAL = Q.from_euler(np.deg2rad(3.0), np.deg2rad(-2.0), np.deg2rad(30.0))
+#: Default initial attitude: roll 3 deg, pitch -2 deg, yaw 30 deg (see :func:`quat.from_zyx`).
+DEFAULT_INITIAL = Q.from_zyx(np.deg2rad(3.0), np.deg2rad(-2.0), np.deg2rad(30.0))
 
 #: Duration (s) of the smooth raised-cosine transitions between rest and motion.
 RAMP_S = 0.5

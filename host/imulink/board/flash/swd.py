@@ -32,10 +32,11 @@ import subprocess
 import tempfile
 import threading
 from pathlib import Path
-from typing import Callable, Optional
+from typing import Optional
 
 from imulink.errors import ImulinkError
 from imulink.io.firmware_image import FirmwareImage
+from imulink.progress import PhaseProgress
 
 METHODS = ("pyocd", "openocd")
 PHASES = ("erase", "write", "verify")
@@ -47,7 +48,6 @@ OPENOCD_TIMEOUT_S = 300.0
 #: Bytes read back per request while verifying (one progress step).
 VERIFY_CHUNK = 4096
 
-Progress = Callable[[str, int, int], None]
 
 _INSTALL_PYOCD = "pip install 'imulink[swd]'"
 _NO_PROBE_HINT = ("plug in the ST-Link (on Linux, install the probe's udev rules and plug it in again; "
@@ -74,7 +74,7 @@ def available_methods() -> dict[str, Optional[str]]:
 
 
 def flash_swd(image: FirmwareImage, method: str, *, target: str = DEFAULT_TARGET, probe: Optional[str] = None,
-              verify: bool = True, dry_run: bool = False, progress: Optional[Progress] = None,
+              verify: bool = True, dry_run: bool = False, progress: Optional[PhaseProgress] = None,
               interface: str = DEFAULT_INTERFACE) -> str:
     """Write `image` to the target's flash over SWD, verify it, reset the target so it runs.
 
@@ -118,7 +118,7 @@ class _Phases:
     """Our progress calls on top of a backend's: byte counts clamped to the total, each
     phase finished (done == total) exactly once, nothing at all without a callback."""
 
-    def __init__(self, callback: Optional[Progress], total: int):
+    def __init__(self, callback: Optional[PhaseProgress], total: int):
         self._callback = callback
         self.total = total
         self._finished: set[str] = set()
