@@ -38,6 +38,7 @@ from imulink.hil import demo_job
 from imulink.hil.replica import FirmwareFilter
 from imulink.io.nav_input import read_nav_csv
 from imulink.io.recording import RecordingWriter, load_recording, read_records
+from imulink.progress import StatusLine
 from imulink.sim import navigation, simulate
 
 
@@ -600,7 +601,7 @@ def test_a_board_that_goes_away_and_comes_back_is_recorded_on_in_a_new_segment(t
         link.command("SET_SETTING", index=1, value=12345)  # q_angle, an odd raw value: the first board's only
     progress = io.StringIO()
     thread, outcome = _record_in_thread(first.address, path, duration_s=8.0, reconnect_s=15.0,
-                                        progress=hil.Progress(stream=progress, interval_s=0.0))
+                                        progress=StatusLine(stream=progress, interval_s=0.0))
     try:
         _wait_for_samples(path, 150)
         first.stop()
@@ -649,7 +650,7 @@ def test_a_board_that_resets_is_recorded_on_in_a_new_segment(tmp_path):
 
 
 def test_ctrl_c_stops_the_recording_cleanly(tmp_path):
-    class InterruptAfter(hil.Progress):
+    class InterruptAfter(StatusLine):
         """Raises KeyboardInterrupt at the third status update, as Ctrl-C would."""
 
         def __init__(self):

@@ -18,7 +18,7 @@ from imulink import core, hil, protocol
 from imulink.board.emulator import EmulatedBoard
 from imulink.board.link import Link
 from imulink.cli import main
-from imulink.hil import injection
+from imulink.hil import comparison as hil_comparison
 from imulink.io.recording import load_recording
 from imulink.sim import navigation as nv
 from imulink.sim import simulate
@@ -163,9 +163,9 @@ def test_injection_into_nav_compares_its_nav_state_too(board):
              "baro_bias_mm": 0, "var_mantissa": [1] * 16, "var_exponent": [0] * 16, "since_fix": 0, "rejected": 0,
              "zero_velocity": 0, "resets": 0, "fades": 0}
     changed = {**state, "zero_velocity": 1}
-    assert injection._first_different_nav_field(state, dict(state)) is None
-    assert injection._first_different_nav_field(changed, state) == "nav_state.zero_velocity"
-    assert injection._first_different_nav_field({**state, "fades": 2}, state) == "nav_state.fades"
+    assert hil_comparison._first_different_nav_field(state, dict(state)) is None
+    assert hil_comparison._first_different_nav_field(changed, state) == "nav_state.zero_velocity"
+    assert hil_comparison._first_different_nav_field({**state, "fades": 2}, state) == "nav_state.fades"
 
 
 def test_position_fix_refusals(link):

@@ -224,6 +224,66 @@ class Difference:
                 "field": self.field, "board": self.board, "host": self.host}
 
 
+#: The ESTIMATE fields a batch run of the host build gives (the covariance and the
+#: saturation count need the filter stepped one sample at a time).
+BATCH_COMPARED = ("quat", "gyro_bias", "euler")
+
+
+def _values(value):
+    return list(value) if isinstance(value, (list, tuple, np.ndarray)) else value
+
+
+def _first_different_field(board: dict, host: dict, names) -> str | None:
+    """The first of `names` whose value differs between the board's fields and the host's."""
+    return next((name for name in names if _values(board[name]) != _values(host[name])), None)
+
+
+def _first_different_nav_field(board: dict, host: dict) -> str | None:
+    """The first NAV_STATE field in which the board's differs from the host's, as "nav_state.<name>"."""
+    field = _first_different_field(board, host, [name for name, _, _ in protocol.message_fields("NAV_STATE")])
+    return None if field is None else f"nav_state.{field}"
+
+
+class EstimateCheck:
+    """Board estimates checked one at a time against the host's, as they arrive (inject and
+    the live monitor; `compare` checks a whole recording at once on the same fields): how
+    many were identical, different or could not be verified, and the first difference.
+
+    compared: the ESTIMATE fields checked (Estimates.COMPARED, or BATCH_COMPARED where the
+    host ran a batch)."""
+
+    def __init__(self, compared: tuple[str, ...] = Estimates.COMPARED):
+        self.compared = compared
+        self.identical = self.different = self.unverifiable = 0
+        self.first: Difference | None = None
+
+    def skip(self) -> None:
+        """An estimate that cannot be verified (its run lost a sample, or its settings are unknown)."""
+        self.unverifiable += 1
+
+    def check(self, estimate: int, segment: int, index: int, board: dict, host: dict,
+              board_state: dict | None = None, host_state: dict | None = None) -> bool:
+        """Whether the board's ESTIMATE fields (and its NAV_STATE, when given) equal the host's;
+        the first that does not is kept as `first`. estimate: its position among those seen;
+        segment, index: its filter run and sample index."""
+        field = _first_different_field(board, host, self.compared)
+        if field is not None:
+            values = board[field], host[field]
+        elif board_state is not None and host_state is not None:
+            field = _first_different_nav_field(board_state, host_state)
+            if field is not None:
+                name = field.split(".", 1)[1]
+                values = board_state[name], host_state[name]
+        if field is None:
+            self.identical += 1
+            return True
+        self.different += 1
+        if self.first is None:
+            self.first = Difference(estimate, segment, index, field, np.asarray(values[0]).tolist(),
+                                    np.asarray(values[1]).tolist())
+        return False
+
+
 @dataclass
 class Comparison:
     """Bit-exactness of a recording's estimates and the fixed-vs-float agreement.

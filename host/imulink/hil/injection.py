@@ -13,7 +13,7 @@ from imulink.board.link import COMMAND_TIMEOUT_MAX_S, DEFAULT_BAUD, CommandTimeo
 from imulink.core.counts import BROAD_PROFILE, SensorDataError, SensorProfile, si_to_counts
 from imulink.hil.board_setup import check_profile, leave_injection_mode, read_calibration, read_settings
 from imulink.hil.common import ESTIMATE_FRAC_BITS, FILTER_NAMES, SETTLE_S, HilError
-from imulink.hil.comparison import MIN_VERIFIED, Verdict
+from imulink.hil.comparison import MIN_VERIFIED, EstimateCheck, Verdict
 from imulink.hil.replica import FirmwareFilter
 from imulink.hil.report import accuracy_json
 from imulink.io.broad import BroadError, load_broad
@@ -209,31 +209,12 @@ def inject(url: str, source: InjectionInput, *, baud: int = DEFAULT_BAUD, filter
     return result
 
 
-def _first_different_field(board: dict, host: dict) -> str | None:
-    """The first ESTIMATE field in which the board's answer differs from the host's."""
-    for name in ("index",) + Estimates.COMPARED:
-        mine = list(host[name]) if isinstance(host[name], (list, tuple)) else host[name]
-        theirs = list(board[name]) if isinstance(board[name], (list, tuple)) else board[name]
-        if mine != theirs:
-            return name
-    return None
-
-
-def _first_different_nav_field(board: dict, host: dict) -> str | None:
-    """The first NAV_STATE field in which the board's differs from the host's, as "nav_state.<name>"."""
-    for name, _, _ in protocol.message_fields("NAV_STATE"):
-        theirs = list(board[name]) if isinstance(board[name], (list, tuple)) else board[name]
-        if theirs != host[name]:
-            return f"nav_state.{name}"
-    return None
-
-
 def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings: dict, profile: SensorProfile,
                     calibration, progress: StatusLine | None) -> InjectResult:
     reference = FirmwareFilter(name, raw_settings, profile, calibration)
     n = len(source.gyr)
-    answered = identical = lost = restarts = 0
-    first = None
+    answered = lost = restarts = 0
+    check = EstimateCheck(("index",) + Estimates.COMPARED)
     board_quat = np.full((n, 4), np.nan)
     started = time.monotonic()
     gyr, acc, mag = source.gyr.tolist(), source.acc.tolist(), source.mag.tolist()
@@ -259,20 +240,9 @@ def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings:
         answered += 1
         got = reply.data.fields
         board_quat[k] = np.array(got["quat"]) / 2.0**ESTIMATE_FRAC_BITS["quat"]
-        different = _first_different_field(got, expected)
-        board_value, host_value = (got.get(different), expected.get(different)) if different else (None, None)
-        if different is None and state is not None:
-            different = _first_different_nav_field(state, reference.nav_state)
-            if different is not None:
-                field = different.split(".", 1)[1]
-                board_value, host_value = state[field], reference.nav_state[field]
-        if different is None:
-            identical += 1
-        elif first is None:
-            first = {"sample_index": k, "field": different, "board": np.asarray(board_value).tolist(),
-                     "host": np.asarray(host_value).tolist()}
+        check.check(k, 0, k, got, expected, state, reference.nav_state)
         if progress is not None:
-            progress.update(f"injecting: {k + 1}/{n} samples, {identical}/{answered} identical, "
+            progress.update(f"injecting: {k + 1}/{n} samples, {check.identical}/{answered} identical, "
                             f"{(k + 1) / (time.monotonic() - started):.0f} samples/s")
     if progress is not None:
         progress.done()
@@ -282,5 +252,7 @@ def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings:
         usable[:int(SETTLE_S * source.rate_hz)] = False
         if usable.any():
             accuracy = {**rmse(attitude_errors(board_quat[usable], source.truth[usable])), "samples": int(usable.sum())}
-    return InjectResult(source.description, n, answered, identical, lost, restarts, first, name,
+    first = None if check.first is None else {"sample_index": check.first.index, "field": check.first.field,
+                                              "board": check.first.board, "host": check.first.host}
+    return InjectResult(source.description, n, answered, check.identical, lost, restarts, first, name,
                         time.monotonic() - started, accuracy)

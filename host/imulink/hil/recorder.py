@@ -23,6 +23,7 @@ from imulink.hil.report import board_json, board_log, link_json, link_summary
 from imulink.io.files import check_writable_target, create_beside, publish
 from imulink.io.recording import RecordingError, RecordingWriter
 from imulink.progress import StatusLine
+from imulink.protocol.follower import StreamFollower
 
 #: Attempts of each command of the recorder: over a link that loses 1 % of its bytes a
 #: SETTING and its ACK both arrive about one time in two, and the snapshot is some twenty
@@ -207,8 +208,7 @@ class _StreamRecorder:
         self.settings, self.profile, self.reconnect_s = settings, profile, reconnect_s
         self._earlier_counters: dict = {}  # the counters of the links closed before
         self._link_open = True  # self.link's counters are not among the earlier ones yet
-        self._expected_index = 0
-        self._segment_complete = True
+        self._follower = StreamFollower()
         self._restart: tuple | None = None  # (PendingCommand, time sent) of a filter restart in flight
         self._start_ack = None  # the START_STREAM ACK: messages before it belong to the snapshot
         self._streaming = False
@@ -230,21 +230,14 @@ class _StreamRecorder:
 
     def _follow(self, message: protocol.Message) -> None:
         name, fields = message.name, message.fields
+        self._follower.follow(message)  # a lost SAMPLE: the rest of its filter run cannot be verified
         if name == "SAMPLE":
             self.samples += 1
-            index = fields["index"]
-            if index == 0:
-                self._segment_complete = True  # a (re)started filter run
-            elif index != self._expected_index:
-                self._segment_complete = False  # a SAMPLE was lost: the rest of this run cannot be verified
-            self._expected_index = index + 1
         elif name == "ESTIMATE":
             self.estimates += 1
             self.filter_name = name_of_filter(fields["filter_id"])
         elif name in ("ACK", "NACK") and self._restart and fields["command_seq"] == self._restart[0].command_seq:
-            self._restart = None
-            if name == "ACK":  # every frame of the old run came before this: the next SAMPLE must be index 0
-                self._segment_complete, self._expected_index = True, 0
+            self._restart = None  # an ACK began a new run (the follower saw it); a NACK: ask again
         elif name == "STATUS" and not fields["streaming"] and not (self.listen and self.samples == 0):
             # (a listener's first STATUS may be the front's copy from before the stream started)
             self.stop_reason = "the board stopped streaming"
@@ -254,7 +247,7 @@ class _StreamRecorder:
             raise _BoardRestarted  # (a listener's first HELLO is the front's copy)
 
     def _restart_if_needed(self) -> None:
-        if not self.resync or self._segment_complete:
+        if not self.resync or self._follower.complete:
             return
         if self._restart is None or time.monotonic() - self._restart[1] > self.RESTART_TIMEOUT_S:
             self._restart = (self.link.send_command("SELECT_FILTER", filter_id=self.filter_id), time.monotonic())
@@ -268,7 +261,7 @@ class _StreamRecorder:
             return
         self._start_ack = self.link.command("START_STREAM").ack
         self._streaming, self._last_heard = False, time.monotonic()
-        self._expected_index, self._segment_complete, self._restart = 0, True, None
+        self._follower, self._restart = StreamFollower(), None  # the snapshot restarted the filter
         self.writer.event("stream_started", filter=filter_name)
 
     def run(self, hello: dict, filter_name: str, duration_s: float | None, silence_s: float) -> RecordResult:

@@ -22,9 +22,9 @@ version or schema hash than this host's: its frames would be misread. The counts
 profile is the one the board states in its HELLO (the header's only without a HELLO).
 
 :func:`load_recording` decodes the frames of a file into numpy tables of samples and
-estimates, split into *segments*: runs of the filter from sample index 0 (a filter
-restart -- SELECT_FILTER, SET_SETTING, SET_INJECTION_MODE, RESET, a start-up HELLO --
-begins a new segment).
+estimates, split into *segments*: runs of the filter from sample index 0, as
+:class:`imulink.protocol.follower.StreamFollower` finds them (a restarting command's ACK,
+a start-up HELLO, or a sample index that goes backwards begins a new segment).
 """
 from __future__ import annotations
 
@@ -38,7 +38,6 @@ import time
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -47,7 +46,9 @@ from imulink.core.calibration import SENSORS, Calibration, CalibrationError
 from imulink.core.counts import SensorProfile, profile_from_json, profile_from_scales, profile_to_json
 from imulink.errors import ImulinkError
 from imulink.io.files import FileError, read_regular_file
+from imulink.progress import CountProgress
 from imulink.protocol.calibration import calibration_from_frames
+from imulink.protocol.follower import RUN_FRAMES, StreamFollower
 
 MAGIC = b"IMULOG1\n"
 FORMAT_VERSION = 1
@@ -65,7 +66,6 @@ _KNOWN_KINDS = (KIND_HEADER, KIND_RECEIVED, KIND_EVENT)
 #: Looking for these (in C) instead of trying every offset keeps resynchronisation fast.
 _RECORD_START = re.compile(b"\\x00[" + bytes(_KNOWN_KINDS) + b"]")
 _FSYNC_INTERVAL_S = 1.0
-_RESTARTING_IDS = {protocol.COMMAND_IDS[name] for name in protocol.RESTARTING_COMMANDS}
 
 
 class RecordingError(ImulinkError):
@@ -386,11 +386,12 @@ class Recording:
     damaged: list[tuple[int, int]]
     truncated_bytes: int
     segments: int
-    calibration_frames: list[dict] = field(default_factory=list)
+    #: the last CALIBRATION frame of each (sensor code, axis) the board reported
+    calibration_reports: dict[tuple[int, int], dict] = field(default_factory=dict)
     #: per segment, what the board had reported when its first frame arrived: the SETTING
-    #: fields (filter id -> index -> fields) and how many CALIBRATION frames had come
+    #: fields (filter id -> index -> fields) and the CALIBRATION frames ((sensor, axis) -> fields)
     segment_settings: dict[int, dict[int, dict[int, dict]]] = field(default_factory=dict)
-    segment_calibration_frames: dict[int, int] = field(default_factory=dict)
+    segment_calibration: dict[int, dict[tuple[int, int], dict]] = field(default_factory=dict)
     baro: Baro = field(default_factory=lambda: _baro_table([]))
     gnss: Gnss = field(default_factory=lambda: _gnss_table([]))
     nav_states: NavStates = field(default_factory=lambda: _message_table(NavStates, "NAV_STATE", []))
@@ -405,14 +406,12 @@ class Recording:
 
         segment: the one in effect for that segment (the last frames before it began; an
         axis not reported before it, the last one after); None: the last reported."""
-        if not self.calibration_frames:
+        if not self.calibration_reports:
             return None
-        frames = self.calibration_frames
-        if segment is not None and segment in self.segment_calibration_frames:
-            before = self.segment_calibration_frames[segment]
-            frames = frames[before:] + frames[:before]  # the last of each axis counts: those before win
+        # those reported before the segment began win; an axis not reported by then: its last report
+        frames = {**self.calibration_reports, **self.segment_calibration.get(segment, {})}
         try:
-            sensors = calibration_from_frames(frames)
+            sensors = calibration_from_frames(list(frames.values()))
         except CalibrationError as exc:
             raise RecordingError(f"{self.path}: {exc}") from None
         if set(sensors) != set(SENSORS):
@@ -453,26 +452,6 @@ class Recording:
         return self.status["active_filter"] if self.status else None
 
 
-class _Segmenter:
-    """Assigns stream frames to filter runs: a new segment after a restart, or when the
-    sample index goes backwards."""
-
-    def __init__(self):
-        self.segment = 0
-        self._last_index = None
-
-    def restart(self) -> None:
-        if self._last_index is not None:
-            self.segment += 1
-            self._last_index = None
-
-    def place(self, index: int) -> int:
-        if self._last_index is not None and index < self._last_index:
-            self.segment += 1
-        self._last_index = index
-        return self.segment
-
-
 def sample_times(recording: Recording) -> np.ndarray:
     """Each sample's time (s from the first) at the board's sample rate (its STATUS; 100 Hz
     when the recording has none), by sample index: a recording taken as fast as the link
@@ -485,7 +464,7 @@ def sample_times(recording: Recording) -> np.ndarray:
     return np.concatenate(([0.0], np.cumsum(np.where(same_run, steps, 1)) / rate_hz))
 
 
-def load_recording(path, progress: Callable[[int, int], None] | None = None) -> Recording:
+def load_recording(path, progress: CountProgress | None = None) -> Recording:
     """Read and decode a recording file (see the module docstring).
 
     progress: called with (bytes decoded, bytes in all) before each record: frames are
@@ -499,19 +478,9 @@ def load_recording(path, progress: Callable[[int, int], None] | None = None) -> 
     events = [(record.offset, {"time": record.time, **_json_object(path, record, "event")})
               for record in records if record.kind == KIND_EVENT]
     snapshot_at = next((offset for offset, event in events if event.get("event") == "snapshot"), -1)
-    decoder, segmenter = protocol.FrameDecoder(), _Segmenter()
-    logs, settings, calibration_frames = [], {}, []
-    segment_settings, segment_calibration_frames = {}, {}
-    hello = status = None
-    samples, estimates, baro, gnss, nav_states, markers = [], [], [], [], [], []
-
-    def place(index: int) -> int:
-        """The segment of a SAMPLE or ESTIMATE; a segment's first one notes what the board had reported."""
-        segment = segmenter.place(index)
-        if segment not in segment_settings:
-            segment_settings[segment] = {fid: dict(by_index) for fid, by_index in settings.items()}
-            segment_calibration_frames[segment] = len(calibration_frames)
-        return segment
+    decoder, follower = protocol.FrameDecoder(), StreamFollower()
+    logs, segment_settings, segment_calibration = [], {}, {}
+    tables: dict[str, list] = {name: [] for name in RUN_FRAMES}
 
     for record in records[1:]:
         if progress is not None:
@@ -520,42 +489,28 @@ def load_recording(path, progress: Callable[[int, int], None] | None = None) -> 
             continue
         for message in decoder.feed(record.body):
             name, fields = message.name, message.fields
-            if name == "SAMPLE":
-                samples.append((record.time, place(fields["index"]), fields))
-            elif name == "ESTIMATE":
-                estimates.append((record.time, place(fields["index"]), record.offset < snapshot_at, fields))
-            elif name == "BARO":
-                baro.append((record.time, place(fields["index"]), fields))
-            elif name == "GNSS":
-                gnss.append((record.time, place(fields["index"]), fields))
-            elif name == "NAV_STATE":
-                nav_states.append((record.time, place(fields["index"]), fields))
-            elif name == "MARKER":
-                markers.append((record.time, place(fields["index"]), fields))
-            elif name == "ACK" and fields["command"] in _RESTARTING_IDS:
-                segmenter.restart()
-            elif name == "HELLO":
-                hello = hello or fields
-                if message.seq == 0:  # the board started up or reset
-                    segmenter.restart()
-            elif name == "STATUS":
-                status = status or fields
-            elif name == "SETTING":
-                settings.setdefault(fields["filter_id"], {})[fields["index"]] = fields
+            segment = follower.follow(message)
+            if segment is not None:
+                if segment not in segment_settings:  # its first frame: what the board had reported by then
+                    segment_settings[segment] = {fid: dict(by_index) for fid, by_index in follower.settings.items()}
+                    segment_calibration[segment] = dict(follower.calibration)
+                if name == "ESTIMATE":
+                    tables[name].append((record.time, segment, record.offset < snapshot_at, fields))
+                else:
+                    tables[name].append((record.time, segment, fields))
             elif name == "LOG":
                 logs.append((record.time, fields["level"], fields["text"]))
-            elif name == "CALIBRATION":
-                calibration_frames.append(fields)
     if progress is not None:
         progress(total, total)
-    profile = _profile(path, hello, declared_profile)
-    sample_table, estimate_table = _sample_table(samples), _estimate_table(estimates)
+    profile = _profile(path, follower.hello, declared_profile)
+    sample_table, estimate_table = _sample_table(tables["SAMPLE"]), _estimate_table(tables["ESTIMATE"])
     segments = len(set(sample_table.segment.tolist()) | set(estimate_table.segment.tolist()))
-    return Recording(path, header, profile, [event for _, event in events], hello, status, settings, sample_table,
-                     estimate_table, logs, decoder.counters(), found.damaged, found.truncated_bytes, segments,
-                     calibration_frames, segment_settings, segment_calibration_frames, _baro_table(baro),
-                     _gnss_table(gnss), _message_table(NavStates, "NAV_STATE", nav_states),
-                     _message_table(Markers, "MARKER", markers))
+    return Recording(path, header, profile, [event for _, event in events], follower.hello, follower.status,
+                     follower.settings, sample_table, estimate_table, logs, decoder.counters(), found.damaged,
+                     found.truncated_bytes, segments, follower.calibration, segment_settings, segment_calibration,
+                     _baro_table(tables["BARO"]), _gnss_table(tables["GNSS"]),
+                     _message_table(NavStates, "NAV_STATE", tables["NAV_STATE"]),
+                     _message_table(Markers, "MARKER", tables["MARKER"]))
 
 
 def _json_object(path: Path, record: LogRecord, what: str) -> dict:

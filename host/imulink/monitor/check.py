@@ -1,21 +1,20 @@
 """The live bit-exact check of the monitor: the board's estimates against the host build
 of the same C, as they arrive.
 
-It follows the stream as :func:`imulink.io.recording.load_recording` follows a file: the
-active filter and its raw settings come from the SETTING frames (the board's own
-answers to GET_SETTING) and from the SET_SETTING / SELECT_FILTER commands the monitor
-sent (registered with :meth:`LiveCheck.expect` before their ACK is processed), the
-board's sensor calibration from its CALIBRATION frames (GET_CALIBRATION; none seen: the
-identity, as after start-up); the ACK of a command that restarts the filter begins a new
-filter run at sample index 0. Each run's
-samples go through the fixed-point build (what the board must compute) and the float
-twin, batch by batch (up to the last sample whose ESTIMATE arrived: the nav filter's
-barometer readings, fixes and markers come between a SAMPLE and its ESTIMATE and go in
-with it), and every ESTIMATE of a complete run is compared with the fixed build:
-quaternion, gyro bias and Euler angles, bit for bit. (`imulink compare` on a
-recording also checks the ESKF covariance and the saturation count, which need the
-filter stepped one sample at a time.) A run with a lost sample, or one whose settings the
-monitor does not know, is not verifiable; its estimates are counted as such.
+It follows the stream with :class:`imulink.protocol.follower.StreamFollower`, as the
+recording loader does: the active filter, its raw settings (the board's SETTING answers to
+GET_SETTING) and its calibration (CALIBRATION frames; none seen: the identity, as after
+start-up), where a filter run begins and whether it is complete. The SET_SETTING and
+SELECT_FILTER commands the monitor sent are registered with :meth:`LiveCheck.expect`
+before their ACK is processed, so their values are known where the ACK restarts the
+filter. Each run's samples go through the fixed-point build (what the board must compute)
+and the float twin, batch by batch (up to the last sample whose ESTIMATE arrived: the nav
+filter's barometer readings, fixes and markers come between a SAMPLE and its ESTIMATE and
+go in with it), and every ESTIMATE of a complete run is compared with the fixed build:
+quaternion, gyro bias and Euler angles, bit for bit (imulink.hil.comparison.EstimateCheck).
+(`imulink compare` on a recording also checks the ESKF covariance and the saturation count,
+which need the filter stepped one sample at a time.) A run with a lost sample, or one whose
+settings the monitor does not know, is not verifiable; its estimates are counted as such.
 """
 from __future__ import annotations
 
@@ -28,10 +27,11 @@ from imulink import core, protocol
 from imulink.analysis.attitude import angle_difference
 from imulink.core.calibration import SENSORS, Calibration, CalibrationError
 from imulink.core.counts import SensorProfile
+from imulink.hil.comparison import BATCH_COMPARED, EstimateCheck
 from imulink.hil.replica import FirmwareFilter
 from imulink.protocol.calibration import calibration_from_frames
+from imulink.protocol.follower import StreamFollower
 
-_RESTARTING_IDS = {protocol.COMMAND_IDS[name] for name in protocol.RESTARTING_COMMANDS}
 _SET_SETTING = protocol.COMMAND_IDS["SET_SETTING"]
 _FILTER_NAMES = {filter_id: name for name, (filter_id, _) in core.BOARD_FILTERS.items()}
 #: What the nav filter takes besides the samples: message name -> run_nav_counts' argument.
@@ -63,22 +63,18 @@ class _Run:
     def __init__(self, filter_name: str, raw_settings: dict[str, int], profile: SensorProfile,
                  calibration: Calibration | None):
         reference = FirmwareFilter(filter_name, raw_settings, profile, calibration)
+        self.filter_id = reference.filter_id
         self.fixed = reference.core
         self.float = core.Filter(filter_name, reference.si_settings["sample_rate"], "float", reference.si_settings,
                                  profile, calibration)
         self.nav = filter_name == "nav"
-        self.next_index = 0
-        self.broken = False  # a sample was lost: nothing after it can be reproduced
         self.pending: list[tuple[int, tuple, tuple, tuple]] = []
         self.events: list[tuple[str, dict]] = []  # the nav filter's BARO, GNSS, MARKER fields, in order
         self.results: dict[int, tuple] = {}  # index -> (Q30 quat, Q24 bias, Q29 euler, float quat)
 
     def add(self, fields: dict) -> None:
-        if self.broken or fields["index"] != self.next_index:
-            self.broken = True
-            return
+        """The next SAMPLE of the run (the follower has checked that none was lost)."""
         self.pending.append((fields["index"], fields["gyr"], fields["acc"], fields["mag"]))
-        self.next_index += 1
 
     def add_event(self, name: str, fields: dict) -> None:
         """A BARO, GNSS or MARKER frame: the nav filter took it after its sample."""
@@ -128,13 +124,24 @@ class LiveCheck:
 
     def __init__(self, profile: SensorProfile):
         self.profile = profile
-        self.summary = CheckSummary()
-        self.filter_id: int | None = None
-        self.settings: dict[int, dict[int, int]] = {}  # filter id -> setting index -> raw value
-        self.calibration_frames: dict[tuple[int, int], dict] = {}  # (sensor code, axis) -> CALIBRATION fields
+        self.follower = StreamFollower()
+        self.estimates = EstimateCheck(BATCH_COMPARED)
+        self.fixed_float_max_deg = 0.0
         self._expected: dict[int, tuple[str, int, int]] = {}  # command_seq -> ("filter", id, 0) | ("setting", i, v)
         self._run: _Run | None = None
-        self._estimates: list[dict] = []
+        self._arrived: list[tuple[int, dict]] = []  # (segment, ESTIMATE fields) not compared yet
+        self._seen = 0  # estimates compared or skipped so far
+
+    @property
+    def filter_id(self) -> int | None:
+        return self.follower.filter_id
+
+    @property
+    def summary(self) -> CheckSummary:
+        e, first = self.estimates, self.estimates.first
+        text = None if first is None else (f"sample index {first.index}: {first.field}: board {first.board}, "
+                                           f"host {first.host}")
+        return CheckSummary(e.identical, e.different, e.unverifiable, text, self.fixed_float_max_deg)
 
     def expect(self, ack: protocol.Message, change: tuple[str, int, int]) -> None:
         """A command the monitor sent and the board ACKed changes the filter (``("filter", id, 0)``)
@@ -146,44 +153,40 @@ class LiveCheck:
         """Process messages in arrival order; the fixed-vs-float angle of each ESTIMATE (NaN: unverifiable)."""
         for message in messages:
             name, fields = message.name, message.fields
-            if name == "SAMPLE":
-                if self._run is not None:
+            segment_before = self.follower.segment
+            segment = self.follower.follow(message)
+            if name == "ACK" and self.follower.restart_ack is fields:
+                self._restart(self._expected.pop(fields["command_seq"], None), fields["command"])
+            elif name == "HELLO" and self.follower.restarted_by == "reset" and message.seq == 0:
+                self._run = None  # the board started again: default settings, unknown to us, and no calibration
+            elif segment is not None and self.follower.segment != segment_before:
+                self._run = None  # a run began unannounced (its ACK was lost): its settings are not known
+            if name == "SAMPLE" and self._run is not None:
+                if self.follower.complete:
                     self._run.add(fields)
-            elif name == "ESTIMATE":
-                self._estimates.append(fields)
-            elif name in _NAV_EVENTS:
-                if self._run is not None:
-                    self._run.add_event(name, fields)
-            elif name == "SETTING":
-                self.filter_id = fields["filter_id"]
-                self.settings.setdefault(fields["filter_id"], {})[fields["index"]] = fields["value"]
-            elif name == "STATUS":
-                self.filter_id = fields["active_filter"]
-            elif name == "CALIBRATION":
-                self.calibration_frames[fields["sensor"], fields["axis"]] = fields
-            elif name == "ACK" and fields["command"] in _RESTARTING_IDS:
-                change = self._expected.pop(fields["command_seq"], None)
-                if change is None and fields["command"] == _SET_SETTING:
-                    self._run = None  # another client changed a setting: its value is not known here
                 else:
-                    self._restart(change)
-            elif name == "HELLO" and message.seq == 0:  # the board started again: default settings, unknown to
-                self.settings.clear()                       # us, and the identity calibration
-                self.calibration_frames.clear()
-                self._run = None
+                    self._run = None  # a sample was lost: nothing after it can be reproduced
+            elif name == "ESTIMATE":
+                self._arrived.append((segment, fields))
+            elif name in _NAV_EVENTS and self._run is not None:
+                self._run.add_event(name, fields)
         return self._compare()
 
-    def _restart(self, change: tuple[str, int, int] | None) -> None:
-        if change is not None and change[0] == "filter":
-            self.filter_id = change[1]
-        elif change is not None and self.filter_id is not None:
-            self.settings.setdefault(self.filter_id, {})[change[1]] = change[2]
+    def _restart(self, change: tuple[str, int, int] | None, command: int) -> None:
+        """A restarting command's ACK: a new run with what is known of the settings."""
         self._run = None
-        name = _FILTER_NAMES.get(self.filter_id)
+        if change is None and command == _SET_SETTING:
+            return  # another client changed a setting: its value is not known here
+        follower = self.follower
+        if change is not None and change[0] == "filter":
+            follower.note_filter(change[1])
+        elif change is not None and follower.filter_id is not None:
+            follower.note_setting(follower.filter_id, change[1], change[2])
+        name = _FILTER_NAMES.get(follower.filter_id) if follower.filter_id is not None else None
         if name is None:
             return
+        known = self.settings_of(follower.filter_id)
         fields = core.settings_fields(name)
-        known = self.settings.get(self.filter_id, {})
         if all(i in known for i in range(len(fields))):
             try:
                 self._run = _Run(name, {f.name: known[i] for i, f in enumerate(fields)}, self.profile,
@@ -194,43 +197,38 @@ class LiveCheck:
     def calibration(self) -> Calibration | None:
         """The board's calibration as its CALIBRATION frames report it; None (the identity) when it
         sent none. CalibrationError when only part of it arrived: the run cannot be reproduced."""
-        if not self.calibration_frames:
+        reported = self.follower.calibration_since_reset
+        if not reported:
             return None
-        sensors = calibration_from_frames(list(self.calibration_frames.values()))
+        sensors = calibration_from_frames(list(reported.values()))
         if set(sensors) != set(SENSORS):
             raise CalibrationError("only part of the board's calibration was received")
         return Calibration(self.profile, sensors)
 
     def _compare(self) -> list[float]:
-        if self._run is not None and self._estimates:
-            self._run.step(max(fields["index"] for fields in self._estimates))
-        results = self._run.results if self._run is not None else {}
-        s = self.summary
-        angles = np.full(len(self._estimates), np.nan)
+        run = self._run
+        if run is not None and self._arrived:
+            run.step(max(fields["index"] for _, fields in self._arrived))
+        angles = np.full(len(self._arrived), np.nan)
         verified, board_quat, float_quat = [], [], []
-        for k, fields in enumerate(self._estimates):
-            host = results.get(fields["index"])
-            if host is None or fields["filter_id"] != self.filter_id:
-                s.unverifiable += 1
+        for k, (segment, fields) in enumerate(self._arrived):
+            position, self._seen = self._seen, self._seen + 1
+            host = run.results.get(fields["index"]) if run is not None else None
+            if host is None or fields["filter_id"] != run.filter_id:
+                self.estimates.skip()
                 continue
-            expected = dict(zip(("quat", "gyro_bias", "euler"), host[:3]))
-            different = [name for name, value in expected.items() if list(fields[name]) != value]
-            if not different:
-                s.identical += 1
-            else:
-                s.different += 1
-                if s.first_difference is None:
-                    name = different[0]
-                    s.first_difference = (f"sample index {fields['index']}: {name}: board {list(fields[name])}, "
-                                          f"host {expected[name]}")
+            expected = dict(zip(BATCH_COMPARED, host[:3]))
+            self.estimates.check(position, segment, fields["index"], fields, expected)
             verified.append(k)
             board_quat.append(fields["quat"])
             float_quat.append(host[3])
         if verified:
             angles[verified] = angle_difference(np.array(board_quat) / 2.0**core.QUAT_FRAC_BITS, np.array(float_quat))
-            s.fixed_float_max_deg = max(s.fixed_float_max_deg, float(angles[verified].max()))
-        self._estimates = []
+            self.fixed_float_max_deg = max(self.fixed_float_max_deg, float(angles[verified].max()))
+        self._arrived = []
         return angles.tolist()
 
     def settings_of(self, filter_id: int) -> dict[int, int]:
-        return dict(self.settings.get(filter_id, {}))
+        """The raw values of a filter's settings known since the board last started, by index."""
+        return {index: fields["value"] for index, fields in self.follower.settings_since_reset.get(filter_id,
+                                                                                                    {}).items()}

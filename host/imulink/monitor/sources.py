@@ -306,7 +306,7 @@ class LiveSource:
                 with self._lock:
                     self._health.status = fields
             elif name == "SETTING" and self.listen:  # a listener's settings table: what passes
-                self._note_setting(fields)
+                self._show_followed_settings(fields["filter_id"])
             elif name == "LOG":
                 level = {v: k for k, v in protocol.LOG_LEVELS.items()}.get(fields["level"], str(fields["level"]))
                 self._events.append(f"board: {level} {fields['text']}")
@@ -328,11 +328,11 @@ class LiveSource:
 
     # ------------------------------------------------------------------ commands from the window
 
-    def _note_setting(self, fields: dict) -> None:
+    def _show_followed_settings(self, filter_id: int) -> None:
+        """The settings table of a filter as the stream reported them since the board started."""
+        reported = self.check.follower.settings_since_reset.get(filter_id, {})
         with self._lock:
-            others = [s for s in self._settings
-                      if s["filter_id"] == fields["filter_id"] and s["index"] != fields["index"]]
-            self._settings = sorted(others + [fields], key=lambda s: s["index"])
+            self._settings = [reported[i] for i in sorted(reported)]
 
     def _serve_requests(self) -> None:
         while True:
