@@ -33,15 +33,16 @@ from pathlib import Path
 
 import numpy as np
 
+from . import protocol
 from .counts import STANDARD_GRAVITY, SensorProfile
 from .sensor_input import InputError, SensorRecord, nominal_rate_hz, still_segments
 
 SENSORS = ("gyr", "acc", "mag")
 SENSOR_NAMES = {"gyr": "gyroscope", "acc": "accelerometer", "mag": "magnetometer"}
 #: Fixed-point formats of the board's calibration (imu_sensor.h): offsets in counts with
-#: 8 fraction bits, matrices with 24 (range +-128, resolution 6e-8).
-OFFSET_FRAC_BITS = 8
-MATRIX_FRAC_BITS = 24
+#: 8 fraction bits, matrices with 24 (range +-128, resolution 6e-8), as SET_CALIBRATION carries them.
+OFFSET_FRAC_BITS = protocol.arg_format("SET_CALIBRATION", "offset").frac_bits
+MATRIX_FRAC_BITS = protocol.arg_format("SET_CALIBRATION", "row").frac_bits
 #: Largest offset the board accepts, counts: it keeps the corrected sums within int64
 #: (imu_sensor.h) and is twice the range of a 16-bit register.
 MAX_OFFSET_COUNTS = 65536.0
