@@ -12,8 +12,10 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "host" / "imulink"
 
-#: Bottom to top. The package root holds the version, the error root and the progress bars.
-LAYERS = ("", "core", "protocol", "io", "sim", "board", "analysis", "hil", "monitor", "cli")
+#: Bottom to top. The package root holds the version, the error root and the progress bars;
+#: the protocol (the schema, the one source of formats, and the codec) comes before the core,
+#: whose Q formats it defines.
+LAYERS = ("", "protocol", "core", "io", "sim", "board", "analysis", "hil", "monitor", "cli")
 RANK = {name: rank for rank, name in enumerate(LAYERS)}
 
 
@@ -109,6 +111,7 @@ def test_no_import_cycles():
 @pytest.mark.parametrize("files, finding", [
     ({"core/__init__.py": "from imulink.hil import record\n", "hil/__init__.py": "def record(): pass\n"},
      "layers"),
+    ({"protocol/__init__.py": "from imulink import core\n", "core/__init__.py": ""}, "layers"),
     ({"io/a.py": "from imulink.io import b\n", "io/b.py": "from imulink.io.a import x\n", "io/__init__.py": ""},
      "cycle"),
     ({"io/a.py": "from . import b\n", "io/b.py": "from .a import x\n", "io/__init__.py": ""}, "cycle"),

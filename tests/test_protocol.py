@@ -592,7 +592,7 @@ def test_check_names_every_stale_file(project_copy):
         '{ name = "battery_mv", type = "u16", doc = "supply voltage" },\n    { name = "injection_mode", type = "u8",'))
     proc = _run_generator("--check", "--root", project_copy)
     assert proc.returncode == 1
-    for name in ("imu_proto.h", "imu_proto.c", "_schema.py", "protocol.md"):
+    for name in ("imu_proto_gen.h", "imu_proto_gen.c", "_schema.py", "protocol.md"):
         assert name in proc.stderr, proc.stderr
     assert _run_generator("--root", project_copy).returncode == 0
     assert _run_generator("--check", "--root", project_copy).returncode == 0
@@ -600,10 +600,65 @@ def test_check_names_every_stale_file(project_copy):
 
 
 def test_a_hand_edit_of_a_generated_file_is_stale(project_copy):
-    header = project_copy / "firmware" / "core" / "imu_proto.h"
+    header = project_copy / "firmware" / "core" / "imu_proto_gen.h"
     header.write_text(header.read_text().replace("IMU_PROTO_MSG_SAMPLE = 16", "IMU_PROTO_MSG_SAMPLE = 18"))
     proc = _run_generator("--check", "--root", project_copy)
-    assert proc.returncode == 1 and "imu_proto.h" in proc.stderr and "imu_proto.c" not in proc.stderr
+    assert proc.returncode == 1 and "imu_proto_gen.h" in proc.stderr and "imu_proto_gen.c" not in proc.stderr
+
+
+def test_generated_c_is_in_files_of_its_own():
+    """No generated section inside a hand-written file: the generated C is whole files,
+    which the hand-written codec includes."""
+    gen = _load_generator()
+    firmware = [p for p in (ROOT / "firmware").rglob("*.[ch]") if "build" not in p.relative_to(ROOT).parts]
+    marked = [str(p.relative_to(ROOT)) for p in firmware if "BEGIN GENERATED" in p.read_text()]
+    assert marked == []
+    for rel in (gen.C_HEADER, gen.C_SOURCE):
+        assert gen.GENERATED_NOTE in (ROOT / rel).read_text()
+    assert '#include "imu_proto_gen.h"' in (ROOT / "firmware" / "core" / "imu_proto.h").read_text()
+
+
+def test_formats_and_flags_are_generated_but_not_hashed(project_copy):
+    """A field's format or a command's flag is in the generated code (so a change makes it
+    stale) but not in the schema hash (no byte on the wire changes)."""
+    toml = project_copy / "shared" / "protocol.toml"
+    original = toml.read_text()
+    for old, new, wanted in (
+            ('{ name = "euler", type = "i32[3]", q = 29,', '{ name = "euler", type = "i32[3]", q = 28,',
+             "IMU_PROTO_ESTIMATE_EULER_FRAC_BITS 28"),
+            ('nacks = ["BAD_LENGTH", "NOT_SUPPORTED"]\nrestarts_filter = false\nidempotent = true',
+             'nacks = ["BAD_LENGTH", "NOT_SUPPORTED"]\nrestarts_filter = false\nidempotent = false',
+             "IMU_PROTO_CMD_ENTER_BOOTLOADER_FLAGS (0u)")):
+        assert old in original
+        toml.write_text(original.replace(old, new))
+        proc = _run_generator("--check", "--root", project_copy)
+        assert proc.returncode == 1 and "imu_proto_gen.h" in proc.stderr and "_schema.py" in proc.stderr
+        assert _run_generator("--root", project_copy).returncode == 0
+        assert wanted in (project_copy / "firmware" / "core" / "imu_proto_gen.h").read_text()
+        assert f"SCHEMA_HASH = 0x{schema.SCHEMA_HASH:08X}" in (project_copy / "host" / "imulink" / "protocol" /
+                                                                "_schema.py").read_text()
+
+
+def test_schema_formats_and_flags():
+    """What the host derives from the schema: the Q formats it used to spell out, and the
+    command sets it used to list by hand."""
+    assert protocol.frac_bits("ESTIMATE", "quat") == 30 and protocol.frac_bits("ESTIMATE", "euler") == 29
+    assert protocol.frac_bits("ESTIMATE", "gyro_bias") == 24 and protocol.frac_bits("ESTIMATE", "weights") == 30
+    assert protocol.field_format("NAV_STATE", "lat") == (29, 2.0**-29, "rad")
+    assert protocol.field_format("NAV_STATE", "vel") == (20, 2.0**-20, "m/s")
+    assert protocol.field_format("GNSS", "lat_1e7deg") == (None, 1e-7, "deg")
+    assert [protocol.frac_bits("HELLO", f) for f in ("gyro_scale", "acc_scale", "mag_scale")] == [40, 32, 24]
+    assert protocol.arg_format("SET_CALIBRATION", "offset").frac_bits == 8
+    assert protocol.arg_format("SET_CALIBRATION", "row").frac_bits == 24
+    assert protocol.RESTARTING_COMMANDS == {"SELECT_FILTER", "SET_SETTING", "SET_INJECTION_MODE", "RESET",
+                                            "SET_CALIBRATION"}
+    assert protocol.NOT_IDEMPOTENT_COMMANDS == {"INJECT_SAMPLE", "RESET"}
+    assert protocol.REPLY_MESSAGES == {"GET_VERSION": "HELLO", "GET_STATUS": "STATUS", "GET_SETTING": "SETTING",
+                                       "GET_CALIBRATION": "CALIBRATION", "INJECT_SAMPLE": "ESTIMATE"}
+    with pytest.raises(ValueError, match="no format"):
+        protocol.field_format("ESTIMATE", "index")
+    with pytest.raises(ValueError, match="decimal scale"):
+        protocol.frac_bits("GNSS", "lat_1e7deg")
 
 
 def test_schema_hash_covers_layout_not_documentation(project_copy):
@@ -636,6 +691,16 @@ _LOG_FIELDS = """fields = [
     ('nacks = ["BAD_LENGTH", "UNKNOWN_FILTER"]', 'nacks = ["TOO_LATE"]', "are not reason codes"),
     ('[[message]]\nname = "STATUS"', '[[message]]\nname = "REASON"', "clash with C type names"),
     ('args_like = "SAMPLE"', 'args_like = "SAMPLES"', "args_like 'SAMPLES' is not a message"),
+    ('reply = "SETTING, then ACK"', 'reply = "SETTINGS, then ACK"', "reply starts with ACK or with the message"),
+    ('type = "i32[4]", q = 30,', 'type = "i32[4]", q = 30, scale = 0.5,', "give q (a Q format) or scale"),
+    ('type = "i32[4]", q = 30,', 'type = "i32[4]", q = 70,', "q is the number of fraction bits"),
+    ('type = "i32[4]", q = 30,', 'type = "i32[4]", q = "30",', "q is the number of fraction bits"),
+    ('type = "char[16]",', 'type = "char[16]", unit = "m",', "belong to integer fields"),
+    ('scale = 1e-7,', 'scale = -1e-7,', "scale is a positive number"),
+    ('nacks = ["BAD_LENGTH", "UNKNOWN_FILTER"]\nrestarts_filter = true',
+     'nacks = ["BAD_LENGTH", "UNKNOWN_FILTER"]', "missing restarts_filter"),
+    ('nacks = ["BAD_LENGTH", "UNKNOWN_FILTER"]\nrestarts_filter = true',
+     'nacks = ["BAD_LENGTH", "UNKNOWN_FILTER"]\nrestarts_filter = 1', "restarts_filter is true or false"),
 ])
 def test_generator_rejects_a_broken_definition(project_copy, old, new, message):
     toml = project_copy / "shared" / "protocol.toml"

@@ -144,8 +144,32 @@ def test_ids_codes_and_sizes_agree():
 
 
 def test_protocol_filter_ids_are_the_core_filter_ids():
+    """The filter code table, the core's imu_filter_id_t (imu_filter.h, through the cffi
+    declaration generated from the table) and the host's filter table agree."""
     assert {name.lower(): value for name, value in protocol.FILTER_IDS.items()} == \
         {name: filter_id for name, (filter_id, _) in core.BOARD_FILTERS.items()}
+    for module in (_core_fixed, _core_float):
+        for name, value in protocol.FILTER_IDS.items():
+            assert getattr(module.lib, f"IMU_FILTER_{name}") == value == getattr(module.lib, f"IMU_PROTO_FILTER_{name}")
+
+
+def test_q_formats_and_command_flags_agree():
+    for name, formats in schema.FIELD_FORMATS.items():
+        for field, (frac_bits, scale, _unit) in formats.items():
+            if frac_bits:
+                assert getattr(lib, f"IMU_PROTO_{name}_{field.upper()}_FRAC_BITS") == frac_bits
+                assert scale == 2.0**-frac_bits
+    assert lib.IMU_PROTO_CMD_SET_CALIBRATION_OFFSET_FRAC_BITS == protocol.arg_format("SET_CALIBRATION", "offset")[0]
+    assert lib.IMU_PROTO_CMD_SET_CALIBRATION_ROW_FRAC_BITS == protocol.arg_format("SET_CALIBRATION", "row")[0]
+    for name, spec in schema.COMMANDS.items():
+        flags = lib.imu_proto_command_flags(spec["id"])
+        assert flags == getattr(lib, f"IMU_PROTO_CMD_{name}_FLAGS")
+        assert bool(flags & lib.IMU_PROTO_FLAG_RESTARTS_FILTER) == spec["restarts_filter"] == \
+            (name in protocol.RESTARTING_COMMANDS)
+        assert bool(flags & lib.IMU_PROTO_FLAG_IDEMPOTENT) == spec["idempotent"] == \
+            (name not in protocol.NOT_IDEMPOTENT_COMMANDS)
+    unknown = set(range(256)) - {spec["id"] for spec in schema.COMMANDS.values()}
+    assert {lib.imu_proto_command_flags(i) for i in unknown} == {0}
 
 
 # --------------------------------------------------------------------------- messages both ways
@@ -414,7 +438,8 @@ def sanitized_driver(tmp_path_factory):
     core = Path(__file__).resolve().parents[1] / "firmware" / "core"
     proc = subprocess.run([GCC, "-std=c99", "-Wall", "-Wextra", "-Werror", "-DIMU_FIXED", "-g",
                            "-fsanitize=undefined,address", "-fno-sanitize-recover=all", f"-I{core}",
-                           str(source), str(core / "imu_proto.c"), "-o", str(out / "driver")],
+                           str(source), str(core / "imu_proto.c"), str(core / "imu_proto_gen.c"), "-o",
+                           str(out / "driver")],
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stderr
     return out / "driver"

@@ -140,7 +140,7 @@ SIZE_GROUPS = {
     "kf1d": ["imu_kf1d"],
     "eskf": ["imu_eskf", "imu_cov"],
     "shared": ["imu_math", "imu_sensor", "imu_filter"],
-    "codec": ["imu_proto"],
+    "codec": ["imu_proto", "imu_proto_gen"],
 }
 
 # ============================================================================ build

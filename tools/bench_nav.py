@@ -61,6 +61,7 @@ sys.path.insert(0, str(ROOT / "tools"))
 sys.path.insert(0, str(ROOT / "host"))
 
 import bench_arm  # noqa: E402
+from imulink import protocol  # noqa: E402
 from imulink.analysis import nav  # noqa: E402
 from imulink.analysis import nav_scenarios as ns  # noqa: E402
 from imulink.io.nav_input import simulated_input  # noqa: E402
@@ -365,6 +366,13 @@ def print_rough(table: list[dict]) -> None:
             print(f"FAILED: seed {seed}: {why} (its metrics nan)")
 
 
+#: Q formats of the fixed build's latitude and longitude, velocity and quaternion (those of
+#: NAV_STATE's lat and vel and ESTIMATE's quat in shared/protocol.toml).
+ANGLE_Q = protocol.frac_bits("NAV_STATE", "lat")
+VEL_Q = protocol.frac_bits("NAV_STATE", "vel")
+QUAT_Q = protocol.frac_bits("ESTIMATE", "quat")
+
+
 def to_words(values, q: int) -> list[int]:
     return [int(v) for v in np.rint(np.asarray(values, dtype=np.float64) * 2.0 ** q)]
 
@@ -383,8 +391,8 @@ def arm_cost(seconds: float, build_dir: Path, progress=lambda _m: None) -> dict:
 
     def fix_bytes(j: int) -> bytes:
         lat, lon = math.radians(float(inp.fix_lat_deg[j])), math.radians(float(inp.fix_lon_deg[j]))
-        words = [0, *to_words([lat, lon], 29), *to_words([inp.fix_height_m[j] * 1000.0], 0),
-                 *to_words(inp.fix_vel_enu[j], 20), 1,
+        words = [0, *to_words([lat, lon], ANGLE_Q), *to_words([inp.fix_height_m[j] * 1000.0], 0),
+                 *to_words(inp.fix_vel_enu[j], VEL_Q), 1,
                  *to_words([inp.fix_h_acc_m[j] * 1000.0, inp.fix_v_acc_m[j] * 1000.0,
                             inp.fix_s_acc_m_s[j] * 1000.0], 0), 0]
         return struct.pack("<12i", *words)
@@ -399,9 +407,9 @@ def arm_cost(seconds: float, build_dir: Path, progress=lambda _m: None) -> dict:
         raise bench_arm.BenchError(f"bench_navkf_start returned {status}")
     fix_at = {int(k): j for j, k in enumerate(inp.fix_index) if j > 0}
     baro_at = {int(k): int(np.rint(p)) for k, p in zip(inp.baro_index, inp.baro_pa)}
-    expected = np.c_[to_words(np.radians(host.lat_deg), 29), to_words(np.radians(host.lon_deg), 29),
-                     np.rint(host.height_m * 1000.0), np.rint(host.vel_enu * 2.0 ** 20),
-                     np.rint(host.quat * 2.0 ** 30)].astype(np.int64)
+    expected = np.c_[to_words(np.radians(host.lat_deg), ANGLE_Q), to_words(np.radians(host.lon_deg), ANGLE_Q),
+                     np.rint(host.height_m * 1000.0), np.rint(host.vel_enu * 2.0 ** VEL_Q),
+                     np.rint(host.quat * 2.0 ** QUAT_Q)].astype(np.int64)
     steps, ended, fix_counts, baro_counts, stack = [], [], [], [], 0
     for k in range(1, len(inp)):
         emu.write(g_addr, struct.pack("<3i", *to_words(inp.gyr[k], 24)))

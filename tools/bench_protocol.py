@@ -66,7 +66,7 @@ def mavlink_messages(mavlink, pairs):
     for sample, estimate in pairs:
         acc, gyr, mag = sample["acc"], sample["gyr"], sample["mag"]
         messages.append(mav.raw_imu_encode(sample["timestamp_us"], *acc, *gyr, *mag, 0, sample["temperature"]))
-        q = [v / 2.0**30 for v in estimate["quat"]]
+        q = [v / 2.0**protocol.frac_bits("ESTIMATE", "quat") for v in estimate["quat"]]
         messages.append(mav.attitude_quaternion_encode(sample["timestamp_us"] // 1000, *q, 0.01, -0.02, 0.03))
     return mav, messages
 

@@ -11,7 +11,7 @@
  *
  *     gcc -std=c99 -DIMU_FIXED -DIMU_CHECK_NARROWING -fsanitize=undefined,address \
  *         -fno-sanitize-recover=all -g -Ifirmware/core tests/c/campaign_driver.c \
- *         $(ls firmware/core/imu_*.c | grep -v imu_proto.c) -lm -o campaign
+ *         $(ls firmware/core/imu_*.c | grep -v imu_proto) -lm -o campaign
  *     ./campaign --ranges                  # the settings' true ranges, found by bisection
  *     ./campaign --list [--filter eskf]    # the case names
  *     ./campaign [--filter F] [--from I] [--to J]   # run cases I..J-1 (indices of --list)

@@ -17,6 +17,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from imulink import protocol
 from imulink.core import SettingsError, _module, _settings_struct, resolve_settings, settings_fields, to_fixed
 from imulink.io.files import write_replacing
 from imulink.io.nav_input import NavInput
@@ -30,6 +31,16 @@ STATE_NAMES = ("pos_e", "pos_n", "pos_u", "vel_e", "vel_n", "vel_u", "att_x", "a
                "gyro_bias_x", "gyro_bias_y", "gyro_bias_z", "acc_bias_x", "acc_bias_y", "acc_bias_z", "baro_bias")
 STATE_UNITS = np.array([1024.0] * 3 + [64.0] * 3 + [1.0] * 9 + [1024.0])
 STATES = len(STATE_NAMES)
+#: Q formats of the fixed build's latitude and longitude (rad), velocity (m/s), quaternion and
+#: variance mantissas: those of the NAV_STATE and ESTIMATE fields that carry them.
+_ANGLE_Q = protocol.frac_bits("NAV_STATE", "lat")
+_VEL_Q = protocol.frac_bits("NAV_STATE", "vel")
+_QUAT_Q = protocol.frac_bits("ESTIMATE", "quat")
+_VAR_Q = protocol.frac_bits("NAV_STATE", "var_mantissa")
+#: Real value per count of a GNSS frame's fields: 1e-7 deg, mm and mm/s to m and m/s.
+_GNSS_DEG = protocol.field_format("GNSS", "lat_1e7deg").scale
+_GNSS_M = protocol.field_format("GNSS", "height_mm").scale
+_GNSS_M_S = protocol.field_format("GNSS", "vel_ned_mm_s").scale
 #: The sample rates the filter takes (imu_navkf_start).
 MIN_RATE_HZ, MAX_RATE_HZ = 10.0, 1000.0
 
@@ -89,7 +100,7 @@ def input_from_recording(recording, latency_s: float = 0.0) -> NavInput:
     usable = (rows >= 0) & (g.fix_ok != 0) & ((g.fix_type == 3) | (g.fix_type == 4))
     order = np.argsort(rows[usable], kind="stable")
     has_vel = (g.has_velocity[usable] != 0)[order]
-    vel_ned = g.vel_ned_mm_s[usable][order] * 1e-3
+    vel_ned = g.vel_ned_mm_s[usable][order] * _GNSS_M_S
     baro_rows = sample_rows(recording, b.segment, b.index)
     baro_ok = baro_rows >= 0
     nan = np.full(int(usable.sum()), math.nan)
@@ -97,12 +108,12 @@ def input_from_recording(recording, latency_s: float = 0.0) -> NavInput:
         timestamp_us=np.round(sample_times(recording) * 1e6).astype(np.int64), gyr=s.gyr * p.gyro_scale,
         acc=s.acc * p.acc_scale, mag=s.mag * p.mag_scale, baro_index=baro_rows[baro_ok],
         baro_pa=b.pressure_pa[baro_ok].astype(np.float64), baro_temp_c=b.temperature_cdeg[baro_ok] / 100.0,
-        fix_index=rows[usable][order], fix_lat_deg=g.lat_1e7deg[usable][order] * 1e-7,
-        fix_lon_deg=g.lon_1e7deg[usable][order] * 1e-7, fix_height_m=g.height_mm[usable][order] * 1e-3,
-        fix_h_acc_m=np.maximum(g.h_acc_mm[usable][order], 1) * 1e-3,
-        fix_v_acc_m=np.maximum(g.v_acc_mm[usable][order], 1) * 1e-3,
+        fix_index=rows[usable][order], fix_lat_deg=g.lat_1e7deg[usable][order] * _GNSS_DEG,
+        fix_lon_deg=g.lon_1e7deg[usable][order] * _GNSS_DEG, fix_height_m=g.height_mm[usable][order] * _GNSS_M,
+        fix_h_acc_m=np.maximum(g.h_acc_mm[usable][order], 1) * _GNSS_M,
+        fix_v_acc_m=np.maximum(g.v_acc_mm[usable][order], 1) * _GNSS_M,
         fix_vel_enu=np.where(has_vel[:, None], np.c_[vel_ned[:, 1], vel_ned[:, 0], -vel_ned[:, 2]], math.nan),
-        fix_s_acc_m_s=np.where(has_vel, np.maximum(g.s_acc_mm_s[usable][order], 1) * 1e-3, nan),
+        fix_s_acc_m_s=np.where(has_vel, np.maximum(g.s_acc_mm_s[usable][order], 1) * _GNSS_M_S, nan),
         fix_age_s=np.full(int(usable.sum()), float(latency_s)), fix_is_marker=np.zeros(int(usable.sum()), bool))
 
 
@@ -289,12 +300,12 @@ def run(inp: NavInput, arithmetic: str = "fixed", lever_arm_m=None, settings=Non
         f.has_vel = int(has_vel)
         lat, lon = math.radians(float(inp.fix_lat_deg[j])), math.radians(float(inp.fix_lon_deg[j]))
         if fixed:
-            f.lat, f.lon = to_fixed(lat, 29, "a latitude"), to_fixed(lon, 29, "a longitude")
+            f.lat, f.lon = to_fixed(lat, _ANGLE_Q, "a latitude"), to_fixed(lon, _ANGLE_Q, "a longitude")
             f.height = to_fixed(float(inp.fix_height_m[j]) * 1000.0, 0, "a height")
             f.h_acc = max(1, to_fixed(float(inp.fix_h_acc_m[j]) * 1000.0, 0, "an accuracy"))
             f.v_acc = max(1, to_fixed(float(inp.fix_v_acc_m[j]) * 1000.0, 0, "an accuracy"))
             f.s_acc = max(1, to_fixed(float(inp.fix_s_acc_m_s[j]) * 1000.0, 0, "an accuracy")) if has_vel else 1000
-            f.vel = [to_fixed(float(v), 20, "a velocity") for v in inp.fix_vel_enu[j]] if has_vel else [0, 0, 0]
+            f.vel = [to_fixed(float(v), _VEL_Q, "a velocity") for v in inp.fix_vel_enu[j]] if has_vel else [0, 0, 0]
         else:
             f.lat, f.lon, f.height = lat, lon, float(inp.fix_height_m[j]) * 1000.0
             f.h_acc = float(inp.fix_h_acc_m[j]) * 1000.0
@@ -358,11 +369,11 @@ def run(inp: NavInput, arithmetic: str = "fixed", lever_arm_m=None, settings=Non
     height = np.r_[start_position[2], height]
     vel = np.vstack([list(state0.nav.vel), vel])
     quat = np.vstack([list(state0.nav.q), quat])
-    variance = np.vstack([start_mant, var_mant]) * np.exp2(np.vstack([start_exp, var_exp]) - (30 if fixed else 0))
+    variance = np.vstack([start_mant, var_mant]) * np.exp2(np.vstack([start_exp, var_exp]) - (_VAR_Q if fixed else 0))
     return NavResult(
         start=start, timestamp_us=inp.timestamp_us[start:],
-        lat_deg=np.degrees(lat_lon[:, 0] * scale(29)), lon_deg=np.degrees(lat_lon[:, 1] * scale(29)),
-        height_m=height * scale(0) / 1000.0, vel_enu=vel * scale(20), quat=quat * scale(30),
+        lat_deg=np.degrees(lat_lon[:, 0] * scale(_ANGLE_Q)), lon_deg=np.degrees(lat_lon[:, 1] * scale(_ANGLE_Q)),
+        height_m=height * scale(0) / 1000.0, vel_enu=vel * scale(_VEL_Q), quat=quat * scale(_QUAT_Q),
         sigma=np.sqrt(np.maximum(variance, 0.0)) * STATE_UNITS,
         fix_index=inp.fix_index[1:], fix_accepted=accepted.astype(bool),
         rejected=int(state.rejected), resets=int(state.resets), fades=int(state.fades),

@@ -52,11 +52,12 @@ COMMAND_TIMEOUT_MAX_S = 2.0
 #: Messages the receive queue holds before it drops the oldest.
 QUEUE_SIZE = 200_000
 
-#: The data message a command asks for; the board sends it before the ACK.
-REPLY_MESSAGES = {"GET_VERSION": "HELLO", "GET_STATUS": "STATUS", "GET_SETTING": "SETTING",
-                  "GET_CALIBRATION": "CALIBRATION", "INJECT_SAMPLE": "ESTIMATE"}
-#: Commands that must not be repeated blindly (repeating them changes the board's state twice).
-NOT_IDEMPOTENT = frozenset({"INJECT_SAMPLE", "RESET"})
+#: The data message a command asks for; the board sends it before the ACK (the command's
+#: reply in shared/protocol.toml).
+REPLY_MESSAGES = protocol.REPLY_MESSAGES
+#: Commands that must not be repeated blindly (repeating them changes the board's state twice):
+#: those without the idempotent flag in shared/protocol.toml.
+NOT_IDEMPOTENT = protocol.NOT_IDEMPOTENT_COMMANDS
 
 _REASON_NAMES = {value: name for name, value in protocol.REASONS.items()}
 _READ_SIZE = 1 << 16

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from imulink import protocol
 from imulink.core import _fixed as _core_fixed
 from imulink.core import _float as _core_float
 from imulink.core.calibration import MATRIX_FRAC_BITS, OFFSET_FRAC_BITS, SENSORS, CalibrationError
@@ -27,16 +28,24 @@ from imulink.errors import ImulinkError
 
 ARITHMETICS = ("fixed", "float")
 
-#: attitude filter name -> (id in imu_filter_id_t, C prefix of its settings symbols)
-FILTERS = {"eecf": (1, "imu_eecf"), "kf1d": (2, "imu_kf1d"), "eskf": (3, "imu_eskf")}
+#: attitude filter name -> (id in imu_filter_id_t: the schema's filter code, C prefix of its settings symbols)
+FILTERS = {name: (protocol.FILTER_IDS[name.upper()], f"imu_{name}") for name in ("eecf", "kf1d", "eskf")}
 #: every filter the board runs: the attitude filters and the navigation filter (imu_navfilter.h:
 #: position and velocity besides the attitude; Filter.run_nav_counts feeds it what it measures)
-BOARD_FILTERS = {**FILTERS, "nav": (4, "imu_navfilter")}
+BOARD_FILTERS = {**FILTERS, "nav": (protocol.FILTER_IDS["NAV"], "imu_navfilter")}
 
-#: Q formats of the fixed-build outputs.
-QUAT_FRAC_BITS = 30
-EULER_FRAC_BITS = 29
-RATE_FRAC_BITS = 24
+#: Q formats of the fixed-build outputs: those of the ESTIMATE fields that carry them (shared/protocol.toml).
+QUAT_FRAC_BITS = protocol.frac_bits("ESTIMATE", "quat")
+EULER_FRAC_BITS = protocol.frac_bits("ESTIMATE", "euler")
+RATE_FRAC_BITS = protocol.frac_bits("ESTIMATE", "gyro_bias")
+#: Q formats of the ESKF's measurement weights and of the mantissas of its block-floating
+#: covariance (P = mant * 2^(exp - COV_FRAC_BITS)), as ESTIMATE carries them.
+WEIGHT_FRAC_BITS = protocol.frac_bits("ESTIMATE", "weights")
+COV_FRAC_BITS = protocol.frac_bits("ESTIMATE", "cov_mantissa")
+#: Scales of the fixed-build navigation outputs: latitude and longitude (rad) and velocity
+#: (m/s) per raw count, those of NAV_STATE's lat, lon and vel.
+NAV_ANGLE_SCALE = protocol.field_format("NAV_STATE", "lat").scale
+NAV_VEL_SCALE = protocol.field_format("NAV_STATE", "vel").scale
 
 
 class SettingsError(ImulinkError, ValueError):
@@ -344,7 +353,7 @@ class Filter:
                 column = [getattr(states[k], name) for k in range(n)]
                 nav_states[name] = (np.array([list(v) for v in column], np.int64).reshape(n, length) if length
                                     else np.array(column, np.int64))
-        lat_lon_scale, vel_scale = (2.0**-29, 2.0**-20) if fixed else (1.0, 1.0)
+        lat_lon_scale, vel_scale = (NAV_ANGLE_SCALE, NAV_VEL_SCALE) if fixed else (1.0, 1.0)
         return NavBoardRun(si["quat"], si["euler"], si["gyro_bias"], raw_out if fixed else None,
                            saturations.astype(np.int64), np.degrees(position[:, 0] * lat_lon_scale),
                            np.degrees(position[:, 1] * lat_lon_scale), position[:, 2] / 1000.0,
@@ -371,7 +380,7 @@ class Filter:
         for i in range(n):
             for j in range(n):
                 lib.imu_eskf_covariance(state, i, j, mant, exp)
-                out[i, j] = mant[0] * 2.0 ** (exp[0] - 30) if self.arithmetic == "fixed" else mant[0]
+                out[i, j] = mant[0] * 2.0 ** (exp[0] - COV_FRAC_BITS) if self.arithmetic == "fixed" else mant[0]
         return out
 
     def covariance_diagonal_raw(self) -> tuple[list[int], list[int]]:
@@ -395,7 +404,7 @@ class Filter:
         ctype = "int32_t *" if self.arithmetic == "fixed" else "double *"
         gravity, heading = self.mod.ffi.new(ctype), self.mod.ffi.new(ctype)
         self.mod.lib.imu_eskf_get_weights(state, gravity, heading)
-        scale = 2.0**-30 if self.arithmetic == "fixed" else 1.0
+        scale = 2.0**-WEIGHT_FRAC_BITS if self.arithmetic == "fixed" else 1.0
         return gravity[0] * scale, heading[0] * scale
 
     def measurement_weights_raw(self) -> list[int]:
@@ -403,7 +412,7 @@ class Filter:
         ESTIMATE): Q30 integers. Fixed build only."""
         if self.arithmetic != "fixed":
             raise ValueError("the raw weights exist in the fixed build only")
-        return [round(w * 2**30) for w in self.measurement_weights()]
+        return [round(w * 2**WEIGHT_FRAC_BITS) for w in self.measurement_weights()]
 
     def acc_bias(self) -> np.ndarray:
         """ESKF accelerometer bias estimate, m/s^2 (3,)."""

@@ -12,8 +12,8 @@ from cffi import FFI
 ROOT = Path(__file__).resolve().parents[3]
 CORE_DIR = ROOT / "firmware" / "core"
 CORE_SOURCES = ["imu_math.c", "imu_settings.c", "imu_sensor.c", "imu_cov.c", "imu_rest.c", "imu_eecf.c", "imu_kf1d.c",
-                "imu_eskf.c", "imu_filter.c", "imu_proto.c", "imu_nav.c", "imu_navcov.c", "imu_navkf.c",
-                "imu_navfilter.c"]
+                "imu_eskf.c", "imu_filter.c", "imu_proto.c", "imu_proto_gen.c", "imu_nav.c", "imu_navcov.c",
+                "imu_navkf.c", "imu_navfilter.c"]
 
 _TYPEDEFS = {
     "fixed": """
@@ -26,9 +26,15 @@ _TYPEDEFS = {
     """,
 }
 
+# The declarations generated from shared/protocol.toml by tools/gen_protocol.py.
+_SCHEMA = runpy.run_path(str(Path(__file__).parents[1] / "protocol" / "_schema.py"))
+
 _DECLARATIONS = """
     typedef enum { IMU_OK = 0, IMU_ERR_RANGE = -1, IMU_ERR_UNKNOWN = -2 } imu_status_t;
-    typedef enum { IMU_FILTER_EECF = 1, IMU_FILTER_KF1D = 2, IMU_FILTER_ESKF = 3 } imu_filter_id_t;
+"""
+# The filter ids (imu_filter_id_t): the values of the schema's filter code table.
+_DECLARATIONS += _SCHEMA["CFFI_FILTER_ID"]
+_DECLARATIONS += """
     typedef struct { int16_t gyr[3]; int16_t acc[3]; int16_t mag[3]; } imu_raw_sample_t;
     typedef struct { imu_real_t gyro_scale; imu_real_t acc_scale; imu_real_t mag_scale; } imu_sensor_settings_t;
     typedef struct { imu_real_t offset[3]; imu_real_t matrix[9]; } imu_sensor_cal_t;
@@ -144,7 +150,7 @@ _DECLARATIONS = """
                    int32_t *var_exp);
 """
 # The message structs and functions of imu_proto.h, generated from shared/protocol.toml.
-_DECLARATIONS += runpy.run_path(str(Path(__file__).parents[1] / "protocol" / "_schema.py"))["CFFI_DECLARATIONS"]
+_DECLARATIONS += _SCHEMA["CFFI_DECLARATIONS"]
 _DECLARATIONS += """
     void navfilter_run(imu_filter_t *f, size_t n, const int16_t *gyr, const int16_t *acc, const int16_t *mag,
                        const int32_t *baro_after, size_t baro_count, const int32_t *baro_pa,
@@ -254,7 +260,7 @@ def _make(arithmetic: str) -> FFI:
     ffi.set_source(
         f"imulink.core._{arithmetic}",
         '#include "imu_filter.h"\n#include "imu_math.h"\n#include "imu_proto.h"\n#include "imu_navkf.h"\n'
-        + _NAVKF_RUN + _NAVFILTER_RUN,
+        + _SCHEMA["CFFI_FILTER_ID_CHECK"] + _NAVKF_RUN + _NAVFILTER_RUN,
         sources=[str((CORE_DIR / s).relative_to(rel)) for s in CORE_SOURCES],
         include_dirs=[str(CORE_DIR.relative_to(rel))],
         define_macros=[("IMU_FIXED" if arithmetic == "fixed" else "IMU_FLOAT", "1")],

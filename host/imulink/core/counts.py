@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from imulink import protocol
 from imulink.errors import ImulinkError
 
 #: Standard gravity in m/s^2 (the MPU6050 data sheet's "g").
@@ -78,8 +79,9 @@ BROAD_PROFILE = SensorProfile(name="gy86-broad", acc_lsb_per_g=2048.0)
 PROFILES = {p.name: p for p in (DEFAULT_PROFILE, BROAD_PROFILE)}
 
 #: Q formats of the firmware's sensitivities (imu_sensor_settings_t: gyroscope rad/s per LSB
-#: Q40, accelerometer m/s^2 per LSB Q32, magnetometer uT per LSB Q24), which a board states in HELLO.
-SCALE_FRAC_BITS = (40, 32, 24)
+#: Q40, accelerometer m/s^2 per LSB Q32, magnetometer uT per LSB Q24), which a board states in
+#: HELLO: those of HELLO's fields (shared/protocol.toml).
+SCALE_FRAC_BITS = tuple(protocol.frac_bits("HELLO", name) for name in ("gyro_scale", "acc_scale", "mag_scale"))
 
 
 def fixed_scales(profile: SensorProfile) -> tuple[int, int, int]:

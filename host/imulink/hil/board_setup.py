@@ -3,10 +3,9 @@ from __future__ import annotations
 
 from imulink import core, protocol
 from imulink.board.link import Link
-from imulink.core.calibration import SENSORS, Calibration, to_fixed
+from imulink.core.calibration import SENSORS, Calibration, calibration_from_frames, to_fixed
 from imulink.core.counts import SensorProfile, describe_profile, fixed_scales, profile_from_scales
 from imulink.hil.common import HilError
-from imulink.protocol.calibration import calibration_from_frames
 
 
 def read_settings(link: Link) -> tuple[int, dict[int, dict]]:

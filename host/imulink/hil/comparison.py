@@ -351,7 +351,8 @@ def _nav_state_rows(recording: Recording) -> np.ndarray:
 
 def nav_state_position(fields: dict, rows=slice(None)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Latitude, longitude (deg) and height (m) of NAV_STATE fields (Q29 rad, mm) at `rows`."""
-    return (np.degrees(fields["lat"][rows] / 2.0**29), np.degrees(fields["lon"][rows] / 2.0**29),
+    lat_q, lon_q = protocol.frac_bits("NAV_STATE", "lat"), protocol.frac_bits("NAV_STATE", "lon")
+    return (np.degrees(fields["lat"][rows] / 2.0**lat_q), np.degrees(fields["lon"][rows] / 2.0**lon_q),
             fields["height_mm"][rows] / 1000.0)
 
 

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from imulink import protocol
 from imulink.analysis.attitude import attitude_errors, rmse
 from imulink.board.emulator import EmulatedBoard
 from imulink.hil.common import ESTIMATE_FRAC_BITS, SETTLE_S
@@ -130,7 +131,7 @@ def _nav_accuracy(recording: Recording, fed: np.ndarray, traj, rate_hz: float) -
         return None
     k = at[usable]
     e = local_offsets(*nav_state_position(states, usable), traj.lat_deg[k], traj.lon_deg[k], traj.height_m[k])
-    velocity = states["vel"][usable] / 2.0**20 - traj.vel_enu[k]
+    velocity = states["vel"][usable] / 2.0**protocol.frac_bits("NAV_STATE", "vel") - traj.vel_enu[k]
     return {"horizontal_m": float(np.sqrt(np.mean(np.sum(e[:, :2] ** 2, axis=1)))),
             "vertical_m": float(np.sqrt(np.mean(e[:, 2] ** 2))),
             "velocity_m_s": float(np.sqrt(np.mean(np.sum(velocity**2, axis=1)))),

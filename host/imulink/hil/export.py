@@ -5,6 +5,7 @@ import json
 
 import numpy as np
 
+from imulink import core, protocol
 from imulink.analysis.attitude import angle_difference
 from imulink.hil.common import ESTIMATE_FRAC_BITS
 from imulink.hil.comparison import Comparison, HostRun, nav_state_position
@@ -87,7 +88,7 @@ def _nav_columns(recording: Recording, run: HostRun) -> dict[str, np.ndarray]:
         columns[f"{source}_lat_deg"], columns[f"{source}_lon_deg"] = masked(lat), masked(lon)
         columns[f"{source}_height_m"] = masked(height)
         for k, axis in enumerate(("e", "n", "u")):
-            columns[f"{source}_vel_{axis}_m_s"] = masked(fields["vel"][:, k] * 2.0**-20)
+            columns[f"{source}_vel_{axis}_m_s"] = masked(fields["vel"][:, k] * core.NAV_VEL_SCALE)
     for k, name in enumerate(("lat_deg", "lon_deg", "height_m")):
         columns[f"float_{name}"] = run.float_position[:, k]
     return columns
@@ -100,11 +101,13 @@ def _gnss_columns(recording: Recording) -> dict[str, np.ndarray]:
     g, n = recording.gnss, len(recording.samples)
     rows = sample_rows(recording, g.segment, g.index)
     have = rows >= 0
-    values = {"gnss_time_ms": g.time_ms, "gnss_lat_deg": g.lat_1e7deg * 1e-7, "gnss_lon_deg": g.lon_1e7deg * 1e-7,
-              "gnss_height_m": g.height_mm * 1e-3, "gnss_vel_e_m_s": g.vel_ned_mm_s[:, 1] * 1e-3,
-              "gnss_vel_n_m_s": g.vel_ned_mm_s[:, 0] * 1e-3, "gnss_vel_u_m_s": -g.vel_ned_mm_s[:, 2] * 1e-3,
-              "gnss_h_acc_m": g.h_acc_mm * 1e-3, "gnss_v_acc_m": g.v_acc_mm * 1e-3,
-              "gnss_s_acc_m_s": g.s_acc_mm_s * 1e-3}
+    def si(name: str):  # the real value of a GNSS field in its unit (deg, m, m/s)
+        return getattr(g, name) * protocol.field_format("GNSS", name).scale
+
+    values = {"gnss_time_ms": g.time_ms, "gnss_lat_deg": si("lat_1e7deg"), "gnss_lon_deg": si("lon_1e7deg"),
+              "gnss_height_m": si("height_mm"), "gnss_vel_e_m_s": si("vel_ned_mm_s")[:, 1],
+              "gnss_vel_n_m_s": si("vel_ned_mm_s")[:, 0], "gnss_vel_u_m_s": -si("vel_ned_mm_s")[:, 2],
+              "gnss_h_acc_m": si("h_acc_mm"), "gnss_v_acc_m": si("v_acc_mm"), "gnss_s_acc_m_s": si("s_acc_mm_s")}
     columns = {}
     for name, value in values.items():
         column = np.full(n, np.nan)

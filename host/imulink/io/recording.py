@@ -42,12 +42,11 @@ from pathlib import Path
 import numpy as np
 
 from imulink import __version__, core, protocol
-from imulink.core.calibration import SENSORS, Calibration, CalibrationError
+from imulink.core.calibration import SENSORS, Calibration, CalibrationError, calibration_from_frames
 from imulink.core.counts import SensorProfile, profile_from_json, profile_from_scales, profile_to_json
 from imulink.errors import ImulinkError
 from imulink.io.files import FileError, read_regular_file
 from imulink.progress import CountProgress
-from imulink.protocol.calibration import calibration_from_frames
 from imulink.protocol.follower import RUN_FRAMES, StreamFollower
 
 MAGIC = b"IMULOG1\n"

@@ -25,11 +25,10 @@ import numpy as np
 
 from imulink import core, protocol
 from imulink.analysis.attitude import angle_difference
-from imulink.core.calibration import SENSORS, Calibration, CalibrationError
+from imulink.core.calibration import SENSORS, Calibration, CalibrationError, calibration_from_frames
 from imulink.core.counts import SensorProfile
 from imulink.hil.comparison import BATCH_COMPARED, EstimateCheck
 from imulink.hil.replica import FirmwareFilter
-from imulink.protocol.calibration import calibration_from_frames
 from imulink.protocol.follower import StreamFollower
 
 _SET_SETTING = protocol.COMMAND_IDS["SET_SETTING"]

@@ -60,6 +60,8 @@ STATUS_INTERVAL_S = 1.0
 BATCH_S = 0.02
 FILTER_NAMES = {filter_id: name for name, (filter_id, _) in core.BOARD_FILTERS.items()}
 _DEG = 180.0 / math.pi
+#: Q format of NAV_STATE's velocity (m/s).
+_NAV_VEL_Q = protocol.frac_bits("NAV_STATE", "vel")
 
 
 def sample_rows(times, gyr, acc, mag, profile: SensorProfile) -> np.ndarray:
@@ -74,10 +76,10 @@ def estimate_rows(times, filter_id, euler, gyro_bias, cov_mantissa, cov_exponent
     euler = np.asarray(euler) * (_DEG / 2.0**core.EULER_FRAC_BITS)
     bias = np.asarray(gyro_bias) * (_DEG / 2.0**core.RATE_FRAC_BITS)
     mantissa = np.asarray(cov_mantissa, np.float64)[:, :6]
-    variance = mantissa * np.exp2(np.asarray(cov_exponent, np.float64)[:, :6] - 30)
+    variance = mantissa * np.exp2(np.asarray(cov_exponent, np.float64)[:, :6] - core.COV_FRAC_BITS)
     sigma = np.where(mantissa > 0, np.sqrt(np.maximum(variance, 0.0)) * _DEG, np.nan)  # rad -> deg, rad/s -> deg/s
     eskf = (np.asarray(filter_id) == core.FILTERS["eskf"][0])[:, None]
-    weights = np.where(eskf, np.asarray(weights, np.float64) * 2.0**-30, np.nan)
+    weights = np.where(eskf, np.asarray(weights, np.float64) * 2.0**-core.WEIGHT_FRAC_BITS, np.nan)
     return np.column_stack([times, euler, bias, sigma, fixed_float, weights])
 
 
@@ -93,7 +95,7 @@ def nav_rows(times, mode, lat, lon, height_mm, vel, origin: tuple[float, float, 
     if origin is None:
         origin = (float(lat_deg[0]), float(lon_deg[0]), float(height[0]))
     offsets = local_offsets(lat_deg, lon_deg, height, *origin)
-    speed = np.linalg.norm(np.asarray(vel, np.float64).reshape(-1, 3)[has], axis=1) / 2.0**20
+    speed = np.linalg.norm(np.asarray(vel, np.float64).reshape(-1, 3)[has], axis=1) / 2.0**_NAV_VEL_Q
     return np.column_stack([np.asarray(times)[has], offsets[:, 0], offsets[:, 1], height, speed]), origin
 
 

@@ -3,7 +3,7 @@
 A frame on the wire is ``COBS(msg_id u8 | seq u16 | payload | crc u32) 0x00``, all
 little-endian; crc is CRC-32/ISO-HDLC (zlib.crc32) over msg_id, seq and payload.
 Messages, their fields, the commands and the code tables come from
-shared/protocol.toml through the generated module ``_protocol_schema``; see
+shared/protocol.toml through the generated module ``imulink.protocol._schema``; see
 docs/protocol.md for the format and the message tables.
 
 - :func:`encode` / :func:`decode`: one message to wire bytes and back.
@@ -46,8 +46,13 @@ REASONS: dict[str, int] = dict(_schema.ENUMS["reason"])
 LOG_LEVELS: dict[str, int] = dict(_schema.ENUMS["log_level"])
 SENSORS: dict[str, int] = dict(_schema.ENUMS["sensor"])
 #: Commands after which a board's active filter starts again from sample index 0 (their
-#: documentation in shared/protocol.toml says so; firmware/app/app.c does it).
-RESTARTING_COMMANDS = frozenset({"SELECT_FILTER", "SET_SETTING", "SET_INJECTION_MODE", "RESET", "SET_CALIBRATION"})
+#: restarts_filter flag in shared/protocol.toml; firmware/app/app.c does it).
+RESTARTING_COMMANDS = frozenset(name for name, spec in _schema.COMMANDS.items() if spec["restarts_filter"])
+#: Commands that must not be sent twice for one request (no idempotent flag in the schema):
+#: a host does not resend them when their ACK is late.
+NOT_IDEMPOTENT_COMMANDS = frozenset(name for name, spec in _schema.COMMANDS.items() if not spec["idempotent"])
+#: command name -> the data message the board sends before its ACK, for the commands that ask for one.
+REPLY_MESSAGES: dict[str, str] = {name: spec["reply"] for name, spec in _schema.COMMANDS.items() if spec["reply"]}
 
 #: zlib.crc32 of any bytes followed by their own CRC-32 (little-endian): checking a whole
 #: frame against this constant is the same as comparing its CRC field with the CRC of the rest.
@@ -81,6 +86,16 @@ class CommandError(ProtocolError):
     def __init__(self, reason: str, detail: str):
         super().__init__(f"{reason}: {detail}")
         self.reason = reason
+
+
+class FieldFormat(NamedTuple):
+    """How a field's raw integer becomes a real value: raw * scale, in unit. frac_bits is
+    its Q format (scale = 2^-frac_bits; 0 for an integer in its unit, None for a decimal
+    scale such as 1e-7 deg)."""
+
+    frac_bits: int | None
+    scale: float
+    unit: str | None
 
 
 class Message(NamedTuple):
@@ -256,6 +271,32 @@ def message_fields(name: str) -> tuple[tuple[str, str, int | None], ...]:
     """A message's fields as the schema declares them: (name, type, array length or None)."""
     _codec(name)  # ProtocolError for an unknown message
     return _schema.MESSAGES[name]["fields"]
+
+
+def _format(formats: dict, owner: str, kind: str, field: str) -> FieldFormat:
+    try:
+        return FieldFormat(*formats[owner][field])
+    except KeyError:
+        raise ValueError(f"{kind} {owner}'s field {field!r} has no format in the schema "
+                         "(no q, scale or unit in shared/protocol.toml)") from None
+
+
+def field_format(message: str, field: str) -> FieldFormat:
+    """The Q format or scale and the unit of a message field (shared/protocol.toml)."""
+    return _format(_schema.FIELD_FORMATS, message, "message", field)
+
+
+def arg_format(command: str, field: str) -> FieldFormat:
+    """The Q format or scale and the unit of a command argument (shared/protocol.toml)."""
+    return _format(_schema.ARG_FORMATS, command, "command", field)
+
+
+def frac_bits(message: str, field: str) -> int:
+    """The Q format of a message field: its real value is raw * 2^-frac_bits."""
+    q = field_format(message, field).frac_bits
+    if q is None:
+        raise ValueError(f"{message}.{field} has a decimal scale, not a Q format")
+    return q
 
 
 def encode(name: str, seq: int, /, **fields) -> bytes:

@@ -150,20 +150,23 @@ MESSAGES = {
     )},
 }
 
-#: command name -> id and argument fields (COMMAND.args)
+#: command name -> id, argument fields (COMMAND.args) and flags: restarts_filter (the active
+#: filter starts again from sample index 0), idempotent (sending it twice leaves the board as
+#: sending it once, so a host may resend it), and reply: the message the board sends before
+#: the ACK (None: the ACK alone)
 COMMANDS = {
-    'START_STREAM': {'id': 1, 'args': ()},
-    'STOP_STREAM': {'id': 2, 'args': ()},
+    'START_STREAM': {'id': 1, 'args': (), 'restarts_filter': False, 'idempotent': True, 'reply': None},
+    'STOP_STREAM': {'id': 2, 'args': (), 'restarts_filter': False, 'idempotent': True, 'reply': None},
     'SELECT_FILTER': {'id': 3, 'args': (
         ('filter_id', 'u8', None),
-    )},
+    ), 'restarts_filter': True, 'idempotent': True, 'reply': None},
     'GET_SETTING': {'id': 4, 'args': (
         ('index', 'u8', None),
-    )},
+    ), 'restarts_filter': False, 'idempotent': True, 'reply': 'SETTING'},
     'SET_SETTING': {'id': 5, 'args': (
         ('index', 'u8', None),
         ('value', 'i32', None),
-    )},
+    ), 'restarts_filter': True, 'idempotent': True, 'reply': None},
     'INJECT_SAMPLE': {'id': 6, 'args': (
         ('timestamp_us', 'u32', None),
         ('index', 'u32', None),
@@ -171,31 +174,31 @@ COMMANDS = {
         ('acc', 'i16', 3),
         ('mag', 'i16', 3),
         ('temperature', 'i16', None),
-    )},
-    'RESET': {'id': 7, 'args': ()},
-    'ENTER_BOOTLOADER': {'id': 8, 'args': ()},
-    'GET_VERSION': {'id': 9, 'args': ()},
-    'GET_STATUS': {'id': 10, 'args': ()},
+    ), 'restarts_filter': False, 'idempotent': False, 'reply': 'ESTIMATE'},
+    'RESET': {'id': 7, 'args': (), 'restarts_filter': True, 'idempotent': False, 'reply': None},
+    'ENTER_BOOTLOADER': {'id': 8, 'args': (), 'restarts_filter': False, 'idempotent': True, 'reply': None},
+    'GET_VERSION': {'id': 9, 'args': (), 'restarts_filter': False, 'idempotent': True, 'reply': 'HELLO'},
+    'GET_STATUS': {'id': 10, 'args': (), 'restarts_filter': False, 'idempotent': True, 'reply': 'STATUS'},
     'SET_INJECTION_MODE': {'id': 11, 'args': (
         ('enabled', 'u8', None),
-    )},
+    ), 'restarts_filter': True, 'idempotent': True, 'reply': None},
     'SET_CALIBRATION': {'id': 12, 'args': (
         ('sensor', 'u8', None),
         ('axis', 'u8', None),
         ('offset', 'i32', None),
         ('row', 'i32', 3),
-    )},
+    ), 'restarts_filter': True, 'idempotent': True, 'reply': None},
     'GET_CALIBRATION': {'id': 13, 'args': (
         ('sensor', 'u8', None),
         ('axis', 'u8', None),
-    )},
+    ), 'restarts_filter': False, 'idempotent': True, 'reply': 'CALIBRATION'},
     'POSITION_FIX': {'id': 14, 'args': (
         ('lat_1e7deg', 'i32', None),
         ('lon_1e7deg', 'i32', None),
         ('height_mm', 'i32', None),
         ('h_acc_mm', 'u32', None),
         ('v_acc_mm', 'u32', None),
-    )},
+    ), 'restarts_filter': False, 'idempotent': True, 'reply': None},
 }
 
 #: code table name -> code name -> value
@@ -204,6 +207,92 @@ ENUMS = {
     'reason': {'OK': 0, 'UNKNOWN_COMMAND': 1, 'BAD_LENGTH': 2, 'BAD_ARGUMENT': 3, 'OUT_OF_RANGE': 4, 'BUSY': 5, 'NOT_IN_INJECTION_MODE': 6, 'UNKNOWN_FILTER': 7, 'UNKNOWN_SETTING': 8, 'NOT_SUPPORTED': 9, 'NOT_NAV': 10},
     'sensor': {'GYROSCOPE': 0, 'ACCELEROMETER': 1, 'MAGNETOMETER': 2},
     'log_level': {'DEBUG': 10, 'INFO': 20, 'WARNING': 30, 'ERROR': 40},
+}
+
+#: message name -> field -> (frac_bits, scale, unit) of its fields with a Q format, a decimal
+#: scale or a unit: the real value is raw * scale, in unit; frac_bits is the Q format (scale
+#: 2^-frac_bits; 0 for an integer in its unit, None for a decimal scale)
+FIELD_FORMATS = {
+    'HELLO': {
+        'gyro_scale': (40, 2.0 ** -40, 'rad/s per count'),
+        'acc_scale': (32, 2.0 ** -32, 'm/s^2 per count'),
+        'mag_scale': (24, 2.0 ** -24, 'uT per count'),
+    },
+    'STATUS': {
+        'uptime_ms': (0, 1.0, 'ms'),
+        'sample_rate_mhz': (None, 0.001, 'Hz'),
+        'cpu_load_permille': (None, 0.001, '1'),
+        'cycle_hz': (0, 1.0, 'Hz'),
+    },
+    'SAMPLE': {
+        'timestamp_us': (0, 1.0, 'us'),
+        'gyr': (0, 1.0, 'counts'),
+        'acc': (0, 1.0, 'counts'),
+        'mag': (0, 1.0, 'counts'),
+        'temperature': (0, 1.0, 'counts'),
+    },
+    'ESTIMATE': {
+        'quat': (30, 2.0 ** -30, '1'),
+        'gyro_bias': (24, 2.0 ** -24, 'rad/s'),
+        'euler': (29, 2.0 ** -29, 'rad'),
+        'cov_mantissa': (30, 2.0 ** -30, None),
+        'weights': (30, 2.0 ** -30, '1'),
+    },
+    'BARO': {
+        'timestamp_us': (0, 1.0, 'us'),
+        'pressure_pa': (0, 1.0, 'Pa'),
+        'temperature_cdeg': (None, 0.01, 'degC'),
+    },
+    'GNSS': {
+        'timestamp_us': (0, 1.0, 'us'),
+        'time_ms': (0, 1.0, 'ms'),
+        'lat_1e7deg': (None, 1e-07, 'deg'),
+        'lon_1e7deg': (None, 1e-07, 'deg'),
+        'height_mm': (None, 0.001, 'm'),
+        'h_acc_mm': (None, 0.001, 'm'),
+        'v_acc_mm': (None, 0.001, 'm'),
+        'vel_ned_mm_s': (None, 0.001, 'm/s'),
+        's_acc_mm_s': (None, 0.001, 'm/s'),
+    },
+    'NAV_STATE': {
+        'lat': (29, 2.0 ** -29, 'rad'),
+        'lon': (29, 2.0 ** -29, 'rad'),
+        'height_mm': (None, 0.001, 'm'),
+        'vel': (20, 2.0 ** -20, 'm/s'),
+        'acc_bias': (16, 2.0 ** -16, 'm/s^2'),
+        'baro_bias_mm': (None, 0.001, 'm'),
+        'var_mantissa': (30, 2.0 ** -30, None),
+    },
+    'MARKER': {
+        'timestamp_us': (0, 1.0, 'us'),
+        'lat_1e7deg': (None, 1e-07, 'deg'),
+        'lon_1e7deg': (None, 1e-07, 'deg'),
+        'height_mm': (None, 0.001, 'm'),
+        'h_acc_mm': (None, 0.001, 'm'),
+        'v_acc_mm': (None, 0.001, 'm'),
+    },
+}
+
+#: command name -> argument -> (frac_bits, scale, unit), as FIELD_FORMATS
+ARG_FORMATS = {
+    'INJECT_SAMPLE': {
+        'timestamp_us': (0, 1.0, 'us'),
+        'gyr': (0, 1.0, 'counts'),
+        'acc': (0, 1.0, 'counts'),
+        'mag': (0, 1.0, 'counts'),
+        'temperature': (0, 1.0, 'counts'),
+    },
+    'SET_CALIBRATION': {
+        'offset': (8, 2.0 ** -8, 'counts'),
+        'row': (24, 2.0 ** -24, '1'),
+    },
+    'POSITION_FIX': {
+        'lat_1e7deg': (None, 1e-07, 'deg'),
+        'lon_1e7deg': (None, 1e-07, 'deg'),
+        'height_mm': (None, 0.001, 'm'),
+        'h_acc_mm': (None, 0.001, 'm'),
+        'v_acc_mm': (None, 0.001, 'm'),
+    },
 }
 
 #: cffi declarations of the generated C API (host/imulink/core/_build.py)
@@ -219,6 +308,9 @@ typedef enum { IMU_PROTO_SENSOR_GYROSCOPE = 0, IMU_PROTO_SENSOR_ACCELEROMETER = 
 typedef enum { IMU_PROTO_LOG_LEVEL_DEBUG = 10, IMU_PROTO_LOG_LEVEL_INFO = 20, IMU_PROTO_LOG_LEVEL_WARNING = 30, IMU_PROTO_LOG_LEVEL_ERROR = 40 } imu_proto_log_level_t;
 #define IMU_PROTO_HELLO_SIZE ...
 typedef struct { uint8_t firmware_major; uint8_t firmware_minor; uint8_t firmware_patch; uint8_t protocol_version; uint32_t schema_hash; char board[16]; uint8_t filters; int32_t gyro_scale; int32_t acc_scale; int32_t mag_scale; } imu_proto_hello_t;
+#define IMU_PROTO_HELLO_GYRO_SCALE_FRAC_BITS ...
+#define IMU_PROTO_HELLO_ACC_SCALE_FRAC_BITS ...
+#define IMU_PROTO_HELLO_MAG_SCALE_FRAC_BITS ...
 size_t imu_proto_hello_pack(const imu_proto_hello_t *m, uint8_t *payload);
 imu_proto_result_t imu_proto_hello_unpack(imu_proto_hello_t *m, const uint8_t *payload, size_t len);
 size_t imu_proto_hello_encode(const imu_proto_hello_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
@@ -259,6 +351,11 @@ imu_proto_result_t imu_proto_sample_unpack(imu_proto_sample_t *m, const uint8_t 
 size_t imu_proto_sample_encode(const imu_proto_sample_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 #define IMU_PROTO_ESTIMATE_SIZE ...
 typedef struct { uint32_t index; uint8_t filter_id; int32_t quat[4]; int32_t gyro_bias[3]; int32_t euler[3]; int32_t cov_mantissa[9]; int8_t cov_exponent[9]; uint32_t saturations; int32_t weights[2]; } imu_proto_estimate_t;
+#define IMU_PROTO_ESTIMATE_QUAT_FRAC_BITS ...
+#define IMU_PROTO_ESTIMATE_GYRO_BIAS_FRAC_BITS ...
+#define IMU_PROTO_ESTIMATE_EULER_FRAC_BITS ...
+#define IMU_PROTO_ESTIMATE_COV_MANTISSA_FRAC_BITS ...
+#define IMU_PROTO_ESTIMATE_WEIGHTS_FRAC_BITS ...
 size_t imu_proto_estimate_pack(const imu_proto_estimate_t *m, uint8_t *payload);
 imu_proto_result_t imu_proto_estimate_unpack(imu_proto_estimate_t *m, const uint8_t *payload, size_t len);
 size_t imu_proto_estimate_encode(const imu_proto_estimate_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
@@ -274,6 +371,11 @@ imu_proto_result_t imu_proto_gnss_unpack(imu_proto_gnss_t *m, const uint8_t *pay
 size_t imu_proto_gnss_encode(const imu_proto_gnss_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 #define IMU_PROTO_NAV_STATE_SIZE ...
 typedef struct { uint32_t index; uint8_t mode; int32_t lat; int32_t lon; int32_t height_mm; int32_t vel[3]; int32_t acc_bias[3]; int32_t baro_bias_mm; int32_t var_mantissa[16]; int8_t var_exponent[16]; uint32_t since_fix; uint32_t rejected; uint32_t zero_velocity; uint32_t resets; uint32_t fades; } imu_proto_nav_state_t;
+#define IMU_PROTO_NAV_STATE_LAT_FRAC_BITS ...
+#define IMU_PROTO_NAV_STATE_LON_FRAC_BITS ...
+#define IMU_PROTO_NAV_STATE_VEL_FRAC_BITS ...
+#define IMU_PROTO_NAV_STATE_ACC_BIAS_FRAC_BITS ...
+#define IMU_PROTO_NAV_STATE_VAR_MANTISSA_FRAC_BITS ...
 size_t imu_proto_nav_state_pack(const imu_proto_nav_state_t *m, uint8_t *payload);
 imu_proto_result_t imu_proto_nav_state_unpack(imu_proto_nav_state_t *m, const uint8_t *payload, size_t len);
 size_t imu_proto_nav_state_encode(const imu_proto_nav_state_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
@@ -308,6 +410,8 @@ size_t imu_proto_cmd_set_injection_mode_pack(const imu_proto_cmd_set_injection_m
 imu_proto_result_t imu_proto_cmd_set_injection_mode_unpack(imu_proto_cmd_set_injection_mode_t *a, const uint8_t *args, size_t len);
 #define IMU_PROTO_CMD_SET_CALIBRATION_SIZE ...
 typedef struct { uint8_t sensor; uint8_t axis; int32_t offset; int32_t row[3]; } imu_proto_cmd_set_calibration_t;
+#define IMU_PROTO_CMD_SET_CALIBRATION_OFFSET_FRAC_BITS ...
+#define IMU_PROTO_CMD_SET_CALIBRATION_ROW_FRAC_BITS ...
 size_t imu_proto_cmd_set_calibration_pack(const imu_proto_cmd_set_calibration_t *a, uint8_t *args);
 imu_proto_result_t imu_proto_cmd_set_calibration_unpack(imu_proto_cmd_set_calibration_t *a, const uint8_t *args, size_t len);
 #define IMU_PROTO_CMD_GET_CALIBRATION_SIZE ...
@@ -319,4 +423,28 @@ typedef struct { int32_t lat_1e7deg; int32_t lon_1e7deg; int32_t height_mm; uint
 size_t imu_proto_cmd_position_fix_pack(const imu_proto_cmd_position_fix_t *a, uint8_t *args);
 imu_proto_result_t imu_proto_cmd_position_fix_unpack(imu_proto_cmd_position_fix_t *a, const uint8_t *args, size_t len);
 int imu_proto_command_args_size(uint8_t command);
+#define IMU_PROTO_FLAG_RESTARTS_FILTER ...
+#define IMU_PROTO_FLAG_IDEMPOTENT ...
+#define IMU_PROTO_CMD_START_STREAM_FLAGS ...
+#define IMU_PROTO_CMD_STOP_STREAM_FLAGS ...
+#define IMU_PROTO_CMD_SELECT_FILTER_FLAGS ...
+#define IMU_PROTO_CMD_GET_SETTING_FLAGS ...
+#define IMU_PROTO_CMD_SET_SETTING_FLAGS ...
+#define IMU_PROTO_CMD_INJECT_SAMPLE_FLAGS ...
+#define IMU_PROTO_CMD_RESET_FLAGS ...
+#define IMU_PROTO_CMD_ENTER_BOOTLOADER_FLAGS ...
+#define IMU_PROTO_CMD_GET_VERSION_FLAGS ...
+#define IMU_PROTO_CMD_GET_STATUS_FLAGS ...
+#define IMU_PROTO_CMD_SET_INJECTION_MODE_FLAGS ...
+#define IMU_PROTO_CMD_SET_CALIBRATION_FLAGS ...
+#define IMU_PROTO_CMD_GET_CALIBRATION_FLAGS ...
+#define IMU_PROTO_CMD_POSITION_FIX_FLAGS ...
+unsigned imu_proto_command_flags(uint8_t command);
 """
+
+#: cffi declaration of the core's filter ids (imu_filter_id_t in firmware/core/imu_filter.h):
+#: the values of the filter code table
+CFFI_FILTER_ID = 'typedef enum { IMU_FILTER_EECF = 1, IMU_FILTER_KF1D = 2, IMU_FILTER_ESKF = 3, IMU_FILTER_NAV = 4 } imu_filter_id_t;\n'
+#: C for the cffi module's source that compiles only while imu_filter.h's filter ids
+#: have the code table's values
+CFFI_FILTER_ID_CHECK = '/* imu_filter_id_t (imu_filter.h) has the values of the filter code table (imu_proto_gen.h). */\ntypedef char imu_filter_ids_are_the_schema_s[(IMU_FILTER_EECF == IMU_PROTO_FILTER_EECF && IMU_FILTER_KF1D == IMU_PROTO_FILTER_KF1D && IMU_FILTER_ESKF == IMU_PROTO_FILTER_ESKF && IMU_FILTER_NAV == IMU_PROTO_FILTER_NAV) ? 1 : -1];\n'
