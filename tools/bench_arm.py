@@ -787,7 +787,8 @@ def run_filter(emu: Emulator, config: FilterConfig, data, n: int) -> tuple[Filte
     """Run n samples through the emulated ELF, one imu_filter_update_raw and one imu_filter_get
     call each, and read every output back. Returns the costs and the outputs."""
     sensor, settings = settings_bytes(config)
-    # Every settings field is an int32 on both sides, so the host's bytes are the target's struct.
+    # Every field (int32 settings and scales, int16 limits) has the same size and alignment on both
+    # sides, so the host's bytes are the target's structs.
     symbols = emu.build.symbols
     if len(sensor) != symbols["bench_sensor"].size or len(settings) > symbols["bench_settings"].size:
         raise BenchError("the host's settings structs do not have the target's sizes")

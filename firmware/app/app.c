@@ -267,19 +267,6 @@ static void stop_stream(app_t *app)
     board_sample_clock_stop();
 }
 
-/** A register at the end of its range: the true value may be beyond it. */
-static int clipped(const imu_raw_sample_t *raw)
-{
-    int i;
-    for (i = 0; i < 3; ++i) {
-        if (raw->gyr[i] <= IMU_MPU6050_MIN || raw->gyr[i] >= IMU_MPU6050_MAX || raw->acc[i] <= IMU_MPU6050_MIN ||
-            raw->acc[i] >= IMU_MPU6050_MAX || raw->mag[i] <= IMU_HMC5883L_MIN || raw->mag[i] >= IMU_HMC5883L_MAX) {
-            return 1;
-        }
-    }
-    return 0;
-}
-
 /** Set the sensors up; say how it went (a failed retry stays quiet: the failed reads are reported). */
 static void set_up_sensors(app_t *app, int report_failure)
 {
@@ -378,7 +365,7 @@ static void live_sample(app_t *app)
         app->sensors_ok = 1;
         app->failures_since_log = 0;
     }
-    app->sensor_saturations += (uint32_t)clipped(&raw);
+    app->sensor_saturations += imu_sample_clipped(&app->config.sensor, &raw) != 0 ? 1u : 0u;
     have_baro = board_baro_read(read_at, &baro);
     have_gnss = board_gnss_read(read_at, &gnss);
 

@@ -30,7 +30,8 @@ _DECLARATIONS = """
     typedef enum { IMU_OK = 0, IMU_ERR_RANGE = -1, IMU_ERR_UNKNOWN = -2 } imu_status_t;
     typedef enum { IMU_FILTER_EECF = 1, IMU_FILTER_KF1D = 2, IMU_FILTER_ESKF = 3, IMU_FILTER_NAV = 4 } imu_filter_id_t;
     typedef struct { int16_t gyr[3]; int16_t acc[3]; int16_t mag[3]; } imu_raw_sample_t;
-    typedef struct { imu_real_t gyro_scale; imu_real_t acc_scale; imu_real_t mag_scale; } imu_sensor_settings_t;
+    typedef struct { imu_real_t gyro_scale; imu_real_t acc_scale; imu_real_t mag_scale; int16_t gyro_limits[2];
+                     int16_t acc_limits[2]; int16_t mag_limits[2]; } imu_sensor_settings_t;
     typedef struct { imu_real_t offset[3]; imu_real_t matrix[9]; } imu_sensor_cal_t;
     typedef struct { imu_sensor_cal_t gyr; imu_sensor_cal_t acc; imu_sensor_cal_t mag; } imu_calibration_t;
     typedef struct { imu_rate_t gyr[3]; imu_q16_t acc[3]; imu_q16_t mag[3]; unsigned clipped; } imu_sample_t;

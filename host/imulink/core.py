@@ -139,6 +139,7 @@ def sensor_struct(mod, arithmetic: str, profile: SensorProfile):
             setattr(s, name, to_fixed(value * 2.0**-q, q, name))  # the same integer; to_fixed checks it fits
     else:
         s.gyro_scale, s.acc_scale, s.mag_scale = profile.gyro_scale, profile.acc_scale, profile.mag_scale
+    s.gyro_limits, s.acc_limits, s.mag_limits = profile.gyro_limits, profile.acc_limits, profile.mag_limits
     return s
 
 
