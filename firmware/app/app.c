@@ -5,6 +5,7 @@
 #include "app.h"
 
 #include "board.h"
+#include "imu_wire.h"
 #include "text.h"
 
 /** Bytes of one live sample on the wire: SAMPLE + ESTIMATE frames at their largest. */
@@ -197,7 +198,9 @@ static void update_filter(app_t *app, const imu_raw_sample_t *raw, uint32_t time
         imu_navfilter_baro(nav, baro->pressure_pa);
     }
     if (gnss != 0) {
-        (void)imu_navfilter_gnss(nav, gnss);
+        imu_navfilter_gnss_t fix;
+        imu_wire_gnss_fix(gnss, &fix);
+        (void)imu_navfilter_gnss(nav, &fix);
     }
     if (app->marker_waiting) {
         apply_marker(app, nav, timestamp_us, index, send);
@@ -210,44 +213,18 @@ static void run_filter(app_t *app, const imu_raw_sample_t *raw, uint32_t timesta
 {
     imu_proto_estimate_t e;
     imu_output_t out;
-    const imu_eskf_t *eskf;
     const imu_navfilter_t *nav;
     const uint32_t started = board_cycles();
-    int i;
     update_filter(app, raw, timestamp_us, index, baro, gnss, 1);
     imu_filter_get(&app->filter, &out);
     app->filter_cycles = board_cycles() - started;
 
-    e.index = index;
-    e.filter_id = (uint8_t)app->filter.id;
-    for (i = 0; i < 4; ++i) {
-        e.quat[i] = out.quat[i];
-    }
-    for (i = 0; i < 3; ++i) {
-        e.gyro_bias[i] = out.gyro_bias[i];
-        e.euler[i] = out.euler[i];
-    }
-    for (i = 0; i < 9; ++i) {
-        e.cov_mantissa[i] = 0;
-        e.cov_exponent[i] = 0;
-    }
-    e.weights[0] = e.weights[1] = 0;
-    eskf = imu_filter_eskf(&app->filter);
-    if (eskf != 0) {
-        imu_eskf_get_weights(eskf, &e.weights[0], &e.weights[1]);
-        const int states = imu_eskf_state_count(eskf);
-        for (i = 0; i < states; ++i) {
-            int32_t exponent;
-            imu_eskf_covariance(eskf, i, i, &e.cov_mantissa[i], &exponent);
-            e.cov_exponent[i] = (int8_t)exponent; /* the block-floating exponents stay within +-64 */
-        }
-    }
-    e.saturations = imu_filter_saturations(&app->filter);
+    imu_wire_estimate(&app->filter, &out, index, &e);
     send_wire(app, imu_proto_estimate_encode(&e, app->tx_seq, app->wire, sizeof app->wire));
     nav = imu_filter_nav(&app->filter);
     if (nav != 0) {
         imu_proto_nav_state_t state;
-        imu_navfilter_nav_state(nav, index, &state);
+        imu_wire_nav_state(nav, index, &state);
         send_wire(app, imu_proto_nav_state_encode(&state, app->tx_seq, app->wire, sizeof app->wire));
     }
 }

@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parents[2]
 CORE_DIR = ROOT / "firmware" / "core"
 CORE_SOURCES = ["imu_math.c", "imu_settings.c", "imu_sensor.c", "imu_cov.c", "imu_rest.c", "imu_eecf.c", "imu_kf1d.c",
                 "imu_eskf.c", "imu_filter.c", "imu_proto.c", "imu_nav.c", "imu_navcov.c", "imu_navkf.c",
-                "imu_navfilter.c"]
+                "imu_navfilter.c", "imu_wire.c"]
 
 _TYPEDEFS = {
     "fixed": """
@@ -216,7 +216,9 @@ static void navfilter_run(imu_filter_t *f, size_t n, const int16_t *gyr, const i
             imu_navfilter_baro(nav, baro_pa[b]);
         }
         for (; g < gnss_count && gnss_after[g] == (int32_t)k; ++g) {
-            (void)imu_navfilter_gnss(nav, &gnss[g]);
+            imu_navfilter_gnss_t fix;
+            imu_wire_gnss_fix(&gnss[g], &fix);
+            (void)imu_navfilter_gnss(nav, &fix);
         }
         for (; m < marker_count && marker_after[m] == (int32_t)k; ++m) {
             const imu_proto_marker_t *a = &markers[m];
@@ -236,7 +238,7 @@ static void navfilter_run(imu_filter_t *f, size_t n, const int16_t *gyr, const i
         }
 #ifdef IMU_FIXED
         if (nav_states != 0) {
-            imu_navfilter_nav_state(nav, (uint32_t)k, (imu_proto_nav_state_t *)nav_states + k);
+            imu_wire_nav_state(nav, (uint32_t)k, (imu_proto_nav_state_t *)nav_states + k);
         }
 #else
         (void)nav_states;
@@ -245,14 +247,20 @@ static void navfilter_run(imu_filter_t *f, size_t n, const int16_t *gyr, const i
 }
 """
 
+# The ESTIMATE as the board assembles it (imu_wire.h): the fixed build's only, whose integers it carries.
+_FIXED_DECLARATIONS = """
+    void imu_wire_estimate(const imu_filter_t *f, const imu_output_t *out, uint32_t index, imu_proto_estimate_t *msg);
+"""
+
 
 def _make(arithmetic: str) -> FFI:
     ffi = FFI()
-    ffi.cdef(_TYPEDEFS[arithmetic] + _DECLARATIONS)
+    ffi.cdef(_TYPEDEFS[arithmetic] + _DECLARATIONS + (_FIXED_DECLARATIONS if arithmetic == "fixed" else ""))
     rel = Path(__file__).resolve().parents[2]
     ffi.set_source(
         f"imulink._core_{arithmetic}",
         '#include "imu_filter.h"\n#include "imu_math.h"\n#include "imu_proto.h"\n#include "imu_navkf.h"\n'
+        '#include "imu_wire.h"\n'
         + _NAVKF_RUN + _NAVFILTER_RUN,
         sources=[str((CORE_DIR / s).relative_to(rel)) for s in CORE_SOURCES],
         include_dirs=[str(CORE_DIR.relative_to(rel))],

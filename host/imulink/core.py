@@ -332,6 +332,21 @@ class Filter:
                            np.degrees(position[:, 1] * lat_lon_scale), position[:, 2] / 1000.0,
                            position[:, 3:] * vel_scale, nav_states)
 
+    def estimate(self, index: int) -> dict:
+        """The ESTIMATE fields (name -> int, or list for arrays) the board sends after the last
+        sample, numbered `index`: assembled by the core's imu_wire_estimate, the board's own
+        function. Fixed build only (the message carries its integers)."""
+        if self.arithmetic != "fixed":
+            raise ValueError("ESTIMATE carries the fixed build's integers")
+        from .protocol import message_fields
+
+        ffi, lib = self.mod.ffi, self.mod.lib
+        out, msg = ffi.new("imu_output_t *"), ffi.new("imu_proto_estimate_t *")
+        lib.imu_filter_get(self._handle, out)
+        lib.imu_wire_estimate(self._handle, out, index, msg)
+        return {name: list(getattr(msg, name)) if length else getattr(msg, name)
+                for name, _, length in message_fields("ESTIMATE")}
+
     def _eskf(self):
         state = self.mod.lib.imu_filter_eskf(self._handle)
         if state == self.mod.ffi.NULL:
