@@ -78,7 +78,7 @@ _DECLARATIONS = """
     int imu_eskf_state_count(const imu_eskf_t *f);
     void imu_eskf_get_weights(const imu_eskf_t *f, imu_q30_t *gravity, imu_q30_t *heading);
     void imu_eskf_covariance(const imu_eskf_t *f, int i, int j, imu_real_t *mant, int32_t *exp);
-    void imu_eskf_get_acc_bias(const imu_eskf_t *f, imu_q16_t acc_bias_q24[3]);
+    void imu_eskf_get_acc_bias(const imu_eskf_t *f, imu_real_t acc_bias[3]);
     const imu_eskf_t *imu_filter_eskf(const imu_filter_t *f);
 
     imu_angle_t imu_atan2(imu_real_t y, imu_real_t x);
