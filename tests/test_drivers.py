@@ -50,7 +50,8 @@ MAG_LSB_PER_GAUSS = (1370, 1090, 820, 660, 440, 390, 330, 230)
 CDEF = """
     typedef int32_t imu_real_t;
     typedef struct { int16_t gyr[3]; int16_t acc[3]; int16_t mag[3]; } imu_raw_sample_t;
-    typedef struct { imu_real_t gyro_scale; imu_real_t acc_scale; imu_real_t mag_scale; } imu_sensor_settings_t;
+    typedef struct { imu_real_t gyro_scale; imu_real_t acc_scale; imu_real_t mag_scale; int16_t gyro_limits[2];
+                     int16_t acc_limits[2]; int16_t mag_limits[2]; } imu_sensor_settings_t;
     typedef struct { int32_t gyr[3]; int32_t acc[3]; int32_t mag[3]; unsigned clipped; } imu_sample_t;
     #define IMU_CLIPPED_MAG ...
     extern const imu_sensor_settings_t imu_sensor_default_settings;
@@ -551,6 +552,8 @@ def test_default_configuration_matches_the_cores_default_settings(drv):
     core = lib.imu_sensor_default_settings
     assert (settings.gyro_scale, settings.acc_scale, settings.mag_scale) == \
         (core.gyro_scale, core.acc_scale, core.mag_scale)
+    for limits in ("gyro_limits", "acc_limits", "mag_limits"):  # the registers' ranges: the host profile's too
+        assert list(getattr(settings, limits)) == list(getattr(core, limits)) == list(getattr(SensorProfile(), limits))
     broad = SensorProfile(acc_lsb_per_g=2048.0)  # the BROAD profile: +-16 g
     config = ffi.new("gy86_config_t *")
     config[0] = lib.gy86_default_config

@@ -242,7 +242,8 @@ def test_extreme_protocol_input_has_no_undefined_behaviour(build, tmp_path):
     checked = ["-DIMU_CHECK_NARROWING"] if build == "FIXED" else []
     sources = [core_dir / name for name in ("imu_filter.c", "imu_navfilter.c", "imu_navkf.c", "imu_nav.c",
                                             "imu_navcov.c", "imu_eecf.c", "imu_kf1d.c", "imu_eskf.c", "imu_cov.c",
-                                            "imu_rest.c", "imu_sensor.c", "imu_settings.c", "imu_math.c")]
+                                            "imu_rest.c", "imu_sensor.c", "imu_settings.c", "imu_math.c",
+                                            "imu_wire.c")]
     proc = subprocess.run([gcc, "-std=c99", "-O1", "-Wall", "-Wextra", "-Werror", f"-DIMU_{build}", *checked,
                            f"-I{core_dir}", "-fsanitize=undefined,address", "-fno-sanitize-recover=all", "-o", str(exe),
                            str(ROOT / "tests" / "c" / "navfilter_driver.c"), *map(str, sources), "-lm"],

@@ -378,9 +378,11 @@ def _disassembled_frames(build: ArmBuild) -> dict[str, tuple[int, list[str]]]:
     return functions
 
 
-def static_stack(build: ArmBuild, root: str, exclude: frozenset = frozenset()) -> tuple[int, list[str]]:
+def static_stack(build: ArmBuild, root: str, exclude: frozenset = frozenset(),
+                 indirect: tuple[str, ...] = ()) -> tuple[int, list[str]]:
     """Deepest stack of `root` from the compiler's frame sizes and call graph (no recursion in
-    the core); library helpers without .su data get their frames from the disassembly.
+    the core); library helpers without .su data get their frames from the disassembly. A call
+    through a pointer (the filter table's) may reach the functions `indirect`.
     Returns (bytes, functions on the way whose frames are unknown)."""
     graph = _read_call_graph(build)
     for name, (frame, callees) in _disassembled_frames(build).items():
@@ -392,6 +394,8 @@ def static_stack(build: ArmBuild, root: str, exclude: frozenset = frozenset()) -
     memo: dict[tuple[str, str], int] = {}
 
     def resolve(file: str, name: str) -> list[tuple[str, str]]:
+        if name == "__indirect_call":
+            return [key for target in indirect for key in resolve(file, target)]
         if (file, name) in graph.frames:  # a static function of the same file first
             return [(file, name)]
         return graph.by_name.get(name, [])
@@ -782,7 +786,8 @@ def run_filter(emu: Emulator, config: FilterConfig, data, n: int) -> tuple[Filte
     """Run n samples through the emulated ELF, one imu_filter_update_raw and one imu_filter_get
     call each, and read every output back. Returns the costs and the outputs."""
     sensor, settings = settings_bytes(config)
-    # Every settings field is an int32 on both sides, so the host's bytes are the target's struct.
+    # Every field (int32 settings and scales, int16 limits) has the same size and alignment on both
+    # sides, so the host's bytes are the target's structs.
     symbols = emu.build.symbols
     if len(sensor) != symbols["bench_sensor"].size or len(settings) > symbols["bench_settings"].size:
         raise BenchError("the host's settings structs do not have the target's sizes")
@@ -849,11 +854,11 @@ def measure_filter(emu: Emulator, config: FilterConfig, data, n: int) -> FilterC
 
 
 def add_static_stack(build: ArmBuild, cost: FilterCost, config: FilterConfig) -> None:
-    """Static worst case of update and get for this filter (the other filters' branches excluded)."""
-    others = frozenset(f"imu_{name}_{fn}" for name in core.FILTERS if name != config.filter_name
-                       for fn in ("update", "get"))
-    cost.stack_update_static, unknown_u = static_stack(build, "imu_filter_update_raw", others)
-    cost.stack_get_static, unknown_g = static_stack(build, "imu_filter_get", others)
+    """Static worst case of update and get for this filter: the filter table's calls reach its
+    adapters in imu_filter.c (named after the filter), not the other filters'."""
+    name = config.filter_name
+    cost.stack_update_static, unknown_u = static_stack(build, "imu_filter_update_raw", indirect=(f"{name}_update",))
+    cost.stack_get_static, unknown_g = static_stack(build, "imu_filter_get", indirect=(f"{name}_get",))
     cost.static_unknown = sorted(set(unknown_u) | set(unknown_g))
 
 

@@ -198,9 +198,12 @@ class Vector:
         return {name: raw / 2.0**fb for name, (fb, raw, _si, _unit) in self.settings.items()}
 
     def sensor_exact(self) -> SimpleNamespace:
-        """Object with gyro_scale/acc_scale/mag_scale (SI) reconstructed from the raw integers,
-        usable wherever imulink.core expects a SensorProfile."""
-        return SimpleNamespace(**{name: raw / 2.0**fb for name, (fb, raw, _si) in self.sensor.items()})
+        """Object with gyro_scale/acc_scale/mag_scale (SI) reconstructed from the raw integers and
+        the registers' limits (every profile's are the GY-86's), usable wherever imulink.core
+        expects a SensorProfile."""
+        return SimpleNamespace(**{name: raw / 2.0**fb for name, (fb, raw, _si) in self.sensor.items()},
+                               gyro_limits=DEFAULT_PROFILE.gyro_limits, acc_limits=DEFAULT_PROFILE.acc_limits,
+                               mag_limits=DEFAULT_PROFILE.mag_limits)
 
 
 # --------------------------------------------------------------------------- format

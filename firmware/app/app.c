@@ -5,6 +5,7 @@
 #include "app.h"
 
 #include "board.h"
+#include "imu_wire.h"
 #include "text.h"
 
 /** Bytes of one live sample on the wire: SAMPLE + ESTIMATE frames at their largest. */
@@ -27,48 +28,16 @@
 
 /* --------------------------------------------------------------------------- the filters */
 
-/** What the application needs to know of each filter: its id, settings table and storage. */
-typedef struct {
-    uint8_t id;
-    const imu_setting_desc_t *descs;
-    const int *count;
-    size_t offset;    /**< offsetof(app_settings_t, <its settings>) */
-    const void *defaults;
-    size_t size;      /**< sizeof its settings struct */
-} filter_info_t;
-
-static const filter_info_t filters[] = {
-    {IMU_FILTER_EECF, imu_eecf_setting_descs, &imu_eecf_setting_count, offsetof(app_settings_t, eecf),
-     &imu_eecf_default_settings, sizeof(imu_eecf_settings_t)},
-    {IMU_FILTER_KF1D, imu_kf1d_setting_descs, &imu_kf1d_setting_count, offsetof(app_settings_t, kf1d),
-     &imu_kf1d_default_settings, sizeof(imu_kf1d_settings_t)},
-    {IMU_FILTER_ESKF, imu_eskf_setting_descs, &imu_eskf_setting_count, offsetof(app_settings_t, eskf),
-     &imu_eskf_default_settings, sizeof(imu_eskf_settings_t)},
-    {IMU_FILTER_NAV, imu_navfilter_setting_descs, &imu_navfilter_setting_count, offsetof(app_settings_t, nav),
-     &imu_navfilter_default_settings, sizeof(imu_navfilter_settings_t)},
-};
-#define FILTER_COUNT (sizeof filters / sizeof filters[0])
-
-static const filter_info_t *filter_info(int id)
+/** The stored settings of filter kind `kind`. */
+static imu_filter_settings_t *settings_of(app_t *app, const imu_filter_kind_t *kind)
 {
-    size_t i;
-    for (i = 0; i < FILTER_COUNT; ++i) {
-        if (filters[i].id == id) {
-            return &filters[i];
-        }
-    }
-    return 0;
+    return &app->settings[kind - imu_filter_kinds];
 }
 
-static void *settings_of(app_settings_t *settings, const filter_info_t *info)
+/** The settings field (an imu_real_t: int32 in Qn) at `index` of a kind's settings struct. */
+static imu_real_t *setting_field(imu_filter_settings_t *settings, const imu_filter_kind_t *kind, int index)
 {
-    return (uint8_t *)settings + info->offset;
-}
-
-/** The settings field (an imu_real_t: int32 in Qn) at `index` of a filter's settings struct. */
-static imu_real_t *setting_field(void *settings, const filter_info_t *info, int index)
-{
-    return (imu_real_t *)((uint8_t *)settings + info->descs[index].offset);
+    return (imu_real_t *)((uint8_t *)settings + kind->descs[index].offset);
 }
 
 static void copy_bytes(void *to, const void *from, size_t n)
@@ -84,20 +53,20 @@ static void copy_bytes(void *to, const void *from, size_t n)
  *  were accepted by the filter before, so this cannot fail. */
 static void restart_filter(app_t *app, int id)
 {
-    const filter_info_t *info = filter_info(id);
+    const imu_filter_kind_t *kind = imu_filter_kind(id);
     imu_filter_init(&app->filter, id);
     imu_filter_set_sensor(&app->filter, &app->config.sensor);
     (void)imu_filter_set_calibration(&app->filter, &app->calibration); /* checked when it was set */
-    (void)imu_filter_set_settings(&app->filter, settings_of(&app->settings, info));
+    (void)imu_filter_set_settings(&app->filter, settings_of(app, kind));
     app->index = 0;
     app->marker_waiting = 0;
 }
 
 /** The active filter's sample rate, mHz (the live tick); its setting is in Hz, Q16. */
-static uint32_t sample_rate_mhz(const app_t *app)
+static uint32_t sample_rate_mhz(app_t *app)
 {
-    const filter_info_t *info = filter_info(app->filter.id);
-    const imu_real_t rate = *setting_field(settings_of((app_settings_t *)&app->settings, info), info, 0);
+    const imu_filter_kind_t *kind = imu_filter_kind(app->filter.id);
+    const imu_real_t rate = *setting_field(settings_of(app, kind), kind, 0);
     return (uint32_t)(((uint64_t)(uint32_t)rate * 1000u + 32768u) >> 16);
 }
 
@@ -149,8 +118,8 @@ void app_send_hello(app_t *app)
         hello.board[i] = *name != '\0' ? *name++ : '\0';
     }
     hello.filters = 0;
-    for (i = 0; i < FILTER_COUNT; ++i) {
-        hello.filters = (uint8_t)(hello.filters | (1u << filters[i].id));
+    for (i = 0; i < IMU_FILTER_KIND_COUNT; ++i) {
+        hello.filters = (uint8_t)(hello.filters | (1u << imu_filter_kinds[i].id));
     }
     hello.gyro_scale = app->config.sensor.gyro_scale;
     hello.acc_scale = app->config.sensor.acc_scale;
@@ -229,7 +198,9 @@ static void update_filter(app_t *app, const imu_raw_sample_t *raw, uint32_t time
         imu_navfilter_baro(nav, baro->pressure_pa);
     }
     if (gnss != 0) {
-        (void)imu_navfilter_gnss(nav, gnss);
+        imu_navfilter_gnss_t fix;
+        imu_wire_gnss_fix(gnss, &fix);
+        (void)imu_navfilter_gnss(nav, &fix);
     }
     if (app->marker_waiting) {
         apply_marker(app, nav, timestamp_us, index, send);
@@ -242,44 +213,18 @@ static void run_filter(app_t *app, const imu_raw_sample_t *raw, uint32_t timesta
 {
     imu_proto_estimate_t e;
     imu_output_t out;
-    const imu_eskf_t *eskf;
     const imu_navfilter_t *nav;
     const uint32_t started = board_cycles();
-    int i;
     update_filter(app, raw, timestamp_us, index, baro, gnss, 1);
     imu_filter_get(&app->filter, &out);
     app->filter_cycles = board_cycles() - started;
 
-    e.index = index;
-    e.filter_id = (uint8_t)app->filter.id;
-    for (i = 0; i < 4; ++i) {
-        e.quat[i] = out.quat[i];
-    }
-    for (i = 0; i < 3; ++i) {
-        e.gyro_bias[i] = out.gyro_bias[i];
-        e.euler[i] = out.euler[i];
-    }
-    for (i = 0; i < 9; ++i) {
-        e.cov_mantissa[i] = 0;
-        e.cov_exponent[i] = 0;
-    }
-    e.weights[0] = e.weights[1] = 0;
-    eskf = imu_filter_eskf(&app->filter);
-    if (eskf != 0) {
-        imu_eskf_get_weights(eskf, &e.weights[0], &e.weights[1]);
-        const int states = imu_eskf_state_count(eskf);
-        for (i = 0; i < states; ++i) {
-            int32_t exponent;
-            imu_eskf_covariance(eskf, i, i, &e.cov_mantissa[i], &exponent);
-            e.cov_exponent[i] = (int8_t)exponent; /* the block-floating exponents stay within +-64 */
-        }
-    }
-    e.saturations = imu_filter_saturations(&app->filter);
+    imu_wire_estimate(&app->filter, &out, index, &e);
     send_wire(app, imu_proto_estimate_encode(&e, app->tx_seq, app->wire, sizeof app->wire));
     nav = imu_filter_nav(&app->filter);
     if (nav != 0) {
         imu_proto_nav_state_t state;
-        imu_navfilter_nav_state(nav, index, &state);
+        imu_wire_nav_state(nav, index, &state);
         send_wire(app, imu_proto_nav_state_encode(&state, app->tx_seq, app->wire, sizeof app->wire));
     }
 }
@@ -297,19 +242,6 @@ static void stop_stream(app_t *app)
 {
     app->streaming = 0;
     board_sample_clock_stop();
-}
-
-/** A register at the end of its range: the true value may be beyond it. */
-static int clipped(const imu_raw_sample_t *raw)
-{
-    int i;
-    for (i = 0; i < 3; ++i) {
-        if (raw->gyr[i] <= IMU_MPU6050_MIN || raw->gyr[i] >= IMU_MPU6050_MAX || raw->acc[i] <= IMU_MPU6050_MIN ||
-            raw->acc[i] >= IMU_MPU6050_MAX || raw->mag[i] <= IMU_HMC5883L_MIN || raw->mag[i] >= IMU_HMC5883L_MAX) {
-            return 1;
-        }
-    }
-    return 0;
 }
 
 /** Set the sensors up; say how it went (a failed retry stays quiet: the failed reads are reported). */
@@ -410,7 +342,7 @@ static void live_sample(app_t *app)
         app->sensors_ok = 1;
         app->failures_since_log = 0;
     }
-    app->sensor_saturations += (uint32_t)clipped(&raw);
+    app->sensor_saturations += imu_sample_clipped(&app->config.sensor, &raw) != 0 ? 1u : 0u;
     have_baro = board_baro_read(read_at, &baro);
     have_gnss = board_gnss_read(read_at, &gnss);
 
@@ -475,7 +407,7 @@ static outcome_t cmd_select_filter(app_t *app, const imu_proto_command_t *c)
 {
     imu_proto_cmd_select_filter_t a;
     (void)imu_proto_cmd_select_filter_unpack(&a, c->args, c->args_len);
-    if (filter_info(a.filter_id) == 0) {
+    if (imu_filter_kind(a.filter_id) == 0) {
         return refuse(IMU_PROTO_REASON_UNKNOWN_FILTER);
     }
     restart_filter(app, a.filter_id);
@@ -489,18 +421,18 @@ static outcome_t cmd_get_setting(app_t *app, const imu_proto_command_t *c)
 {
     imu_proto_cmd_get_setting_t a;
     imu_proto_setting_t s;
-    const filter_info_t *info = filter_info(app->filter.id);
+    const imu_filter_kind_t *kind = imu_filter_kind(app->filter.id);
     const imu_setting_desc_t *desc;
     size_t i;
     (void)imu_proto_cmd_get_setting_unpack(&a, c->args, c->args_len);
-    if (a.index >= *info->count) {
+    if (a.index >= *kind->setting_count) {
         return refuse(IMU_PROTO_REASON_UNKNOWN_SETTING);
     }
-    desc = &info->descs[a.index];
-    s.filter_id = info->id;
+    desc = &kind->descs[a.index];
+    s.filter_id = (uint8_t)kind->id;
     s.index = a.index;
-    s.setting_count = (uint8_t)*info->count;
-    s.value = *setting_field(settings_of(&app->settings, info), info, a.index);
+    s.setting_count = (uint8_t)*kind->setting_count;
+    s.value = *setting_field(settings_of(app, kind), kind, a.index);
     s.frac_bits = (int8_t)desc->frac_bits;
     s.min = desc->min;
     s.max = desc->max;
@@ -517,20 +449,20 @@ static outcome_t cmd_get_setting(app_t *app, const imu_proto_command_t *c)
 static outcome_t cmd_set_setting(app_t *app, const imu_proto_command_t *c)
 {
     imu_proto_cmd_set_setting_t a;
-    const filter_info_t *info = filter_info(app->filter.id);
-    app_settings_t candidate;
+    const imu_filter_kind_t *kind = imu_filter_kind(app->filter.id);
+    imu_filter_settings_t candidate;
     (void)imu_proto_cmd_set_setting_unpack(&a, c->args, c->args_len);
-    if (a.index >= *info->count) {
+    if (a.index >= *kind->setting_count) {
         return refuse(IMU_PROTO_REASON_UNKNOWN_SETTING);
     }
-    candidate = app->settings;
-    *setting_field(settings_of(&candidate, info), info, a.index) = a.value;
+    candidate = *settings_of(app, kind);
+    *setting_field(&candidate, kind, a.index) = a.value;
     /* The filter checks every range; a refused value leaves it unchanged. */
-    if (imu_filter_set_settings(&app->filter, settings_of(&candidate, info)) != IMU_OK) {
+    if (imu_filter_set_settings(&app->filter, &candidate) != IMU_OK) {
         return refuse(IMU_PROTO_REASON_OUT_OF_RANGE);
     }
-    app->settings = candidate;
-    restart_filter(app, info->id);
+    *settings_of(app, kind) = candidate;
+    restart_filter(app, kind->id);
     if (app->streaming) {
         start_stream(app); /* sample_rate may have changed */
     }
@@ -745,12 +677,12 @@ void app_init(app_t *app, const app_config_t *config)
     size_t i;
     app->config = *config;
     app->calibration = imu_calibration_identity;
-    for (i = 0; i < FILTER_COUNT; ++i) {
-        void *settings = settings_of(&app->settings, &filters[i]);
-        copy_bytes(settings, filters[i].defaults, filters[i].size);
-        *setting_field(settings, &filters[i], 0) = config->sample_rate; /* field 0 of every filter */
+    for (i = 0; i < IMU_FILTER_KIND_COUNT; ++i) {
+        const imu_filter_kind_t *kind = &imu_filter_kinds[i];
+        copy_bytes(settings_of(app, kind), kind->defaults, kind->settings_size);
+        *setting_field(settings_of(app, kind), kind, 0) = config->sample_rate; /* field 0 of every kind */
     }
-    restart_filter(app, filter_info(config->initial_filter) != 0 ? config->initial_filter : IMU_FILTER_EECF);
+    restart_filter(app, imu_filter_kind(config->initial_filter) != 0 ? config->initial_filter : IMU_FILTER_EECF);
     app->streaming = 0;
     app->injection = 0;
     app->tx_seq = 0;

@@ -62,18 +62,11 @@ typedef enum {
     APP_BOOTLOADER = 3, /**< ENTER_BOOTLOADER was acknowledged: board_enter_bootloader() */
 } app_result_t;
 
-/** Settings of every filter, kept while another filter is active. */
-typedef struct {
-    imu_eecf_settings_t eecf;
-    imu_kf1d_settings_t kf1d;
-    imu_eskf_settings_t eskf;
-    imu_navfilter_settings_t nav;
-} app_settings_t;
-
 /** Application state. All members are private. */
 typedef struct {
     app_config_t config;
-    app_settings_t settings;
+    imu_filter_settings_t settings[IMU_FILTER_KIND_COUNT]; /**< every kind's, in imu_filter_kinds' order:
+                                                               kept while another kind is active */
     imu_calibration_t calibration; /**< applied to the counts before every filter (SET_CALIBRATION) */
     imu_filter_t filter;          /**< the active filter */
     uint32_t index;               /**< samples the active filter has run since it (re)started */

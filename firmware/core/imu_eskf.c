@@ -942,12 +942,12 @@ void imu_eskf_get(const imu_eskf_t *f, imu_output_t *out)
     }
 }
 
-void imu_eskf_get_acc_bias(const imu_eskf_t *f, imu_q16_t acc_bias_q24[3])
+void imu_eskf_get_acc_bias(const imu_eskf_t *f, imu_real_t acc_bias[3])
 {
     int k;
     for (k = 0; k < 3; ++k) {
         /* g units Q30 * g (Q24) >> 30 -> m/s^2 Q24. */
-        acc_bias_q24[k] = IMU_MUL(f->acc_bias[k], f->settings.gravity, 30);
+        acc_bias[k] = IMU_MUL(f->acc_bias[k], f->settings.gravity, 30);
     }
 }
 

@@ -117,8 +117,9 @@ void imu_eskf_update(imu_eskf_t *f, const imu_sample_t *sample);
 /** @brief Current estimate. */
 void imu_eskf_get(const imu_eskf_t *f, imu_output_t *out);
 
-/** @brief Accelerometer bias estimate, m/s^2, Q24. */
-void imu_eskf_get_acc_bias(const imu_eskf_t *f, imu_q16_t acc_bias_q24[3]);
+/** @brief Accelerometer bias estimate: acc_bias[k] in m/s^2, Q24 (an imu_real_t: the arithmetic layer
+ *         has no type of its own for Q24 m/s^2). */
+void imu_eskf_get_acc_bias(const imu_eskf_t *f, imu_real_t acc_bias[3]);
 
 /** @brief Weights (Q30, [0, 1]) of the last gravity and heading updates: 1 trusted, 0 rejected. */
 void imu_eskf_get_weights(const imu_eskf_t *f, imu_q30_t *gravity, imu_q30_t *heading);

@@ -1,47 +1,101 @@
 /**
  * @file imu_filter.c
- * @brief Dispatch to the selected filter (see imu_filter.h).
+ * @brief The table of filter kinds and the dispatch through it (see imu_filter.h).
  */
 #include "imu_filter.h"
 
+/* Each kind's functions with the table's void * signatures: calling a function through a
+ * pointer of another type is undefined behaviour, so every kind gets these small adapters. */
+#define KIND_ADAPTERS(kind, state_t, settings_t)                                                  \
+    static void kind##_init(void *f)                                                              \
+    {                                                                                             \
+        imu_##kind##_init((state_t *)f);                                                          \
+    }                                                                                             \
+    static imu_status_t kind##_set_settings(void *f, const void *settings)                        \
+    {                                                                                             \
+        return imu_##kind##_set_settings((state_t *)f, (const settings_t *)settings);             \
+    }                                                                                             \
+    static void kind##_update(void *f, const imu_sample_t *sample)                                \
+    {                                                                                             \
+        imu_##kind##_update((state_t *)f, sample);                                                \
+    }                                                                                             \
+    static void kind##_get(const void *f, imu_output_t *out)                                      \
+    {                                                                                             \
+        imu_##kind##_get((const state_t *)f, out);                                                \
+    }
+
+KIND_ADAPTERS(eecf, imu_eecf_t, imu_eecf_settings_t)
+KIND_ADAPTERS(kf1d, imu_kf1d_t, imu_kf1d_settings_t)
+KIND_ADAPTERS(eskf, imu_eskf_t, imu_eskf_settings_t)
+KIND_ADAPTERS(navfilter, imu_navfilter_t, imu_navfilter_settings_t)
+#undef KIND_ADAPTERS
+
+/* The attitude filters count every saturation in one counter; the nav filter keeps its
+ * navigation filter's apart (imu_navfilter_saturations adds them). */
+static uint32_t eecf_saturations(const void *f)
+{
+    return ((const imu_eecf_t *)f)->saturations;
+}
+
+static uint32_t kf1d_saturations(const void *f)
+{
+    return ((const imu_kf1d_t *)f)->saturations;
+}
+
+static uint32_t eskf_saturations(const void *f)
+{
+    return ((const imu_eskf_t *)f)->saturations;
+}
+
+static uint32_t navfilter_saturations(const void *f)
+{
+    return imu_navfilter_saturations((const imu_navfilter_t *)f);
+}
+
+const imu_filter_kind_t imu_filter_kinds[IMU_FILTER_KIND_COUNT] = {
+    {IMU_FILTER_EECF, "eecf", imu_eecf_setting_descs, &imu_eecf_setting_count, &imu_eecf_default_settings,
+     sizeof(imu_eecf_settings_t), offsetof(imu_eecf_t, saturations), eecf_init, eecf_set_settings, eecf_update,
+     eecf_get, eecf_saturations},
+    {IMU_FILTER_KF1D, "kf1d", imu_kf1d_setting_descs, &imu_kf1d_setting_count, &imu_kf1d_default_settings,
+     sizeof(imu_kf1d_settings_t), offsetof(imu_kf1d_t, saturations), kf1d_init, kf1d_set_settings, kf1d_update,
+     kf1d_get, kf1d_saturations},
+    {IMU_FILTER_ESKF, "eskf", imu_eskf_setting_descs, &imu_eskf_setting_count, &imu_eskf_default_settings,
+     sizeof(imu_eskf_settings_t), offsetof(imu_eskf_t, saturations), eskf_init, eskf_set_settings, eskf_update,
+     eskf_get, eskf_saturations},
+    {IMU_FILTER_NAV, "nav", imu_navfilter_setting_descs, &imu_navfilter_setting_count,
+     &imu_navfilter_default_settings, sizeof(imu_navfilter_settings_t), offsetof(imu_navfilter_t, saturations),
+     navfilter_init, navfilter_set_settings, navfilter_update, navfilter_get, navfilter_saturations},
+};
+
+const imu_filter_kind_t *imu_filter_kind(int id)
+{
+    int i;
+    for (i = 0; i < IMU_FILTER_KIND_COUNT; ++i) {
+        if ((int)imu_filter_kinds[i].id == id) {
+            return &imu_filter_kinds[i];
+        }
+    }
+    return 0;
+}
+
 imu_status_t imu_filter_init(imu_filter_t *f, int id)
 {
+    const imu_filter_kind_t *kind = imu_filter_kind(id);
+    if (kind == 0) {
+        return IMU_ERR_UNKNOWN;
+    }
     f->sensor = imu_sensor_default_settings;
     f->calibration = imu_calibration_identity;
     f->calibrated = 0;
-    switch (id) {
-    case IMU_FILTER_EECF:
-        imu_eecf_init(&f->u.eecf);
-        break;
-    case IMU_FILTER_KF1D:
-        imu_kf1d_init(&f->u.kf1d);
-        break;
-    case IMU_FILTER_ESKF:
-        imu_eskf_init(&f->u.eskf);
-        break;
-    case IMU_FILTER_NAV:
-        imu_navfilter_init(&f->u.nav);
-        break;
-    default:
-        return IMU_ERR_UNKNOWN;
-    }
-    f->id = (imu_filter_id_t)id;
+    kind->init(&f->u);
+    f->id = kind->id;
+    f->kind = kind;
     return IMU_OK;
 }
 
 imu_status_t imu_filter_set_settings(imu_filter_t *f, const void *settings)
 {
-    switch (f->id) {
-    case IMU_FILTER_EECF:
-        return imu_eecf_set_settings(&f->u.eecf, (const imu_eecf_settings_t *)settings);
-    case IMU_FILTER_KF1D:
-        return imu_kf1d_set_settings(&f->u.kf1d, (const imu_kf1d_settings_t *)settings);
-    case IMU_FILTER_ESKF:
-        return imu_eskf_set_settings(&f->u.eskf, (const imu_eskf_settings_t *)settings);
-    case IMU_FILTER_NAV:
-        return imu_navfilter_set_settings(&f->u.nav, (const imu_navfilter_settings_t *)settings);
-    }
-    return IMU_ERR_UNKNOWN;
+    return f->kind->set_settings(&f->u, settings);
 }
 
 void imu_filter_set_sensor(imu_filter_t *f, const imu_sensor_settings_t *sensor)
@@ -59,70 +113,27 @@ imu_status_t imu_filter_set_calibration(imu_filter_t *f, const imu_calibration_t
     return IMU_OK;
 }
 
-static uint32_t *saturation_counter(imu_filter_t *f)
-{
-    switch (f->id) {
-    case IMU_FILTER_EECF:
-        return &f->u.eecf.saturations;
-    case IMU_FILTER_KF1D:
-        return &f->u.kf1d.saturations;
-    case IMU_FILTER_ESKF:
-        return &f->u.eskf.saturations;
-    case IMU_FILTER_NAV:
-        return &f->u.nav.saturations;
-    }
-    return &f->u.eecf.saturations; /* unreachable: the id is checked at initialisation */
-}
-
 void imu_filter_update_raw(imu_filter_t *f, const imu_raw_sample_t *raw)
 {
     imu_sample_t sample;
+    uint32_t *sat = (uint32_t *)((unsigned char *)&f->u + f->kind->conversion_saturations);
     /* the identity's correction is exact (imu_sensor.h): without a calibration it is skipped */
     if (f->calibrated) {
-        imu_sample_from_raw_calibrated(&f->sensor, &f->calibration, raw, &sample, saturation_counter(f));
+        imu_sample_from_raw_calibrated(&f->sensor, &f->calibration, raw, &sample, sat);
     } else {
-        imu_sample_from_raw(&f->sensor, raw, &sample, saturation_counter(f));
+        imu_sample_from_raw(&f->sensor, raw, &sample, sat);
     }
-    switch (f->id) {
-    case IMU_FILTER_EECF:
-        imu_eecf_update(&f->u.eecf, &sample);
-        break;
-    case IMU_FILTER_KF1D:
-        imu_kf1d_update(&f->u.kf1d, &sample);
-        break;
-    case IMU_FILTER_ESKF:
-        imu_eskf_update(&f->u.eskf, &sample);
-        break;
-    case IMU_FILTER_NAV:
-        imu_navfilter_update(&f->u.nav, &sample);
-        break;
-    }
+    f->kind->update(&f->u, &sample);
 }
 
 void imu_filter_get(const imu_filter_t *f, imu_output_t *out)
 {
-    switch (f->id) {
-    case IMU_FILTER_EECF:
-        imu_eecf_get(&f->u.eecf, out);
-        break;
-    case IMU_FILTER_KF1D:
-        imu_kf1d_get(&f->u.kf1d, out);
-        break;
-    case IMU_FILTER_ESKF:
-        imu_eskf_get(&f->u.eskf, out);
-        break;
-    case IMU_FILTER_NAV:
-        imu_navfilter_get(&f->u.nav, out);
-        break;
-    }
+    f->kind->get(&f->u, out);
 }
 
 uint32_t imu_filter_saturations(const imu_filter_t *f)
 {
-    if (f->id == IMU_FILTER_NAV) {
-        return imu_navfilter_saturations(&f->u.nav); /* the conversions' and the filter's */
-    }
-    return *saturation_counter((imu_filter_t *)f);
+    return f->kind->saturations(&f->u);
 }
 
 void imu_filter_run(imu_filter_t *f, const int16_t *gyr, const int16_t *acc, const int16_t *mag, size_t n,

@@ -23,9 +23,49 @@ typedef enum {
     IMU_FILTER_NAV = 4, /**< navigation (imu_navfilter.h): position and velocity besides the attitude */
 } imu_filter_id_t;
 
+/** Room for the settings struct of any kind (each kind reads its own member). */
+typedef union {
+    imu_eecf_settings_t eecf;
+    imu_kf1d_settings_t kf1d;
+    imu_eskf_settings_t eskf;
+    imu_navfilter_settings_t nav;
+} imu_filter_settings_t;
+
+/**
+ * One kind of filter: everything the dispatch, the board and the host need to know of it.
+ * The functions take the kind's own state (the member of imu_filter_t.u) and settings
+ * struct as void *, so that one table serves every kind.
+ */
+typedef struct {
+    imu_filter_id_t id;
+    const char *name;                /**< the host's name of it: "eecf", "kf1d", "eskf", "nav" */
+    const imu_setting_desc_t *descs; /**< its settings; field 0 is every kind's sample_rate, Hz, Q16 */
+    const int *setting_count;        /**< entries of descs (the count is defined in the kind's own file,
+                                          so only its address is a constant here) */
+    const void *defaults;            /**< its default settings struct */
+    size_t settings_size;            /**< sizeof its settings struct, bytes */
+    size_t conversion_saturations;   /**< offsetof the uint32_t in its state that counts the
+                                          saturations of the count conversion */
+    void (*init)(void *state);
+    imu_status_t (*set_settings)(void *state, const void *settings);
+    void (*update)(void *state, const imu_sample_t *sample);
+    void (*get)(const void *state, imu_output_t *out);
+    uint32_t (*saturations)(const void *state); /**< every saturation since the (re)start */
+} imu_filter_kind_t;
+
+/** Entries of imu_filter_kinds. */
+#define IMU_FILTER_KIND_COUNT 4
+
+/** Every kind, in the order of their ids. */
+extern const imu_filter_kind_t imu_filter_kinds[IMU_FILTER_KIND_COUNT];
+
+/** @brief The kind with identifier `id`, NULL for an unknown id. */
+const imu_filter_kind_t *imu_filter_kind(int id);
+
 /** A filter of any kind. All members are private. */
 typedef struct {
     imu_filter_id_t id;
+    const imu_filter_kind_t *kind; /**< the entry of imu_filter_kinds for id */
     imu_sensor_settings_t sensor;
     imu_calibration_t calibration;
     int calibrated;            /**< 0 while the calibration is the identity: the counts are scaled as they are */
@@ -40,7 +80,8 @@ typedef struct {
 /** @brief Initialise filter `id` with default settings; IMU_ERR_UNKNOWN for an unknown id. */
 imu_status_t imu_filter_init(imu_filter_t *f, int id);
 
-/** @brief Apply the filter's settings struct (the type matching its id) and restart it. */
+/** @brief Apply the filter's settings struct (the type matching its id) and restart it;
+ *         IMU_ERR_RANGE (and nothing changed) when a field is out of its range. */
 imu_status_t imu_filter_set_settings(imu_filter_t *f, const void *settings);
 
 /** @brief Set the sensor sensitivities. */

@@ -102,11 +102,11 @@ static void place(imu_navkf_fix_t *out, int32_t lat_1e7deg, int32_t lon_1e7deg, 
     out->height = height_mm;
 }
 
-int imu_navfilter_gnss(imu_navfilter_t *f, const imu_proto_gnss_t *fix)
+int imu_navfilter_gnss(imu_navfilter_t *f, const imu_navfilter_gnss_t *fix)
 {
     imu_navkf_fix_t g;
     int k;
-    if (!f->started || !fix->fix_ok || (fix->fix_type != 3 && fix->fix_type != 4)) {
+    if (!f->started || !fix->usable) {
         return 0;
     }
     g.source = IMU_NAVKF_GNSS;
@@ -174,37 +174,3 @@ const imu_navkf_t *imu_navfilter_state(const imu_navfilter_t *f)
 {
     return f->started ? &f->kf : 0;
 }
-
-#ifdef IMU_FIXED
-void imu_navfilter_nav_state(const imu_navfilter_t *f, uint32_t index, imu_proto_nav_state_t *out)
-{
-    const imu_navkf_t *kf = imu_navfilter_state(f);
-    int k;
-    out->index = index;
-    out->mode = (uint8_t)(kf == 0 ? 0 : (kf->anchored ? 2 : 1));
-    out->lat = out->lon = out->height_mm = out->baro_bias_mm = 0;
-    out->since_fix = out->rejected = out->zero_velocity = out->resets = out->fades = 0;
-    for (k = 0; k < 3; ++k) {
-        out->vel[k] = kf != 0 ? kf->nav.vel[k] : 0;
-        out->acc_bias[k] = kf != 0 ? kf->nav.acc_bias[k] : 0;
-    }
-    for (k = 0; k < IMU_NAVKF_STATES; ++k) {
-        int32_t exponent = 0;
-        out->var_mantissa[k] = 0;
-        if (kf != 0) {
-            imu_navkf_variance(kf, k, &out->var_mantissa[k], &exponent);
-        }
-        /* the block-floating exponents stay far inside int8 (a variance of 2^-98 .. 2^97) */
-        out->var_exponent[k] = (int8_t)(exponent < -128 ? -128 : (exponent > 127 ? 127 : exponent));
-    }
-    if (kf != 0) {
-        imu_navkf_position(kf, &out->lat, &out->lon, &out->height_mm);
-        out->baro_bias_mm = kf->baro_bias;
-        out->since_fix = (uint32_t)kf->since_fix;
-        out->rejected = kf->rejected;
-        out->zero_velocity = kf->zero_velocity;
-        out->resets = kf->resets;
-        out->fades = kf->fades;
-    }
-}
-#endif

@@ -2,8 +2,9 @@
  * @file imu_navfilter.h
  * @brief The `nav` filter as the board runs it (imu_filter.h's IMU_FILTER_NAV): the
  *        navigation filter of imu_navkf.h fed with the board's converted samples, its
- *        receiver's fixes in the receiver's units (the GNSS message), markers and the
- *        barometer's pressure, with settings like the attitude filters'.
+ *        receiver's fixes in the receiver's units (imu_wire.h makes them of the GNSS
+ *        message), markers and the barometer's pressure, with settings like the attitude
+ *        filters'.
  *
  * It starts at its first sample whose accelerometer reads a force, with the attitude from
  * the accelerometer and the magnetometer and no position: the attitude is there at once, as
@@ -15,7 +16,6 @@
 
 #include "imu_common.h"
 #include "imu_navkf.h"
-#include "imu_proto.h"
 #include "imu_sensor.h"
 
 /** Settings. All fields are imu_real_t: Q format in the fixed build as written.
@@ -33,6 +33,21 @@ typedef struct {
 extern const imu_navfilter_settings_t imu_navfilter_default_settings;
 extern const imu_setting_desc_t imu_navfilter_setting_descs[];
 extern const int imu_navfilter_setting_count;
+
+/** A receiver's fix in the receiver's units (u-blox NAV-PVT's; an NMEA receiver's are
+ *  converted to them), kept so that the filter does the conversions and counts their
+ *  saturations. */
+typedef struct {
+    int usable;              /**< 1: a 3-D fix within the receiver's accuracy masks; 0: not to be used */
+    int32_t lat_1e7deg;      /**< latitude, 1e-7 deg */
+    int32_t lon_1e7deg;      /**< longitude, 1e-7 deg */
+    int32_t height_mm;       /**< height above the WGS-84 ellipsoid, mm */
+    int has_velocity;        /**< 1: vel_ned_mm_s and s_acc_mm_s are measured */
+    int32_t vel_ned_mm_s[3]; /**< velocity north, east, down, mm/s */
+    uint32_t h_acc_mm;       /**< horizontal accuracy, mm (0: not given) */
+    uint32_t v_acc_mm;       /**< vertical accuracy, mm (0: not given) */
+    uint32_t s_acc_mm_s;     /**< speed accuracy, mm/s (0: not given) */
+} imu_navfilter_gnss_t;
 
 /** State. All members are private. */
 typedef struct {
@@ -52,13 +67,12 @@ imu_status_t imu_navfilter_set_settings(imu_navfilter_t *f, const imu_navfilter_
 void imu_navfilter_update(imu_navfilter_t *f, const imu_sample_t *sample);
 
 /**
- * @brief A receiver's fix as the GNSS message carries it (NAV-PVT's units), after the sample
- *        it arrived with: used when it is a 3-D fix within the receiver's masks (fix_ok;
- *        fix_type 3 or 4); accuracies of 0 (not given: NMEA) are taken as a consumer
- *        receiver's, 5 m horizontal, 10 m vertical, 0.5 m/s.
+ * @brief A receiver's fix, after the sample it arrived with: used when fix->usable;
+ *        accuracies of 0 (not given: NMEA) are taken as a consumer receiver's, 5 m
+ *        horizontal, 10 m vertical, 0.5 m/s.
  * @return 1 when the filter used it, 0 otherwise (not usable, gated, or before the start).
  */
-int imu_navfilter_gnss(imu_navfilter_t *f, const imu_proto_gnss_t *fix);
+int imu_navfilter_gnss(imu_navfilter_t *f, const imu_navfilter_gnss_t *fix);
 
 /**
  * @brief A position fix from a known place ([seed 003]'s markers: docs/filters.md, Bibliography), trusted as its accuracy says.
@@ -80,10 +94,5 @@ uint32_t imu_navfilter_saturations(const imu_navfilter_t *f);
 
 /** @brief The navigation state (imu_navkf.h), NULL before the start. */
 const imu_navkf_t *imu_navfilter_state(const imu_navfilter_t *f);
-
-#ifdef IMU_FIXED
-/** @brief The state as the NAV_STATE message carries it (the fixed build's integers), after sample `index`. */
-void imu_navfilter_nav_state(const imu_navfilter_t *f, uint32_t index, imu_proto_nav_state_t *out);
-#endif
 
 #endif /* IMU_NAVFILTER_H */

@@ -8,6 +8,9 @@ const imu_sensor_settings_t imu_sensor_default_settings = {
     IMU_QCONST(3.14159265358979323846 / 180.0 / 16.4, 40), /* rad/s per LSB at 16.4 LSB/(deg/s) */
     IMU_QCONST(2.394201660156250e-3, 32),  /* 9.80665 / 4096 */
     IMU_QCONST(9.174311926605504e-2, 24),  /* 100 / 1090 */
+    {-32768, 32767},                       /* MPU6050 gyroscope: the int16 range */
+    {-32768, 32767},                       /* MPU6050 accelerometer */
+    {-2048, 2047},                         /* HMC5883L */
 };
 
 #define IMU_CAL_ONE IMU_QCONST(1.0, 24)
@@ -75,19 +78,18 @@ static void correct(const imu_sensor_cal_t *c, const int16_t raw[3], imu_real_t 
     }
 }
 
-/** The clipping flags of raw counts: a count at its register's limit may stand for more. */
-static unsigned clipping_flags(const imu_raw_sample_t *raw)
+unsigned imu_sample_clipped(const imu_sensor_settings_t *settings, const imu_raw_sample_t *raw)
 {
     unsigned clipped = 0;
     int i;
     for (i = 0; i < 3; ++i) {
-        if (raw->gyr[i] <= IMU_MPU6050_MIN || raw->gyr[i] >= IMU_MPU6050_MAX) {
+        if (raw->gyr[i] <= settings->gyro_limits[0] || raw->gyr[i] >= settings->gyro_limits[1]) {
             clipped |= IMU_CLIPPED_GYR;
         }
-        if (raw->acc[i] <= IMU_MPU6050_MIN || raw->acc[i] >= IMU_MPU6050_MAX) {
+        if (raw->acc[i] <= settings->acc_limits[0] || raw->acc[i] >= settings->acc_limits[1]) {
             clipped |= IMU_CLIPPED_ACC;
         }
-        if (raw->mag[i] <= IMU_HMC5883L_MIN || raw->mag[i] >= IMU_HMC5883L_MAX) {
+        if (raw->mag[i] <= settings->mag_limits[0] || raw->mag[i] >= settings->mag_limits[1]) {
             clipped |= IMU_CLIPPED_MAG;
         }
     }
@@ -114,7 +116,7 @@ void imu_sample_from_raw_calibrated(const imu_sensor_settings_t *settings, const
     correct(&cal->gyr, raw->gyr, gyr, sat);
     correct(&cal->acc, raw->acc, acc, sat);
     correct(&cal->mag, raw->mag, mag, sat);
-    out->clipped = clipping_flags(raw);
+    out->clipped = imu_sample_clipped(settings, raw);
     for (i = 0; i < 3; ++i) {
         scale_axis(settings, gyr[i], acc[i], mag[i], IMU_CAL_OFFSET_Q, i, out, sat);
     }
@@ -126,7 +128,7 @@ void imu_sample_from_raw(const imu_sensor_settings_t *settings, const imu_raw_sa
     /* What the identity calibration's correction and the Q8 scaling give, exactly: its
      * correction is the count in Q8, and (c 2^8 s + 2^(k + 7)) >> (k + 8) = (c s + 2^(k - 1)) >> k. */
     int i;
-    out->clipped = clipping_flags(raw);
+    out->clipped = imu_sample_clipped(settings, raw);
     for (i = 0; i < 3; ++i) {
         scale_axis(settings, raw->gyr[i], raw->acc[i], raw->mag[i], 0, i, out, sat);
     }

@@ -2,10 +2,11 @@
  * @file imu_sensor.h
  * @brief Raw sensor samples and their conversion to the filters' units.
  *
- * The core consumes what the registers give: int16 counts of the MPU6050
- * gyroscope and accelerometer and of the HMC5883L magnetometer, in the sensor
- * frame (x right, y forward, z up). Scale settings turn them into rad/s, m/s^2
- * and uT. The accelerometer reads specific force: +g on z when lying flat.
+ * The core consumes what the registers give: int16 counts of a gyroscope, an
+ * accelerometer and a magnetometer, in the sensor frame (x right, y forward, z up).
+ * Scale settings turn them into rad/s, m/s^2 and uT, and the registers' limits say
+ * which counts may stand for more. The accelerometer reads specific force: +g on z
+ * when lying flat.
  */
 #ifndef IMU_SENSOR_H
 #define IMU_SENSOR_H
@@ -35,22 +36,23 @@ typedef struct {
 /** Standard gravity, m/s^2, Q16 as imu_sample_t.acc: what a resting accelerometer reads. */
 #define IMU_STANDARD_GRAVITY IMU_QCONST(9.80665, 16)
 
-/** Register limits: MPU6050 outputs span the int16 range; the HMC5883L's span
- *  -2048..2047 and it reports -4096 on overflow. */
-#define IMU_MPU6050_MIN (-32768)
-#define IMU_MPU6050_MAX 32767
-#define IMU_HMC5883L_MIN (-2048)
-#define IMU_HMC5883L_MAX 2047
-
-/** Sensitivities of the three sensors. */
+/** Sensitivities and register limits of the three sensors. A count at a limit (or beyond:
+ *  a magnetometer may report overflow with a count below its range) may stand for more, and
+ *  the sample says so (imu_sample_t.clipped). */
 typedef struct {
-    imu_real_t gyro_scale; /**< rad/s per LSB, Q40 (MPU6050 at +-2000 deg/s: 1.0642e-3) */
-    imu_real_t acc_scale;  /**< m/s^2 per LSB, Q32 (MPU6050 at +-8 g: 2.3943e-3) */
-    imu_real_t mag_scale;  /**< uT per LSB, Q24 (HMC5883L at its default gain: 9.1743e-2) */
+    imu_real_t gyro_scale;  /**< rad/s per LSB, Q40 (MPU6050 at +-2000 deg/s: 1.0642e-3) */
+    imu_real_t acc_scale;   /**< m/s^2 per LSB, Q32 (MPU6050 at +-8 g: 2.3943e-3) */
+    imu_real_t mag_scale;   /**< uT per LSB, Q24 (HMC5883L at its default gain: 9.1743e-2) */
+    int16_t gyro_limits[2]; /**< smallest and largest count of the gyroscope's registers (MPU6050: the int16 range) */
+    int16_t acc_limits[2];  /**< ... of the accelerometer's (MPU6050: the int16 range) */
+    int16_t mag_limits[2];  /**< ... of the magnetometer's (HMC5883L: -2048, 2047; -4096 on overflow) */
 } imu_sensor_settings_t;
 
-/** MPU6050 at +-2000 deg/s and +-8 g, HMC5883L at 1090 LSB/gauss. */
+/** MPU6050 at +-2000 deg/s and +-8 g, HMC5883L at 1090 LSB/gauss (the GY-86's). */
 extern const imu_sensor_settings_t imu_sensor_default_settings;
+
+/** @brief The IMU_CLIPPED_* bits of the sensors with a count at (or beyond) its registers' limits. */
+unsigned imu_sample_clipped(const imu_sensor_settings_t *settings, const imu_raw_sample_t *raw);
 
 /**
  * @brief Scale raw counts to rad/s, m/s^2 and uT, and flag counts at their limits.

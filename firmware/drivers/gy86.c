@@ -80,4 +80,8 @@ void gy86_sensor_settings(const gy86_config_t *config, imu_sensor_settings_t *se
     settings->gyro_scale = mpu6050_gyro_scale(config->mpu.gyro_range);
     settings->acc_scale = mpu6050_acc_scale(config->mpu.acc_range);
     settings->mag_scale = hmc5883l_mag_scale(config->mag.gain);
+    settings->gyro_limits[0] = settings->acc_limits[0] = MPU6050_COUNT_MIN;
+    settings->gyro_limits[1] = settings->acc_limits[1] = MPU6050_COUNT_MAX;
+    settings->mag_limits[0] = HMC5883L_COUNT_MIN;
+    settings->mag_limits[1] = HMC5883L_COUNT_MAX;
 }

@@ -30,7 +30,11 @@
 /** 7-bit I2C address (fixed). */
 #define HMC5883L_ADDRESS 0x1Eu
 
-/** What a data register holds after an ADC overflow or underflow in its channel. */
+/** Range of a data register's counts (its 12-bit ADC's). */
+#define HMC5883L_COUNT_MIN (-2048)
+#define HMC5883L_COUNT_MAX 2047
+
+/** What a data register holds after an ADC overflow or underflow in its channel: below HMC5883L_COUNT_MIN. */
 #define HMC5883L_OVERFLOW (-4096)
 
 /** Samples averaged per output, Configuration A MA1..MA0. */

@@ -68,6 +68,10 @@ typedef struct {
     uint8_t data_ready_interrupt;
 } mpu6050_config_t;
 
+/** Range of a data register's counts (every full-scale range spans the int16 range). */
+#define MPU6050_COUNT_MIN (-32768)
+#define MPU6050_COUNT_MAX 32767
+
 /** One burst of the data registers ACCEL_XOUT_H (0x3B) .. GYRO_ZOUT_L (0x48), in the chip's axes. */
 typedef struct {
     int16_t acc[3];      /**< ACCEL_XOUT, _YOUT, _ZOUT: counts (see mpu6050_acc_scale) */

@@ -455,7 +455,7 @@ static void stream_sample(int stream, long n, long length, double rate_hz, imu_r
         for (k = 0; k < 3; ++k) {
             raw->gyr[k] = (int16_t)rng_int(-NEAR_FS, NEAR_FS);
             raw->acc[k] = (int16_t)rng_int(-NEAR_FS, NEAR_FS);
-            raw->mag[k] = (int16_t)rng_int(IMU_HMC5883L_MIN + 1, IMU_HMC5883L_MAX - 1);
+            raw->mag[k] = (int16_t)rng_int(imu_sensor_default_settings.mag_limits[0] + 1, imu_sensor_default_settings.mag_limits[1] - 1);
         }
         break;
     case S_SPIN_Z: {

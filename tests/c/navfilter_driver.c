@@ -11,6 +11,7 @@
 #include <stdlib.h>
 
 #include "imu_filter.h"
+#include "imu_wire.h"
 
 #include "narrowing_abort.h"
 
@@ -50,6 +51,7 @@ int main(int argc, char **argv)
         /* a still board (gy86-default counts: 4096 per g, a 20 uT field), now and then a jolt */
         imu_raw_sample_t raw = {{0, 0, 0}, {0, 0, 4096}, {0, 200, -400}};
         imu_proto_gnss_t g;
+        imu_navfilter_gnss_t fix;
         imu_navfilter_t *nav = imu_filter_nav(&f);
         imu_output_t out;
         if (k % 97 == 50) {
@@ -74,7 +76,8 @@ int main(int argc, char **argv)
             g.vel_ned_mm_s[i] = pick(0);
         }
         imu_navfilter_baro(nav, pick(96000));
-        gnss_used += imu_navfilter_gnss(nav, &g);
+        imu_wire_gnss_fix(&g, &fix);
+        gnss_used += imu_navfilter_gnss(nav, &fix);
         if (k % 13 == 0) {
             markers_used += imu_navfilter_marker(nav, pick(473769000), pick(85417000), pick(450000),
                                                  (uint32_t)pick(100), (uint32_t)pick(100));
@@ -83,7 +86,7 @@ int main(int argc, char **argv)
 #ifdef IMU_FIXED
         {
             imu_proto_nav_state_t s; /* the NAV_STATE the board would send */
-            imu_navfilter_nav_state(nav, (uint32_t)k, &s);
+            imu_wire_nav_state(nav, (uint32_t)k, &s);
         }
 #endif
     }

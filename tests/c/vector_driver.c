@@ -263,6 +263,7 @@ static int run_file(const char *path)
         fclose(r.fp);
         return 1;
     }
+    sensor = imu_sensor_default_settings; /* the vectors' counts are the GY-86's: its registers' limits */
     sensor.gyro_scale = (int32_t)sensor_raw[0];
     sensor.acc_scale = (int32_t)sensor_raw[1];
     sensor.mag_scale = (int32_t)sensor_raw[2];

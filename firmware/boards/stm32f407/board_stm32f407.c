@@ -158,7 +158,7 @@ uint32_t board_cycle_hz(void)
 
 void board_sample_clock_start(uint32_t rate_mhz)
 {
-    timers_tick_start(clocks.tim1_hz, rate_mhz, BOARD_PRIORITY_TIMERS);
+    timers_tick_start(clocks.apb1_timer_hz, rate_mhz, BOARD_PRIORITY_TIMERS);
 }
 
 void board_sample_clock_stop(void)
@@ -295,7 +295,7 @@ int main(void)
     RCC->APB2ENR |= RCC_APB2ENR_USART1EN;
     (void)RCC->APB2ENR; /* the enables take effect before the first access (a read back) */
 
-    timers_clock_init(clocks.tim1_hz, BOARD_PRIORITY_TIMERS);
+    timers_clock_init(clocks.apb1_timer_hz, BOARD_PRIORITY_TIMERS);
     uart_pins_init(BOARD_LINK_GPIO, BOARD_LINK_TX_PIN, BOARD_LINK_RX_PIN, BOARD_LINK_AF);
     link_init(clocks.pclk2_hz, BOARD_LINK_BAUD, BOARD_PRIORITY_LINK);
     uart_pins_init(BOARD_GNSS_GPIO, BOARD_GNSS_TX_PIN, BOARD_GNSS_RX_PIN, BOARD_GNSS_AF);

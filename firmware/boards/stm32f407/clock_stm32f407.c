@@ -156,5 +156,5 @@ void clocks_read(clocks_t *clocks)
     apb2 = apb_divider[(cfgr & RCC_CFGR_PPRE2_MASK) >> RCC_CFGR_PPRE2_POS];
     clocks->pclk1_hz = clocks->hclk_hz / apb1;
     clocks->pclk2_hz = clocks->hclk_hz / apb2;
-    clocks->tim1_hz = apb1 == 1u ? clocks->pclk1_hz : 2u * clocks->pclk1_hz;
+    clocks->apb1_timer_hz = apb1 == 1u ? clocks->pclk1_hz : 2u * clocks->pclk1_hz;
 }

@@ -22,12 +22,12 @@ typedef enum {
 /** What the set-up did, and the clocks in use. */
 typedef struct {
     clocks_source_t source;
-    uint32_t sysclk_hz;  /**< SYSCLK = HCLK (AHB /1): the CPU, the DWT cycle counter */
+    uint32_t sysclk_hz;     /**< SYSCLK = HCLK (AHB /1): the CPU, the DWT cycle counter */
     uint32_t hclk_hz;
-    uint32_t pclk1_hz;   /**< APB1: I2C1, TIM2/TIM5's bus */
-    uint32_t pclk2_hz;   /**< APB2: USART1 */
-    uint32_t tim1_hz;    /**< timers on APB1 (TIM2..TIM5): pclk1, doubled when APB1 is divided */
-    const char *problem; /**< what went wrong, one sentence without the final period; NULL when nothing did */
+    uint32_t pclk1_hz;      /**< APB1: I2C1, TIM2/TIM5's bus */
+    uint32_t pclk2_hz;      /**< APB2: USART1 */
+    uint32_t apb1_timer_hz; /**< the clock of the timers on APB1 (TIM2..TIM5): pclk1, doubled when APB1 is divided */
+    const char *problem;    /**< what went wrong, one sentence without the final period; NULL when nothing did */
 } clocks_t;
 
 /** @brief Configure the clocks (called once, first thing after reset: bounded loop counts, no timer). */

@@ -170,6 +170,7 @@ def sensor_struct(mod, arithmetic: str, profile: SensorProfile):
             setattr(s, name, to_fixed(value * 2.0**-q, q, name))  # the same integer; to_fixed checks it fits
     else:
         s.gyro_scale, s.acc_scale, s.mag_scale = profile.gyro_scale, profile.acc_scale, profile.mag_scale
+    s.gyro_limits, s.acc_limits, s.mag_limits = profile.gyro_limits, profile.acc_limits, profile.mag_limits
     return s
 
 
@@ -358,6 +359,19 @@ class Filter:
                            saturations.astype(np.int64), np.degrees(position[:, 0] * lat_lon_scale),
                            np.degrees(position[:, 1] * lat_lon_scale), position[:, 2] / 1000.0,
                            position[:, 3:] * vel_scale, nav_states)
+
+    def estimate(self, index: int) -> dict:
+        """The ESTIMATE fields (name -> int, or list for arrays) the board sends after the last
+        sample, numbered `index`: assembled by the core's imu_wire_estimate, the board's own
+        function. Fixed build only (the message carries its integers)."""
+        if self.arithmetic != "fixed":
+            raise ValueError("ESTIMATE carries the fixed build's integers")
+        ffi, lib = self.mod.ffi, self.mod.lib
+        out, msg = ffi.new("imu_output_t *"), ffi.new("imu_proto_estimate_t *")
+        lib.imu_filter_get(self._handle, out)
+        lib.imu_wire_estimate(self._handle, out, index, msg)
+        return {name: list(getattr(msg, name)) if length else getattr(msg, name)
+                for name, _, length in protocol.message_fields("ESTIMATE")}
 
     def _eskf(self):
         state = self.mod.lib.imu_filter_eskf(self._handle)

@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parents[3]
 CORE_DIR = ROOT / "firmware" / "core"
 CORE_SOURCES = ["imu_math.c", "imu_settings.c", "imu_sensor.c", "imu_cov.c", "imu_rest.c", "imu_eecf.c", "imu_kf1d.c",
                 "imu_eskf.c", "imu_filter.c", "imu_proto.c", "imu_proto_gen.c", "imu_nav.c", "imu_navcov.c",
-                "imu_navkf.c", "imu_navfilter.c"]
+                "imu_navkf.c", "imu_navfilter.c", "imu_wire.c"]
 
 _TYPEDEFS = {
     "fixed": """
@@ -36,7 +36,8 @@ _DECLARATIONS = """
 _DECLARATIONS += _SCHEMA["CFFI_FILTER_ID"]
 _DECLARATIONS += """
     typedef struct { int16_t gyr[3]; int16_t acc[3]; int16_t mag[3]; } imu_raw_sample_t;
-    typedef struct { imu_real_t gyro_scale; imu_real_t acc_scale; imu_real_t mag_scale; } imu_sensor_settings_t;
+    typedef struct { imu_real_t gyro_scale; imu_real_t acc_scale; imu_real_t mag_scale; int16_t gyro_limits[2];
+                     int16_t acc_limits[2]; int16_t mag_limits[2]; } imu_sensor_settings_t;
     typedef struct { imu_real_t offset[3]; imu_real_t matrix[9]; } imu_sensor_cal_t;
     typedef struct { imu_sensor_cal_t gyr; imu_sensor_cal_t acc; imu_sensor_cal_t mag; } imu_calibration_t;
     typedef struct { imu_rate_t gyr[3]; imu_q16_t acc[3]; imu_q16_t mag[3]; unsigned clipped; } imu_sample_t;
@@ -83,7 +84,7 @@ _DECLARATIONS += """
     int imu_eskf_state_count(const imu_eskf_t *f);
     void imu_eskf_get_weights(const imu_eskf_t *f, imu_q30_t *gravity, imu_q30_t *heading);
     void imu_eskf_covariance(const imu_eskf_t *f, int i, int j, imu_real_t *mant, int32_t *exp);
-    void imu_eskf_get_acc_bias(const imu_eskf_t *f, imu_q16_t acc_bias_q24[3]);
+    void imu_eskf_get_acc_bias(const imu_eskf_t *f, imu_real_t acc_bias[3]);
     const imu_eskf_t *imu_filter_eskf(const imu_filter_t *f);
 
     imu_angle_t imu_atan2(imu_real_t y, imu_real_t x);
@@ -223,7 +224,9 @@ static void navfilter_run(imu_filter_t *f, size_t n, const int16_t *gyr, const i
             imu_navfilter_baro(nav, baro_pa[b]);
         }
         for (; g < gnss_count && gnss_after[g] == (int32_t)k; ++g) {
-            (void)imu_navfilter_gnss(nav, &gnss[g]);
+            imu_navfilter_gnss_t fix;
+            imu_wire_gnss_fix(&gnss[g], &fix);
+            (void)imu_navfilter_gnss(nav, &fix);
         }
         for (; m < marker_count && marker_after[m] == (int32_t)k; ++m) {
             const imu_proto_marker_t *a = &markers[m];
@@ -243,7 +246,7 @@ static void navfilter_run(imu_filter_t *f, size_t n, const int16_t *gyr, const i
         }
 #ifdef IMU_FIXED
         if (nav_states != 0) {
-            imu_navfilter_nav_state(nav, (uint32_t)k, (imu_proto_nav_state_t *)nav_states + k);
+            imu_wire_nav_state(nav, (uint32_t)k, (imu_proto_nav_state_t *)nav_states + k);
         }
 #else
         (void)nav_states;
@@ -252,14 +255,20 @@ static void navfilter_run(imu_filter_t *f, size_t n, const int16_t *gyr, const i
 }
 """
 
+# The ESTIMATE as the board assembles it (imu_wire.h): the fixed build's only, whose integers it carries.
+_FIXED_DECLARATIONS = """
+    void imu_wire_estimate(const imu_filter_t *f, const imu_output_t *out, uint32_t index, imu_proto_estimate_t *msg);
+"""
+
 
 def _make(arithmetic: str) -> FFI:
     ffi = FFI()
-    ffi.cdef(_TYPEDEFS[arithmetic] + _DECLARATIONS)
+    ffi.cdef(_TYPEDEFS[arithmetic] + _DECLARATIONS + (_FIXED_DECLARATIONS if arithmetic == "fixed" else ""))
     rel = Path(__file__).resolve().parents[3]
     ffi.set_source(
         f"imulink.core._{arithmetic}",
         '#include "imu_filter.h"\n#include "imu_math.h"\n#include "imu_proto.h"\n#include "imu_navkf.h"\n'
+        '#include "imu_wire.h"\n'
         + _SCHEMA["CFFI_FILTER_ID_CHECK"] + _NAVKF_RUN + _NAVFILTER_RUN,
         sources=[str((CORE_DIR / s).relative_to(rel)) for s in CORE_SOURCES],
         include_dirs=[str(CORE_DIR.relative_to(rel))],

@@ -2,8 +2,9 @@
 
 The firmware (firmware/app) configures a filter with raw settings, the integers of
 SET_SETTING, and steps it one sample at a time; :class:`FirmwareFilter` does the same
-through the host build of the same C (:mod:`imulink.core`), so that its ESTIMATE fields
-can be compared with the board's bit for bit.
+through the host build of the same C (:mod:`imulink.core`), and assembles its ESTIMATE
+with the board's function (imu_wire_estimate), so that its fields can be compared with
+the board's bit for bit.
 """
 from __future__ import annotations
 
@@ -32,7 +33,6 @@ class FirmwareFilter:
         self.calibration = calibration  # the board's (an imulink.analysis.calibration.Calibration), None: identity
         self.core = core.Filter(filter_name, values["sample_rate"], "fixed", values, profile, calibration)
         self.saturations = 0
-        self._has_covariance = filter_name == "eskf"
         #: the nav filter's NAV_STATE fields after the last step (None for the other filters)
         self.nav_state: dict | None = None
 
@@ -48,19 +48,10 @@ class FirmwareFilter:
         counts = (np.array([gyr], np.int16), np.array([acc], np.int16), np.array([mag], np.int16))
         if self.filter_name == "nav":
             result = self.core.run_nav_counts(*counts)
-            self.saturations = int(result.saturations[0])
             self.nav_state = {name: values[0].tolist() for name, values in result.nav_states.items()}
             self.nav_state["index"] = index
         else:
-            result = self.core.run_counts(*counts)
-            self.saturations = result.saturations
-        if self._has_covariance:
-            mantissas, exponents = self.core.covariance_diagonal_raw()
-            weights = self.core.measurement_weights_raw()
-        else:
-            mantissas, exponents, weights = [0] * 9, [0] * 9, [0, 0]
-        raw = result.raw
-        return {"index": index, "filter_id": self.filter_id, "quat": raw["quat"][0].tolist(),
-                "gyro_bias": raw["gyro_bias"][0].tolist(), "euler": raw["euler"][0].tolist(),
-                "cov_mantissa": mantissas, "cov_exponent": exponents, "saturations": self.saturations,
-                "weights": weights}
+            self.core.run_counts(*counts)
+        estimate = self.core.estimate(index)
+        self.saturations = estimate["saturations"]
+        return estimate
