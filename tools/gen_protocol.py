@@ -717,6 +717,8 @@ def render_python(schema: Schema) -> str:
         "the last field only, text / bytes (length: the maximum, variable on the wire).",
         '"""',
         "",
+        "from typing import Any",
+        "",
         f"PROTOCOL_VERSION = {schema.version}",
         f"SCHEMA_HASH = 0x{schema_hash(schema):08X}",
         f"HEADER_SIZE = {HEADER_SIZE}",
@@ -724,15 +726,16 @@ def render_python(schema: Schema) -> str:
         f"MAX_PAYLOAD = {schema.max_payload}",
         "",
         "#: name -> id, direction (to_host / to_board) and fields, in id order",
-        "MESSAGES = {",
+        "MESSAGES: dict[str, dict[str, Any]] = {",
     ]
     for m in schema.messages:
         out.append(f"    {m.name!r}: {{'id': 0x{m.id:02X}, 'direction': {m.direction!r}, 'fields': "
                    f"{_py_fields(m.fields, '    ')}}},")
-    out += ["}", "", "#: command name -> id and argument fields (COMMAND.args)", "COMMANDS = {"]
+    out += ["}", "", "#: command name -> id and argument fields (COMMAND.args)",
+            "COMMANDS: dict[str, dict[str, Any]] = {"]
     for c in schema.commands:
         out.append(f"    {c.name!r}: {{'id': {c.id}, 'args': {_py_fields(c.args, '    ')}}},")
-    out += ["}", "", "#: code table name -> code name -> value", "ENUMS = {"]
+    out += ["}", "", "#: code table name -> code name -> value", "ENUMS: dict[str, dict[str, int]] = {"]
     for e in schema.enums:
         out.append(f"    {e.name!r}: {{" + ", ".join(f"{v.name!r}: {v.value}" for v in e.values) + "},")
     out += ["}", "", "#: cffi declarations of the generated C API (host/imulink/core/_build.py)",
