@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from imulink.core import _fixed as _core_fixed
-from imulink.core import _float as _core_float
+import imulink.core._fixed as _core_fixed
+import imulink.core._float as _core_float
 from imulink.core.calibration import MATRIX_FRAC_BITS, OFFSET_FRAC_BITS, SENSORS, CalibrationError
 from imulink.core.calibration import to_fixed as calibration_to_fixed
 from imulink.core.counts import (
