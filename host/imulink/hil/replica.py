@@ -47,19 +47,22 @@ class FirmwareFilter:
         filter's NAV_STATE fields then in :attr:`nav_state`)."""
         counts = (np.array([gyr], np.int16), np.array([acc], np.int16), np.array([mag], np.int16))
         if self.filter_name == "nav":
-            result = self.core.run_nav_counts(*counts)
-            self.saturations = int(result.saturations[0])
-            self.nav_state = {name: values[0].tolist() for name, values in result.nav_states.items()}
+            nav = self.core.run_nav_counts(*counts)
+            assert nav.nav_states is not None and nav.raw is not None  # self.core is the fixed build
+            self.saturations = int(nav.saturations[0])
+            self.nav_state = {name: values[0].tolist() for name, values in nav.nav_states.items()}
             self.nav_state["index"] = index
+            raw = nav.raw
         else:
             result = self.core.run_counts(*counts)
+            assert result.raw is not None  # self.core is the fixed build
             self.saturations = result.saturations
+            raw = result.raw
         if self._has_covariance:
             mantissas, exponents = self.core.covariance_diagonal_raw()
             weights = self.core.measurement_weights_raw()
         else:
             mantissas, exponents, weights = [0] * 9, [0] * 9, [0, 0]
-        raw = result.raw
         return {"index": index, "filter_id": self.filter_id, "quat": raw["quat"][0].tolist(),
                 "gyro_bias": raw["gyro_bias"][0].tolist(), "euler": raw["euler"][0].tolist(),
                 "cov_mantissa": mantissas, "cov_exponent": exponents, "saturations": self.saturations,
