@@ -72,7 +72,8 @@ SETTINGS = {
         "no_align": {"q_angle": 5e-4, "q_bias": 4e-6, "r_angle": 2e-6, "r_heading": 0.03, "acc_tolerance": 1.9},
     },
     "eskf": {
-        # [seed 000]'s noise terms (docs/filters.md, Bibliography), 9 states, no low-pass: the paths of the source document.
+        # [seed 000]'s noise terms (docs/filters.md, Bibliography), 9 states, no low-pass: the paths of the
+        # source document.
         "standard": {"gyro_arw": 8.7e-4, "gyro_rrw": 4.2e-5, "acc_bias_rw": 1e-4, "acc_noise": 0.05,
                      "mag_noise": 0.3, "init_attitude_std": 0.1, "init_gyro_bias_std": 0.01,
                      "init_acc_bias_std": 0.1, "estimate_acc_bias": 1.0, "gravity": 9.80665,
