@@ -891,6 +891,8 @@ def render_python(schema: Schema) -> str:
         "the last field only, text / bytes (length: the maximum, variable on the wire).",
         '"""',
         "",
+        "from typing import Any",
+        "",
         f"PROTOCOL_VERSION = {schema.version}",
         f"SCHEMA_HASH = 0x{schema_hash(schema):08X}",
         f"HEADER_SIZE = {HEADER_SIZE}",
@@ -898,7 +900,7 @@ def render_python(schema: Schema) -> str:
         f"MAX_PAYLOAD = {schema.max_payload}",
         "",
         "#: name -> id, direction (to_host / to_board) and fields, in id order",
-        "MESSAGES = {",
+        "MESSAGES: dict[str, dict[str, Any]] = {",
     ]
     for m in schema.messages:
         out.append(f"    {m.name!r}: {{'id': 0x{m.id:02X}, 'direction': {m.direction!r}, 'fields': "
@@ -908,12 +910,12 @@ def render_python(schema: Schema) -> str:
             "#: filter starts again from sample index 0), idempotent (sending it twice leaves the board as",
             "#: sending it once, so a host may resend it), and reply: the message the board sends before",
             "#: the ACK (None: the ACK alone)",
-            "COMMANDS = {"]
+            "COMMANDS: dict[str, dict[str, Any]] = {"]
     for c in schema.commands:
         flags = "".join(f", {flag!r}: {getattr(c, flag)!r}" for flag in COMMAND_FLAGS)
         out.append(f"    {c.name!r}: {{'id': {c.id}, 'args': {_py_fields(c.args, '    ')}{flags}, "
                    f"'reply': {c.reply_message!r}}},")
-    out += ["}", "", "#: code table name -> code name -> value", "ENUMS = {"]
+    out += ["}", "", "#: code table name -> code name -> value", "ENUMS: dict[str, dict[str, int]] = {"]
     for e in schema.enums:
         out.append(f"    {e.name!r}: {{" + ", ".join(f"{v.name!r}: {v.value}" for v in e.values) + "},")
     out += ["}", "",

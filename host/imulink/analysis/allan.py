@@ -27,7 +27,7 @@ import math
 import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Any, Mapping
 
 import numpy as np
 from scipy.stats import chi2
@@ -163,15 +163,15 @@ def edf(samples: int, m: int, alpha: int) -> float:
     flicker at m = 1, which stays below 1 however long the record; Greenhall's algorithm
     gives 0.9 N there, as the squared numerator does.)
     """
-    n, m = float(samples + 1), float(m)
+    n, mf = float(samples + 1), float(m)
     if alpha == 2:
-        return (n + 1) * (n - 2 * m) / (2 * (n - m))
+        return (n + 1) * (n - 2 * mf) / (2 * (n - mf))
     if alpha == 0:
-        return (3 * (n - 1) / (2 * m) - 2 * (n - 2) / n) * 4 * m**2 / (4 * m**2 + 5)
+        return (3 * (n - 1) / (2 * mf) - 2 * (n - 2) / n) * 4 * mf**2 / (4 * mf**2 + 5)
     if alpha == -1:
-        return 2 * (n - 2) ** 2 / (2.3 * n - 4.9) if m == 1 else 5 * n**2 / (4 * m * (n + 3 * m))
+        return 2 * (n - 2) ** 2 / (2.3 * n - 4.9) if mf == 1 else 5 * n**2 / (4 * mf * (n + 3 * mf))
     if alpha == -2:
-        return (n - 2) / (m * (n - 3) ** 2) * ((n - 1) ** 2 - 3 * m * (n - 1) + 4 * m**2)
+        return (n - 2) / (mf * (n - 3) ** 2) * ((n - 1) ** 2 - 3 * mf * (n - 1) + 4 * mf**2)
     raise ValueError(f"alpha must be 2, 0, -1 or -2, not {alpha!r}")
 
 
@@ -271,7 +271,10 @@ class NoiseTerm:
     @property
     def uncertainty(self) -> float | None:
         """Half the width of the interval (about one standard deviation at 68.3 %)."""
-        return None if self.value is None else (self.high - self.low) / 2.0
+        if self.value is None:
+            return None
+        assert self.low is not None and self.high is not None  # a reading comes with its interval
+        return (self.high - self.low) / 2.0
 
 
 def _slope_kind(slope: float) -> str:
@@ -362,7 +365,7 @@ def axis_terms(curve: AllanCurve, axis: int = 0) -> tuple[NoiseTerm, NoiseTerm, 
 
     i_min = int(np.argmin(sigma))
     rises = bool(np.any(low[i_min + 1:] > high[i_min]))
-    off_white = white.value is not None and low[i_min] > white.high / math.sqrt(tau[i_min])
+    off_white = white.high is not None and low[i_min] > white.high / math.sqrt(tau[i_min])  # set with the value
     if i_min == 0:
         floor = NoiseTerm(None, reason=f"the curve rises from its shortest tau ({tau[0]:.3g} s): no floor")
     elif rises or off_white:
@@ -374,6 +377,7 @@ def axis_terms(curve: AllanCurve, axis: int = 0) -> tuple[NoiseTerm, NoiseTerm, 
         while flat[-1] < len(tau) - 1 and low1[flat[-1] + 1] <= high1[i_min]:
             flat.append(flat[-1] + 1)
         level = _line_reading(flat, curve, axis, 0.0, 1.0, by_edf=False)
+        assert level.value is not None and level.low is not None and level.high is not None  # a reading
         floor = NoiseTerm(level.value / FLOOR_OVER_BIAS_INSTABILITY, level.low / FLOOR_OVER_BIAS_INSTABILITY,
                           level.high / FLOOR_OVER_BIAS_INSTABILITY, level.tau_s)
     else:
@@ -409,7 +413,9 @@ class StaticRecord:
 
     @property
     def samples(self) -> int:
-        return len(self.gyr if self.gyr is not None else self.acc)
+        data = self.gyr if self.gyr is not None else self.acc
+        assert data is not None  # load_static gives a record with one of them at least
+        return len(data)
 
     @property
     def duration_s(self) -> float:
@@ -447,11 +453,13 @@ def _from_recording(path: Path, record: SensorRecord) -> StaticRecord:
     otherwise the declared one: an emulated board running faster than real time stamps
     its samples with the host's pace.
     """
-    breaks = np.flatnonzero(np.diff(record.index) != 1)
+    index = record.index
+    assert index is not None  # load_static calls this for a recording, whose samples have one
+    breaks = np.flatnonzero(np.diff(index) != 1)
     if len(breaks):
         k = int(breaks[0])
         raise AllanError(f"{path}: the samples are not one unbroken run: the sample index goes from "
-                         f"{record.index[k]} to {record.index[k + 1]} after sample {k} ({len(breaks)} break(s): "
+                         f"{index[k]} to {index[k + 1]} after sample {k} ({len(breaks)} break(s): "
                          "samples lost or the filter restarted); an Allan analysis needs an unbroken record")
     time_s = record.time_s
     measured = (len(record) - 1) / time_s[-1] if time_s[-1] > 0 else math.inf
@@ -473,7 +481,8 @@ def _from_recording(path: Path, record: SensorRecord) -> StaticRecord:
 
 def _broad_rest(path: Path, record: SensorRecord) -> StaticRecord:
     """A BROAD trial's longest rest (where movement is false), or the whole trial without a mask."""
-    rate = record.declared_rate_hz
+    rate, gyr, acc = record.declared_rate_hz, record.gyr, record.acc
+    assert rate is not None and gyr is not None and acc is not None  # a BROAD trial has them all
     start, stop, what = 0, len(record), "the whole trial (it has no movement mask)"
     if record.movement is not None:
         rests = sensor_input.still_segments(~record.movement)
@@ -484,7 +493,7 @@ def _broad_rest(path: Path, record: SensorRecord) -> StaticRecord:
     if stop - start < MIN_SAMPLES:
         raise AllanError(f"{path}: {what} holds {stop - start} samples: an Allan analysis needs at least "
                          f"{MIN_SAMPLES}")
-    return StaticRecord(f"{record.description}, {what}", rate, record.gyr[start:stop], record.acc[start:stop])
+    return StaticRecord(f"{record.description}, {what}", rate, gyr[start:stop], acc[start:stop])
 
 
 # ---------------------------------------------------------------------------- the analysis
@@ -530,7 +539,7 @@ def terms_json(result: AllanResult) -> dict:
     """The terms in SI, per axis (x, y, z), keyed gyro_arw, gyro_bias_instability,
     gyro_rrw, acc_vrw, acc_bias_instability, acc_rrw; each with `_uncertainty` (half the
     interval), `_low`, `_high` and `_reason` (why a value is null) companions."""
-    out = {}
+    out: dict[str, list[float | str | None]] = {}
     for sensor, analysis in result.sensors.items():
         for name, terms in analysis.terms.items():
             key = f"{sensor}_{name}"
@@ -546,7 +555,7 @@ def to_json(result: AllanResult) -> dict:
     """Everything in SI with self-explaining keys (see :func:`terms_json`), the curves as
     `tau_s` and `<sensor>_adev`, `_adev_low`, `_adev_high`: one [x, y, z] per tau."""
     first = next(iter(result.sensors.values()), None)
-    out = {"input": result.description, "sample_rate_hz": result.rate_hz, "samples": result.samples,
+    out: dict[str, Any] = {"input": result.description, "sample_rate_hz": result.rate_hz, "samples": result.samples,
            "duration_s": result.duration_s, "confidence": first.curve.confidence if first else CONFIDENCE,
            "axes": list(AXES), "method": "overlapping Allan deviation, octave-spaced tau; terms read as IEEE Std "
            "952 does: -1/2 line at tau = 1 s, floor / 0.664, +1/2 line at tau = 3 s; uncertainty = half the "
@@ -603,8 +612,10 @@ def format_report(result: AllanResult) -> str:
                 if t.value is None:
                     lines.append(f"    {axis}: not identified: {t.reason}")
                 else:
-                    lines.append(f"    {axis}: {t.value:.4g} +- {t.uncertainty / t.value * 100:.1f} % "
-                                 f"= {_display(sensor, name, t.value)}   ({t.tau_s[0]:.3g}-{t.tau_s[1]:.3g} s)")
+                    uncertainty, tau_s = t.uncertainty, t.tau_s
+                    assert uncertainty is not None and tau_s is not None  # a reading comes with them
+                    lines.append(f"    {axis}: {t.value:.4g} +- {uncertainty / t.value * 100:.1f} % "
+                                 f"= {_display(sensor, name, t.value)}   ({tau_s[0]:.3g}-{tau_s[1]:.3g} s)")
     return "\n".join(lines)
 
 
@@ -630,7 +641,7 @@ class DerivedSettings:
     notes: list[str]
 
 
-def _largest(terms: Mapping[str, Sequence[float | None]], key: str) -> float | None:
+def _largest(terms: Mapping[str, Any], key: str) -> float | None:
     values = [v for v in terms.get(key) or () if v is not None]
     return max(values) if values else None
 
@@ -658,7 +669,7 @@ def motion_allowance(filter_name: str) -> dict[str, float]:
     return {"q_angle": defaults["q_angle"] - TUNED_ON_GYRO_ARW**2}
 
 
-def derive_settings(terms: Mapping[str, Sequence[float | None]], filter_name: str,
+def derive_settings(terms: Mapping[str, Any], filter_name: str,
                     sensor_only: bool = False) -> DerivedSettings:
     """The settings of `filter_name` that the noise terms determine, clamped to their
     ranges (see :func:`settings_from_terms`), and notes on each choice.
@@ -720,7 +731,7 @@ def derive_settings(terms: Mapping[str, Sequence[float | None]], filter_name: st
     return DerivedSettings(values, notes)
 
 
-def settings_from_terms(terms: Mapping[str, Sequence[float | None]], filter_name: str,
+def settings_from_terms(terms: Mapping[str, Any], filter_name: str,
                         sensor_only: bool = False) -> dict[str, float]:
     """The settings of `filter_name` ("eskf" or "kf1d") that noise terms determine, in SI.
 
@@ -767,17 +778,20 @@ def plot(result: AllanResult, path, reference: bool = True) -> None:
                         color=colours[a], lw=1.2, capsize=2, label=axis)
             white, floor, walk = (analysis.terms[name][a] for name in TERMS[analysis.sensor])
             if white.value is not None:
+                assert white.tau_s is not None  # a reading comes with its averaging times
                 t = np.array([tau[0], min(tau[-1], white.tau_s[1] * 8)])
                 ax.plot(t, white.value * scale / np.sqrt(t), "--", color=colours[a], lw=0.8)
             if floor.value is not None:
+                assert floor.tau_s is not None
                 t = np.array([floor.tau_s[0] / 4, floor.tau_s[1] * 4]).clip(*span)
                 ax.plot(t, [floor.value * FLOOR_OVER_BIAS_INSTABILITY * scale] * 2, ":", color=colours[a], lw=1.2)
             if walk.value is not None:
+                assert walk.tau_s is not None
                 t = np.array([max(tau[0], walk.tau_s[0] / 8), tau[-1]])
                 ax.plot(t, walk.value * scale * np.sqrt(t / RANDOM_WALK_TAU_S), "-.", color=colours[a], lw=0.8)
         if gyro and reference:
             n, b, k = (np.mean(SEED000_TABLE1[name]) for name in ("arw", "bias_instability", "rrw"))
-            t = np.geomspace(*span, 50)
+            t = np.geomspace(span[0], span[1], 50)
             # deg/sqrt(h) -> deg/h at tau s: N / sqrt(tau / 3600 h); K (deg/h/sqrt(h)) sqrt(tau / 3 / 3600)
             ax.plot(t, n * 60.0 / np.sqrt(t), "-", color="0.6", lw=2, alpha=0.5,
                     label="seed 000 Table 1 (mean of 3 gyros)")

@@ -71,8 +71,8 @@ class Scenario:
     traj: nv.NavTrajectory
     imu: SimResult
     clean_imu: SimResult
-    fixes: object
-    clean_fixes: object
+    fixes: nv.GnssFixes | nv.MarkerFixes
+    clean_fixes: nv.GnssFixes | nv.MarkerFixes
     inp: NavInput
     clean: NavInput
     windows: dict
@@ -336,7 +336,7 @@ def evaluate(scenario: Scenario, result, clean: bool = False) -> dict[str, float
     good, bad = _fix_flags(fixes)
     later = slice(1, None)  # the run's fixes after its start (NavResult.fix_index)
     walked = float(np.sum(np.linalg.norm(traj.vel_enu[:, :2], axis=1)) / RATE_HZ)
-    out = {}
+    out: dict[str, float] = {}
     for name, (quantity, statistic, where) in scenario.metrics.items():
         if quantity in ("good_rejected", "bad_accepted"):
             fix_t = traj.t[result.fix_index]
@@ -362,14 +362,14 @@ def gnss_alone(scenario: Scenario, clean: bool = False) -> dict[str, float | Non
     no fix (an outage), the last fix held against the truth at each sample; "at" a time: the
     last fix by then. None where the fixes say nothing (heading, the gate's counts; no GNSS)."""
     fixes = scenario.clean_fixes if clean else scenario.fixes
-    if not hasattr(fixes, "vel_enu"):
+    if not isinstance(fixes, nv.GnssFixes):  # a MarkerFixes: no velocity
         return {name: None for name in scenario.metrics}
     traj = scenario.traj
     error = fixes.pos_enu - fixes.truth_pos_enu
     per_fix = {"horizontal": np.hypot(error[:, 0], error[:, 1]), "vertical": np.abs(error[:, 2]),
                "velocity": np.linalg.norm(fixes.vel_enu - fixes.truth_vel_enu, axis=1)}
     t_fix = traj.t[fixes.index]
-    out = {}
+    out: dict[str, float | None] = {}
     for name, (quantity, statistic, where) in scenario.metrics.items():
         if quantity not in per_fix or statistic in ("end", "end_percent"):
             out[name] = None

@@ -84,13 +84,13 @@ def run(filter_name: str = "eskf", hours: float = 24.0, segment_s: float = 3600.
                 diags.append(np.diag(cov))
         err = angle_difference(np.concatenate(quats), data.quat_true)
         calm = err[~disturbed]
-        diags = np.array(diags) if diags else np.zeros((1, 1))
+        diag_rows = np.array(diags) if diags else np.zeros((1, 1))
         reports.append(SegmentReport(
             index=index, samples=len(data.t), saturations=out.saturations,
             sensor_clipped=int(sum(data.saturated.values())),
             min_eigenvalue=float(min(eigs)) if eigs else float("nan"),
             max_asymmetry=float(max(asym)) if asym else float("nan"),
-            diag_min=diags.min(axis=0), diag_max=diags.max(axis=0),
+            diag_min=diag_rows.min(axis=0), diag_max=diag_rows.max(axis=0),
             max_error_deg=float(calm.max()), rms_error_deg=float(np.sqrt(np.mean(calm**2)))))
         if progress:
             progress(reports[-1])

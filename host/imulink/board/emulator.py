@@ -29,6 +29,7 @@ import subprocess
 import tempfile
 import threading
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 
@@ -324,13 +325,13 @@ class EmulatedBoard:
         return options if self.realtime else options + ["--fast"]
 
     def start(self) -> "EmulatedBoard":
-        self._dir = Path(tempfile.mkdtemp(prefix="imulink-board-"))
+        self._dir = directory = Path(tempfile.mkdtemp(prefix="imulink-board-"))
         try:
             frames = feed_frames(self.simulation, self.profile, self.gnss, self.baro)
             if self.target == "native":
-                self._start_native(frames)
+                self._start_native(frames, directory)
             else:
-                self._start_qemu(frames)
+                self._start_qemu(frames, directory)
         except BaseException:
             self.stop()
             raise
@@ -340,21 +341,22 @@ class EmulatedBoard:
         # a TCP front is always the proxy's: it takes several clients (one commands, the others listen)
         return self.faults is not None or self.schema_hash is not None or self.front != "pty"
 
-    def _start_native(self, frames: list[bytes]) -> None:
-        feed = self._dir / "feed.bin"
+    def _start_native(self, frames: list[bytes], directory: Path) -> None:
+        feed = directory / "feed.bin"
         feed.write_bytes(b"".join(frames))
         direct = not self._needs_proxy()
         where = (["--pty"] if self.front == "pty" else ["--tcp", str(self.port)]) if direct else ["--tcp", "0"]
         command = [str(self.image), *where, "--feed", str(feed), *self._firmware_options()]
-        self._process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=open(self._dir / "board.log", "wb"),
-                                         stdin=subprocess.DEVNULL)
-        address = self._read_address()
+        self._process = process = subprocess.Popen(command, stdout=subprocess.PIPE,
+                                                   stderr=open(directory / "board.log", "wb"), stdin=subprocess.DEVNULL)
+        assert process.stdout is not None  # stdout=PIPE
+        address = self._read_address(process.stdout)
         self.address = address if direct else self._start_proxy(address)
 
-    def _read_address(self) -> str:
-        """The first line the native board prints: where it serves."""
+    def _read_address(self, stdout: IO[bytes]) -> str:
+        """The first line the native board prints (on `stdout`): where it serves."""
         result: list[bytes] = []
-        reader = threading.Thread(target=lambda: result.append(self._process.stdout.readline()), daemon=True)
+        reader = threading.Thread(target=lambda: result.append(stdout.readline()), daemon=True)
         reader.start()
         reader.join(_START_TIMEOUT_S)
         line = result[0].decode(errors="replace").strip() if result else ""
@@ -362,7 +364,8 @@ class EmulatedBoard:
             raise EmulatorError(f"the native board did not start: {self._log_tail()}")
         return line
 
-    def _start_qemu(self, frames: list[bytes]) -> None:
+    def _start_qemu(self, frames: list[bytes], directory: Path) -> None:
+        assert self._qemu is not None  # found by __init__ for the qemu target
         self._feed = FeedServer(frames)
         link_port = _free_port()
         semihosting = ",".join(["enable=on", "target=native", "arg=imulink-qemu",
@@ -371,7 +374,7 @@ class EmulatedBoard:
                    "-serial", f"tcp:127.0.0.1:{link_port},server=on,wait=on,nodelay=on",
                    "-serial", f"tcp:127.0.0.1:{self._feed.port},nodelay=on",
                    "-semihosting-config", semihosting]
-        log = open(self._dir / "board.log", "wb")
+        log = open(directory / "board.log", "wb")
         self._process = subprocess.Popen(command, stdout=log, stderr=log, stdin=subprocess.DEVNULL)
         try:
             self.address = self._start_proxy(f"socket://127.0.0.1:{link_port}")
@@ -417,9 +420,11 @@ class EmulatedBoard:
         return None
 
     def _log_tail(self) -> str:
+        if self._dir is None:  # not started
+            return "no output"
         try:
             text = (self._dir / "board.log").read_text(errors="replace").strip()
-        except (OSError, TypeError):
+        except OSError:
             return "no output"
         return text.splitlines()[-1] if text else "no output"
 

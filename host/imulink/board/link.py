@@ -407,6 +407,7 @@ class Link:
                 self._pending.pop(pending.command_seq, None)
             return None
         answer = pending.answer
+        assert answer is not None  # done is set with the answer, or by _fail (Disconnected above)
         if answer.name == "NACK":
             reason = _REASON_NAMES.get(answer.fields["reason"], f"reason {answer.fields['reason']}")
             raise protocol.CommandError(reason, f"the board refused {pending.describe()}")
@@ -433,6 +434,17 @@ class Link:
             waited += wait
         raise CommandTimeout(f"no answer to {pending.describe()} from {self.url} after {tries} attempt(s) "
                              f"in {waited:.3g} s")
+
+    def query(self, name: str, timeout: float = COMMAND_TIMEOUT_S, attempts: int | None = None,
+              **args) -> dict:
+        """The fields of the data message a command asks for (GET_VERSION, GET_STATUS,
+        GET_SETTING, GET_CALIBRATION: REPLY_MESSAGES but the not idempotent INJECT_SAMPLE),
+        which command() waits for; the same errors as command()."""
+        if name not in REPLY_MESSAGES or name in NOT_IDEMPOTENT:
+            raise ValueError(f"{name} is not a command whose data command() waits for")
+        data = self.command(name, timeout, attempts, **args).data
+        assert data is not None  # command() returns an idempotent command only with its data
+        return data.fields
 
     def listen(self, timeout: float = COMMAND_TIMEOUT_S) -> dict:
         """Wait for the board's HELLO without sending anything (a listener of a fan-out
@@ -486,6 +498,8 @@ class Link:
             raise NotABoard(f"no imulink board answered on {self.url} within {time.monotonic() - started:.1f} s: "
                             f"{heard}. Is it an imulink board, running, and (for a serial port) at the right baud "
                             "rate?") from None
-        protocol.check_hello(reply.data.fields)
-        self.hello = reply.data.fields
-        return reply.data.fields
+        hello = reply.data
+        assert hello is not None  # command() returns GET_VERSION only with its HELLO
+        protocol.check_hello(hello.fields)
+        self.hello = hello.fields
+        return hello.fields

@@ -127,6 +127,7 @@ def probe_port(device: str, timeout: float = PROBE_TIMEOUT_S) -> tuple[Optional[
         hello = link.connect(timeout=timeout, attempts=1)
         return hello, f"imulink board {_board_text(hello)}"
     except protocol.ProtocolMismatch:
+        assert link.hello is not None  # connect() checks the HELLO it stored
         return link.hello, (f"imulink board {_board_text(link.hello)}, but another protocol version "
                             f"(schema hash 0x{link.hello['schema_hash']:08X}): update the firmware or the host")
     except NotABoard:

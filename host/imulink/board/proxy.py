@@ -145,7 +145,7 @@ class PtyFront:
         self.address = os.ttyname(self._slave)
         self.connections = 1
 
-    def fileno(self) -> int | None:
+    def fileno(self) -> int:
         return self._master
 
     def poll(self, timeout: float) -> None:
@@ -334,8 +334,9 @@ class TcpFront:
                 f = message.fields
                 key = {"SETTING": (f.get("filter_id"), f.get("index")),
                        "CALIBRATION": (f.get("sensor"), f.get("axis"))}.get(message.name, ())
-                self._kept.pop((message.name, *key), None)  # re-inserted last: the order they came in
-                self._kept[(message.name, *key)] = span + b"\0"
+                kept_key = (message.name, *key)
+                self._kept.pop(kept_key, None)  # re-inserted last: the order they came in
+                self._kept[kept_key] = span + b"\0"
         for span in reversed(spans):
             try:
                 raw = cobs.decode(span)
@@ -513,7 +514,7 @@ class Proxy:
         if time.monotonic() < self._stall_until:
             self._stop.wait(min(_POLL_S, self._stall_until - time.monotonic()))
             return
-        readable = []
+        readable: list[int | None] = []
         room = len(self._to_host) + front.pending_bytes() < BACKLOG_BYTES
         fds = [fd for fd in (self._board_fd if room else None, front.fileno()) if fd is not None]
         writable = front.write_fds() + ([front.fileno()] if self._to_host and front.fileno() is not None else [])

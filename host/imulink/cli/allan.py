@@ -55,6 +55,7 @@ def run(args) -> int:
     if args.write:
         from imulink.io import settings_file
 
+        assert derived is not None  # --write needs --settings (checked above)
         settings_file.save(settings_file.FilterSettings(args.settings, derived.values), args.write,
                            inputs=[args.input])
         print(f"settings file: {args.write}", file=sys.stderr if args.json else sys.stdout)

@@ -36,6 +36,7 @@ def run(args) -> int:
             from imulink import hil
             from imulink.board.link import Link
 
+            assert board.address is not None  # set by the board's start (the with statement)
             with Link(board.address, args.baud) as link:
                 link.connect()
                 hil.apply_settings(link, settings)

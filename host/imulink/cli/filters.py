@@ -14,7 +14,7 @@ from imulink.cli.common import (
 def run(args) -> int:
     from imulink import core
 
-    report = {"filters": []}
+    report: dict[str, list[dict]] = {"filters": []}
     for name in parse_filters(args.filters, core.BOARD_FILTERS):
         defaults = core.default_settings(name)
         fields = core.settings_fields(name)

@@ -51,7 +51,7 @@ def run(args) -> int:
           file=sys.stderr)
     if method is None:  # --dry-run without a board: the image checks only
         chip = flash.CHIPS.get(ident.device_id) if ident is not None else None
-        if chip is not None:
+        if ident is not None and chip is not None:
             flash.check_chip(image, ident, ident.device_id, ident.flash_kib * 1024)
             print(f"would erase sectors {', '.join(map(str, flash.sectors_for(image, chip)))} of the "
                   f"{'/'.join(chip.names)} and write {image.size} bytes (no board given: nothing done)")

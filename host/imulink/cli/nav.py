@@ -123,7 +123,8 @@ def _nav_start(text: str) -> tuple[float, float, float, float]:
     problem = start_error(*values)
     if problem is not None:
         raise argparse.ArgumentTypeError(f"{text!r}: {problem}")
-    return tuple(values)
+    lat, lon, height, accuracy = values
+    return lat, lon, height, accuracy
 
 
 

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import sys
 import time
+from typing import Any
 
 from imulink.cli.common import (
     UsageError,
@@ -35,7 +36,8 @@ def run(args) -> int:
         print(header)
         print("-" * len(header))
     for name in filters:
-        runs, entry = {}, {"filter": name}
+        runs = {}
+        entry: dict[str, Any] = {"filter": name}
         for arithmetic in core.ARITHMETICS:
             start = time.perf_counter()
             runs[arithmetic] = core.run(name, result.gyr, result.acc, result.mag, args.rate, arithmetic,

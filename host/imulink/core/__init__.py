@@ -11,9 +11,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+import imulink.core._fixed as _core_fixed
+import imulink.core._float as _core_float
 from imulink import protocol
-from imulink.core import _fixed as _core_fixed
-from imulink.core import _float as _core_float
 from imulink.core.calibration import MATRIX_FRAC_BITS, OFFSET_FRAC_BITS, SENSORS, CalibrationError
 from imulink.core.calibration import to_fixed as calibration_to_fixed
 from imulink.core.counts import (

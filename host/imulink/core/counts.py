@@ -88,7 +88,8 @@ def fixed_scales(profile: SensorProfile) -> tuple[int, int, int]:
     """The profile's gyroscope, accelerometer and magnetometer sensitivities as the fixed-point
     core holds them (and HELLO carries them): rounded to SCALE_FRAC_BITS."""
     scales = (profile.gyro_scale, profile.acc_scale, profile.mag_scale)
-    return tuple(int(np.rint(scale * 2.0**q)) for scale, q in zip(scales, SCALE_FRAC_BITS))
+    gyro, acc, mag = (int(np.rint(scale * 2.0**q)) for scale, q in zip(scales, SCALE_FRAC_BITS))
+    return gyro, acc, mag
 
 
 def profile_from_scales(gyro_scale: int, acc_scale: int, mag_scale: int) -> SensorProfile:

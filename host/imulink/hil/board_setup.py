@@ -10,10 +10,10 @@ from imulink.hil.common import HilError
 
 def read_settings(link: Link) -> tuple[int, dict[int, dict]]:
     """The active filter's id and its settings (index -> SETTING fields), read with GET_SETTING."""
-    first = link.command("GET_SETTING", index=0).data.fields
+    first = link.query("GET_SETTING", index=0)
     settings = {0: first}
     for index in range(1, first["setting_count"]):
-        settings[index] = link.command("GET_SETTING", index=index).data.fields
+        settings[index] = link.query("GET_SETTING", index=index)
     return first["filter_id"], settings
 
 
@@ -74,8 +74,9 @@ def check_profile(declared: SensorProfile | None, hello: dict, what: str = "--pr
 def read_calibration(link: Link):
     """The board's calibration (GET_CALIBRATION of every sensor and axis), as an
     imulink.analysis.calibration.Calibration of the profile the board states (link.connect() first)."""
-    frames = [link.command("GET_CALIBRATION", sensor=protocol.SENSORS[code], axis=axis).data.fields
+    frames = [link.query("GET_CALIBRATION", sensor=protocol.SENSORS[code], axis=axis)
               for code in _SENSOR_CODES.values() for axis in range(3)]
+    assert link.hello is not None  # set by link.connect() (or listen()), which callers do first
     return Calibration(board_profile(link.hello), calibration_from_frames(frames))
 
 
@@ -90,5 +91,5 @@ def set_calibration(link: Link, calibration) -> None:
 
 
 def leave_injection_mode(link: Link) -> None:
-    if link.command("GET_STATUS").data.fields["injection_mode"]:
+    if link.query("GET_STATUS")["injection_mode"]:
         link.command("SET_INJECTION_MODE", enabled=0)

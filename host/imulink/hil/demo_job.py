@@ -38,6 +38,7 @@ class DemoReport:
 
     def format(self) -> str:
         r, c, rec = self.record, self.comparison, self.recording
+        assert rec.hello is not None  # record() connected: the board's HELLO is in the recording
         lost = rec.counters["lost_frames"]
         lines = [
             f"emulated board: {self.address} ({rec.hello['board']}, {self.target} target, filter {r.filter_name})",
@@ -97,7 +98,9 @@ def demo(*, target: str = "native", transport: str = "tcp", scenario: str = "res
             EmulatedBoard(target, front=transport, scenario=scenario, duration_s=duration_s, rate_hz=rate_hz,
                           seed=seed, filter_name=filter_name) as board:
         path = Path(output) if output is not None else Path(scratch) / "demo.imulog"
-        result = record(board.address, path, force=force, progress=progress)
+        address = board.address
+        assert address is not None  # set by the board's start (the with statement)
+        result = record(address, path, force=force, progress=progress)
         recording = load_recording(path)
         samples = recording.samples
         truth = board.truth(samples.gyr, samples.acc, samples.mag)
@@ -114,7 +117,7 @@ def demo(*, target: str = "native", transport: str = "tcp", scenario: str = "res
     nav_accuracy = None
     if board.trajectory is not None and filter_name == "nav":
         nav_accuracy = _nav_accuracy(recording, fed, board.trajectory, rate_hz)
-    return DemoReport(board.address, target, result, recording, comparison, accuracy, time.monotonic() - started,
+    return DemoReport(address, target, result, recording, comparison, accuracy, time.monotonic() - started,
                       kept=output is not None, nav_accuracy=nav_accuracy)
 
 

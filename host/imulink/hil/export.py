@@ -70,6 +70,9 @@ def replay_columns(recording: Recording, run: HostRun, comparison: Comparison) -
 def _nav_columns(recording: Recording, run: HostRun) -> dict[str, np.ndarray]:
     """The nav filter's position and velocity per sample: the board's (its NAV_STATE), the
     host fixed build's and the float twin's (position only); NaN without a position."""
+    nav, nav_rows, float_position = run.nav, run.nav_rows, run.float_position
+    # host_run sets the three together, where the nav filter ran (replay_columns calls this only then)
+    assert nav is not None and nav_rows is not None and float_position is not None
     n = len(recording.samples)
     states = recording.nav_states.fields
     rows = sample_rows(recording, recording.nav_states.segment, recording.nav_states.index)
@@ -80,7 +83,7 @@ def _nav_columns(recording: Recording, run: HostRun) -> dict[str, np.ndarray]:
     board_mode[rows[rows >= 0]] = states["mode"][rows >= 0]
     columns = {}
     for source, fields, positioned in (("board", board, board_mode == 2),
-                                       ("fixed", run.nav, run.nav_rows & (run.nav["mode"] == 2))):
+                                       ("fixed", nav, nav_rows & (nav["mode"] == 2))):
         def masked(values: np.ndarray) -> np.ndarray:
             return np.where(positioned, values, np.nan)
 
@@ -90,7 +93,7 @@ def _nav_columns(recording: Recording, run: HostRun) -> dict[str, np.ndarray]:
         for k, axis in enumerate(("e", "n", "u")):
             columns[f"{source}_vel_{axis}_m_s"] = masked(fields["vel"][:, k] * core.NAV_VEL_SCALE)
     for k, name in enumerate(("lat_deg", "lon_deg", "height_m")):
-        columns[f"float_{name}"] = run.float_position[:, k]
+        columns[f"float_{name}"] = float_position[:, k]
     return columns
 
 
@@ -166,4 +169,6 @@ def export_npz(recording: Recording, run: HostRun, columns: dict[str, np.ndarray
     meta = {"header": recording.header, "hello": recording.hello, "status": recording.status,
             "counters": recording.counters, "events": recording.events}
     with open(path, "wb") as out:  # a file object: numpy would add ".npz" to a path without it
-        np.savez_compressed(out, **columns, **raw, metadata=np.array(json.dumps(meta, default=str)))
+        # numpy's stub declares allow_pickle: bool beside **kwds, and mypy matches **columns against it
+        np.savez_compressed(out, **columns, **raw,  # type: ignore[arg-type]
+                            metadata=np.array(json.dumps(meta, default=str)))

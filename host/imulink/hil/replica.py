@@ -48,6 +48,7 @@ class FirmwareFilter:
         counts = (np.array([gyr], np.int16), np.array([acc], np.int16), np.array([mag], np.int16))
         if self.filter_name == "nav":
             result = self.core.run_nav_counts(*counts)
+            assert result.nav_states is not None  # self.core is the fixed build
             self.nav_state = {name: values[0].tolist() for name, values in result.nav_states.items()}
             self.nav_state["index"] = index
         else:

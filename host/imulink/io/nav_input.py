@@ -125,7 +125,8 @@ def read_nav_csv(path) -> NavInput:
             raise InputError(f"{path}: GNSS velocity columns without the position ones ({', '.join(GNSS_POSITION)})")
         has_mag, has_baro = MAG[0] in columns, BARO[0] in columns
         has_fix, has_vel = GNSS_POSITION[0] in columns, GNSS_VELOCITY[0] in columns
-        time, imu, mag, baro, fixes = [], [], [], [], []
+        time: list[float] = []
+        imu, mag, baro, fixes = [], [], [], []
         for line, row in enumerate(rows, start=2):
             if not row or all(not cell.strip() for cell in row):
                 continue  # a blank line

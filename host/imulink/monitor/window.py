@@ -353,8 +353,8 @@ class MonitorWindow(QtWidgets.QMainWindow):
         for k, (plot, (_, _, table, columns)) in enumerate(zip(self.plots, PLOTS)):
             if not self.autoscaled[k]:
                 continue
-            values = [drawn[table][:, self.curves[c][2]] for c in columns if self.curves[c][0].isVisible()]
-            values = np.concatenate(values) if values else np.empty(0)
+            shown = [drawn[table][:, self.curves[c][2]] for c in columns if self.curves[c][0].isVisible()]
+            values = np.concatenate(shown) if shown else np.empty(0)
             values = values[np.isfinite(values)]
             if not len(values):
                 continue

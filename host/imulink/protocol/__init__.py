@@ -206,6 +206,7 @@ class _Layout:
         return raw
 
     def _variable_bytes(self, what: str, value) -> bytes:
+        assert self.variable is not None  # pack calls this only for a layout with a variable field
         name, base, length = self.variable
         raw = value.encode("utf-8") if base == "text" else bytes(value)
         if len(raw) > length:
@@ -238,7 +239,7 @@ class _MessageCodec:
         self.build = self.layout.build
         self.has_tail = self.layout.variable is not None
         self.min_frame = self.struct.size + CRC_SIZE
-        self.max_frame = self.min_frame + (self.layout.variable[2] if self.has_tail else 0)
+        self.max_frame = self.min_frame + (self.layout.variable[2] if self.layout.variable is not None else 0)
 
     def frame(self, seq: int, fields: dict) -> bytes:
         """msg_id, seq, payload and CRC (before COBS)."""

@@ -6,6 +6,8 @@ scalar, the element count for an array), char (length N: NUL-padded UTF-8), or, 
 the last field only, text / bytes (length: the maximum, variable on the wire).
 """
 
+from typing import Any
+
 PROTOCOL_VERSION = 1
 SCHEMA_HASH = 0xA373C5B8
 HEADER_SIZE = 3
@@ -13,7 +15,7 @@ CRC_SIZE = 4
 MAX_PAYLOAD = 201
 
 #: name -> id, direction (to_host / to_board) and fields, in id order
-MESSAGES = {
+MESSAGES: dict[str, dict[str, Any]] = {
     'HELLO': {'id': 0x01, 'direction': 'to_host', 'fields': (
         ('firmware_major', 'u8', None),
         ('firmware_minor', 'u8', None),
@@ -154,7 +156,7 @@ MESSAGES = {
 #: filter starts again from sample index 0), idempotent (sending it twice leaves the board as
 #: sending it once, so a host may resend it), and reply: the message the board sends before
 #: the ACK (None: the ACK alone)
-COMMANDS = {
+COMMANDS: dict[str, dict[str, Any]] = {
     'START_STREAM': {'id': 1, 'args': (), 'restarts_filter': False, 'idempotent': True, 'reply': None},
     'STOP_STREAM': {'id': 2, 'args': (), 'restarts_filter': False, 'idempotent': True, 'reply': None},
     'SELECT_FILTER': {'id': 3, 'args': (
@@ -202,7 +204,7 @@ COMMANDS = {
 }
 
 #: code table name -> code name -> value
-ENUMS = {
+ENUMS: dict[str, dict[str, int]] = {
     'filter': {'EECF': 1, 'KF1D': 2, 'ESKF': 3, 'NAV': 4},
     'reason': {'OK': 0, 'UNKNOWN_COMMAND': 1, 'BAD_LENGTH': 2, 'BAD_ARGUMENT': 3, 'OUT_OF_RANGE': 4, 'BUSY': 5, 'NOT_IN_INJECTION_MODE': 6, 'UNKNOWN_FILTER': 7, 'UNKNOWN_SETTING': 8, 'NOT_SUPPORTED': 9, 'NOT_NAV': 10},
     'sensor': {'GYROSCOPE': 0, 'ACCELEROMETER': 1, 'MAGNETOMETER': 2},

@@ -83,12 +83,12 @@ class NavTrajectory(Trajectory):
     ``pos[k] = pos[k-1] + (vel[k-1] + vel[k]) dt / 2``, and the geodetic position the same
     trapezoid over the rates of latitude, longitude and height."""
 
-    pos_enu: np.ndarray = field(default=None)
-    vel_enu: np.ndarray = field(default=None)
-    lat_deg: np.ndarray = field(default=None)
-    lon_deg: np.ndarray = field(default=None)
-    height_m: np.ndarray = field(default=None)
-    gravity: np.ndarray = field(default=None)
+    pos_enu: np.ndarray
+    vel_enu: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    height_m: np.ndarray
+    gravity: np.ndarray
     origin: Origin = field(default_factory=Origin)
 
 
@@ -463,8 +463,8 @@ class GnssModel:
     multipath: tuple = ()
     reported_multipath: bool = False
     outlier_fraction: float = 0.0
-    outlier_m: tuple = (20.0, 50.0)
-    outlier_vertical_m: tuple = (0.0, 0.0)
+    outlier_m: tuple[float, float] = (20.0, 50.0)
+    outlier_vertical_m: tuple[float, float] = (0.0, 0.0)
     velocity_outliers: tuple = ()
     multipath_episodes: tuple = ()
     multipath_tau_s: float = 10.0
@@ -545,9 +545,9 @@ def gnss_fixes(traj: NavTrajectory, model: GnssModel | None = None, seed: int = 
         v_acc = np.hypot(v_acc, extra[:, 2])
     flags = _rough_conditions(model, seed, t, keep, dt, offset, vel, h_acc, v_acc)
     lat0, lon0, h0 = traj.lat_deg[index], traj.lon_deg[index], traj.height_m[index]
-    m, n = radii(lat0)
-    lat = lat0 + np.degrees(offset[:, 1] / (m + h0))
-    lon = lon0 + np.degrees(offset[:, 0] / ((n + h0) * np.cos(np.deg2rad(lat0))))
+    meridian, prime_vertical = radii(lat0)
+    lat = lat0 + np.degrees(offset[:, 1] / (meridian + h0))
+    lon = lon0 + np.degrees(offset[:, 0] / ((prime_vertical + h0) * np.cos(np.deg2rad(lat0))))
     h = h0 + offset[:, 2]
     pos = traj.pos_enu[index] + offset
     return GnssFixes(index=index[keep], t_valid=t[keep], t_arrival=t[keep] + model.latency_s, lat_deg=lat[keep],

@@ -264,7 +264,7 @@ class I2CBus:
     def register_writes(self, address: int) -> list[tuple[int, int]]:
         """(register, value) of every successful write transfer to `address`, in order
         (a write of several bytes gives consecutive registers)."""
-        out = []
+        out: list[tuple[int, int]] = []
         for t in self.log:
             if t.kind == "write" and t.address == address and t.result == "OK" and len(t.data) > 1:
                 out.extend((t.data[0] + i, v) for i, v in enumerate(t.data[1:]))

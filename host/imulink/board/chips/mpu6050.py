@@ -83,8 +83,8 @@ class MPU6050(RegisterDevice):
         self.reset_ms = reset_ms
         self.ignore_writes = frozenset(ignore_writes)
         self.stuck_bits = dict(stuck_bits or {})
-        self.acc = (0, 0, 0)
-        self.gyro = (0, 0, 0)
+        self.acc: tuple[int, ...] = (0, 0, 0)  # register counts, as set_sample was given them
+        self.gyro: tuple[int, ...] = (0, 0, 0)
         self.temperature = 0
         self.samples = 0
         self.power_on()

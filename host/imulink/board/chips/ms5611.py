@@ -106,12 +106,12 @@ class MS5611(I2CDevice):
     def __init__(self, prom: list[int] | None = None):
         self.prom = list(prom) if prom is not None else self.with_coefficients(EXAMPLE_C)
         self.d1, self.d2 = EXAMPLE_D1, EXAMPLE_D2
-        self._command = None           # the last command byte received
-        self._converting = None        # (result, ms left) of a running conversion
-        self._result = 0               # what ADC READ gives next
-        self._reloading_ms = 0.0       # PROM reload after RESET
-        self._answer = None            # what is left to read of the answer to the last command
-        self.conversions = []          # every CONVERT command received, for the tests
+        self._command: int | None = None                   # the last command byte received
+        self._converting: tuple[int, float] | None = None  # (result, ms left) of a running conversion
+        self._result = 0                                   # what ADC READ gives next
+        self._reloading_ms = 0.0                           # PROM reload after RESET
+        self._answer: bytes | None = None                  # what is left to read of the answer to the last command
+        self.conversions: list[int] = []                   # every CONVERT command received, for the tests
 
     @staticmethod
     def with_coefficients(c, factory: int = 0x0050, serial: int = 0x123) -> list[int]:

@@ -751,13 +751,13 @@ class BootloaderPort:
                         self._went = True
                         self._boot()
             if bridge is not None and bridge.fileno() in ready_r:
-                data = bridge.read()
-                if data == b"":
+                answer = bridge.read()
+                if answer == b"":
                     bridge.close()
                     self.bridge = bridge = None
                     to_bridge.clear()
-                elif data:
-                    to_host += data
+                elif answer:
+                    to_host += answer
             if to_host:
                 del to_host[:self._front.write(bytes(to_host))]
             if bridge is not None and to_bridge:
@@ -766,6 +766,7 @@ class BootloaderPort:
     def _boot(self) -> None:
         if self.on_go is None:
             return
+        assert self.bootloader.go_address is not None  # called once the bootloader runs: after a Go
         target = self.on_go(self.bootloader.go_address, bytes(self.bootloader.flash))
         if target is not None:
             self.bridge = _Stream(target)

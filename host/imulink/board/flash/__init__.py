@@ -278,6 +278,7 @@ def _program(boot: Bootloader, image: FirmwareImage, ident, verify: bool, dry_ru
              force: bool, progress, log) -> _Programmed:
     boot.sync()
     info = boot.info
+    assert info is not None  # sync() returns only once a Get answered
     device_id = boot.get_id()
     chip = CHIPS.get(device_id)
     flash_bytes = sum(chip.sector_sizes) if chip else 0

@@ -350,6 +350,8 @@ def _run_openocd(command: list[str], phases: _Phases) -> tuple[int, list[str]]:
                                    stderr=subprocess.STDOUT, text=True, errors="replace")
     except OSError as exc:
         raise SwdError(f"cannot run {command[0]}: {exc.strerror or exc}") from None
+    stdout = process.stdout
+    assert stdout is not None  # stdout=PIPE
     timed_out = threading.Event()
 
     def kill() -> None:
@@ -360,7 +362,7 @@ def _run_openocd(command: list[str], phases: _Phases) -> tuple[int, list[str]]:
     watchdog.start()
     lines: list[str] = []
     try:
-        for line in process.stdout:
+        for line in stdout:
             line = line.strip()
             lines.append(line)
             if line in _OPENOCD_BANNERS:
@@ -371,7 +373,7 @@ def _run_openocd(command: list[str], phases: _Phases) -> tuple[int, list[str]]:
         if process.poll() is None:
             process.kill()
             process.wait()
-        process.stdout.close()
+        stdout.close()
     if timed_out.is_set():
         raise SwdError(f"openocd did not finish within {OPENOCD_TIMEOUT_S:g} s and was stopped "
                        f"(last said: {_last_words(lines)}): unplug the probe, plug it in and try again")
