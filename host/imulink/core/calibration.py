@@ -22,8 +22,8 @@ SENSORS = ("gyr", "acc", "mag")
 SENSOR_NAMES = {"gyr": "gyroscope", "acc": "accelerometer", "mag": "magnetometer"}
 #: Fixed-point formats of the board's calibration (imu_sensor.h): offsets in counts with
 #: 8 fraction bits, matrices with 24 (range +-128, resolution 6e-8), as SET_CALIBRATION carries them.
-OFFSET_FRAC_BITS = protocol.arg_format("SET_CALIBRATION", "offset").frac_bits
-MATRIX_FRAC_BITS = protocol.arg_format("SET_CALIBRATION", "row").frac_bits
+OFFSET_FRAC_BITS = protocol.arg_frac_bits("SET_CALIBRATION", "offset")
+MATRIX_FRAC_BITS = protocol.arg_frac_bits("SET_CALIBRATION", "row")
 #: Largest offset the board accepts, counts: it keeps the corrected sums within int64
 #: (imu_sensor.h) and is twice the range of a 16-bit register.
 MAX_OFFSET_COUNTS = 65536.0

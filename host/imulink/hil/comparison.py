@@ -76,7 +76,9 @@ def host_run(recording: Recording) -> HostRun:
     fixed = {name: np.zeros((n,) + shape, np.int64) for name, shape in _ESTIMATE_SHAPES.items()}
     float_quat, float_euler, float_bias = np.full((n, 4), np.nan), np.full((n, 3), np.nan), np.full((n, 3), np.nan)
     verifiable = np.zeros(n, bool)
-    nav = nav_rows = float_position = None
+    nav: dict[str, np.ndarray] | None = None
+    nav_rows: np.ndarray | None = None
+    float_position: np.ndarray | None = None
     for segment in np.unique(samples.segment).tolist():
         rows = np.flatnonzero(samples.segment == segment)
         name, raw_settings = recording.filter_settings(_segment_filter(recording, segment), segment)
@@ -88,20 +90,22 @@ def host_run(recording: Recording) -> HostRun:
         if name == "nav":
             inputs = nav_inputs(recording, segment, samples.index[rows])
             board = reference.core.run_nav_counts(*counts, **inputs)
+            assert board.raw is not None and board.nav_states is not None  # the reference is the fixed build
             fixed["filter_id"][rows] = reference.filter_id
             for key in ("quat", "gyro_bias", "euler"):
                 fixed[key][rows] = board.raw[key]
             fixed["saturations"][rows] = board.saturations
-            if nav is None:
+            if nav is None or nav_rows is None or float_position is None:  # the first nav segment: all three None
                 nav = {key: np.zeros((n,) + values.shape[1:], np.int64) for key, values in board.nav_states.items()}
                 nav_rows, float_position = np.zeros(n, bool), np.full((n, 3), np.nan)
             for key, values in board.nav_states.items():
                 nav[key][rows] = values
             nav["index"][rows] = samples.index[rows]
             nav_rows[rows] = True
-            result = twin.run_nav_counts(*counts, **inputs)
+            twin_nav = twin.run_nav_counts(*counts, **inputs)
             anchored = board.nav_states["mode"] == 2
-            float_position[rows[anchored]] = np.c_[result.lat_deg, result.lon_deg, result.height_m][anchored]
+            float_position[rows[anchored]] = np.c_[twin_nav.lat_deg, twin_nav.lon_deg, twin_nav.height_m][anchored]
+            result: core.RunResult | core.NavBoardRun = twin_nav
         else:
             for key, values in fixed_outputs(name, raw_settings, recording.profile, *counts, calibration).items():
                 fixed[key][rows] = values
@@ -125,6 +129,7 @@ def fixed_outputs(filter_name: str, raw_settings: dict[str, int], profile: Senso
     reference = FirmwareFilter(filter_name, raw_settings, profile, calibration)
     if filter_name != "eskf":
         batch = reference.core.run_counts(gyr, acc, mag)
+        assert batch.raw is not None  # FirmwareFilter runs the fixed build
         if batch.saturations == 0:  # the counter never decreases: zero at the end means zero throughout
             return {"filter_id": np.full(n, reference.filter_id), "quat": batch.raw["quat"],
                     "gyro_bias": batch.raw["gyro_bias"], "euler": batch.raw["euler"],
@@ -365,10 +370,11 @@ def compare(recording: Recording, run: HostRun | None = None, min_verified: floa
     verified = sample_row >= 0
     verified[verified] = run.verifiable[sample_row[verified]]
     state_row = _nav_state_rows(recording)
-    if run.nav_rows is not None:
+    host_nav, nav_rows = run.nav, run.nav_rows  # both set where the nav filter ran (host_run), else None
+    if nav_rows is not None:
         # the nav filter's estimate is verified with its NAV_STATE: both must have arrived
         nav = verified.copy()
-        nav[verified] = run.nav_rows[sample_row[verified]]
+        nav[verified] = nav_rows[sample_row[verified]]
         verified &= ~nav | (state_row >= 0)
     positions, rows = np.flatnonzero(verified), sample_row[verified]
 
@@ -378,19 +384,21 @@ def compare(recording: Recording, run: HostRun | None = None, min_verified: floa
         if not name.startswith("nav_state."):
             return getattr(estimates, name)[positions], run.fixed[name][rows]
         field = name.split(".", 1)[1]
-        states = np.flatnonzero(run.nav_rows[rows])
+        assert host_nav is not None and nav_rows is not None  # nav_state fields are compared only then
+        states = np.flatnonzero(nav_rows[rows])
         return (recording.nav_states.fields[field][state_row[positions[states]]],
-                run.nav[field][rows[states]])
+                host_nav[field][rows[states]])
 
     compared = list(Estimates.COMPARED)
-    if run.nav is not None:
+    if host_nav is not None:
         compared += [f"nav_state.{name}" for name, _, _ in protocol.message_fields("NAV_STATE")]
     equal = np.ones(len(positions), bool)
     for name in compared:
         board, host = board_and_host(name)
         same = board == host if board.ndim == 1 else np.all(board == host, axis=1)
         if name.startswith("nav_state."):
-            equal[np.flatnonzero(run.nav_rows[rows])] &= same
+            assert nav_rows is not None  # set with host_nav
+            equal[np.flatnonzero(nav_rows[rows])] &= same
         else:
             equal &= same
     identical = np.zeros(len(verified), bool)
@@ -402,8 +410,9 @@ def compare(recording: Recording, run: HostRun | None = None, min_verified: floa
         for name in compared:
             if name.startswith("nav_state."):
                 field = name.split(".", 1)[1]
+                assert host_nav is not None  # nav_state fields are compared only with it
                 board_value = recording.nav_states.fields[field][state_row[position]]
-                host_value = run.nav[field][row]
+                host_value = host_nav[field][row]
             else:
                 board_value, host_value = getattr(estimates, name)[position], run.fixed[name][row]
             if np.any(board_value != host_value):
@@ -422,12 +431,14 @@ def _position_fixed_vs_float(recording: Recording, run: HostRun, state_rows: np.
     """The largest distance (m) between the board's nav position (its NAV_STATE) and the
     float twin's, over the verified samples where both have a position."""
     states = recording.nav_states.fields
-    usable = (state_rows >= 0) & ~np.isnan(run.float_position[rows, 0])
+    float_position = run.float_position
+    assert float_position is not None  # host_run sets it with run.nav, which compare checks first
+    usable = (state_rows >= 0) & ~np.isnan(float_position[rows, 0])
     usable[usable] &= states["mode"][state_rows[usable]] == 2
     if not usable.any():
         return {}
     board = state_rows[usable]
-    twin = run.float_position[rows[usable]]
+    twin = float_position[rows[usable]]
     d = local_offsets(*nav_state_position(states, board), twin[:, 0], twin[:, 1], twin[:, 2])
     return {"position_max_m": float(np.linalg.norm(d, axis=1).max())}
 

@@ -50,7 +50,10 @@ def load_injection_input(spec: str) -> InjectionInput:
     recording = load_recording(path)
     if not len(recording.samples):
         raise HilError(f"{path} holds no samples")
-    name, raw_settings = recording.filter_settings(recording.active_filter)
+    filter_id = recording.active_filter
+    if filter_id is None:
+        raise HilError(f"{path} does not say which filter the board ran (no ESTIMATE, no STATUS)")
+    name, raw_settings = recording.filter_settings(filter_id)
     s = recording.samples
     return InjectionInput(f"recording {path.name} ({len(s)} samples)", s.gyr, s.acc, s.mag,
                           raw_settings["sample_rate"] / 2.0**16, recording.profile, name, raw_settings)
@@ -193,7 +196,7 @@ def inject(url: str, source: InjectionInput, *, baud: int = DEFAULT_BAUD, filter
         hello = link.connect()
         profile = check_profile(source.profile, hello, f"the input ({source.description})")
         link.command("STOP_STREAM")
-        original_filter = link.command("GET_STATUS").data.fields["active_filter"]
+        original_filter = link.query("GET_STATUS")["active_filter"]
         name, raw_settings, changed = _configure_for_injection(link, source, filter_name, settings)
         calibration = read_calibration(link)
         link.command("SET_INJECTION_MODE", enabled=1)

@@ -157,7 +157,7 @@ def snapshot(link: Link, writer: RecordingWriter | None, settings=None,
     leave_injection_mode(link)
     if settings is not None:
         apply_settings(link, settings)
-    status = link.command("GET_STATUS").data.fields
+    status = link.query("GET_STATUS")
     filter_id, settings = read_settings(link)
     filter_name = name_of_filter(filter_id)
     if writer is not None:
@@ -210,7 +210,8 @@ class _StreamRecorder:
         self._link_open = True  # self.link's counters are not among the earlier ones yet
         self._follower = StreamFollower()
         self._restart: tuple | None = None  # (PendingCommand, time sent) of a filter restart in flight
-        self._start_ack = None  # the START_STREAM ACK: messages before it belong to the snapshot
+        # the START_STREAM ACK: messages before it belong to the snapshot
+        self._start_ack: protocol.Message | None = None
         self._streaming = False
         self._last_heard = 0.0
         self.stop_reason: str | None = None

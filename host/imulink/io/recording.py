@@ -197,7 +197,8 @@ def read_records(path) -> RecordFile:
         raise RecordingError(str(exc)) from None
     if not data.startswith(MAGIC):
         raise RecordingError(f"{path} is not an imulink recording (it does not start with {MAGIC!r})")
-    records, damaged = [], []
+    records: list[LogRecord] = []
+    damaged: list[tuple[int, int]] = []
     offset, end = len(MAGIC), len(data)
     while offset < end:
         record = _record_at(data, offset)
@@ -408,7 +409,8 @@ class Recording:
         if not self.calibration_reports:
             return None
         # those reported before the segment began win; an axis not reported by then: its last report
-        frames = {**self.calibration_reports, **self.segment_calibration.get(segment, {})}
+        before = self.segment_calibration.get(segment, {}) if segment is not None else {}
+        frames = {**self.calibration_reports, **before}
         try:
             sensors = calibration_from_frames(list(frames.values()))
         except CalibrationError as exc:
@@ -428,8 +430,8 @@ class Recording:
         if filter_id not in names:
             raise RecordingError(f"{self.path}: unknown filter id {filter_id}")
         name = names[filter_id]
-        reported = {**self.settings.get(filter_id, {}),
-                    **self.segment_settings.get(segment, {}).get(filter_id, {})}
+        at_segment = self.segment_settings.get(segment, {}) if segment is not None else {}
+        reported = {**self.settings.get(filter_id, {}), **at_segment.get(filter_id, {})}
         fields = core.settings_fields(name)
         missing = [f.name for i, f in enumerate(fields) if i not in reported]
         if missing:

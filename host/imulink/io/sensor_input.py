@@ -106,7 +106,7 @@ def unwrap_us(timestamp_us: np.ndarray) -> np.ndarray:
     """Board timestamps (u32 microseconds, wrapping after 71.6 min) as seconds from the
     first: each step is taken modulo 2^32 as a signed number, so that a wrap counts as
     the short step it is and a step back stays negative."""
-    steps = np.diff(np.asarray(timestamp_us, dtype=np.int64))
+    steps: np.ndarray = np.diff(np.asarray(timestamp_us, dtype=np.int64))
     steps = (steps + 2**31) % 2**32 - 2**31
     return np.concatenate([[0.0], np.cumsum(steps) * 1e-6])
 

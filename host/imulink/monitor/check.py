@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from itertools import islice
+from typing import Any
 
 import numpy as np
 
@@ -82,7 +83,8 @@ class _Run:
 
     def _nav_inputs(self, first: int, last: int) -> dict:
         """run_nav_counts' arguments for the events of samples first..last (positions from first)."""
-        inputs = {"baro_after": [], "baro_pa": [], "gnss_after": [], "gnss": [], "marker_after": [], "markers": []}
+        inputs: dict[str, list[Any]] = {"baro_after": [], "baro_pa": [], "gnss_after": [], "gnss": [],
+                                        "marker_after": [], "markers": []}
         kept = []
         for name, fields in self.events:
             if fields["index"] > last:
@@ -105,12 +107,16 @@ class _Run:
         self.pending = self.pending[len(ready):]
         index = [p[0] for p in ready]
         counts = [np.array([p[k] for p in ready], np.int16) for k in (1, 2, 3)]
+        fixed: core.RunResult | core.NavBoardRun
+        twin: core.RunResult | core.NavBoardRun
         if self.nav:
             inputs = self._nav_inputs(index[0], index[-1])
             fixed, twin = self.fixed.run_nav_counts(*counts, **inputs), self.float.run_nav_counts(*counts, **inputs)
         else:
             fixed, twin = self.fixed.run_counts(*counts), self.float.run_counts(*counts)
-        quat, bias, euler = (fixed.raw[k].tolist() for k in ("quat", "gyro_bias", "euler"))
+        raw = fixed.raw
+        assert raw is not None  # self.fixed is the fixed build (FirmwareFilter's core)
+        quat, bias, euler = (raw[k].tolist() for k in ("quat", "gyro_bias", "euler"))
         for k, i in enumerate(index):
             self.results[i] = (quat[k], bias[k], euler[k], twin.quat[k])
         for i in list(islice(self.results, max(0, len(self.results) - _KEEP_RESULTS))):
@@ -154,8 +160,9 @@ class LiveCheck:
             name, fields = message.name, message.fields
             segment_before = self.follower.segment
             segment = self.follower.follow(message)
-            if name == "ACK" and self.follower.restart_ack is fields:
-                self._restart(self._expected.pop(fields["command_seq"], None), fields["command"])
+            restart_ack = self.follower.restart_ack
+            if name == "ACK" and restart_ack is fields:
+                self._restart(self._expected.pop(restart_ack["command_seq"], None), restart_ack["command"])
             elif name == "HELLO" and self.follower.restarted_by == "reset" and message.seq == 0:
                 self._run = None  # the board started again: default settings, unknown to us, and no calibration
             elif segment is not None and self.follower.segment != segment_before:
@@ -165,7 +172,7 @@ class LiveCheck:
                     self._run.add(fields)
                 else:
                     self._run = None  # a sample was lost: nothing after it can be reproduced
-            elif name == "ESTIMATE":
+            elif name == "ESTIMATE" and segment is not None:  # (an ESTIMATE always has its run)
                 self._arrived.append((segment, fields))
             elif name in _NAV_EVENTS and self._run is not None:
                 self._run.add_event(name, fields)
@@ -181,10 +188,11 @@ class LiveCheck:
             follower.note_filter(change[1])
         elif change is not None and follower.filter_id is not None:
             follower.note_setting(follower.filter_id, change[1], change[2])
-        name = _FILTER_NAMES.get(follower.filter_id) if follower.filter_id is not None else None
-        if name is None:
+        filter_id = follower.filter_id
+        name = _FILTER_NAMES.get(filter_id) if filter_id is not None else None
+        if filter_id is None or name is None:
             return
-        known = self.settings_of(follower.filter_id)
+        known = self.settings_of(filter_id)
         fields = core.settings_fields(name)
         if all(i in known for i in range(len(fields))):
             try:
@@ -213,7 +221,7 @@ class LiveCheck:
         for k, (segment, fields) in enumerate(self._arrived):
             position, self._seen = self._seen, self._seen + 1
             host = run.results.get(fields["index"]) if run is not None else None
-            if host is None or fields["filter_id"] != run.filter_id:
+            if run is None or host is None or fields["filter_id"] != run.filter_id:
                 self.estimates.skip()
                 continue
             expected = dict(zip(BATCH_COMPARED, host[:3]))

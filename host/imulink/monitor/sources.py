@@ -229,14 +229,24 @@ class LiveSource:
         self._stop_recording("the monitor was closed")
         self._close_link()
 
+    @property
+    def _open_link(self) -> Link:
+        """The link to the board: the worker thread opens it (_open) and runs everything that
+        uses it until it drops it (_close_link)."""
+        link = self._link
+        assert link is not None  # only the worker thread uses this, between _open and _close_link
+        return link
+
     def _open(self) -> None:
-        self._link = Link(self.url, self.baud)
+        link = self._link = Link(self.url, self.baud)
         self._set_state("connecting", f"{self.url}: handshake")
         self._restart_stream()
+        hello = link.hello
+        assert hello is not None  # _restart_stream greeted the board (connect or listen)
         with self._lock:
             reconnects = self._health.reconnects
-        self._set_state("connected", f"{self.url}" + (" (listening)" if self.listen else ""), hello=self._link.hello)
-        self._events.append(f"connected to {self._link.hello['board']} on {self.url}"
+        self._set_state("connected", f"{self.url}" + (" (listening)" if self.listen else ""), hello=hello)
+        self._events.append(f"connected to {hello['board']} on {self.url}"
                             + (f" (reconnected, {reconnects} time(s) so far)" if reconnects else ""))
 
     def _restart_stream(self, writer: RecordingWriter | None = None) -> None:
@@ -245,17 +255,17 @@ class LiveSource:
         `writer` when recording). The answers also reach the live check through the stream.
         A listener only waits for the board's HELLO (the front passes on its last one)."""
         if self.listen:
-            hello = self._link.listen()
+            hello = self._open_link.listen()
             self.profile = self.check.profile = hil.check_profile(self.expected_profile, hello)
             self._greeted = time.time()
             return
-        hello, filter_id, _, status = hil.snapshot(self._link, writer, profile=self.expected_profile)
+        hello, filter_id, _, status = hil.snapshot(self._open_link, writer, profile=self.expected_profile)
         self.profile = self.check.profile = hil.board_profile(hello)
         if writer is None:  # with a writer the snapshot read it already, for the file
-            hil.read_calibration(self._link)
+            hil.read_calibration(self._open_link)
         # the live check learnt the calibration from the CALIBRATION answers: a run from sample 0 with it
-        self.check.expect(self._link.command("SELECT_FILTER", filter_id=filter_id).ack, ("filter", filter_id, 0))
-        self._link.command("START_STREAM")
+        self.check.expect(self._open_link.command("SELECT_FILTER", filter_id=filter_id).ack, ("filter", filter_id, 0))
+        self._open_link.command("START_STREAM")
         if writer is not None:
             writer.event("stream_started", filter=FILTER_NAMES.get(filter_id, str(filter_id)))
         self._status_due = time.monotonic() + STATUS_INTERVAL_S
@@ -265,7 +275,7 @@ class LiveSource:
         self._greeted = time.time()  # a start-up HELLO read before this was part of the handshake
 
     def _refresh_settings(self) -> None:
-        _, settings = hil.read_settings(self._link)
+        _, settings = hil.read_settings(self._open_link)
         with self._lock:
             self._settings = [settings[i] for i in sorted(settings)]
 
@@ -285,7 +295,7 @@ class LiveSource:
     def _poll_status(self) -> None:
         if not self.listen and time.monotonic() >= self._status_due:
             self._status_due = time.monotonic() + STATUS_INTERVAL_S
-            self._link.command("GET_STATUS")  # the STATUS itself is taken from the stream
+            self._open_link.command("GET_STATUS")  # the STATUS itself is taken from the stream
 
     def _ingest(self, received) -> None:
         if not received:
@@ -317,14 +327,17 @@ class LiveSource:
                 if not self.listen:
                     self.request("resume")
         if samples:
-            self.samples.append(sample_rows(*(np.array([s[k] for s in samples]) for k in range(4)), self.profile))
+            times, gyr, acc, mag = (np.array([s[k] for s in samples]) for k in range(4))
+            self.samples.append(sample_rows(times, gyr, acc, mag, self.profile))
         if estimates:
-            rows = estimate_rows(*(np.array([e[k] for e in estimates]) for k in range(7)), np.array(angles))
+            times, filter_id, euler, gyro_bias, mantissa, exponent, weights = (
+                np.array([e[k] for e in estimates]) for k in range(7))
+            rows = estimate_rows(times, filter_id, euler, gyro_bias, mantissa, exponent, weights, np.array(angles))
             self.estimates.append(rows)
             self._attitude = tuple(rows[-1, 1:4])
         if states:
-            rows, self._nav_origin = nav_rows(*(np.array([e[k] for e in states]) for k in range(6)),
-                                              self._nav_origin)
+            times, mode, lat, lon, height_mm, vel = (np.array([e[k] for e in states]) for k in range(6))
+            rows, self._nav_origin = nav_rows(times, mode, lat, lon, height_mm, vel, self._nav_origin)
             if len(rows):
                 self.nav.append(rows)
 
@@ -355,16 +368,16 @@ class LiveSource:
 
     def _do_select_filter(self, name: str) -> None:
         filter_id = core.BOARD_FILTERS[name][0]
-        reply = self._link.command("SELECT_FILTER", filter_id=filter_id)
+        reply = self._open_link.command("SELECT_FILTER", filter_id=filter_id)
         self.check.expect(reply.ack, ("filter", filter_id, 0))
         self._refresh_settings()
         # The new filter's settings were read after its run began: restart it once more so
         # that the live check knows them from sample 0.
-        self.check.expect(self._link.command("SELECT_FILTER", filter_id=filter_id).ack, ("filter", filter_id, 0))
+        self.check.expect(self._open_link.command("SELECT_FILTER", filter_id=filter_id).ack, ("filter", filter_id, 0))
         self._events.append(f"filter {name} selected")
 
     def _do_set_setting(self, index: int, value: int) -> None:
-        reply = self._link.command("SET_SETTING", index=index, value=value)
+        reply = self._open_link.command("SET_SETTING", index=index, value=value)
         self.check.expect(reply.ack, ("setting", index, value))
         self._refresh_settings()
         setting = next((s for s in self.settings() if s["index"] == index), None)
@@ -373,15 +386,15 @@ class LiveSource:
                                 f"{setting['unit']} (raw {setting['value']}); the filter restarted")
 
     def _do_start_stream(self) -> None:
-        self._link.command("START_STREAM")
+        self._open_link.command("START_STREAM")
         self._events.append("stream started")
 
     def _do_stop_stream(self) -> None:
-        self._link.command("STOP_STREAM")
+        self._open_link.command("STOP_STREAM")
         self._events.append("stream stopped")
 
     def _do_reset(self) -> None:
-        self._link.command("RESET")  # the board's start-up HELLO then resumes the stream
+        self._open_link.command("RESET")  # the board's start-up HELLO then resumes the stream
         self._events.append("board reset")
 
     def _do_resume(self) -> None:
@@ -395,12 +408,12 @@ class LiveSource:
         fd, temporary = create_beside(path)
         writer = RecordingWriter(path, self.url, self.profile, fd=fd)
         try:
-            self._link.tap = writer.received  # every byte from here on, as `imulink record` keeps them
+            self._open_link.tap = writer.received  # every byte from here on, as `imulink record` keeps them
             self._restart_stream(writer)
             writer.check()
             publish(temporary, path, replace=False)
         except BaseException:
-            self._link.tap = None
+            self._open_link.tap = None
             writer.close()
             temporary.unlink(missing_ok=True)
             raise
@@ -544,7 +557,10 @@ def open_source(target: str | None, *, emulate: bool = False, baud: int = DEFAUL
 
         board = EmulatedBoard(front="tcp", realtime=True, profile=profile or DEFAULT_PROFILE,
                               **(emulation or {})).start()
+        assert board.address is not None  # set by start()
         return LiveSource(board.address, profile=profile, emulated=board)
     if target is not None and Path(target).is_file():
         return ReplaySource(target, speed)
+    if target is None:
+        raise ValueError("open_source needs a target (a board's port or a recording) unless it emulates a board")
     return LiveSource(target, baud, profile, listen=listen)

@@ -292,12 +292,20 @@ def arg_format(command: str, field: str) -> FieldFormat:
     return _format(_schema.ARG_FORMATS, command, "command", field)
 
 
+def _q(owner: str, field: str, found: FieldFormat) -> int:
+    if found.frac_bits is None:
+        raise ValueError(f"{owner}.{field} has a decimal scale, not a Q format")
+    return found.frac_bits
+
+
 def frac_bits(message: str, field: str) -> int:
     """The Q format of a message field: its real value is raw * 2^-frac_bits."""
-    q = field_format(message, field).frac_bits
-    if q is None:
-        raise ValueError(f"{message}.{field} has a decimal scale, not a Q format")
-    return q
+    return _q(message, field, field_format(message, field))
+
+
+def arg_frac_bits(command: str, field: str) -> int:
+    """The Q format of a command argument: its real value is raw * 2^-frac_bits."""
+    return _q(command, field, arg_format(command, field))
 
 
 def encode(name: str, seq: int, /, **fields) -> bytes:

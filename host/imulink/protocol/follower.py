@@ -71,11 +71,11 @@ class StreamFollower:
             self.filter_id = fields["active_filter"]
         elif name == "SETTING":
             self.filter_id = fields["filter_id"]
-            for table in (self.settings, self.settings_since_reset):
-                table.setdefault(fields["filter_id"], {})[fields["index"]] = fields
+            for settings in (self.settings, self.settings_since_reset):
+                settings.setdefault(fields["filter_id"], {})[fields["index"]] = fields
         elif name == "CALIBRATION":
-            for table in (self.calibration, self.calibration_since_reset):
-                table[fields["sensor"], fields["axis"]] = fields
+            for calibration in (self.calibration, self.calibration_since_reset):
+                calibration[fields["sensor"], fields["axis"]] = fields
         return None
 
     def note_setting(self, filter_id: int, index: int, value: int) -> None:
