@@ -4,7 +4,10 @@ from __future__ import annotations
 import argparse
 import sys
 
+from imulink import core
 from imulink.cli.common import UsageError, in_range, late_progress, one_line_errors
+from imulink.io import settings_file
+from imulink.io.files import check_output, write_replacing
 
 
 @one_line_errors
@@ -12,9 +15,7 @@ def run(args) -> int:
     import json
     from pathlib import Path
 
-    from imulink import core
-    from imulink.analysis import allan, plotting
-    from imulink.io.files import check_output, write_replacing
+    from imulink.analysis import allan, plotting  # here, not at the top: scipy.stats takes a second to load
 
     if args.write and not args.settings:
         raise UsageError("--write needs --settings FILTER (the filter whose settings it writes)")
@@ -53,8 +54,6 @@ def run(args) -> int:
         write_replacing(args.plot, lambda path: allan.plot(result, path), inputs=[args.input])
         print(f"plot: {args.plot}", file=sys.stderr if args.json else sys.stdout)
     if args.write:
-        from imulink.io import settings_file
-
         assert derived is not None  # --write needs --settings (checked above)
         settings_file.save(settings_file.FilterSettings(args.settings, derived.values), args.write,
                            inputs=[args.input])

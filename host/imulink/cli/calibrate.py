@@ -6,7 +6,9 @@ import os
 import re
 import sys
 
-from imulink.board.link import DEFAULT_BAUD
+from imulink import hil
+from imulink.analysis import calibration as cal
+from imulink.board.link import DEFAULT_BAUD, Link
 from imulink.cli.common import (
     UsageError,
     baud_rate,
@@ -16,7 +18,12 @@ from imulink.cli.common import (
     profile_list,
     profile_named,
 )
+from imulink.core import calibration as calfmt
+from imulink.core.counts import DEFAULT_PROFILE
+from imulink.hil import live_calibration
 from imulink.hil.live_calibration import DEFAULT_MAX_DURATION_S
+from imulink.io import calibration_file, sensor_input
+from imulink.io.files import check_output
 from imulink.progress import StatusLine
 
 #: `imulink calibrate` sensor names -> the calibration's sensor key
@@ -28,11 +35,6 @@ def _give_calibration(port: str, baud: int, calibration) -> str:
     """Give the board at `port` `calibration` (None: the identity) and read it back; the
     board's calibration as text. HilError when the board states another sensor profile
     than the calibration's, or reports another calibration."""
-    from imulink import hil
-    from imulink.analysis import calibration as cal
-    from imulink.board.link import Link
-    from imulink.core import calibration as calfmt
-
     with Link(port, baud) as link:
         hello = link.connect()
         if calibration is None:
@@ -49,8 +51,6 @@ def _give_calibration(port: str, baud: int, calibration) -> str:
 
 @one_line_errors
 def run_apply(args) -> int:
-    from imulink.io import calibration_file
-
     if (args.file is None) == (not args.identity):
         raise UsageError("give a calibration FILE or --identity (not both)")
     calibration = None if args.identity else calibration_file.load(args.file)
@@ -76,8 +76,6 @@ def _is_port(text: str) -> bool:
 
 def _live_mag_record(args):
     """The magnetometer readings of the board at args.input, collected while the user turns it."""
-    from imulink.hil import live_calibration
-
     print(f"{args.input}: turn the board slowly through every direction (each axis up and down, and the "
           f"diagonals between); it stops when all 26 directions are covered, after {args.max_duration:g} s, or "
           "on Ctrl-C", file=sys.stderr)
@@ -94,11 +92,6 @@ def _live_mag_record(args):
 def run(args) -> int:
     import json
 
-    from imulink.analysis import calibration as cal
-    from imulink.core import calibration as calfmt
-    from imulink.core.counts import DEFAULT_PROFILE
-    from imulink.io import calibration_file, sensor_input
-    from imulink.io.files import check_output
 
     live = args.sensor == "mag" and _is_port(args.input)
     if args.apply and not live:

@@ -10,8 +10,12 @@ import time
 
 from imulink import core, hil
 from imulink.board import emulator
+from imulink.board.emulator import NAV_SCENARIO
 from imulink.board.link import DEFAULT_BAUD
+from imulink.board.proxy import FaultConfig
+from imulink.core.counts import PROFILES, describe_profile
 from imulink.errors import ImulinkError
+from imulink.io import settings_file
 from imulink.progress import StatusLine
 
 EXIT_MISMATCH = 1
@@ -147,8 +151,6 @@ def late_progress():
 
 def parse_filters(text: str, known=None) -> list[str]:
     """Filter names (comma-separated, or all) among `known` (default: the attitude filters)."""
-    from imulink import core
-
     known = core.FILTERS if known is None else known
     names = [n.strip() for n in text.split(",") if n.strip()] if text != "all" else list(known)
     unknown = [n for n in names if n not in known]
@@ -160,15 +162,11 @@ def parse_filters(text: str, known=None) -> list[str]:
 
 
 def profile_list() -> str:
-    from imulink.core.counts import PROFILES, describe_profile
-
     return ", ".join(describe_profile(p) for p in PROFILES.values())
 
 
 
 def profile_named(name: str):
-    from imulink.core.counts import PROFILES
-
     try:
         return PROFILES[name]
     except KeyError:
@@ -225,8 +223,6 @@ u32_number = in_range(lambda text: int(text, 0), 0, 0xFFFFFFFF,
 
 
 def fault_config(args):
-    from imulink.board.proxy import FaultConfig
-
     return FaultConfig(drop_byte=args.drop_byte, flip_bit=args.flip_bit, garbage=args.garbage, stall=args.stall,
                        stall_s=args.stall_duration, seed=args.fault_seed)
 
@@ -249,7 +245,6 @@ def settings_from_file(args):
     """The --settings FILE of a command, loaded (None without it)."""
     if args.settings is None:
         return None
-    from imulink.io import settings_file
 
     return settings_file.load(args.settings)
 
@@ -258,8 +253,6 @@ def settings_from_file(args):
 def scenario_for(args, filter_name: str | None = None) -> str:
     """The emulated board's simulated run: --scenario, else the car drive for the nav filter
     (its GNSS receiver and barometer) and rests for the others."""
-    from imulink.board.emulator import NAV_SCENARIO
-
     if args.scenario is not None:
         return args.scenario
     return NAV_SCENARIO if (filter_name or args.filter) == "nav" else "rests"

@@ -1,6 +1,7 @@
 """`imulink compare`."""
 from __future__ import annotations
 
+from imulink import hil
 from imulink.cli.common import (
     EXIT_MISMATCH,
     json_argument,
@@ -8,13 +9,11 @@ from imulink.cli.common import (
     one_line_errors,
     print_json,
 )
+from imulink.io.recording import load_recording
 
 
 @one_line_errors
 def run(args) -> int:
-    from imulink import hil
-    from imulink.io.recording import load_recording
-
     recording = load_recording(args.file)
     comparison = hil.compare(recording, min_verified=args.min_verified)
     if args.json:

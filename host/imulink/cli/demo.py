@@ -1,6 +1,7 @@
 """`imulink demo`."""
 from __future__ import annotations
 
+from imulink import hil
 from imulink.cli.common import (
     EXIT_INTERRUPTED,
     EXIT_MISMATCH,
@@ -17,8 +18,6 @@ from imulink.progress import StatusLine
 
 @one_line_errors
 def run(args) -> int:
-    from imulink import hil
-
     report = hil.demo(target=args.target, transport=args.transport, scenario=scenario_for(args),
                       duration_s=args.duration, rate_hz=args.rate, seed=args.seed, filter_name=args.filter,
                       output=args.output, force=args.force, progress=StatusLine(), min_verified=args.min_verified)

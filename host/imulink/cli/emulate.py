@@ -1,6 +1,9 @@
 """`imulink emulate`."""
 from __future__ import annotations
 
+from imulink import hil
+from imulink.board.emulator import EmulatedBoard
+from imulink.board.link import Link
 from imulink.cli.common import (
     fault_arguments,
     fault_config,
@@ -20,8 +23,6 @@ from imulink.core.counts import DEFAULT_PROFILE
 
 @one_line_errors
 def run(args) -> int:
-    from imulink.board.emulator import EmulatedBoard
-
     faults = fault_config(args)
     settings = settings_from_file(args)
     filter_name = settings.filter_name if settings is not None else args.filter
@@ -33,9 +34,6 @@ def run(args) -> int:
                           image=args.image, baud=args.baud)
     with board:
         if settings is not None:
-            from imulink import hil
-            from imulink.board.link import Link
-
             assert board.address is not None  # set by the board's start (the with statement)
             with Link(board.address, args.baud) as link:
                 link.connect()

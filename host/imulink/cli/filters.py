@@ -1,6 +1,7 @@
 """`imulink filters`."""
 from __future__ import annotations
 
+from imulink import core
 from imulink.cli.common import (
     json_argument,
     one_line_errors,
@@ -12,8 +13,6 @@ from imulink.cli.common import (
 
 @one_line_errors
 def run(args) -> int:
-    from imulink import core
-
     report: dict[str, list[dict]] = {"filters": []}
     for name in parse_filters(args.filters, core.BOARD_FILTERS):
         defaults = core.default_settings(name)

@@ -5,8 +5,13 @@ import argparse
 import sys
 import time
 
+from imulink.board import flash
+from imulink.board.flash import FlashError, swd
+from imulink.board.flash.swd import available_methods
 from imulink.board.link import DEFAULT_BAUD
 from imulink.cli.common import baud_rate, one_line_errors, u32_number
+from imulink.io.firmware_image import ImageError, load_image
+from imulink.progress import Bars
 
 SWD_PORTS = ("swd", "pyocd", "openocd")
 
@@ -16,15 +21,12 @@ def _flash_method(args) -> str:
     """uart, pyocd or openocd: --method, else from PORT (swd, pyocd[:PROBE], openocd, or a serial port)."""
     if args.method:
         return args.method
-    from imulink.board.flash import FlashError
 
     if args.port is None:
         raise FlashError("give the serial port wired to the board's USART1 (PA9/PA10), or swd / pyocd / openocd "
                          "to flash over SWD (see imulink flash --help)")
     name = args.port.split(":", 1)[0]
     if name == "swd":
-        from imulink.board.flash.swd import available_methods
-
         found = [method for method, version in available_methods().items() if version]
         if not found:
             raise FlashError("no SWD tool found: pip install 'imulink[swd]' (pyOCD), or put openocd on the PATH")
@@ -35,10 +37,6 @@ def _flash_method(args) -> str:
 
 @one_line_errors
 def run(args) -> int:
-    from imulink.board import flash
-    from imulink.io.firmware_image import ImageError, load_image
-    from imulink.progress import Bars
-
     try:
         image = load_image(args.image, args.address)
     except ImageError as exc:
@@ -64,8 +62,6 @@ def run(args) -> int:
                                   log=lambda line: print(line, file=sys.stderr))
         hello = result.hello
     else:
-        from imulink.board.flash import swd
-
         started = time.monotonic()
         probe = args.port.split(":", 1)[1] if args.port and ":" in args.port else None
         try:

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import argparse
 
-from imulink import core
+from imulink import core, hil
 from imulink.cli.common import (
     EXIT_MISMATCH,
     json_argument,
@@ -19,8 +19,6 @@ from imulink.progress import StatusLine
 
 @one_line_errors
 def run(args) -> int:
-    from imulink import hil
-
     source = hil.load_injection_input(args.input)
     result = hil.inject(args.port, source, baud=args.baud, filter_name=args.filter, progress=StatusLine(),
                         settings=settings_from_file(args), min_verified=args.min_verified)

@@ -15,11 +15,12 @@ from imulink.cli.common import (
     scenario_for,
     simulation_arguments,
 )
+from imulink.io.files import check_output
 
 
 @one_line_errors
 def run(args) -> int:
-    from imulink import monitor
+    from imulink import monitor  # here: the monitor extra (Qt) is optional, and checked first
 
     missing = monitor.missing_dependencies()
     if missing:
@@ -29,7 +30,6 @@ def run(args) -> int:
         raise UsageError("give a PORT, a recording FILE, or --emulate")
     from pathlib import Path
 
-    from imulink.io.files import check_output
     from imulink.monitor import sources, window
 
     if args.screenshot:  # before the window opens: a PNG that cannot be written is known at once

@@ -5,7 +5,8 @@ import argparse
 import math
 
 from imulink import core
-from imulink.analysis.nav import DEFAULT_START_ACCURACY_M
+from imulink.analysis import nav
+from imulink.analysis.nav import DEFAULT_START_ACCURACY_M, MAX_LEVER_ARM_M, TUNING_NAMES, start_error
 from imulink.cli.common import (
     EXIT_STATUS_HELP,
     UsageError,
@@ -17,13 +18,14 @@ from imulink.cli.common import (
     print_json,
     settings_from_file,
 )
+from imulink.io.files import check_output
+from imulink.io.nav_input import BARO, GNSS_POSITION, GNSS_VELOCITY, MAG, REQUIRED, column_unit, read_nav_csv
+from imulink.io.recording import load_recording
+from imulink.io.sensor_input import InputError
 
 
 def _nav_tuning_help() -> str:
     """The nav filter's tuning settings with their defaults, units and ranges (from the C core)."""
-    from imulink import core
-    from imulink.analysis.nav import TUNING_NAMES
-
     defaults = core.default_settings("nav")
     return "; ".join(f"{f.name} (default {defaults[f.name]:.4g} {f.unit}, {f.minimum:.3g} to {f.maximum:.3g})"
                      for f in core.settings_fields("nav", "float") if f.name in TUNING_NAMES)
@@ -34,10 +36,6 @@ def _nav_tuning_help() -> str:
 def run(args) -> int:
     from pathlib import Path
 
-    from imulink.analysis import nav
-    from imulink.io.files import check_output
-    from imulink.io.nav_input import read_nav_csv
-    from imulink.io.sensor_input import InputError
 
     check_output(args.csv, inputs=[args.input])
     path = Path(args.input)
@@ -50,8 +48,6 @@ def run(args) -> int:
                 raise UsageError("--gnss-latency is for a recording: a CSV puts each fix in the row it was measured at")
             inp = read_nav_csv(path)
         else:
-            from imulink.io.recording import load_recording
-
             inp = nav.input_from_recording(load_recording(path, progress=phase(f"reading {path.name}")),
                                            args.gnss_latency)
         if args.start is not None:
@@ -95,8 +91,6 @@ def run(args) -> int:
 
 def _lever_arm(text: str) -> tuple[float, float, float]:
     """X,Y,Z in metres, each finite and within the nav filter's limit."""
-    from imulink.analysis.nav import MAX_LEVER_ARM_M
-
     try:
         values = tuple(float(part) for part in text.split(","))
     except ValueError:
@@ -109,8 +103,6 @@ def _lever_arm(text: str) -> tuple[float, float, float]:
 
 def _nav_start(text: str) -> tuple[float, float, float, float]:
     """LAT,LON,HEIGHT[,ACCURACY] (deg, deg, m, m): a place the nav filter can start at."""
-    from imulink.analysis.nav import DEFAULT_START_ACCURACY_M, start_error
-
     try:
         values = [float(part) for part in text.split(",")]
     except ValueError:
@@ -132,14 +124,6 @@ def _nav_columns_help() -> str:
     """The navigation CSV's columns (imulink.io.nav_input's tuples) with their units, for `nav --help`."""
     import textwrap
 
-    from imulink.io.nav_input import (
-        BARO,
-        GNSS_POSITION,
-        GNSS_VELOCITY,
-        MAG,
-        REQUIRED,
-        column_unit,
-    )
 
     groups = (("required, in every row", REQUIRED), ("magnetometer, in every row or in none", MAG),
               ("barometer, in the row of each sample it took", BARO),

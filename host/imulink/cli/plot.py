@@ -1,16 +1,15 @@
 """`imulink plot`."""
 from __future__ import annotations
 
+from imulink import hil
+from imulink.analysis import plotting
 from imulink.cli.common import one_line_errors
+from imulink.io.files import check_output, write_replacing
+from imulink.io.recording import load_recording
 
 
 @one_line_errors
 def run(args) -> int:
-    from imulink import hil
-    from imulink.analysis import plotting
-    from imulink.io.files import check_output, write_replacing
-    from imulink.io.recording import load_recording
-
     plotting.plot_format(args.output)  # before the work: a figure that cannot be written is known at once
     plotting.check_plotting()
     check_output(args.output, inputs=[args.file])

@@ -1,13 +1,12 @@
 """`imulink ports`."""
 from __future__ import annotations
 
+from imulink.board import ports
 from imulink.cli.common import one_line_errors
 
 
 @one_line_errors
 def run(args) -> int:
-    from imulink.board import ports
-
     print(ports.format_ports(ports.list_ports(probe=args.probe)))
     return 0
 

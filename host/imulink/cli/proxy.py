@@ -1,6 +1,7 @@
 """`imulink proxy`."""
 from __future__ import annotations
 
+from imulink.board import proxy
 from imulink.cli.common import (
     fault_arguments,
     fault_config,
@@ -13,8 +14,6 @@ from imulink.cli.common import (
 
 @one_line_errors
 def run(args) -> int:
-    from imulink.board import proxy
-
     faults = fault_config(args)
     front = args.serial if args.serial is not None else ("tcp" if args.tcp is not None else "pty")
     server = proxy.Proxy(args.port, proxy.make_front(front, args.tcp or 0, args.baud), faults=faults,

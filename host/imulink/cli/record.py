@@ -23,8 +23,6 @@ _reconnect_wait = in_range(float, 0.0, 86400.0, "must be a number of seconds fro
 
 @one_line_errors
 def run(args) -> int:
-    from imulink import hil
-
     result = hil.record(args.port, args.output, duration_s=args.duration, baud=args.baud, profile=args.profile,
                         resync=not args.no_resync, silence_timeout_s=args.silence_timeout, force=args.force,
                         progress=StatusLine(), settings=settings_from_file(args), reconnect_s=args.reconnect,

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import sys
 
+from imulink import hil
 from imulink.cli.common import (
     EXIT_MISMATCH,
     UsageError,
@@ -11,15 +12,14 @@ from imulink.cli.common import (
     one_line_errors,
     print_json,
 )
+from imulink.io.files import check_output, write_replacing
+from imulink.io.recording import load_recording
 
 
 @one_line_errors
 def run(args) -> int:
     from pathlib import Path
 
-    from imulink import hil
-    from imulink.io.files import check_output, write_replacing
-    from imulink.io.recording import load_recording
 
     csv_path = args.csv or (None if args.npz else Path(args.file).with_suffix(".csv"))
     if csv_path and args.npz and Path(csv_path).absolute() == Path(args.npz).absolute():

@@ -1,8 +1,8 @@
 """`imulink settings`."""
 from __future__ import annotations
 
-from imulink import core
-from imulink.board.link import DEFAULT_BAUD
+from imulink import core, hil, protocol
+from imulink.board.link import DEFAULT_BAUD, Link
 from imulink.cli.common import (
     UsageError,
     assignments_of,
@@ -12,15 +12,12 @@ from imulink.cli.common import (
     print_json,
     text_columns,
 )
+from imulink.io import settings_file
+from imulink.io.files import check_output
 
 
 @one_line_errors
 def run(args) -> int:
-    from imulink import core, hil, protocol
-    from imulink.board.link import Link
-    from imulink.io import settings_file
-    from imulink.io.files import check_output
-
     wanted = assignments_of(args.assignments)
     if args.save:
         check_output(args.save)

@@ -5,6 +5,8 @@ import sys
 import time
 from typing import Any
 
+from imulink import core, sim
+from imulink.analysis.attitude import angle_difference, attitude_errors, rmse
 from imulink.cli.common import (
     UsageError,
     json_argument,
@@ -19,9 +21,6 @@ from imulink.cli.common import (
 
 @one_line_errors
 def run(args) -> int:
-    from imulink import core, sim
-    from imulink.analysis.attitude import angle_difference, attitude_errors, rmse
-
     filters = parse_filters(args.filters)
     if args.settle >= args.duration:
         raise UsageError(f"--settle {args.settle:g} s leaves nothing of the {args.duration:g} s run to evaluate")
