@@ -225,7 +225,7 @@ class NavBoardRun:
     the ESTIMATE's attitude (quaternion, Euler angles, gyro bias: SI; raw: the fixed build's
     integers, None for float) and saturation count after each sample, the position (deg, m)
     and ENU velocity (m/s; zero before the first fix), and in the fixed build the NAV_STATE
-    fields (name -> array, one row per sample)."""
+    and ESTIMATE fields (name -> array, one row per sample)."""
 
     quat: np.ndarray
     euler: np.ndarray
@@ -237,6 +237,27 @@ class NavBoardRun:
     height_m: np.ndarray
     vel_enu: np.ndarray
     nav_states: dict | None
+    estimates: dict | None = None  # the fixed build's ESTIMATE fields (name -> array), as the board sends them
+
+
+_NUMPY_INTEGERS = {("int", 1): "i1", ("int", 2): "i2", ("int", 4): "i4", ("int", 8): "i8",
+                   ("uint", 1): "u1", ("uint", 2): "u2", ("uint", 4): "u4", ("uint", 8): "u8"}
+
+
+def _struct_columns(ffi, rows, ctype: str, n: int) -> dict[str, np.ndarray]:
+    """The fields of n C structs of integers (a cffi array) as int64 columns (name -> (n,) or
+    (n, length)), read through a NumPy view of the structs' own layout."""
+    names, formats, offsets = [], [], []
+    for name, member in ffi.typeof(ctype).fields:
+        item = member.type.item if member.type.kind == "array" else member.type
+        kind = "uint" if item.cname.startswith("uint") else "int"
+        code = _NUMPY_INTEGERS[kind, ffi.sizeof(item)]
+        names.append(name)
+        formats.append(f"({member.type.length},){code}" if member.type.kind == "array" else code)
+        offsets.append(member.offset)
+    dtype = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": ffi.sizeof(ctype)})
+    view = np.frombuffer(ffi.buffer(rows, n * ffi.sizeof(ctype)), dtype, count=n)
+    return {name: view[name].astype(np.int64) for name in names}
 
 
 class Filter:
@@ -331,6 +352,7 @@ class Filter:
         saturations = np.zeros(n, np.uint32)
         position = np.zeros((n, 6), np.int32 if fixed else np.float64)
         states = ffi.new("imu_proto_nav_state_t[]", max(1, n)) if fixed else ffi.NULL
+        estimates = ffi.new("imu_proto_estimate_t[]", max(1, n)) if fixed else ffi.NULL
         lib.navfilter_run(self._handle, n, *(ffi.cast("int16_t *", ffi.from_buffer(a)) for a in arrays),
                           ffi.cast("int32_t *", ffi.from_buffer(baro_at)), len(baro_at),
                           ffi.cast("int32_t *", ffi.from_buffer(pressures)),
@@ -340,25 +362,33 @@ class Filter:
                           structs("imu_proto_marker_t", list(markers)), outputs,
                           ffi.cast("uint32_t *", ffi.from_buffer(saturations)),
                           ffi.cast("int32_t *" if fixed else "double *", ffi.from_buffer(position)),
-                          states)
+                          states, estimates)
         raw_out = {name: np.array([list(getattr(outputs[k], name)) for k in range(n)]).reshape(n, width)
                    for name, width in (("quat", 4), ("euler", 3), ("gyro_bias", 3))}
         scale = {"quat": QUAT_FRAC_BITS, "euler": EULER_FRAC_BITS, "gyro_bias": RATE_FRAC_BITS}
         si = {name: values / 2.0**scale[name] if fixed else values.astype(np.float64)
               for name, values in raw_out.items()}
-        nav_states = None
-        if fixed:
-            nav_states = {}
-            for name, field in ffi.typeof("imu_proto_nav_state_t").fields:
-                length = field.type.length if field.type.kind == "array" else None
-                column = [getattr(states[k], name) for k in range(n)]
-                nav_states[name] = (np.array([list(v) for v in column], np.int64).reshape(n, length) if length
-                                    else np.array(column, np.int64))
+        nav_states = _struct_columns(ffi, states, "imu_proto_nav_state_t", n) if fixed else None
+        estimate_fields = _struct_columns(ffi, estimates, "imu_proto_estimate_t", n) if fixed else None
         lat_lon_scale, vel_scale = (NAV_ANGLE_SCALE, NAV_VEL_SCALE) if fixed else (1.0, 1.0)
         return NavBoardRun(si["quat"], si["euler"], si["gyro_bias"], raw_out if fixed else None,
                            saturations.astype(np.int64), np.degrees(position[:, 0] * lat_lon_scale),
                            np.degrees(position[:, 1] * lat_lon_scale), position[:, 2] / 1000.0,
-                           position[:, 3:] * vel_scale, nav_states)
+                           position[:, 3:] * vel_scale, nav_states, estimate_fields)
+
+    def run_estimates(self, gyr_counts, acc_counts, mag_counts) -> dict[str, np.ndarray]:
+        """Run on register counts and return the ESTIMATE the board sends after each sample
+        (name -> array, one row per sample, numbered from 0), assembled by the core's
+        imu_wire_estimate, the board's own function. Fixed build only."""
+        if self.arithmetic != "fixed":
+            raise ValueError("ESTIMATE carries the fixed build's integers")
+        ffi, lib = self.mod.ffi, self.mod.lib
+        arrays = [check_counts(name, a) for name, a in (("gyr", gyr_counts), ("acc", acc_counts),
+                                                         ("mag", mag_counts))]
+        n = arrays[0].shape[0]
+        estimates = ffi.new("imu_proto_estimate_t[]", max(1, n))
+        lib.estimates_run(self._handle, n, *(ffi.cast("int16_t *", ffi.from_buffer(a)) for a in arrays), estimates)
+        return _struct_columns(ffi, estimates, "imu_proto_estimate_t", n)
 
     def estimate(self, index: int) -> dict:
         """The ESTIMATE fields (name -> int, or list for arrays) the board sends after the last

@@ -157,7 +157,10 @@ _DECLARATIONS += """
                        const int32_t *baro_after, size_t baro_count, const int32_t *baro_pa,
                        const int32_t *gnss_after, size_t gnss_count, const imu_proto_gnss_t *gnss,
                        const int32_t *marker_after, size_t marker_count, const imu_proto_marker_t *markers,
-                       imu_output_t *out, uint32_t *saturations, imu_real_t *position, void *nav_states);
+                       imu_output_t *out, uint32_t *saturations, imu_real_t *position, void *nav_states,
+                       void *estimates);
+    void estimates_run(imu_filter_t *f, size_t n, const int16_t *gyr, const int16_t *acc, const int16_t *mag,
+                       void *estimates);
 """
 
 
@@ -206,7 +209,8 @@ static void navfilter_run(imu_filter_t *f, size_t n, const int16_t *gyr, const i
                           const int32_t *baro_after, size_t baro_count, const int32_t *baro_pa,
                           const int32_t *gnss_after, size_t gnss_count, const imu_proto_gnss_t *gnss,
                           const int32_t *marker_after, size_t marker_count, const imu_proto_marker_t *markers,
-                          imu_output_t *out, uint32_t *saturations, imu_real_t *position, void *nav_states)
+                          imu_output_t *out, uint32_t *saturations, imu_real_t *position, void *nav_states,
+                          void *estimates)
 {
     imu_navfilter_t *nav = imu_filter_nav(f);
     size_t k, b = 0, g = 0, m = 0;
@@ -248,10 +252,46 @@ static void navfilter_run(imu_filter_t *f, size_t n, const int16_t *gyr, const i
         if (nav_states != 0) {
             imu_wire_nav_state(nav, (uint32_t)k, (imu_proto_nav_state_t *)nav_states + k);
         }
+        if (estimates != 0) {
+            imu_wire_estimate(f, &out[k], (uint32_t)k, (imu_proto_estimate_t *)estimates + k);
+        }
 #else
         (void)nav_states;
+        (void)estimates;
 #endif
     }
+}
+"""
+
+# The board's ESTIMATE after each of n samples, as imu_wire_estimate assembles it, numbered
+# 0..n-1: the fixed build's (the message carries its integers; the float build leaves it).
+_ESTIMATES_RUN = """
+static void estimates_run(imu_filter_t *f, size_t n, const int16_t *gyr, const int16_t *acc, const int16_t *mag,
+                          void *estimates)
+{
+#ifdef IMU_FIXED
+    size_t k;
+    int i;
+    for (k = 0; k < n; ++k) {
+        imu_raw_sample_t raw;
+        imu_output_t out;
+        for (i = 0; i < 3; ++i) {
+            raw.gyr[i] = gyr[3 * k + i];
+            raw.acc[i] = acc[3 * k + i];
+            raw.mag[i] = mag[3 * k + i];
+        }
+        imu_filter_update_raw(f, &raw);
+        imu_filter_get(f, &out);
+        imu_wire_estimate(f, &out, (uint32_t)k, (imu_proto_estimate_t *)estimates + k);
+    }
+#else
+    (void)f;
+    (void)n;
+    (void)gyr;
+    (void)acc;
+    (void)mag;
+    (void)estimates;
+#endif
 }
 """
 
@@ -269,7 +309,7 @@ def _make(arithmetic: str) -> FFI:
         f"imulink.core._{arithmetic}",
         '#include "imu_filter.h"\n#include "imu_math.h"\n#include "imu_proto.h"\n#include "imu_navkf.h"\n'
         '#include "imu_wire.h"\n'
-        + _SCHEMA["CFFI_FILTER_ID_CHECK"] + _NAVKF_RUN + _NAVFILTER_RUN,
+        + _SCHEMA["CFFI_FILTER_ID_CHECK"] + _NAVKF_RUN + _NAVFILTER_RUN + _ESTIMATES_RUN,
         sources=[str((CORE_DIR / s).relative_to(rel)) for s in CORE_SOURCES],
         include_dirs=[str(CORE_DIR.relative_to(rel))],
         define_macros=[("IMU_FIXED" if arithmetic == "fixed" else "IMU_FLOAT", "1")],

@@ -90,11 +90,10 @@ def host_run(recording: Recording) -> HostRun:
         if name == "nav":
             inputs = nav_inputs(recording, segment, samples.index[rows])
             board = reference.core.run_nav_counts(*counts, **inputs)
-            assert board.raw is not None and board.nav_states is not None  # the reference is the fixed build
-            fixed["filter_id"][rows] = reference.filter_id
-            for key in ("quat", "gyro_bias", "euler"):
-                fixed[key][rows] = board.raw[key]
-            fixed["saturations"][rows] = board.saturations
+            # the reference is the fixed build: the board's ESTIMATE and NAV_STATE fields
+            assert board.estimates is not None and board.nav_states is not None
+            for key in _ESTIMATE_SHAPES:
+                fixed[key][rows] = board.estimates[key]
             if nav is None or nav_rows is None or float_position is None:  # the first nav segment: all three None
                 nav = {key: np.zeros((n,) + values.shape[1:], np.int64) for key, values in board.nav_states.items()}
                 nav_rows, float_position = np.zeros(n, bool), np.full((n, 3), np.nan)
@@ -119,29 +118,10 @@ def host_run(recording: Recording) -> HostRun:
 def fixed_outputs(filter_name: str, raw_settings: dict[str, int], profile: SensorProfile, gyr, acc, mag,
                   calibration=None) -> dict:
     """The ESTIMATE fields (arrays, one row per sample) the firmware computes for a filter
-    run from its start over these counts (with the board's calibration: None is identity).
-
-    One batch call to the core when that gives every field: not for the ESKF (its
-    covariance is read after each sample), and not when the saturation counter moved
-    (its value after each sample is needed); then one sample at a time, as the board.
-    """
-    n = len(gyr)
-    reference = FirmwareFilter(filter_name, raw_settings, profile, calibration)
-    if filter_name != "eskf":
-        batch = reference.core.run_counts(gyr, acc, mag)
-        assert batch.raw is not None  # FirmwareFilter runs the fixed build
-        if batch.saturations == 0:  # the counter never decreases: zero at the end means zero throughout
-            return {"filter_id": np.full(n, reference.filter_id), "quat": batch.raw["quat"],
-                    "gyro_bias": batch.raw["gyro_bias"], "euler": batch.raw["euler"],
-                    "cov_mantissa": np.zeros((n, 9), np.int64), "cov_exponent": np.zeros((n, 9), np.int64),
-                    "saturations": np.zeros(n, np.int64), "weights": np.zeros((n, 2), np.int64)}
-        reference = FirmwareFilter(filter_name, raw_settings, profile, calibration)  # again, sample by sample
-    out = {name: np.zeros((n,) + shape, np.int64) for name, shape in _ESTIMATE_SHAPES.items()}
-    for k in range(n):
-        for key, value in reference.step(k, gyr[k], acc[k], mag[k]).items():
-            if key in out:
-                out[key][k] = value
-    return out
+    run from its start over these counts (with the board's calibration: None is identity),
+    assembled by the core's imu_wire_estimate as the board assembles them, in one batch."""
+    estimates = FirmwareFilter(filter_name, raw_settings, profile, calibration).core.run_estimates(gyr, acc, mag)
+    return {name: estimates[name] for name in _ESTIMATE_SHAPES}
 
 
 def _segment_filter(recording: Recording, segment: int) -> int:
