@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 
-.PHONY: help setup system-packages firmware demo test check bench clean
+.PHONY: help setup system-packages firmware demo test test-long check bench clean
 
 ## help: this list
 help:
@@ -32,10 +32,15 @@ firmware: system-packages
 demo: setup
 	$(BIN)/imulink demo
 
-## test: the whole test suite, in parallel on every core (pytest-xdist); a test that hangs
-## fails after 10 min with its name (pytest-timeout); the 15 slowest are listed at the end
+## test: the test suite but its sanitizer campaigns, in parallel on every core (pytest-xdist);
+## a test that hangs fails after 10 min with its name (pytest-timeout); the 15 slowest are
+## listed at the end
 test: setup
-	$(BIN)/python -m pytest -q -n auto --timeout=600 --durations=15
+	$(BIN)/python -m pytest -q -n auto --timeout=600 --durations=15 -m "not long"
+
+## test-long: the sanitizer campaigns (tests marked long); CI runs them after `make test`
+test-long: setup
+	$(BIN)/python -m pytest -q -n auto --timeout=1200 --durations=15 -m long
 
 ## check: lint (ruff), types (mypy) and generated files up to date (tools/gen_protocol.py --check)
 check: setup

@@ -421,6 +421,7 @@ def test_firmware_filter_uses_the_raw_settings_exactly():
     assert math.isclose(firmware.si_settings["sample_rate"], 250.0)
 
 
+@pytest.mark.long
 def test_the_application_is_clean_under_the_sanitizers(tmp_path):
     """The native board built with UBSan and ASan: a stream, injection, settings, a bad
     command and a reset, without a report (the process stops at the first one)."""

@@ -479,6 +479,7 @@ def ranges(drivers, tmp_path_factory):
     return rows, proc
 
 
+@pytest.mark.long
 def test_settings_ranges_found_for_every_setting(ranges):
     """Every descriptor of every filter has a bisected [min, max] that contains its default,
     is an interval, and whose own set_settings computations never overflowed."""
@@ -543,12 +544,14 @@ def range_mismatches(rows: dict) -> list[str]:
     return problems
 
 
+@pytest.mark.long
 def test_documented_ranges_match_the_checks(ranges):
     rows, _ = ranges
     problems = range_mismatches(rows)
     assert not problems, "settings ranges: documentation vs set_settings:\n" + "\n".join(problems)
 
 
+@pytest.mark.long
 def test_campaign_covers_every_setting_at_both_ends(drivers, tmp_path_factory):
     if GCC is None:
         pytest.skip("gcc not found")
@@ -574,6 +577,7 @@ def test_campaign_covers_every_setting_at_both_ends(drivers, tmp_path_factory):
         assert f"/{stream}/" in text
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("filter_name", FILTERS)
 @pytest.mark.parametrize("build", ["gcc", "clang"])
 def test_campaign(build, filter_name, drivers, tmp_path_factory):
