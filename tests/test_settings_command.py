@@ -23,7 +23,7 @@ def board_settings(address: str) -> tuple[str, dict[str, int]]:
     with Link(address) as link:
         link.connect()
         filter_id, settings = hil.read_settings(link)
-    return hil.name_of_filter(filter_id), {s["name"]: s["value"] for s in settings.values()}
+    return core.filter_name_of(filter_id), {s["name"]: s["value"] for s in settings.values()}
 
 
 def test_lists_sets_by_name_and_reads_back(board, capsys):

@@ -36,7 +36,7 @@ def run(args) -> int:
         by_name = {s["name"]: (index, s) for index, s in board.items()}
         unknown = [name for name in wanted if name not in by_name]
         if unknown:
-            raise UsageError(f"the board's {hil.name_of_filter(filter_id)} has no setting {', '.join(unknown)}; "
+            raise UsageError(f"the board's {core.filter_name_of(filter_id)} has no setting {', '.join(unknown)}; "
                              f"it has {', '.join(by_name)}")
         for name, value in wanted.items():  # in the board's own formats and ranges (its SETTING answers)
             index, setting = by_name[name]
@@ -53,7 +53,7 @@ def run(args) -> int:
             changed.add(name)
         if changed:
             filter_id, board = hil.read_settings(link)  # read back: what the board now runs with
-    name = hil.name_of_filter(filter_id)
+    name = core.filter_name_of(filter_id)
     rows = [{"name": s["name"], "value": s["value"] / 2.0 ** s["frac_bits"], "raw": s["value"], "unit": s["unit"],
              "frac_bits": s["frac_bits"], "min": hil.setting_range(s)[0], "max": hil.setting_range(s)[1],
              "range": hil.setting_range_text(s), "changed": s["name"] in changed} for s in board.values()]

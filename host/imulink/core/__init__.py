@@ -33,6 +33,13 @@ FILTERS = {name: (protocol.FILTER_IDS[name.upper()], f"imu_{name}") for name in 
 #: every filter the board runs: the attitude filters and the navigation filter (imu_navfilter.h:
 #: position and velocity besides the attitude; Filter.run_nav_counts feeds it what it measures)
 BOARD_FILTERS = {**FILTERS, "nav": (protocol.FILTER_IDS["NAV"], "imu_navfilter")}
+#: filter id -> name, of every filter the board runs
+FILTER_NAMES = {filter_id: name for name, (filter_id, _) in BOARD_FILTERS.items()}
+
+
+def filter_name_of(filter_id: int) -> str:
+    """The name of a filter id a board reports (the number itself for one this host does not know)."""
+    return FILTER_NAMES.get(filter_id, str(filter_id))
 
 #: Q formats of the fixed-build outputs: those of the ESTIMATE fields that carry them (shared/protocol.toml).
 QUAT_FRAC_BITS = protocol.frac_bits("ESTIMATE", "quat")

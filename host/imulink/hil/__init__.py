@@ -27,7 +27,7 @@ from imulink.hil.board_setup import (
     setting_range,
     setting_range_text,
 )
-from imulink.hil.common import SETTLE_S, HilError, name_of_filter
+from imulink.hil.common import SETTLE_S, HilError
 from imulink.hil.comparison import (
     MIN_VERIFIED,
     Comparison,
@@ -87,7 +87,6 @@ __all__ = [
     "link_summary",
     "load_injection_input",
     "MIN_VERIFIED",
-    "name_of_filter",
     "nav_inputs",
     "nav_state_position",
     "read_calibration",

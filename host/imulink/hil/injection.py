@@ -12,7 +12,7 @@ from imulink.analysis.attitude import attitude_errors, rmse
 from imulink.board.link import COMMAND_TIMEOUT_MAX_S, DEFAULT_BAUD, CommandTimeout, Link
 from imulink.core.counts import BROAD_PROFILE, SensorDataError, SensorProfile, si_to_counts
 from imulink.hil.board_setup import check_profile, leave_injection_mode, read_calibration, read_settings
-from imulink.hil.common import ESTIMATE_FRAC_BITS, FILTER_NAMES, SETTLE_S, HilError
+from imulink.hil.common import ESTIMATE_FRAC_BITS, SETTLE_S, HilError
 from imulink.hil.comparison import MIN_VERIFIED, EstimateCheck, Verdict
 from imulink.hil.replica import FirmwareFilter
 from imulink.hil.report import accuracy_json
@@ -152,10 +152,10 @@ def _configure_for_injection(link: Link, source: InjectionInput, filter_name: st
     filter name, the raw settings in force, and the original values changed (to restore)."""
     leave_injection_mode(link)
     wanted_filter = filter_name or (given.filter_name if given is not None else None) or source.filter_name
-    if wanted_filter is not None and wanted_filter != FILTER_NAMES.get(read_settings(link)[0]):
+    if wanted_filter is not None and wanted_filter != core.FILTER_NAMES.get(read_settings(link)[0]):
         link.command("SELECT_FILTER", filter_id=core.BOARD_FILTERS[wanted_filter][0])
     filter_id, settings = read_settings(link)
-    name = FILTER_NAMES[filter_id]
+    name = core.FILTER_NAMES[filter_id]
     fields = core.settings_fields(name)
     current = {fields[i].name: settings[i]["value"] for i in range(len(fields))}
     wanted = dict(source.raw_settings) if source.raw_settings and name == source.filter_name else {}

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import NoReturn
 
-from imulink import protocol
+from imulink import core, protocol
 from imulink.board.link import (
     COMMAND_ATTEMPTS,
     DEFAULT_BAUD,
@@ -18,7 +18,7 @@ from imulink.board.link import (
 )
 from imulink.core.counts import SensorProfile
 from imulink.hil.board_setup import apply_settings, check_profile, leave_injection_mode, read_calibration, read_settings
-from imulink.hil.common import HilError, name_of_filter
+from imulink.hil.common import HilError
 from imulink.hil.report import board_json, board_log, link_json, link_summary
 from imulink.io.files import check_writable_target, create_beside, publish
 from imulink.io.recording import RecordingError, RecordingWriter
@@ -159,7 +159,7 @@ def snapshot(link: Link, writer: RecordingWriter | None, settings=None,
         apply_settings(link, settings)
     status = link.query("GET_STATUS")
     filter_id, settings = read_settings(link)
-    filter_name = name_of_filter(filter_id)
+    filter_name = core.filter_name_of(filter_id)
     if writer is not None:
         calibration = read_calibration(link)
         writer.event("snapshot", status=status, filter=filter_name,
@@ -236,7 +236,7 @@ class _StreamRecorder:
             self.samples += 1
         elif name == "ESTIMATE":
             self.estimates += 1
-            self.filter_name = name_of_filter(fields["filter_id"])
+            self.filter_name = core.filter_name_of(fields["filter_id"])
         elif name in ("ACK", "NACK") and self._restart and fields["command_seq"] == self._restart[0].command_seq:
             self._restart = None  # an ACK began a new run (the follower saw it); a NACK: ask again
         elif name == "STATUS" and not fields["streaming"] and not (self.listen and self.samples == 0):

@@ -426,10 +426,9 @@ class Recording:
         """(filter name, raw settings by name) of a filter, as the board reported them: for
         `segment`, as they stood when it began (a setting not reported by then: its last
         value); None: the last values reported."""
-        names = {fid: name for name, (fid, _) in core.BOARD_FILTERS.items()}
-        if filter_id not in names:
+        if filter_id not in core.FILTER_NAMES:
             raise RecordingError(f"{self.path}: unknown filter id {filter_id}")
-        name = names[filter_id]
+        name = core.FILTER_NAMES[filter_id]
         at_segment = self.segment_settings.get(segment, {}) if segment is not None else {}
         reported = {**self.settings.get(filter_id, {}), **at_segment.get(filter_id, {})}
         fields = core.settings_fields(name)

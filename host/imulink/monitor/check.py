@@ -33,7 +33,6 @@ from imulink.hil.replica import FirmwareFilter
 from imulink.protocol.follower import StreamFollower
 
 _SET_SETTING = protocol.COMMAND_IDS["SET_SETTING"]
-_FILTER_NAMES = {filter_id: name for name, (filter_id, _) in core.BOARD_FILTERS.items()}
 #: What the nav filter takes besides the samples: message name -> run_nav_counts' argument.
 _NAV_EVENTS = {"BARO": "baro", "GNSS": "gnss", "MARKER": "marker"}
 #: Host results kept for estimates that have not arrived yet (an ESTIMATE follows its SAMPLE at once).
@@ -189,7 +188,7 @@ class LiveCheck:
         elif change is not None and follower.filter_id is not None:
             follower.note_setting(follower.filter_id, change[1], change[2])
         filter_id = follower.filter_id
-        name = _FILTER_NAMES.get(filter_id) if filter_id is not None else None
+        name = core.FILTER_NAMES.get(filter_id) if filter_id is not None else None
         if filter_id is None or name is None:
             return
         known = self.settings_of(filter_id)

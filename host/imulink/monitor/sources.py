@@ -58,7 +58,6 @@ STATUS_INTERVAL_S = 1.0
 #: filter, numpy) is then paid some 50 times a second instead of once per sample, which at
 #: 1 kHz would take most of a core. The window draws at 30 frames/s: nobody sees the delay.
 BATCH_S = 0.02
-FILTER_NAMES = {filter_id: name for name, (filter_id, _) in core.BOARD_FILTERS.items()}
 _DEG = 180.0 / math.pi
 #: Q format of NAV_STATE's velocity (m/s).
 _NAV_VEL_Q = protocol.frac_bits("NAV_STATE", "vel")
@@ -267,7 +266,7 @@ class LiveSource:
         self.check.expect(self._open_link.command("SELECT_FILTER", filter_id=filter_id).ack, ("filter", filter_id, 0))
         self._open_link.command("START_STREAM")
         if writer is not None:
-            writer.event("stream_started", filter=FILTER_NAMES.get(filter_id, str(filter_id)))
+            writer.event("stream_started", filter=core.filter_name_of(filter_id))
         self._status_due = time.monotonic() + STATUS_INTERVAL_S
         with self._lock:
             self._health.status = status

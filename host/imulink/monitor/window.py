@@ -22,7 +22,7 @@ from imulink.monitor import board3d
 from imulink.monitor.decimate import peaks
 from imulink.monitor.horizon import HorizonWidget
 from imulink.monitor.qt import QtCore, QtGui, QtWidgets, pg
-from imulink.monitor.sources import ESTIMATE_COLUMNS, FILTER_NAMES, MAX_SPAN_S, NAV_COLUMNS, SAMPLE_COLUMNS, Health
+from imulink.monitor.sources import ESTIMATE_COLUMNS, MAX_SPAN_S, NAV_COLUMNS, SAMPLE_COLUMNS, Health
 
 #: Redraws per second, whatever the sample rate.
 FRAME_HZ = 30
@@ -465,7 +465,7 @@ class MonitorWindow(QtWidgets.QMainWindow):
                 rows.append(_escape(str(exc)))
         s = h.status
         if s:
-            name = FILTER_NAMES.get(s["active_filter"], str(s["active_filter"]))
+            name = core.filter_name_of(s["active_filter"])
             cost = (f", filter {s['filter_cycles'] / s['cycle_hz'] * 1e6:.1f} µs/sample" if s["cycle_hz"] else "")
             rows.append(f"filter {name} at {s['sample_rate_mhz'] / 1000:g} Hz, "
                         f"CPU load {s['cpu_load_permille'] / 10:.1f} %"
