@@ -61,7 +61,6 @@ def run(args) -> int:
     return 0
 
 
-
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "allan", help="Allan deviation of a static recording: the sensors' noise terms",

@@ -30,7 +30,6 @@ from imulink.progress import StatusLine
 CALIBRATE_SENSORS = {"gyro": "gyr", "accel": "acc", "mag": "mag"}
 
 
-
 def _give_calibration(port: str, baud: int, calibration) -> str:
     """Give the board at `port` `calibration` (None: the identity) and read it back; the
     board's calibration as text. HilError when the board states another sensor profile
@@ -48,7 +47,6 @@ def _give_calibration(port: str, baud: int, calibration) -> str:
     return cal.format_calibration(board)
 
 
-
 @one_line_errors
 def run_apply(args) -> int:
     if (args.file is None) == (not args.identity):
@@ -58,7 +56,6 @@ def run_apply(args) -> int:
     print(f"{args.port}: calibration " + ("identity" if args.identity else f"of {args.file}")
           + " applied and read back (kept until a RESET)")
     return 0
-
 
 
 def _is_port(text: str) -> bool:
@@ -73,7 +70,6 @@ def _is_port(text: str) -> bool:
         return text.startswith("/dev/")
 
 
-
 def _live_mag_record(args):
     """The magnetometer readings of the board at args.input, collected while the user turns it."""
     print(f"{args.input}: turn the board slowly through every direction (each axis up and down, and the "
@@ -85,7 +81,6 @@ def _live_mag_record(args):
     print(f"{args.input}: {len(collected.counts)} samples in {seconds:.1f} s ({collected.stop_reason})",
           file=sys.stderr)
     return collected.record()
-
 
 
 @one_line_errors
@@ -138,7 +133,6 @@ def run(args) -> int:
         print(_give_calibration(args.input, args.baud, merged), file=out)
         print(f"{args.input}: calibration of {args.output} applied and read back (kept until a RESET)", file=out)
     return 0
-
 
 
 def add_parser(sub) -> None:

@@ -19,17 +19,8 @@ from imulink.io import settings_file
 from imulink.progress import StatusLine
 
 EXIT_MISMATCH = 1
-
-
-
 EXIT_ERROR = 2
-
-
-
 EXIT_INTERRUPTED = 130
-
-
-
 EXIT_STATUS_HELP = """exit status:
   0    success
   1    not proven bit-exact: an estimate differs from the host build, fewer than
@@ -40,10 +31,8 @@ EXIT_STATUS_HELP = """exit status:
   130  interrupted (Ctrl-C or SIGTERM); a recording is closed and readable"""
 
 
-
 class UsageError(ImulinkError):
     """Arguments that do not make sense together (each alone passed its type check)."""
-
 
 
 class Parser(argparse.ArgumentParser):
@@ -51,7 +40,6 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message):
         self.exit(EXIT_ERROR, f"imulink: error: {message} (see `{self.prog} --help`)\n")
-
 
 
 def one_line_errors(func):
@@ -73,10 +61,8 @@ def one_line_errors(func):
     return run
 
 
-
 def interrupt(signum, frame):
     raise KeyboardInterrupt
-
 
 
 def json_value(value):
@@ -90,13 +76,11 @@ def json_value(value):
     return value
 
 
-
 def print_json(report: dict) -> None:
     """--json: the command's one JSON object, alone on stdout (progress and messages are on stderr)."""
     import json
 
     print(json.dumps(json_value(report), indent=1, allow_nan=False))
-
 
 
 def json_argument(p, what: str) -> None:
@@ -105,12 +89,10 @@ def json_argument(p, what: str) -> None:
                         "docs/cli.md)")
 
 
-
 def text_columns(rows: list[tuple[str, ...]]) -> str:
     """Rows of cells as lines, each column as wide as its widest cell (names of any length line up)."""
     widths = [max(len(row[k]) for row in rows) for k in range(len(rows[0]))]
     return "\n".join(" ".join(cell.ljust(width) for cell, width in zip(row, widths)).rstrip() for row in rows)
-
 
 
 def assignments_of(texts: list[str]) -> dict[str, float]:
@@ -128,10 +110,8 @@ def assignments_of(texts: list[str]) -> dict[str, float]:
     return values
 
 
-
 #: A job that ends within this many seconds shows no progress at all.
 PROGRESS_AFTER_S = 2.0
-
 
 
 def late_progress():
@@ -148,7 +128,6 @@ def late_progress():
     return status, phase
 
 
-
 def parse_filters(text: str, known=None) -> list[str]:
     """Filter names (comma-separated, or all) among `known` (default: the attitude filters)."""
     known = core.FILTERS if known is None else known
@@ -160,10 +139,8 @@ def parse_filters(text: str, known=None) -> list[str]:
     return names
 
 
-
 def profile_list() -> str:
     return ", ".join(describe_profile(p) for p in PROFILES.values())
-
 
 
 def profile_named(name: str):
@@ -172,7 +149,6 @@ def profile_named(name: str):
     except KeyError:
         raise argparse.ArgumentTypeError(f"unknown sensor profile {name!r}; choose from {', '.join(PROFILES)}") \
             from None
-
 
 
 def in_range(parse, low, high, requirement: str):
@@ -192,40 +168,19 @@ def in_range(parse, low, high, requirement: str):
     return convert
 
 
-
 positive_float = in_range(float, math.ulp(0.0), sys.float_info.max, "must be a positive finite number")
-
-
-
 non_negative_float = in_range(float, 0.0, sys.float_info.max, "must be a finite number from 0")
-
-
-
 probability = in_range(float, 0.0, 1.0, "must be a probability from 0 to 1")
-
-
-
 seed_number = in_range(int, 0, 2**32 - 1, "must be an integer from 0 to 4294967295")
-
-
-
 tcp_port = in_range(int, 0, 65535, "must be a TCP port from 0 to 65535 (0: any free port)")
-
-
-
 baud_rate = in_range(int, 1, 100_000_000, "must be a baud rate from 1 to 100000000")
-
-
-
 u32_number = in_range(lambda text: int(text, 0), 0, 0xFFFFFFFF,
                  "must be an integer from 0 to 0xFFFFFFFF (e.g. 0x1234ABCD)")
-
 
 
 def fault_config(args):
     return FaultConfig(drop_byte=args.drop_byte, flip_bit=args.flip_bit, garbage=args.garbage, stall=args.stall,
                        stall_s=args.stall_duration, seed=args.fault_seed)
-
 
 
 def serve_until_interrupted(describe: str, error) -> int:
@@ -240,7 +195,6 @@ def serve_until_interrupted(describe: str, error) -> int:
     return EXIT_ERROR
 
 
-
 def settings_from_file(args):
     """The --settings FILE of a command, loaded (None without it)."""
     if args.settings is None:
@@ -249,14 +203,12 @@ def settings_from_file(args):
     return settings_file.load(args.settings)
 
 
-
 def scenario_for(args, filter_name: str | None = None) -> str:
     """The emulated board's simulated run: --scenario, else the car drive for the nav filter
     (its GNSS receiver and barometer) and rests for the others."""
     if args.scenario is not None:
         return args.scenario
     return NAV_SCENARIO if (filter_name or args.filter) == "nav" else "rests"
-
 
 
 def settings_argument(p, what: str):

@@ -23,7 +23,6 @@ def run(args) -> int:
     return 0 if comparison.verdict.passed else EXIT_MISMATCH
 
 
-
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "compare", help="bit-exactness verdict of a recording",

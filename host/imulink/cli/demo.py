@@ -30,7 +30,6 @@ def run(args) -> int:
     return 0 if report.comparison.verdict.passed else EXIT_MISMATCH
 
 
-
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "demo", help="no hardware: record an emulated board's simulated run and prove it bit-exact",

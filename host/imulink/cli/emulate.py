@@ -47,7 +47,6 @@ def run(args) -> int:
             + (f", faults {faults.describe()}" if faults.active else ""), lambda: board.error)
 
 
-
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "emulate", help="run an emulated board (native or QEMU) on a pty, a TCP port or a serial port",

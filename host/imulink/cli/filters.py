@@ -29,7 +29,6 @@ def run(args) -> int:
     return 0
 
 
-
 def add_parser(sub) -> None:
     p = sub.add_parser("filters", help="list the filters and their default settings",
                        description="List each filter's settings: default value, SI unit and fixed-point format.")

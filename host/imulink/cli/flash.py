@@ -16,7 +16,6 @@ from imulink.progress import Bars
 SWD_PORTS = ("swd", "pyocd", "openocd")
 
 
-
 def _flash_method(args) -> str:
     """uart, pyocd or openocd: --method, else from PORT (swd, pyocd[:PROBE], openocd, or a serial port)."""
     if args.method:
@@ -32,7 +31,6 @@ def _flash_method(args) -> str:
             raise FlashError("no SWD tool found: pip install 'imulink[swd]' (pyOCD), or put openocd on the PATH")
         return found[0]
     return name if name in SWD_PORTS else "uart"
-
 
 
 @one_line_errors
@@ -95,7 +93,6 @@ def run(args) -> int:
         line += f"; {result.note}"
     print(line)
     return 0
-
 
 
 def add_parser(sub) -> None:

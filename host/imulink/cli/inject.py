@@ -29,7 +29,6 @@ def run(args) -> int:
     return 0 if result.verdict.passed else EXIT_MISMATCH
 
 
-
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "inject", help="stream samples into a board in injection mode and check every answer",

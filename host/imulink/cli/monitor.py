@@ -47,7 +47,6 @@ def run(args) -> int:
     return window.run(source, title, screenshot=args.screenshot, exit_after=exit_after, view_3d=not args.no_3d)
 
 
-
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "monitor", help="a live window on a board, an emulated board or a recording",

@@ -31,7 +31,6 @@ def _nav_tuning_help() -> str:
                      for f in core.settings_fields("nav", "float") if f.name in TUNING_NAMES)
 
 
-
 @one_line_errors
 def run(args) -> int:
     from pathlib import Path
@@ -88,7 +87,6 @@ def run(args) -> int:
     return 0
 
 
-
 def _lever_arm(text: str) -> tuple[float, float, float]:
     """X,Y,Z in metres, each finite and within the nav filter's limit."""
     try:
@@ -98,7 +96,6 @@ def _lever_arm(text: str) -> tuple[float, float, float]:
     if len(values) != 3 or not all(math.isfinite(v) and abs(v) <= MAX_LEVER_ARM_M for v in values):
         raise argparse.ArgumentTypeError(f"{text!r} is not X,Y,Z in metres, each within +-{MAX_LEVER_ARM_M:g}")
     return values
-
 
 
 def _nav_start(text: str) -> tuple[float, float, float, float]:
@@ -117,7 +114,6 @@ def _nav_start(text: str) -> tuple[float, float, float, float]:
         raise argparse.ArgumentTypeError(f"{text!r}: {problem}")
     lat, lon, height, accuracy = values
     return lat, lon, height, accuracy
-
 
 
 def _nav_columns_help() -> str:
@@ -140,7 +136,6 @@ def _nav_columns_help() -> str:
         lines.append(textwrap.fill(f"{label}: {'; '.join(parts)}", width=92, initial_indent=" " * 16,
                                    subsequent_indent=" " * 18, break_on_hyphens=False))
     return "\n".join(lines).replace("\N{NO-BREAK SPACE}", " ")
-
 
 
 def add_parser(sub) -> None:

@@ -25,7 +25,6 @@ def run(args) -> int:
     return 0
 
 
-
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "plot", help="a recording as a figure (PNG or SVG): sensors, attitudes, differences, events",

@@ -11,7 +11,6 @@ def run(args) -> int:
     return 0
 
 
-
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "ports", help="list the serial ports and what is behind each",

@@ -26,7 +26,6 @@ def run(args) -> int:
             lambda: server.error and f"{args.port} failed: {server.error}")
 
 
-
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "proxy", help="put a fault-injecting proxy in front of any board",

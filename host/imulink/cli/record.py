@@ -20,7 +20,6 @@ from imulink.progress import StatusLine
 _reconnect_wait = in_range(float, 0.0, 86400.0, "must be a number of seconds from 0 to 86400")
 
 
-
 @one_line_errors
 def run(args) -> int:
     result = hil.record(args.port, args.output, duration_s=args.duration, baud=args.baud, profile=args.profile,
@@ -36,7 +35,6 @@ def run(args) -> int:
           + (f"; filter restarts after lost samples: {result.filter_restarts}" if result.filter_restarts else "")
           + (f"; the board came back {result.reconnects} time(s), each a new segment" if result.reconnects else ""))
     return EXIT_INTERRUPTED if result.interrupted else 0
-
 
 
 def add_parser(sub) -> None:

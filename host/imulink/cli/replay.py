@@ -47,7 +47,6 @@ def run(args) -> int:
     return 0 if comparison.verdict.passed else EXIT_MISMATCH
 
 
-
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "replay", help="re-run a recording through the host builds and export CSV / .npz",

@@ -71,7 +71,6 @@ def run(args) -> int:
     return 0
 
 
-
 def add_parser(sub) -> None:
     p = sub.add_parser(
         "settings", help="a board's filter settings: list them, set some by name, keep them in a file",

@@ -59,7 +59,6 @@ def run(args) -> int:
     return 0
 
 
-
 def add_parser(sub) -> None:
     p = sub.add_parser("simulate", help="run a simulated trajectory through every filter, fixed and float",
                        description="Simulate a trajectory with MEMS sensor errors, run each filter in the "
