@@ -163,6 +163,18 @@ def test_nan_or_infinite_si_input_is_refused(data, arithmetic, bad):
         core.run("eecf", np.full((50, 3), np.nan), data.acc[:50], data.mag[:50], RATE, arithmetic)
 
 
+@pytest.mark.parametrize("arithmetic", ARITHS)
+def test_si_input_that_is_not_real_numbers_is_refused(data, arithmetic):
+    """A complex array would lose its imaginary parts in the cast to float (with no more than
+    a NumPy warning); booleans and text are not readings either: all refused, like NaN."""
+    for gyr, kind in ((data.gyr.astype(complex), "complex128"), (data.gyr + 1e-3j, "complex128"),
+                      (data.gyr > 0, "bool"), (data.gyr.astype(str), "<U")):
+        with pytest.raises(SensorDataError, match=f"gyr: values must be real numbers, not {kind}"):
+            core.run("eecf", gyr, data.acc, data.mag, RATE, arithmetic)
+    with pytest.raises(SensorDataError, match="mag: values must be real numbers, not complex"):
+        core.si_to_counts(data.gyr, data.acc, data.mag.astype(np.complex64))
+
+
 @pytest.mark.parametrize("values, message", [
     (np.full((50, 3), 32768), r"gyr: 150 value\(s\) lie outside the int16 range"),
     (np.full((50, 3), -40000.0), r"gyr: 150 value\(s\) lie outside the int16 range"),

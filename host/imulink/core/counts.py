@@ -126,7 +126,10 @@ def _reject(name: str, bad: np.ndarray, what: str) -> None:
 
 
 def _to_counts(name: str, x, scale: float, limits: tuple[int, int]) -> tuple[np.ndarray, int]:
-    x = np.asarray(x, dtype=np.float64)
+    given = np.asarray(x)
+    if given.dtype.kind not in "iuf":  # complex, bool, text, objects: a cast would drop or invent a value
+        raise SensorDataError(f"{name}: values must be real numbers, not {given.dtype}")
+    x = given.astype(np.float64)
     # a NaN has no count, and an infinite reading is a broken input rather than a saturated sensor
     _reject(name, ~np.isfinite(x), "are NaN or infinite")
     counts = np.rint(x / scale)
@@ -143,7 +146,8 @@ def si_to_counts(gyr, acc, mag, profile: SensorProfile = DEFAULT_PROFILE, return
         mag: (N,3) magnetic field in uT.
         profile: full-scale settings; values are rounded to the nearest count and
             clipped to each register's range, like the real sensor saturates. NaN or
-            infinite values raise SensorDataError.
+            infinite values, and arrays that are not of real numbers (complex ones
+            included), raise SensorDataError.
         return_saturation: also return the number of clipped values per sensor.
 
     Returns:
