@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import csv
 import io
+import json
 import os
 import re
 import signal
@@ -710,6 +711,27 @@ def test_inject_simulation_and_recording(tmp_path, capsys):
             status = link.command("GET_STATUS").data.fields
             assert status["injection_mode"] == 0 and status["sample_rate_mhz"] == 100_000
             assert status["active_filter"] == core.FILTERS["eecf"][0]
+
+
+def test_inject_of_a_damaged_recording_says_what_is_missing(tmp_path, capsys):
+    """A recording with a damaged span: inject salvages the samples that remain and says, in
+    the report and in --json, that they are not the stream the board recorded; an undamaged
+    one says nothing of the kind."""
+    whole, damaged = tmp_path / "whole.imulog", tmp_path / "damaged.imulog"
+    _synthetic_recording(whole, tamper=None)
+    data = bytearray(whole.read_bytes())
+    data[len(data) // 3] ^= 0x01  # one record lost: its SAMPLE is missing from the run
+    damaged.write_bytes(bytes(data))
+    with EmulatedBoard(duration_s=1.0) as board:
+        code, out, _ = run_cli(capsys, "inject", board.address, "--input", whole)
+        assert code == 0 and "DAMAGED INPUT" not in out
+        code, out, _ = run_cli(capsys, "inject", board.address, "--input", damaged)
+        code_json, printed, _ = run_cli(capsys, "inject", board.address, "--input", damaged, "--json")
+    assert code == code_json == 0 and "injected 299 samples" in out
+    assert ("DAMAGED INPUT: 1 damaged span(s) of the file skipped (" in out
+            and "1 sample(s) missing from its filter run(s): the samples that remain are injected" in out)
+    said = next(text for text in out.splitlines() if text.startswith("DAMAGED INPUT: "))
+    assert json.loads(printed)["input_damage"] == said[len("DAMAGED INPUT: "):]
 
 
 def _broad_like_mat(path, rate_hz: float = 285.714) -> None:

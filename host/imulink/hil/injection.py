@@ -35,6 +35,8 @@ class InjectionInput:
     filter_name: str | None = None
     raw_settings: dict[str, int] | None = None
     truth: np.ndarray | None = None
+    #: what of a damaged recording is missing from these samples (None: nothing)
+    damage: str | None = None
 
 
 def load_injection_input(spec: str) -> InjectionInput:
@@ -56,7 +58,30 @@ def load_injection_input(spec: str) -> InjectionInput:
     name, raw_settings = recording.filter_settings(filter_id)
     s = recording.samples
     return InjectionInput(f"recording {path.name} ({len(s)} samples)", s.gyr, s.acc, s.mag,
-                          raw_settings["sample_rate"] / 2.0**16, recording.profile, name, raw_settings)
+                          raw_settings["sample_rate"] / 2.0**16, recording.profile, name, raw_settings,
+                          damage=_recording_damage(recording))
+
+
+def _recording_damage(recording) -> str | None:
+    """What of a recording's samples is missing, in words, or None when nothing is: damaged
+    spans and a truncated tail of the file, and SAMPLE indices missing from its filter runs."""
+    s = recording.samples
+    missing = 0
+    for segment in np.unique(s.segment).tolist():
+        index = s.index[s.segment == segment]
+        missing += int(index.max()) + 1 - len(index)  # a run counts from index 0
+    parts = []
+    if recording.damaged:
+        parts.append(f"{len(recording.damaged)} damaged span(s) of the file skipped "
+                     f"({sum(length for _, length in recording.damaged)} bytes)")
+    if recording.truncated_bytes:
+        parts.append(f"a truncated tail of {recording.truncated_bytes} bytes ignored")
+    if missing:
+        parts.append(f"{missing} sample(s) missing from its filter run(s)")
+    if not parts:
+        return None
+    return (f"{'; '.join(parts)}: the samples that remain are injected one after the other, a stream the "
+            "board never recorded")
 
 
 def _simulated_input(spec: str) -> InjectionInput:
@@ -104,6 +129,7 @@ class InjectResult:
     duration_s: float
     accuracy: dict | None  # RMS errors in deg (total, heading, inclination) over `samples` answered samples
     min_verified: float = MIN_VERIFIED  # the least share of the samples answered and verified for a pass
+    input_damage: str | None = None  # what of a damaged input recording is missing (InjectionInput.damage)
 
     @property
     def bit_exact(self) -> bool:
@@ -121,18 +147,20 @@ class InjectResult:
                 "answers_lost": self.answers_lost, "filter_restarts": self.filter_restarts,
                 "duration_s": self.duration_s, "samples_per_s": self.samples / max(self.duration_s, 1e-9),
                 "verdict": self.verdict.to_json(), "first_difference": self.first_difference,
-                "accuracy": accuracy_json(self.accuracy)}
+                "accuracy": accuracy_json(self.accuracy), "input_damage": self.input_damage}
 
 
 def format_inject(result: InjectResult) -> str:
     """The human report of `imulink inject`."""
     unanswered = result.samples - result.answered
-    lines = [f"input: {result.description}",
-             f"injected {result.samples} samples into {result.filter_name} in {result.duration_s:.1f} s "
-             f"({result.samples / max(result.duration_s, 1e-9):.0f} samples/s): {result.answered} answered, "
-             f"{unanswered} unanswered"
-             + (f" ({result.answers_lost} answers lost on the way, {result.filter_restarts} samples without any reply, "
-                "after each of which the filter was restarted)" if unanswered else "")]
+    lines = [f"input: {result.description}"]
+    if result.input_damage:
+        lines.append(f"DAMAGED INPUT: {result.input_damage}")
+    lines.append(f"injected {result.samples} samples into {result.filter_name} in {result.duration_s:.1f} s "
+                 f"({result.samples / max(result.duration_s, 1e-9):.0f} samples/s): {result.answered} answered, "
+                 f"{unanswered} unanswered"
+                 + (f" ({result.answers_lost} answers lost on the way, {result.filter_restarts} samples without any "
+                    "reply, after each of which the filter was restarted)" if unanswered else ""))
     lines.append(str(result.verdict))
     if result.first_difference:
         d = result.first_difference
@@ -258,4 +286,4 @@ def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings:
     first = None if check.first is None else {"sample_index": check.first.index, "field": check.first.field,
                                               "board": check.first.board, "host": check.first.host}
     return InjectResult(source.description, n, answered, check.identical, lost, restarts, first, name,
-                        time.monotonic() - started, accuracy)
+                        time.monotonic() - started, accuracy, input_damage=source.damage)
