@@ -38,7 +38,7 @@ from imulink.core.counts import BROAD_PROFILE, DEFAULT_PROFILE, counts_to_si
 from imulink.hil import demo_job
 from imulink.hil.replica import FirmwareFilter
 from imulink.io.nav_input import read_nav_csv
-from imulink.io.recording import RecordingWriter, load_recording, read_records
+from imulink.io.recording import KIND_RECEIVED, RecordingWriter, load_recording, read_records
 from imulink.progress import StatusLine
 from imulink.sim import navigation, simulate
 
@@ -435,6 +435,26 @@ def test_compare_reports_a_damaged_length_field_and_keeps_the_rest(tmp_path, cap
     assert "299 received" in out and "bit-exact: not proven: the recording is damaged" in out
     assert "truncated tail" not in out
     assert len(load_recording(path).samples) == 299
+
+
+def test_compare_says_where_the_unverifiable_estimates_lie(tmp_path, capsys):
+    """A record lost in the middle takes one SAMPLE with it: every estimate after it in that
+    filter run is unverifiable, and the report and --json say from which sample index on."""
+    path = tmp_path / "lost.imulog"
+    _synthetic_recording(path, tamper=None)
+    records = read_records(path).records
+    lost = next(k for k, record in enumerate(records) if record.kind == KIND_RECEIVED and k > len(records) // 2)
+    data = bytearray(path.read_bytes())
+    data[records[lost].offset + 20] ^= 0x01  # inside the record's body: the record, its SAMPLE and ESTIMATE go
+    path.write_bytes(bytes(data))
+    recording = load_recording(path)
+    first_unverifiable = int(recording.estimates.index[~hil.compare(recording).verified][0])
+    code, out, _ = run_cli(capsys, "compare", path)
+    span = f"segment 0 sample index {first_unverifiable}-299 ({300 - first_unverifiable} estimates)"
+    assert code == 1 and f"unverifiable: {span}" in out
+    code, printed, _ = run_cli(capsys, "compare", path, "--json")
+    assert json.loads(printed)["estimates"]["unverifiable_spans"] == [
+        {"segment": 0, "first_index": first_unverifiable, "last_index": 299, "estimates": 300 - first_unverifiable}]
 
 
 def test_leftover_frames_of_an_earlier_stream_are_named_as_such(tmp_path, capsys):

@@ -437,6 +437,28 @@ def _fixed_vs_float(estimates: Estimates, positions, float_quat, float_euler, fl
             "gyro_bias_max_deg_s": float(np.degrees(np.abs(bias - float_bias)).max())}
 
 
+def unverifiable_spans(recording: Recording, comparison: Comparison) -> list[dict]:
+    """Where the unverifiable estimates lie: each run of consecutive ones within a segment
+    (filter run), as segment, first and last sample index and the count of estimates."""
+    estimates, unverifiable = recording.estimates, ~comparison.verified
+    spans: list[dict] = []
+    for position in np.flatnonzero(unverifiable).tolist():
+        segment, index = int(estimates.segment[position]), int(estimates.index[position])
+        last = spans[-1] if spans else None
+        if last is not None and last["segment"] == segment and last["_position"] == position - 1:
+            last.update(last_index=index, estimates=last["estimates"] + 1, _position=position)
+        else:
+            spans.append({"segment": segment, "first_index": index, "last_index": index, "estimates": 1,
+                          "_position": position})
+    return [{key: value for key, value in span.items() if key != "_position"} for span in spans]
+
+
+def _spans_text(spans: list[dict], shown: int = 5) -> str:
+    text = ", ".join(f"segment {s['segment']} sample index {s['first_index']}-{s['last_index']} "
+                     f"({s['estimates']} estimates)" for s in spans[:shown])
+    return text + (f" and {len(spans) - shown} more" if len(spans) > shown else "")
+
+
 def format_comparison(recording: Recording, comparison: Comparison) -> str:
     """The human report of `imulink compare`."""
     counters = recording.counters
@@ -465,6 +487,9 @@ def format_comparison(recording: Recording, comparison: Comparison) -> str:
     lines.append(f"estimates: {c.estimates} received, {c.verified_count} verifiable, {c.identical_count} identical, "
                  f"{c.verified_count - c.identical_count} different, {c.estimates - c.verified_count} unverifiable"
                  + (f" ({'; '.join(reasons)})" if reasons else ""))
+    unverifiable_at = unverifiable_spans(recording, c)
+    if unverifiable_at:
+        lines.append(f"unverifiable: {_spans_text(unverifiable_at)}")
     if c.first_difference is not None:
         lines.append(f"first difference: {c.first_difference}")
     lines.append(str(c.verdict))
@@ -490,7 +515,8 @@ def comparison_json(recording: Recording, comparison: Comparison) -> dict:
         "estimates": {"received": c.estimates, "recorded": c.recorded_count, "verifiable": c.verified_count,
                       "identical": c.identical_count, "different": c.verified_count - c.identical_count,
                       "unverifiable": c.estimates - c.verified_count, "unverifiable_left_over": leftover,
-                      "unverifiable_after_lost_sample": int(unverifiable.sum()) - leftover},
+                      "unverifiable_after_lost_sample": int(unverifiable.sum()) - leftover,
+                      "unverifiable_spans": unverifiable_spans(recording, c)},
         "first_difference": c.first_difference.to_json() if c.first_difference is not None else None,
         "verdict": c.verdict.to_json(),
         "fixed_vs_float": dict(c.fixed_vs_float) or None,
