@@ -850,7 +850,7 @@ def render_cffi_filter_id_check(schema: Schema) -> str:
     """C for the cffi module's source: it does not compile unless imu_filter.h's filter ids
     have the values of the filter code table (cffi itself takes enum values from the C)."""
     table = next(e for e in schema.enums if e.name == "filter")
-    same = " && ".join(f"IMU_FILTER_{v.name} == IMU_PROTO_FILTER_{v.name}" for v in table.values)
+    same = " && ".join(f"(int)IMU_FILTER_{v.name} == (int)IMU_PROTO_FILTER_{v.name}" for v in table.values)
     return ("/* imu_filter_id_t (imu_filter.h) has the values of the filter code table (imu_proto_gen.h). */\n"
             f"typedef char imu_filter_ids_are_the_schema_s[({same}) ? 1 : -1];\n")
 

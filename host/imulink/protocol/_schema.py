@@ -449,4 +449,4 @@ unsigned imu_proto_command_flags(uint8_t command);
 CFFI_FILTER_ID = 'typedef enum { IMU_FILTER_EECF = 1, IMU_FILTER_KF1D = 2, IMU_FILTER_ESKF = 3, IMU_FILTER_NAV = 4 } imu_filter_id_t;\n'
 #: C for the cffi module's source that compiles only while imu_filter.h's filter ids
 #: have the code table's values
-CFFI_FILTER_ID_CHECK = '/* imu_filter_id_t (imu_filter.h) has the values of the filter code table (imu_proto_gen.h). */\ntypedef char imu_filter_ids_are_the_schema_s[(IMU_FILTER_EECF == IMU_PROTO_FILTER_EECF && IMU_FILTER_KF1D == IMU_PROTO_FILTER_KF1D && IMU_FILTER_ESKF == IMU_PROTO_FILTER_ESKF && IMU_FILTER_NAV == IMU_PROTO_FILTER_NAV) ? 1 : -1];\n'
+CFFI_FILTER_ID_CHECK = '/* imu_filter_id_t (imu_filter.h) has the values of the filter code table (imu_proto_gen.h). */\ntypedef char imu_filter_ids_are_the_schema_s[((int)IMU_FILTER_EECF == (int)IMU_PROTO_FILTER_EECF && (int)IMU_FILTER_KF1D == (int)IMU_PROTO_FILTER_KF1D && (int)IMU_FILTER_ESKF == (int)IMU_PROTO_FILTER_ESKF && (int)IMU_FILTER_NAV == (int)IMU_PROTO_FILTER_NAV) ? 1 : -1];\n'
