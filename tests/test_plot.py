@@ -17,11 +17,11 @@ pytest.importorskip("matplotlib", reason="the plot extra (matplotlib) is not ins
 
 @pytest.fixture(scope="module")
 def faulty_recording(tmp_path_factory):
-    """A recording over a link that drops bytes: lost samples and filter restarts."""
+    """A recording over a link that drops bytes, without RESEND: lost samples and filter restarts."""
     path = tmp_path_factory.mktemp("plot") / "faulty.imulog"
     with EmulatedBoard(front="tcp", duration_s=5.0, rate_hz=200.0, realtime=True,
                        faults=FaultConfig(drop_byte=3e-4, seed=8)) as board:
-        hil.record(board.address, path, duration_s=2.0)
+        hil.record(board.address, path, duration_s=2.0, resend=False)
     return path
 
 
@@ -38,9 +38,20 @@ def test_plot_marks_restarts_and_lost_samples(faulty_recording, tmp_path, capsys
                    if line.startswith("bit-exact"))
     assert code == 0 and verdict in out
     text = svg.read_text()
-    assert f"{len(s)} samples, {runs} filter run(s), {lost} lost sample(s)" in text
+    assert f"{len(s)} samples, {runs} filter run(s), {lost} lost sample(s), 0 recovered" in text
     # the title as matplotlib keeps it in an SVG comment, which holds no "--": the verdict up to its parenthesis
     assert verdict.split(" (")[0] in text and "lost sample" in text and "not verifiable" in text
+
+
+def test_plot_marks_recovered_samples(tmp_path, capsys):
+    path = tmp_path / "recovered.imulog"
+    with EmulatedBoard(duration_s=2.0, faults=FaultConfig(drop_samples=(50, 120))) as board:
+        hil.record(board.address, path)
+    svg = tmp_path / "recovered.svg"
+    assert main(["plot", str(path), "-o", str(svg)]) == 0
+    assert "bit-exact: yes (200 of 200" in capsys.readouterr().out
+    text = svg.read_text()
+    assert "200 samples, 1 filter run(s), 0 lost sample(s), 2 recovered" in text and "recovered sample" in text
 
 
 def test_plot_png_and_refusals(faulty_recording, tmp_path, capsys, monkeypatch):

@@ -654,7 +654,8 @@ def test_schema_formats_and_flags():
                                             "SET_CALIBRATION"}
     assert protocol.NOT_IDEMPOTENT_COMMANDS == {"INJECT_SAMPLE", "RESET"}
     assert protocol.REPLY_MESSAGES == {"GET_VERSION": "HELLO", "GET_STATUS": "STATUS", "GET_SETTING": "SETTING",
-                                       "GET_CALIBRATION": "CALIBRATION", "INJECT_SAMPLE": "ESTIMATE"}
+                                       "GET_CALIBRATION": "CALIBRATION", "INJECT_SAMPLE": "ESTIMATE",
+                                       "RESEND": "RESENT"}
     with pytest.raises(ValueError, match="no format"):
         protocol.field_format("ESTIMATE", "index")
     with pytest.raises(ValueError, match="decimal scale"):

@@ -233,6 +233,17 @@ def test_stream_counts_failed_sensor_reads_and_stops(link):
     assert again["sensor_errors"] == status["sensor_errors"]
 
 
+def test_resend_answers_for_every_seq_asked(link):
+    """Without samples the ring holds nothing and has forgotten nothing: every frame sent
+    was an output (NOT_KEPT); a seq not sent yet is GONE. Every seq gets its RESENT before the ACK."""
+    latest = link.command("GET_STATUS").ack.seq
+    link.receive(0)
+    link.command("RESEND", first_seq=(latest - 1) & 0xFFFF, count=3)
+    answers = [r.message.fields for r in link.receive(0.2) if r.message.name == "RESENT"]
+    assert [(a["original_seq"], a["status"]) for a in answers] == [
+        ((latest - 1) & 0xFFFF, 1), (latest, 1), ((latest + 1) & 0xFFFF, 2)]
+
+
 @pytest.mark.parametrize("filter_name", list(core.FILTERS))
 def test_injection_is_bit_exact_with_the_host(link, filter_name):
     source = load_injection_input(INJECTED)

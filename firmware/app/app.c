@@ -76,19 +76,28 @@ static void send_wire(app_t *app, size_t len)
 {
     board_link_write(app->wire, len);
     app->tx_seq = (uint16_t)(app->tx_seq + 1u);
+    frame_ring_age(&app->sent, app->tx_seq);
+}
+
+/** Send a filter input frame (SAMPLE, BARO, GNSS, MARKER) and keep it for RESEND. */
+static void send_kept(app_t *app, uint8_t msg_id, const uint8_t *payload, size_t len)
+{
+    frame_ring_keep(&app->sent, app->tx_seq, msg_id, payload, len);
+    send_wire(app, imu_proto_frame_encode(msg_id, app->tx_seq, payload, len, app->wire, sizeof app->wire));
 }
 
 /** A barometer measurement read with sample app->index. */
 static void send_baro(app_t *app, uint32_t timestamp_us, const board_baro_t *reading)
 {
     imu_proto_baro_t b;
+    uint8_t payload[IMU_PROTO_BARO_SIZE];
     b.timestamp_us = timestamp_us;
     b.index = app->index;
     b.d1 = reading->d1;
     b.d2 = reading->d2;
     b.pressure_pa = reading->pressure_pa;
     b.temperature_cdeg = reading->temperature_cdeg;
-    send_wire(app, imu_proto_baro_encode(&b, app->tx_seq, app->wire, sizeof app->wire));
+    send_kept(app, IMU_PROTO_MSG_BARO, payload, imu_proto_baro_pack(&b, payload));
 }
 
 static void send_log(app_t *app, uint8_t level, const char *text)
@@ -179,7 +188,8 @@ static void apply_marker(app_t *app, imu_navfilter_t *nav, uint32_t timestamp_us
                                            fix->v_acc_mm);
     app->marker_waiting = 0;
     if (send) {
-        send_wire(app, imu_proto_marker_encode(&m, app->tx_seq, app->wire, sizeof app->wire));
+        uint8_t payload[IMU_PROTO_MARKER_SIZE];
+        send_kept(app, IMU_PROTO_MSG_MARKER, payload, imu_proto_marker_pack(&m, payload));
     }
 }
 
@@ -313,6 +323,7 @@ static void live_sample(app_t *app)
     const board_sensors_result_t result = board_sensors_read(&raw, &temperature, &message);
     board_baro_t baro;
     imu_proto_gnss_t gnss;
+    uint8_t payload[IMU_PROTO_GNSS_SIZE]; /* the SAMPLE's payload, then the GNSS's (the larger) */
     int have_baro, have_gnss;
     int i;
 
@@ -362,14 +373,14 @@ static void live_sample(app_t *app)
             s.mag[i] = raw.mag[i];
         }
         s.temperature = temperature;
-        send_wire(app, imu_proto_sample_encode(&s, app->tx_seq, app->wire, sizeof app->wire));
+        send_kept(app, IMU_PROTO_MSG_SAMPLE, payload, imu_proto_sample_pack(&s, payload));
         if (have_baro) {
             send_baro(app, (uint32_t)read_at, &baro);
         }
         if (have_gnss) {
             gnss.timestamp_us = (uint32_t)read_at;
             gnss.index = app->index;
-            send_wire(app, imu_proto_gnss_encode(&gnss, app->tx_seq, app->wire, sizeof app->wire));
+            send_kept(app, IMU_PROTO_MSG_GNSS, payload, imu_proto_gnss_pack(&gnss, payload));
         }
         run_filter(app, &raw, (uint32_t)read_at, app->index, have_baro ? &baro : 0, have_gnss ? &gnss : 0);
     }
@@ -552,6 +563,49 @@ static outcome_t cmd_inject_sample(app_t *app, const imu_proto_command_t *c)
     return ok();
 }
 
+/** Frames one RESEND may ask for (its count). */
+#define RESEND_MAX_COUNT 64u
+#define RESENT_WIRE_BYTES WIRE_BYTES(IMU_PROTO_RESENT_SIZE)
+#define ANSWER_WIRE_BYTES WIRE_BYTES(IMU_PROTO_NACK_SIZE)
+
+/** Bytes the link must keep free for the next live sample's frames (live streaming goes first). */
+static size_t live_reserve(app_t *app)
+{
+    if (!app->streaming) {
+        return ANSWER_WIRE_BYTES;
+    }
+    return SAMPLE_WIRE_BYTES + BARO_WIRE_BYTES + GNSS_WIRE_BYTES +
+           (imu_filter_nav(&app->filter) != 0 ? NAV_WIRE_BYTES : 0u) + ANSWER_WIRE_BYTES;
+}
+
+static outcome_t cmd_resend(app_t *app, const imu_proto_command_t *c)
+{
+    imu_proto_cmd_resend_t a;
+    frame_ring_cursor_t cursor;
+    const uint16_t next_seq = app->tx_seq; /* the ages are taken before the RESENT frames count up */
+    uint32_t i;
+    (void)imu_proto_cmd_resend_unpack(&a, c->args, c->args_len);
+    if (a.count == 0 || a.count > RESEND_MAX_COUNT) {
+        return refuse(IMU_PROTO_REASON_BAD_ARGUMENT);
+    }
+    /* what the frames sent below would age out goes now: the walk below must not lose its entry */
+    frame_ring_age(&app->sent, (uint16_t)(next_seq + RESEND_MAX_COUNT + 1u));
+    frame_ring_cursor_init(&app->sent, &cursor);
+    for (i = 0; i < a.count; ++i) {
+        imu_proto_resent_t r;
+        if (board_link_space() < RESENT_WIRE_BYTES + live_reserve(app)) {
+            break; /* the host asks again for the rest */
+        }
+        r.original_seq = (uint16_t)(a.first_seq + i);
+        r.payload_len = 0;
+        r.msg_id = 0;
+        r.status = (uint8_t)frame_ring_find(&app->sent, &cursor, next_seq, r.original_seq, &r.msg_id, r.payload,
+                                            sizeof r.payload, &r.payload_len);
+        send_wire(app, imu_proto_resent_encode(&r, app->tx_seq, app->wire, sizeof app->wire));
+    }
+    return ok();
+}
+
 /** Latitude, longitude and height a position fix may have (imu_nav's origin): 1e-7 deg, mm. */
 #define MARKER_MAX_LAT_1E7DEG 850000000
 #define MARKER_MAX_LON_1E7DEG 1800000000
@@ -648,6 +702,8 @@ static outcome_t run_command(app_t *app, const imu_proto_command_t *c)
         return cmd_get_calibration(app, c);
     case IMU_PROTO_CMD_POSITION_FIX:
         return cmd_position_fix(app, c);
+    case IMU_PROTO_CMD_RESEND:
+        return cmd_resend(app, c);
     default:
         return refuse(IMU_PROTO_REASON_UNKNOWN_COMMAND);
     }
@@ -686,6 +742,7 @@ void app_init(app_t *app, const app_config_t *config)
     app->streaming = 0;
     app->injection = 0;
     app->tx_seq = 0;
+    frame_ring_init(&app->sent);
     imu_proto_decoder_init(&app->decoder, app->rx_frame, sizeof app->rx_frame);
     app->dropped_samples = 0;
     app->sensor_errors = 0;

@@ -38,6 +38,7 @@
 
 #include <stdint.h>
 
+#include "frame_ring.h"
 #include "imu_filter.h"
 #include "imu_proto.h"
 
@@ -73,6 +74,7 @@ typedef struct {
     int streaming;                /**< 1 while live samples are streamed */
     int injection;                /**< 1 in injection mode */
     uint16_t tx_seq;              /**< sequence number of the next frame to the host */
+    frame_ring_t sent;            /**< the input frames sent lately, for RESEND */
     imu_proto_decoder_t decoder;
     uint8_t rx_frame[IMU_PROTO_MAX_FRAME];
     uint8_t wire[IMU_PROTO_MAX_WIRE]; /**< one encoded frame on its way out */

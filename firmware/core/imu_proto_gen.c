@@ -682,6 +682,47 @@ size_t imu_proto_marker_encode(const imu_proto_marker_t *m, uint16_t seq, uint8_
     return imu_proto_frame_seal(IMU_PROTO_MSG_MARKER, seq, IMU_PROTO_MARKER_SIZE, wire);
 }
 
+size_t imu_proto_resent_pack(const imu_proto_resent_t *m, uint8_t *payload)
+{
+    size_t i;
+    if (m->payload_len > 64u) {
+        return 0;
+    }
+    put_u16(payload + 0, (uint16_t)m->original_seq);
+    payload[2] = (uint8_t)m->status;
+    payload[3] = (uint8_t)m->msg_id;
+    for (i = 0; i < m->payload_len; ++i) {
+        payload[4 + i] = m->payload[i];
+    }
+    return 4u + m->payload_len;
+}
+
+imu_proto_result_t imu_proto_resent_unpack(imu_proto_resent_t *m, const uint8_t *payload, size_t len)
+{
+    size_t i;
+    if (len < 4u || len > IMU_PROTO_RESENT_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    m->original_seq = get_u16(payload + 0);
+    m->status = payload[2];
+    m->msg_id = payload[3];
+    m->payload_len = len - 4u;
+    for (i = 0; i < m->payload_len; ++i) {
+        m->payload[i] = payload[4 + i];
+    }
+    return IMU_PROTO_OK;
+}
+
+size_t imu_proto_resent_encode(const imu_proto_resent_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
+{
+    uint8_t payload[IMU_PROTO_RESENT_SIZE];
+    size_t len = imu_proto_resent_pack(m, payload);
+    if (len == 0) {
+        return 0;
+    }
+    return imu_proto_frame_encode(IMU_PROTO_MSG_RESENT, seq, payload, len, wire, wire_cap);
+}
+
 size_t imu_proto_command_pack(const imu_proto_command_t *m, uint8_t *payload)
 {
     size_t i;
@@ -860,6 +901,23 @@ imu_proto_result_t imu_proto_cmd_position_fix_unpack(imu_proto_cmd_position_fix_
     return IMU_PROTO_OK;
 }
 
+size_t imu_proto_cmd_resend_pack(const imu_proto_cmd_resend_t *a, uint8_t *args)
+{
+    put_u16(args + 0, (uint16_t)a->first_seq);
+    args[2] = (uint8_t)a->count;
+    return IMU_PROTO_CMD_RESEND_SIZE;
+}
+
+imu_proto_result_t imu_proto_cmd_resend_unpack(imu_proto_cmd_resend_t *a, const uint8_t *args, size_t len)
+{
+    if (len != IMU_PROTO_CMD_RESEND_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    a->first_seq = get_u16(args + 0);
+    a->count = args[2];
+    return IMU_PROTO_OK;
+}
+
 int imu_proto_command_args_size(uint8_t command)
 {
     switch (command) {
@@ -891,6 +949,8 @@ int imu_proto_command_args_size(uint8_t command)
         return IMU_PROTO_CMD_GET_CALIBRATION_SIZE;
     case IMU_PROTO_CMD_POSITION_FIX:
         return IMU_PROTO_CMD_POSITION_FIX_SIZE;
+    case IMU_PROTO_CMD_RESEND:
+        return IMU_PROTO_CMD_RESEND_SIZE;
     default:
         return -1;
     }
@@ -927,6 +987,8 @@ unsigned imu_proto_command_flags(uint8_t command)
         return IMU_PROTO_CMD_GET_CALIBRATION_FLAGS;
     case IMU_PROTO_CMD_POSITION_FIX:
         return IMU_PROTO_CMD_POSITION_FIX_FLAGS;
+    case IMU_PROTO_CMD_RESEND:
+        return IMU_PROTO_CMD_RESEND_FLAGS;
     default:
         return 0u;
     }

@@ -17,7 +17,7 @@
 /** Protocol version ([protocol] version), sent in HELLO. */
 #define IMU_PROTO_VERSION 1u
 /** Schema hash of shared/protocol.toml (CRC-32 of its canonical form), sent in HELLO. */
-#define IMU_PROTO_SCHEMA_HASH 0xA373C5B8u
+#define IMU_PROTO_SCHEMA_HASH 0x112AC5A1u
 /** Largest payload of any message, bytes. */
 #define IMU_PROTO_MAX_PAYLOAD 201u
 
@@ -36,6 +36,7 @@ typedef enum {
     IMU_PROTO_MSG_GNSS = 19, /**< One fix of the GNSS receiver, in its own units (u-blox NAV-PVT's), as the board received it */
     IMU_PROTO_MSG_NAV_STATE = 20, /**< The navigation filter's state after a sample, following its ESTIMATE (which carries the attitude and the gyroscope bias) while NAV is the active filter */
     IMU_PROTO_MSG_MARKER = 21, /**< A position fix from a known place (POSITION_FIX), as the board applied it: after the SAMPLE (or injected sample) it follows, before that sample's ESTIMATE */
+    IMU_PROTO_MSG_RESENT = 22, /**< One frame a RESEND asked for, sent again inside this one (its own seq is the next of the stream, so the stream's count of lost frames stays right), or why it cannot be */
     IMU_PROTO_MSG_COMMAND = 32, /**< A request to the board */
 } imu_proto_msg_id_t;
 
@@ -55,6 +56,7 @@ typedef enum {
     IMU_PROTO_CMD_SET_CALIBRATION = 12, /**< Set one axis of a sensor's calibration (the offset of that axis and its row of the correction matrix, Q formats as CALIBRATION reports them); the active filter restarts with it */
     IMU_PROTO_CMD_GET_CALIBRATION = 13, /**< Read one axis of a sensor's calibration */
     IMU_PROTO_CMD_POSITION_FIX = 14, /**< A position fix from a known place ([seed 003]'s markers) for the NAV filter: trusted as its accuracy says, never gated */
+    IMU_PROTO_CMD_RESEND = 15, /**< Send again the frames first sent with seq first_seq  */
 } imu_proto_command_id_t;
 
 /** Filter ids (the same values as imu_filter_id_t in firmware/core/imu_filter.h). */
@@ -86,6 +88,13 @@ typedef enum {
     IMU_PROTO_SENSOR_ACCELEROMETER = 1, /**< MPU6050 accelerometer */
     IMU_PROTO_SENSOR_MAGNETOMETER = 2, /**< HMC5883L magnetometer */
 } imu_proto_sensor_t;
+
+/** What the board says of one frame a RESEND asked for (RESENT.status). */
+typedef enum {
+    IMU_PROTO_RESEND_STATUS_HELD = 0, /**< the board still holds the frame: its message id and payload follow, as first sent */
+    IMU_PROTO_RESEND_STATUS_NOT_KEPT = 1, /**< sent after the oldest frame the board holds (or since start-up, while it has forgotten none), but of a message it does not keep: only the filter's inputs are kept (SAMPLE, BARO, GNSS, MARKER); ESTIMATE, NAV_STATE and the rest are not resent */
+    IMU_PROTO_RESEND_STATUS_GONE = 2, /**< older than the oldest frame the board holds, once it has forgotten some (or not sent yet): lost for good */
+} imu_proto_resend_status_t;
 
 /** LOG severity, numerically equal to Python's logging levels. */
 typedef enum {
@@ -436,6 +445,31 @@ imu_proto_result_t imu_proto_marker_unpack(imu_proto_marker_t *m, const uint8_t 
 /** @brief Wire bytes of a MARKER frame (delimiter included); 0 when they do not fit or pack fails. */
 size_t imu_proto_marker_encode(const imu_proto_marker_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 
+/** RESENT maximum payload bytes. */
+#define IMU_PROTO_RESENT_SIZE 68u
+/** RESENT payload bytes with an empty payload. */
+#define IMU_PROTO_RESENT_MIN_SIZE 4u
+
+/** RESENT (id 0x16, to_host): One frame a RESEND asked for, sent again inside this one (its own seq
+ *  is the next of the stream, so the stream's count of lost frames stays right), or why it cannot
+ *  be. The board keeps the filter's input frames (SAMPLE, BARO, GNSS, MARKER) of at least the last
+ *  second at 1 kHz (firmware/app/frame_ring.h).
+ */
+typedef struct {
+    uint16_t original_seq; /**< the seq the frame had when it was first sent (the one asked for) */
+    uint8_t status; /**< whether the frame follows, or why not */
+    uint8_t msg_id; /**< the frame's message id (0 unless status is HELD) */
+    uint8_t payload[64]; /**< the frame's payload, byte for byte as first sent (empty unless status is HELD) */
+    size_t payload_len; /**< bytes used in payload, at most 64 */
+} imu_proto_resent_t;
+
+/** @brief Payload bytes of RESENT into `payload` (IMU_PROTO_RESENT_SIZE bytes); returns the payload length, 0 when a length field exceeds its maximum. */
+size_t imu_proto_resent_pack(const imu_proto_resent_t *m, uint8_t *payload);
+/** @brief Fields of a RESENT payload; IMU_PROTO_ERR_LENGTH when `len` is not a RESENT payload length. */
+imu_proto_result_t imu_proto_resent_unpack(imu_proto_resent_t *m, const uint8_t *payload, size_t len);
+/** @brief Wire bytes of a RESENT frame (delimiter included); 0 when they do not fit or pack fails. */
+size_t imu_proto_resent_encode(const imu_proto_resent_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
+
 /** COMMAND maximum payload bytes. */
 #define IMU_PROTO_COMMAND_SIZE 31u
 /** COMMAND payload bytes with an empty args. */
@@ -563,6 +597,19 @@ size_t imu_proto_cmd_position_fix_pack(const imu_proto_cmd_position_fix_t *a, ui
 /** @brief Arguments of POSITION_FIX; IMU_PROTO_ERR_LENGTH when `len` is not IMU_PROTO_CMD_POSITION_FIX_SIZE. */
 imu_proto_result_t imu_proto_cmd_position_fix_unpack(imu_proto_cmd_position_fix_t *a, const uint8_t *args, size_t len);
 
+/** RESEND argument bytes. */
+#define IMU_PROTO_CMD_RESEND_SIZE 3u
+/** Arguments of RESEND. */
+typedef struct {
+    uint16_t first_seq; /**< seq of the first frame asked for */
+    uint8_t count; /**< frames asked for, 1 .. 64 */
+} imu_proto_cmd_resend_t;
+
+/** @brief Argument bytes of RESEND into `args` (IMU_PROTO_CMD_RESEND_SIZE bytes); returns that size. */
+size_t imu_proto_cmd_resend_pack(const imu_proto_cmd_resend_t *a, uint8_t *args);
+/** @brief Arguments of RESEND; IMU_PROTO_ERR_LENGTH when `len` is not IMU_PROTO_CMD_RESEND_SIZE. */
+imu_proto_result_t imu_proto_cmd_resend_unpack(imu_proto_cmd_resend_t *a, const uint8_t *args, size_t len);
+
 /** @brief Argument bytes of a command; -1 for an id that is not a command (NACK UNKNOWN_COMMAND). */
 int imu_proto_command_args_size(uint8_t command);
 
@@ -598,6 +645,8 @@ int imu_proto_command_args_size(uint8_t command);
 #define IMU_PROTO_CMD_GET_CALIBRATION_FLAGS (IMU_PROTO_FLAG_IDEMPOTENT)
 /** POSITION_FIX: idempotent. */
 #define IMU_PROTO_CMD_POSITION_FIX_FLAGS (IMU_PROTO_FLAG_IDEMPOTENT)
+/** RESEND: idempotent. */
+#define IMU_PROTO_CMD_RESEND_FLAGS (IMU_PROTO_FLAG_IDEMPOTENT)
 /** @brief IMU_PROTO_FLAG_* of a command; 0 for an id that is not a command. */
 unsigned imu_proto_command_flags(uint8_t command);
 

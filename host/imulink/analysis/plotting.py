@@ -48,9 +48,9 @@ def plot_recording(recording, columns: dict[str, np.ndarray], verdict: str, path
     board's, the host fixed build's and the float twin's Euler angles, the board-vs-host
     and fixed-vs-float differences, the gyro-bias estimate; with the events marked on
     every panel: filter restarts (a new run at sample index 0: dashed lines), lost samples
-    (red ticks), board estimates the host could not verify (grey) or that differ (red
-    dots). `columns` are hil.replay_columns of the recording; `verdict` the comparison's
-    line, for the title."""
+    (red ticks), samples lost on the way and recovered (orange ticks), board estimates the
+    host could not verify (grey) or that differ (red dots). `columns` are hil.replay_columns
+    of the recording; `verdict` the comparison's line, for the title."""
     fmt = plot_format(path)
     check_plotting()
     from matplotlib.figure import Figure
@@ -61,6 +61,7 @@ def plot_recording(recording, columns: dict[str, np.ndarray], verdict: str, path
     restarts = t[1:][np.diff(segment) != 0]
     same_run = np.diff(segment) == 0
     lost = t[1:][same_run & (np.diff(index) > 1)]  # a sample index skipped within one run
+    recovered = t[columns["recovered"] == 1]  # lost on the way and sent again by the board
     unverifiable = _spans(columns["verifiable"] == 0)
     different = columns["identical"] == 0
     colours = ("tab:red", "tab:green", "tab:blue")
@@ -103,10 +104,14 @@ def plot_recording(recording, columns: dict[str, np.ndarray], verdict: str, path
         if len(lost):
             ax.plot(lost, np.full(len(lost), 0.0), "|", ms=12, color="red", transform=ax.get_xaxis_transform(),
                     label="lost sample" if ax is axes[0] else None)
+        if len(recovered):
+            ax.plot(recovered, np.full(len(recovered), 0.0), "|", ms=8, color="tab:orange",
+                    transform=ax.get_xaxis_transform(), label="recovered sample" if ax is axes[0] else None)
         ax.grid(True, lw=0.3, alpha=0.5)
         ax.legend(fontsize=7, loc="upper right", ncol=4)
     damage = f"; {len(recording.damaged)} damaged span(s)" if recording.damaged else ""
     fig.suptitle(f"{Path(recording.path).name}: {len(t)} samples, {len(restarts) + 1} filter run(s), "
-                 f"{len(lost)} lost sample(s){damage}; restarts dashed\n{verdict}", fontsize=9)
+                 f"{len(lost)} lost sample(s), {len(recovered)} recovered{damage}; restarts dashed\n{verdict}",
+                 fontsize=9)
     fig.savefig(path, format=fmt, dpi=100)
 

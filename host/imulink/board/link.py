@@ -381,6 +381,14 @@ class Link:
 
     def send_command(self, name: str, **args) -> PendingCommand:
         """Send one COMMAND without waiting; the returned PendingCommand is answered later."""
+        return self._send(name, args, track=True)
+
+    def post(self, name: str, **args) -> None:
+        """Send one COMMAND whose ACK nobody waits for (RESEND: the frames it brings back
+        are the answer that matters, and the caller asks again for what does not come)."""
+        self._send(name, args, track=False)
+
+    def _send(self, name: str, args: dict, track: bool) -> PendingCommand:
         if self._failure is not None:
             raise Disconnected(self._failure)
         with self._write_lock:
@@ -389,8 +397,9 @@ class Link:
             wire = protocol.encode_command(self._tx_seq, name, command_seq, **args)
             self._tx_seq = (self._tx_seq + 1) & 0xFFFF
             pending = PendingCommand(name, command_seq, args)
-            with self._pending_lock:
-                self._pending[command_seq] = pending
+            if track:
+                with self._pending_lock:
+                    self._pending[command_seq] = pending
             self._write(wire)
         return pending
 

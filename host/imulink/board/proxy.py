@@ -50,6 +50,8 @@ class FaultConfig:
     flipped. garbage: probability that a burst of 1..garbage_max random bytes precedes a
     frame. stall: probability that the board goes silent for stall_s seconds before a
     frame (nothing passes either way meanwhile). seed makes it reproducible.
+    drop_samples: indices of SAMPLE frames dropped whole, the first time each passes (a
+    loss placed exactly, for tests).
     """
 
     drop_byte: float = 0.0
@@ -59,6 +61,7 @@ class FaultConfig:
     stall: float = 0.0
     stall_s: float = 0.05
     seed: int = 0
+    drop_samples: tuple[int, ...] = ()
 
     def __post_init__(self):
         for name in ("drop_byte", "flip_bit", "garbage", "stall"):
@@ -69,11 +72,13 @@ class FaultConfig:
 
     @property
     def active(self) -> bool:
-        return any((self.drop_byte, self.flip_bit, self.garbage, self.stall))
+        return any((self.drop_byte, self.flip_bit, self.garbage, self.stall, self.drop_samples))
 
     def describe(self) -> str:
         parts = [f"{name} {getattr(self, name):g}" for name in ("drop_byte", "flip_bit", "garbage", "stall")
                  if getattr(self, name)]
+        if self.drop_samples:
+            parts.append(f"SAMPLE {', '.join(map(str, self.drop_samples))} dropped")
         return ", ".join(parts) + f" (seed {self.seed})"
 
 
@@ -85,11 +90,15 @@ class FaultInjector:
         self.config = config
         self._rng = np.random.default_rng(config.seed)
         self.counts = dict.fromkeys(
-            ("dropped_bytes", "flipped_bits", "garbage_bursts", "garbage_bytes", "stalls", "damaged_frames"), 0)
+            ("dropped_bytes", "flipped_bits", "garbage_bursts", "garbage_bytes", "stalls", "damaged_frames",
+             "dropped_samples"), 0)
+        self._samples_to_drop = set(config.drop_samples)
 
     def damage(self, wire: bytes) -> bytes:
         """The bytes actually sent for one frame."""
         cfg, rng = self.config, self._rng
+        if self._samples_to_drop and self._drops_sample(wire):
+            return b""
         data = np.frombuffer(wire, np.uint8).copy()
         damaged = False
         if cfg.flip_bit:
@@ -112,6 +121,17 @@ class FaultInjector:
             out = burst + out
         self.counts["damaged_frames"] += damaged
         return out
+
+    def _drops_sample(self, wire: bytes) -> bool:
+        try:
+            message = protocol.decode(wire)
+        except protocol.FrameError:
+            return False
+        if message.name != "SAMPLE" or message.fields["index"] not in self._samples_to_drop:
+            return False
+        self._samples_to_drop.discard(message.fields["index"])
+        self.counts["dropped_samples"] += 1
+        return True
 
     def stall(self) -> float:
         """Seconds to stay silent before the next frame (0 almost always)."""

@@ -25,16 +25,27 @@ def run(args) -> int:
     result = hil.record(args.port, args.output, duration_s=args.duration, baud=args.baud, profile=args.profile,
                         resync=not args.no_resync, silence_timeout_s=args.silence_timeout, force=args.force,
                         progress=StatusLine(), settings=settings_from_file(args), reconnect_s=args.reconnect,
-                        listen=args.listen)
+                        listen=args.listen, resend=not args.no_resend)
     if args.json:
         print_json(result.to_json())
         return EXIT_INTERRUPTED if result.interrupted else 0
     print(f"recorded {result.samples} samples and {result.estimates} estimates of {result.filter_name} in "
           f"{result.duration_s:.1f} s to {result.path} ({result.stop_reason}); "
           f"{hil.link_summary(result.counters)}"
+          + _recovery_summary(result.recovery)
           + (f"; filter restarts after lost samples: {result.filter_restarts}" if result.filter_restarts else "")
           + (f"; the board came back {result.reconnects} time(s), each a new segment" if result.reconnects else ""))
     return EXIT_INTERRUPTED if result.interrupted else 0
+
+
+def _recovery_summary(recovery: dict) -> str:
+    """What became of the frames lost on the way ('' when none were)."""
+    if not recovery.get("lost"):
+        return ""
+    samples = recovery["recovered_messages"].get("SAMPLE", 0)
+    lost_for_good = recovery["gone"] + recovery["unanswered"] + recovery["outstanding"]
+    return (f"; lost on the way {recovery['lost']} frames: {recovery['recovered']} recovered ({samples} samples), "
+            f"{recovery['not_kept']} outputs the board does not keep, {lost_for_good} lost for good")
 
 
 def add_parser(sub) -> None:
@@ -46,9 +57,11 @@ def add_parser(sub) -> None:
                     "time until --duration, the end of the board's stream, or Ctrl-C (exit status 130). The file "
                     "is append-only and flushed as it grows: after a crash, a disconnect, a silent board or a "
                     "full disk everything received before is kept, and the command ends with one line saying "
-                    "so (exit status 2). The file takes its name only once the board has answered. After a lost "
-                    "SAMPLE the filter is restarted (unless --no-resync), so that the rest of the recording can "
-                    "still be verified bit for bit.")
+                    "so (exit status 2). The file takes its name only once the board has answered. Frames lost "
+                    "on the way are asked for again (RESEND; the board keeps its input frames of about the last "
+                    "second at 1 kHz) and go into the file, marked as recovered (unless --no-resend). After a "
+                    "SAMPLE lost for good the filter is restarted (unless --no-resync), so that the rest of the "
+                    "recording can still be verified bit for bit.")
     port_arguments(p)
     p.add_argument("--output", "-o", required=True, help="recording file to write (e.g. run.imulog); an existing "
                                                           "file is refused unless --force")
@@ -64,6 +77,9 @@ def add_parser(sub) -> None:
                    help=f"refuse a board that states another sensor profile than this one, before a file is "
                         f"written (default: whatever the board states; profiles: {profile_list()})")
     p.add_argument("--no-resync", action="store_true", help="never restart the filter after a lost sample")
+    p.add_argument("--no-resend", action="store_true",
+                   help="never ask the board again for frames lost on the way (a lost sample then restarts the "
+                        "filter at once, unless --no-resync)")
     p.add_argument("--listen", action="store_true",
                    help="record a board that another client commands (the TCP front of imulink emulate or imulink "
                         "proxy takes several clients: the first commands, the others listen) without sending it "

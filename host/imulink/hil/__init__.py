@@ -3,8 +3,10 @@ build of the same C, inject samples into a board, and the no-hardware demo.
 
 - :mod:`recorder`: snapshot the board (HELLO, STATUS, every setting of the active filter),
   restart its filter, stream, and write every received byte to a recording. A lost SAMPLE
-  makes the rest of a filter run impossible to reproduce, so by default the recorder then
-  restarts the board's filter (``resync``): a new segment begins that can be verified again.
+  makes the rest of a filter run impossible to reproduce, so the recorder asks the board to
+  send lost frames again (``resend``: RESEND, the board keeps its input frames of about the
+  last second at 1 kHz), and restarts the board's filter after a SAMPLE lost for good
+  (``resync``): a new segment begins that can be verified again.
 - :mod:`comparison`: re-run the recorded samples through the fixed-point build (what the
   board must have computed) and the float twin, with the recorded settings and sensor
   profile, and check every board estimate that can be verified (its segment's samples

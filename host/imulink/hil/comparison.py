@@ -453,6 +453,27 @@ def unverifiable_spans(recording: Recording, comparison: Comparison) -> list[dic
     return [{key: value for key, value in span.items() if key != "_position"} for span in spans]
 
 
+def verified_through_recovery(recording: Recording, comparison: Comparison) -> int:
+    """Verified estimates that depend on a recovered sample (one lost on the way and sent
+    again, RESENT): at or after it in its filter run. Without recovery they would be unverifiable."""
+    samples = recording.samples
+    first_recovered: dict[int, int] = {}
+    for segment, index in zip(samples.segment[samples.recovered].tolist(), samples.index[samples.recovered].tolist()):
+        first_recovered[segment] = min(index, first_recovered.get(segment, index))
+    if not first_recovered:
+        return 0
+    estimates = recording.estimates
+    after = np.array([index >= first_recovered.get(segment, index + 1)
+                      for segment, index in zip(estimates.segment.tolist(), estimates.index.tolist())], bool)
+    return int((after & comparison.verified).sum())
+
+
+def _recovered_text(recording: Recording) -> str:
+    frames = sum(recording.recovered.values())
+    kinds = ", ".join(f"{count} {name}" for name, count in sorted(recording.recovered.items()))
+    return f"recovered: {frames} frames lost on the way and sent again by the board ({kinds})"
+
+
 def _spans_text(spans: list[dict], shown: int = 5) -> str:
     text = ", ".join(f"segment {s['segment']} sample index {s['first_index']}-{s['last_index']} "
                      f"({s['estimates']} estimates)" for s in spans[:shown])
@@ -472,6 +493,8 @@ def format_comparison(recording: Recording, comparison: Comparison) -> str:
                  f"{recording.segments} filter run(s)"
                  + (f"; ignored a truncated tail of {recording.truncated_bytes} bytes"
                     if recording.truncated_bytes else ""))
+    if recording.recovered:
+        lines.append(_recovered_text(recording))
     if recording.damaged:
         spans = ", ".join(f"{length} bytes at byte {offset}" for offset, length in recording.damaged[:5])
         more = f" and {len(recording.damaged) - 5} more" if len(recording.damaged) > 5 else ""
@@ -484,7 +507,10 @@ def format_comparison(recording: Recording, comparison: Comparison) -> str:
     reasons = [text for count, text in (
         (leftover, f"{leftover} left over from a stream the board was already sending when the recording began"),
         (lost, f"{lost} after a lost sample of their filter run")) if count]
-    lines.append(f"estimates: {c.estimates} received, {c.verified_count} verifiable, {c.identical_count} identical, "
+    through_recovery = verified_through_recovery(recording, c)
+    lines.append(f"estimates: {c.estimates} received, {c.verified_count} verifiable"
+                 + (f" ({through_recovery} of them through recovered samples)" if through_recovery else "")
+                 + f", {c.identical_count} identical, "
                  f"{c.verified_count - c.identical_count} different, {c.estimates - c.verified_count} unverifiable"
                  + (f" ({'; '.join(reasons)})" if reasons else ""))
     unverifiable_at = unverifiable_spans(recording, c)
@@ -512,7 +538,9 @@ def comparison_json(recording: Recording, comparison: Comparison) -> dict:
         "link": {**link_json(counters), "filter_runs": recording.segments,
                  "truncated_tail_bytes": recording.truncated_bytes},
         "damaged_spans": [{"offset_bytes": offset, "length_bytes": length} for offset, length in recording.damaged],
+        "recovered_frames": dict(recording.recovered),
         "estimates": {"received": c.estimates, "recorded": c.recorded_count, "verifiable": c.verified_count,
+                      "verified_through_recovery": verified_through_recovery(recording, c),
                       "identical": c.identical_count, "different": c.verified_count - c.identical_count,
                       "unverifiable": c.estimates - c.verified_count, "unverifiable_left_over": leftover,
                       "unverifiable_after_lost_sample": int(unverifiable.sum()) - leftover,

@@ -32,8 +32,8 @@ def replay_columns(recording: Recording, run: HostRun, comparison: Comparison) -
 
     # time_s first: strictly increasing (the sample index at the board's rate), the axis a plotting tool wants
     columns = {"time_s": sample_times(recording), "host_time_s": s.host_time, "timestamp_us": s.timestamp_us,
-               "segment": s.segment,
-               "index": s.index, "verifiable": run.verifiable.astype(int)}
+               "segment": s.segment, "index": s.index, "recovered": s.recovered.astype(int),
+               "verifiable": run.verifiable.astype(int)}
     axes = ("x", "y", "z")
     for name, counts, scale, unit in (("gyr", s.gyr, p.gyro_scale, "rad_s"), ("acc", s.acc, p.acc_scale, "m_s2"),
                                       ("mag", s.mag, p.mag_scale, "uT")):
@@ -137,7 +137,7 @@ def _baro_columns(recording: Recording) -> tuple[np.ndarray, np.ndarray]:
 
 
 #: Replay columns that hold integers (a float column only where some rows have no value).
-_INTEGER_COLUMNS = ("timestamp_us", "segment", "index", "verifiable", "identical", "gnss_time_ms")
+_INTEGER_COLUMNS = ("timestamp_us", "segment", "index", "recovered", "verifiable", "identical", "gnss_time_ms")
 
 
 def export_csv(columns: dict[str, np.ndarray], path) -> None:
@@ -162,7 +162,7 @@ def export_npz(recording: Recording, run: HostRun, columns: dict[str, np.ndarray
     """Write the replay as .npz: the CSV columns, the raw integers (sensor counts, the
     board's and the host's ESTIMATE fields) and the recording's metadata as JSON."""
     raw = {f"samples_{k}": getattr(recording.samples, k) for k in
-           ("gyr", "acc", "mag", "temperature", "timestamp_us", "index", "segment", "host_time")}
+           ("gyr", "acc", "mag", "temperature", "timestamp_us", "index", "segment", "host_time", "recovered")}
     raw.update({f"board_{k}": getattr(recording.estimates, k) for k in
                 ("index", "segment", "host_time") + Estimates.COMPARED})
     raw.update({f"host_fixed_{k}": v for k, v in run.fixed.items()})

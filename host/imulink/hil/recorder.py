@@ -1,8 +1,9 @@
-"""Record a board: snapshot, restart its filter, stream, write every received byte."""
+"""Record a board: snapshot, restart its filter, stream, write every received byte, and ask
+the board again for the frames lost on the way (RESEND)."""
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NoReturn
 
@@ -24,6 +25,7 @@ from imulink.io.files import check_writable_target, create_beside, publish
 from imulink.io.recording import RecordingError, RecordingWriter
 from imulink.progress import StatusLine
 from imulink.protocol.follower import StreamFollower
+from imulink.protocol.recovery import LostFrames
 
 #: Attempts of each command of the recorder: over a link that loses 1 % of its bytes a
 #: SETTING and its ACK both arrive about one time in two, and the snapshot is some twenty
@@ -38,6 +40,9 @@ INTERRUPTED = "interrupted"
 RECONNECT_S = 30.0
 #: Seconds between attempts to open a port that went away.
 REOPEN_INTERVAL_S = 0.5
+#: Seconds the recorder waits after the stream for the frames it still asked for (their
+#: RESEND retried at LostFrames' pace).
+RECOVERY_WAIT_S = 3.0
 
 
 @dataclass
@@ -52,6 +57,7 @@ class RecordResult:
     duration_s: float
     counters: dict
     reconnects: int = 0  # the board went away (or started again) and came back; each began a new segment
+    recovery: dict = field(default_factory=dict)  # LostFrames.counters(): frames lost and asked for again
 
     @property
     def interrupted(self) -> bool:
@@ -64,7 +70,7 @@ class RecordResult:
                 "samples": self.samples, "estimates": self.estimates, "duration_s": self.duration_s,
                 "stop_reason": self.stop_reason, "interrupted": self.interrupted,
                 "filter_restarts": self.filter_restarts, "reconnects": self.reconnects,
-                "link": link_json(self.counters)}
+                "link": link_json(self.counters), "recovery": self.recovery}
 
 
 def default_silence_timeout(status: dict) -> float:
@@ -76,7 +82,7 @@ def default_silence_timeout(status: dict) -> float:
 def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAULT_BAUD,
            profile: SensorProfile | None = None, resync: bool = True, silence_timeout_s: float | None = None,
            force: bool = False, progress: StatusLine | None = None, settings=None,
-           reconnect_s: float = RECONNECT_S, listen: bool = False) -> RecordResult:
+           reconnect_s: float = RECONNECT_S, listen: bool = False, resend: bool = True) -> RecordResult:
     """Record a board's stream to `path` until `duration_s` s have passed, the board stops
     streaming (STATUS.streaming = 0), or Ctrl-C (then `interrupted`).
 
@@ -91,6 +97,12 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
     `reconnect_s` seconds (0: not at all); when it answers again, the snapshot is taken
     again (with `settings` given again) and the recording goes on in a new segment of the
     same file.
+
+    resend: ask the board again (RESEND) for every frame found missing, while streaming and
+    after it (up to RECOVERY_WAIT_S): the board keeps its input frames (SAMPLE, BARO, GNSS,
+    MARKER) of about the last second at 1 kHz, and what it sends again goes into the file,
+    where load_recording puts it back in place. A SAMPLE lost for good (older than the
+    board's memory) restarts the board's filter when `resync`.
 
     listen: record a board another client commands (a fan-out TCP front, see
     imulink.board.proxy.TcpFront) without sending anything: the file starts with the board's last
@@ -132,7 +144,8 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
         temporary.unlink(missing_ok=True)
         raise
     silence = silence_timeout_s or (default_silence_timeout(status) if status else SILENCE_MIN_S)
-    recorder = _StreamRecorder(link, writer, filter_id, resync and not listen, progress, listen=listen,
+    recorder = _StreamRecorder(link, writer, filter_id, resync and not listen, resend and not listen, progress,
+                               listen=listen,
                                reopen=lambda: Link(url, baud, tap=writer.received, attempts=RECORD_COMMAND_ATTEMPTS),
                                settings=settings, profile=profile, reconnect_s=reconnect_s)
     with writer:
@@ -191,17 +204,22 @@ def _sum_counters(first: dict, second: dict) -> dict:
 
 
 class _StreamRecorder:
-    """The streaming part of :func:`record`: follows the stream, restarts the board's
-    filter after a lost SAMPLE (when `resync`), waits for a board that went away or started
+    """The streaming part of :func:`record`: follows the stream, asks the board again for
+    lost frames (when `resend`), restarts the board's filter after a SAMPLE lost for good
+    (when `resync`), waits for a board that went away or started
     again (`reopen`, `settings`, `profile`, `reconnect_s`: see record), shows progress,
     stops the stream."""
 
     RESTART_TIMEOUT_S = 1.0
 
-    def __init__(self, link: Link, writer: RecordingWriter, filter_id: int, resync: bool, progress: StatusLine | None,
-                 *, listen: bool, reopen, settings, profile: SensorProfile | None, reconnect_s: float):
+    def __init__(self, link: Link, writer: RecordingWriter, filter_id: int, resync: bool, resend: bool,
+                 progress: StatusLine | None, *, listen: bool, reopen, settings, profile: SensorProfile | None,
+                 reconnect_s: float):
         self.link, self.writer, self.filter_id = link, writer, filter_id
-        self.resync, self.progress = resync, progress
+        self.resync, self.resend, self.progress = resync, resend, progress
+        self._lost = LostFrames()
+        self._missing_since: dict[int, float] = {}  # a missing SAMPLE's index -> when it was found missing
+        self._missing_segment = 0  # the follower's segment those indices belong to
         self.samples = self.estimates = self.restarts = self.reconnects = 0
         self.listen = listen  # record without commanding (see record)
         self.reopen = reopen  # () -> a new Link on the same port
@@ -229,9 +247,24 @@ class _StreamRecorder:
         self._close_link()
         self.link, self._link_open = link, True
 
+    def _take(self, message: protocol.Message) -> None:
+        """One received frame: note what it shows lost or brings back, and follow the stream."""
+        recovered = self._lost.follow(message)
+        if recovered is not None and self._streaming:
+            self._follower.recover(recovered)
+        if self._streaming:
+            self._follow(message)
+        self._streaming = self._streaming or message is self._start_ack
+
+    def _ask_again(self) -> None:
+        """RESEND what is missing and due (LostFrames paces the asks)."""
+        if self.resend:
+            for first_seq, count in self._lost.requests(time.monotonic()):
+                self.link.post("RESEND", first_seq=first_seq, count=count)
+
     def _follow(self, message: protocol.Message) -> None:
         name, fields = message.name, message.fields
-        self._follower.follow(message)  # a lost SAMPLE: the rest of its filter run cannot be verified
+        self._follower.follow(message)  # a lost SAMPLE: its run is unverifiable unless it comes again
         if name == "SAMPLE":
             self.samples += 1
         elif name == "ESTIMATE":
@@ -247,8 +280,25 @@ class _StreamRecorder:
         elif name == "HELLO" and message.seq == 0 and not (self.listen and self.samples == 0):
             raise _BoardRestarted  # (a listener's first HELLO is the front's copy)
 
+    def _lost_for_good(self) -> bool:
+        """Whether a SAMPLE of the current run is missing for good: not recovered within the
+        time LostFrames asks for it (at once without `resend`)."""
+        missing = self._follower.missing_samples
+        if not self.resend or not missing:
+            return not self._follower.complete
+        now = time.monotonic()
+        since = self._missing_since
+        if self._missing_segment != self._follower.segment:  # a new run: its indices are new ones
+            since.clear()
+            self._missing_segment = self._follower.segment
+        for index in [i for i in since if i not in missing]:
+            del since[index]
+        for index in missing:
+            since.setdefault(index, now)
+        return now - min(since.values()) > self._lost.give_up_s
+
     def _restart_if_needed(self) -> None:
-        if not self.resync or self._follower.complete:
+        if not self.resync or self._follower.complete or not self._lost_for_good():
             return
         if self._restart is None or time.monotonic() - self._restart[1] > self.RESTART_TIMEOUT_S:
             self._restart = (self.link.send_command("SELECT_FILTER", filter_id=self.filter_id), time.monotonic())
@@ -263,6 +313,8 @@ class _StreamRecorder:
         self._start_ack = self.link.command("START_STREAM").ack
         self._streaming, self._last_heard = False, time.monotonic()
         self._follower, self._restart = StreamFollower(), None  # the snapshot restarted the filter
+        self._missing_since.clear()
+        self._missing_segment = 0
         self.writer.event("stream_started", filter=filter_name)
 
     def run(self, hello: dict, filter_name: str, duration_s: float | None, silence_s: float) -> RecordResult:
@@ -282,14 +334,30 @@ class _StreamRecorder:
         except KeyboardInterrupt:
             self.stop_reason = INTERRUPTED
         self._stop_stream()
+        if self.stop_reason != INTERRUPTED:
+            self._recover_the_rest()
         counters = self.counters()
-        self.writer.event("stopped", reason=self.stop_reason, counters=counters)
+        self.writer.event("stopped", reason=self.stop_reason, counters=counters, recovery=self._lost.counters())
         elapsed = time.monotonic() - started
         if self.progress is not None:
             self.progress.update(self._status_line(elapsed, counters), force=True)
             self.progress.done()
         return RecordResult(self.writer.path, hello, self.filter_name, self.samples, self.estimates, self.restarts,
-                            self.stop_reason, elapsed, counters, self.reconnects)
+                            self.stop_reason, elapsed, counters, self.reconnects, self._lost.counters())
+
+    def _recover_the_rest(self) -> None:
+        """After the stream: wait up to RECOVERY_WAIT_S for the frames still asked for (the
+        STOP_STREAM ACK shows the frames lost at the very end), asking again as they are due."""
+        if not self.resend:
+            return
+        deadline = time.monotonic() + RECOVERY_WAIT_S
+        try:
+            while self._lost.outstanding and time.monotonic() < deadline:
+                for item in self.link.receive(timeout=0.05):
+                    self._take(item.message)
+                self._ask_again()
+        except LinkError:
+            pass  # the board went away: what came is in the file
 
     def _follow_stream(self, started: float, duration_s: float | None, silence_s: float) -> None:
         """Follow the stream until a stop reason (or an exception: the board went away or
@@ -301,9 +369,8 @@ class _StreamRecorder:
             if received:
                 self._last_heard = now
             for item in received:
-                if self._streaming:
-                    self._follow(item.message)
-                self._streaming = self._streaming or item.message is self._start_ack
+                self._take(item.message)
+            self._ask_again()
             if writer.failure is not None:
                 self._stop_stream()
                 self._abort(RecordingError, f"{writer.failure}; the recording ends there", "is readable up to there")
@@ -383,6 +450,8 @@ class _StreamRecorder:
         raise error(f"{reason}; {self.writer.path} {kept}")
 
     def _status_line(self, elapsed: float, counters: dict) -> str:
+        recovered = self._lost.recovered_messages.get("SAMPLE", 0)
         return (f"recording {elapsed:6.1f} s: {self.samples} samples, {link_summary(counters)}"
+                + (f", {recovered} lost samples recovered" if recovered else "")
                 + (f", filter restarts {self.restarts}" if self.restarts else "")
                 + (f", reconnects {self.reconnects}" if self.reconnects else ""))

@@ -25,6 +25,9 @@ profile is the one the board states in its HELLO (the header's only without a HE
 estimates, split into *segments*: runs of the filter from sample index 0, as
 :class:`imulink.protocol.follower.StreamFollower` finds them (a restarting command's ACK,
 a start-up HELLO, or a sample index that goes backwards begins a new segment).
+Frames lost on the way and sent again by the board (RESENT, asked for by the recorder) are
+put back where they were first sent (:func:`imulink.protocol.recovery.in_sent_order`) and
+marked as recovered; a recording without them reads as before.
 """
 from __future__ import annotations
 
@@ -48,6 +51,7 @@ from imulink.errors import ImulinkError
 from imulink.io.files import FileError, read_regular_file
 from imulink.progress import CountProgress
 from imulink.protocol.follower import RUN_FRAMES, StreamFollower
+from imulink.protocol.recovery import in_sent_order
 
 MAGIC = b"IMULOG1\n"
 FORMAT_VERSION = 1
@@ -252,6 +256,7 @@ class Samples:
     acc: np.ndarray
     mag: np.ndarray
     temperature: np.ndarray
+    recovered: np.ndarray  # bool: lost on the way and sent again by the board (RESENT)
 
     def __len__(self) -> int:
         return len(self.index)
@@ -370,6 +375,7 @@ class Recording:
     damaged: (byte offset, length) of each damaged span of the file that was skipped.
     truncated_bytes: bytes of a damaged tail that were ignored.
     segments: number of filter runs (see the module docstring).
+    recovered: message name -> frames of it that were lost on the way and recovered (RESENT).
     """
 
     path: Path
@@ -396,6 +402,7 @@ class Recording:
     gnss: Gnss = field(default_factory=lambda: _gnss_table([]))
     nav_states: NavStates = field(default_factory=lambda: _message_table(NavStates, "NAV_STATE", []))
     markers: Markers = field(default_factory=lambda: _message_table(Markers, "MARKER", []))
+    recovered: dict[str, int] = field(default_factory=dict)
 
     def calibration(self, segment: int | None = None):
         """The board's calibration (imulink.analysis.calibration.Calibration, in this recording's
@@ -481,25 +488,28 @@ def load_recording(path, progress: CountProgress | None = None) -> Recording:
     decoder, follower = protocol.FrameDecoder(), StreamFollower()
     logs, segment_settings, segment_calibration = [], {}, {}
     tables: dict[str, list] = {name: [] for name in RUN_FRAMES}
-
+    received: list[tuple[protocol.Message, LogRecord]] = []  # in arrival order
     for record in records[1:]:
         if progress is not None:
             progress(record.offset, total)
-        if record.kind != KIND_RECEIVED:
-            continue
-        for message in decoder.feed(record.body):
-            name, fields = message.name, message.fields
-            segment = follower.follow(message)
-            if segment is not None:
-                if segment not in segment_settings:  # its first frame: what the board had reported by then
-                    segment_settings[segment] = {fid: dict(by_index) for fid, by_index in follower.settings.items()}
-                    segment_calibration[segment] = dict(follower.calibration)
-                if name == "ESTIMATE":
-                    tables[name].append((record.time, segment, record.offset < snapshot_at, fields))
-                else:
-                    tables[name].append((record.time, segment, fields))
-            elif name == "LOG":
-                logs.append((record.time, fields["level"], fields["text"]))
+        if record.kind == KIND_RECEIVED:
+            received.extend((message, record) for message in decoder.feed(record.body))
+    recovered: dict[str, int] = {}
+    for message, record, was_recovered in in_sent_order(received):
+        name, fields = message.name, message.fields
+        if was_recovered:
+            recovered[name] = recovered.get(name, 0) + 1
+        segment = follower.follow(message)
+        if segment is not None:
+            if segment not in segment_settings:  # its first frame: what the board had reported by then
+                segment_settings[segment] = {fid: dict(by_index) for fid, by_index in follower.settings.items()}
+                segment_calibration[segment] = dict(follower.calibration)
+            if name == "ESTIMATE":
+                tables[name].append((record.time, segment, record.offset < snapshot_at, fields))
+            else:
+                tables[name].append((record.time, segment, fields, was_recovered))
+        elif name == "LOG":
+            logs.append((record.time, fields["level"], fields["text"]))
     if progress is not None:
         progress(total, total)
     profile = _profile(path, follower.hello, declared_profile)
@@ -510,7 +520,7 @@ def load_recording(path, progress: CountProgress | None = None) -> Recording:
                      found.truncated_bytes, segments, follower.calibration, segment_settings, segment_calibration,
                      _baro_table(tables["BARO"]), _gnss_table(tables["GNSS"]),
                      _message_table(NavStates, "NAV_STATE", tables["NAV_STATE"]),
-                     _message_table(Markers, "MARKER", tables["MARKER"]))
+                     _message_table(Markers, "MARKER", tables["MARKER"]), recovered)
 
 
 def _json_object(path: Path, record: LogRecord, what: str) -> dict:
@@ -573,6 +583,7 @@ def _sample_table(rows) -> Samples:
         acc=np.array([x["acc"] for x in f], np.int16).reshape(-1, 3),
         mag=np.array([x["mag"] for x in f], np.int16).reshape(-1, 3),
         temperature=np.array([x["temperature"] for x in f], np.int16),
+        recovered=np.array([r[3] for r in rows], bool),
     )
 
 

@@ -340,6 +340,23 @@ def _parse(span: bytes) -> Message:
     return codec.message(frame)
 
 
+def message_of_payload(msg_id: int, seq: int, payload: bytes) -> Message:
+    """The message of a payload known to be whole (e.g. carried inside a RESENT frame, whose
+    CRC covered it); FrameError for an unknown id or a length the message cannot have."""
+    codec = _CODEC_BY_ID.get(msg_id)
+    if codec is None:
+        raise FrameError(f"unknown message id 0x{msg_id:02X}")
+    frame = bytes((msg_id,)) + seq.to_bytes(2, "little") + bytes(payload) + bytes(CRC_SIZE)
+    if not codec.min_frame <= len(frame) <= codec.max_frame:
+        raise FrameError(f"{codec.name} payload of {len(payload)} bytes")
+    return codec.message(frame)
+
+
+def direction_of(name: str) -> str:
+    """Who sends a message: "to_host" (the board) or "to_board" (the host)."""
+    return _codec(name).direction
+
+
 def decode(wire: bytes) -> Message:
     """Decode one frame as :func:`encode` wrote it (the trailing delimiter may be left off).
 

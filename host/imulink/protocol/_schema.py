@@ -9,7 +9,7 @@ the last field only, text / bytes (length: the maximum, variable on the wire).
 from typing import Any
 
 PROTOCOL_VERSION = 1
-SCHEMA_HASH = 0xA373C5B8
+SCHEMA_HASH = 0x112AC5A1
 HEADER_SIZE = 3
 CRC_SIZE = 4
 MAX_PAYLOAD = 201
@@ -145,6 +145,12 @@ MESSAGES: dict[str, dict[str, Any]] = {
         ('v_acc_mm', 'u32', None),
         ('used', 'u8', None),
     )},
+    'RESENT': {'id': 0x16, 'direction': 'to_host', 'fields': (
+        ('original_seq', 'u16', None),
+        ('status', 'u8', None),
+        ('msg_id', 'u8', None),
+        ('payload', 'bytes', 64),
+    )},
     'COMMAND': {'id': 0x20, 'direction': 'to_board', 'fields': (
         ('command', 'u8', None),
         ('command_seq', 'u16', None),
@@ -201,6 +207,10 @@ COMMANDS: dict[str, dict[str, Any]] = {
         ('h_acc_mm', 'u32', None),
         ('v_acc_mm', 'u32', None),
     ), 'restarts_filter': False, 'idempotent': True, 'reply': None},
+    'RESEND': {'id': 15, 'args': (
+        ('first_seq', 'u16', None),
+        ('count', 'u8', None),
+    ), 'restarts_filter': False, 'idempotent': True, 'reply': 'RESENT'},
 }
 
 #: code table name -> code name -> value
@@ -208,6 +218,7 @@ ENUMS: dict[str, dict[str, int]] = {
     'filter': {'EECF': 1, 'KF1D': 2, 'ESKF': 3, 'NAV': 4},
     'reason': {'OK': 0, 'UNKNOWN_COMMAND': 1, 'BAD_LENGTH': 2, 'BAD_ARGUMENT': 3, 'OUT_OF_RANGE': 4, 'BUSY': 5, 'NOT_IN_INJECTION_MODE': 6, 'UNKNOWN_FILTER': 7, 'UNKNOWN_SETTING': 8, 'NOT_SUPPORTED': 9, 'NOT_NAV': 10},
     'sensor': {'GYROSCOPE': 0, 'ACCELEROMETER': 1, 'MAGNETOMETER': 2},
+    'resend_status': {'HELD': 0, 'NOT_KEPT': 1, 'GONE': 2},
     'log_level': {'DEBUG': 10, 'INFO': 20, 'WARNING': 30, 'ERROR': 40},
 }
 
@@ -302,11 +313,12 @@ CFFI_DECLARATIONS = """
 #define IMU_PROTO_VERSION ...
 #define IMU_PROTO_SCHEMA_HASH ...
 #define IMU_PROTO_MAX_PAYLOAD ...
-typedef enum { IMU_PROTO_MSG_HELLO = 1, IMU_PROTO_MSG_STATUS = 2, IMU_PROTO_MSG_LOG = 3, IMU_PROTO_MSG_ACK = 4, IMU_PROTO_MSG_NACK = 5, IMU_PROTO_MSG_SETTING = 6, IMU_PROTO_MSG_CALIBRATION = 7, IMU_PROTO_MSG_SAMPLE = 16, IMU_PROTO_MSG_ESTIMATE = 17, IMU_PROTO_MSG_BARO = 18, IMU_PROTO_MSG_GNSS = 19, IMU_PROTO_MSG_NAV_STATE = 20, IMU_PROTO_MSG_MARKER = 21, IMU_PROTO_MSG_COMMAND = 32 } imu_proto_msg_id_t;
-typedef enum { IMU_PROTO_CMD_START_STREAM = 1, IMU_PROTO_CMD_STOP_STREAM = 2, IMU_PROTO_CMD_SELECT_FILTER = 3, IMU_PROTO_CMD_GET_SETTING = 4, IMU_PROTO_CMD_SET_SETTING = 5, IMU_PROTO_CMD_INJECT_SAMPLE = 6, IMU_PROTO_CMD_RESET = 7, IMU_PROTO_CMD_ENTER_BOOTLOADER = 8, IMU_PROTO_CMD_GET_VERSION = 9, IMU_PROTO_CMD_GET_STATUS = 10, IMU_PROTO_CMD_SET_INJECTION_MODE = 11, IMU_PROTO_CMD_SET_CALIBRATION = 12, IMU_PROTO_CMD_GET_CALIBRATION = 13, IMU_PROTO_CMD_POSITION_FIX = 14 } imu_proto_command_id_t;
+typedef enum { IMU_PROTO_MSG_HELLO = 1, IMU_PROTO_MSG_STATUS = 2, IMU_PROTO_MSG_LOG = 3, IMU_PROTO_MSG_ACK = 4, IMU_PROTO_MSG_NACK = 5, IMU_PROTO_MSG_SETTING = 6, IMU_PROTO_MSG_CALIBRATION = 7, IMU_PROTO_MSG_SAMPLE = 16, IMU_PROTO_MSG_ESTIMATE = 17, IMU_PROTO_MSG_BARO = 18, IMU_PROTO_MSG_GNSS = 19, IMU_PROTO_MSG_NAV_STATE = 20, IMU_PROTO_MSG_MARKER = 21, IMU_PROTO_MSG_RESENT = 22, IMU_PROTO_MSG_COMMAND = 32 } imu_proto_msg_id_t;
+typedef enum { IMU_PROTO_CMD_START_STREAM = 1, IMU_PROTO_CMD_STOP_STREAM = 2, IMU_PROTO_CMD_SELECT_FILTER = 3, IMU_PROTO_CMD_GET_SETTING = 4, IMU_PROTO_CMD_SET_SETTING = 5, IMU_PROTO_CMD_INJECT_SAMPLE = 6, IMU_PROTO_CMD_RESET = 7, IMU_PROTO_CMD_ENTER_BOOTLOADER = 8, IMU_PROTO_CMD_GET_VERSION = 9, IMU_PROTO_CMD_GET_STATUS = 10, IMU_PROTO_CMD_SET_INJECTION_MODE = 11, IMU_PROTO_CMD_SET_CALIBRATION = 12, IMU_PROTO_CMD_GET_CALIBRATION = 13, IMU_PROTO_CMD_POSITION_FIX = 14, IMU_PROTO_CMD_RESEND = 15 } imu_proto_command_id_t;
 typedef enum { IMU_PROTO_FILTER_EECF = 1, IMU_PROTO_FILTER_KF1D = 2, IMU_PROTO_FILTER_ESKF = 3, IMU_PROTO_FILTER_NAV = 4 } imu_proto_filter_t;
 typedef enum { IMU_PROTO_REASON_OK = 0, IMU_PROTO_REASON_UNKNOWN_COMMAND = 1, IMU_PROTO_REASON_BAD_LENGTH = 2, IMU_PROTO_REASON_BAD_ARGUMENT = 3, IMU_PROTO_REASON_OUT_OF_RANGE = 4, IMU_PROTO_REASON_BUSY = 5, IMU_PROTO_REASON_NOT_IN_INJECTION_MODE = 6, IMU_PROTO_REASON_UNKNOWN_FILTER = 7, IMU_PROTO_REASON_UNKNOWN_SETTING = 8, IMU_PROTO_REASON_NOT_SUPPORTED = 9, IMU_PROTO_REASON_NOT_NAV = 10 } imu_proto_reason_t;
 typedef enum { IMU_PROTO_SENSOR_GYROSCOPE = 0, IMU_PROTO_SENSOR_ACCELEROMETER = 1, IMU_PROTO_SENSOR_MAGNETOMETER = 2 } imu_proto_sensor_t;
+typedef enum { IMU_PROTO_RESEND_STATUS_HELD = 0, IMU_PROTO_RESEND_STATUS_NOT_KEPT = 1, IMU_PROTO_RESEND_STATUS_GONE = 2 } imu_proto_resend_status_t;
 typedef enum { IMU_PROTO_LOG_LEVEL_DEBUG = 10, IMU_PROTO_LOG_LEVEL_INFO = 20, IMU_PROTO_LOG_LEVEL_WARNING = 30, IMU_PROTO_LOG_LEVEL_ERROR = 40 } imu_proto_log_level_t;
 #define IMU_PROTO_HELLO_SIZE ...
 typedef struct { uint8_t firmware_major; uint8_t firmware_minor; uint8_t firmware_patch; uint8_t protocol_version; uint32_t schema_hash; char board[16]; uint8_t filters; int32_t gyro_scale; int32_t acc_scale; int32_t mag_scale; } imu_proto_hello_t;
@@ -386,6 +398,11 @@ typedef struct { uint32_t timestamp_us; uint32_t index; int32_t lat_1e7deg; int3
 size_t imu_proto_marker_pack(const imu_proto_marker_t *m, uint8_t *payload);
 imu_proto_result_t imu_proto_marker_unpack(imu_proto_marker_t *m, const uint8_t *payload, size_t len);
 size_t imu_proto_marker_encode(const imu_proto_marker_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
+#define IMU_PROTO_RESENT_SIZE ...
+typedef struct { uint16_t original_seq; uint8_t status; uint8_t msg_id; uint8_t payload[64]; size_t payload_len; } imu_proto_resent_t;
+size_t imu_proto_resent_pack(const imu_proto_resent_t *m, uint8_t *payload);
+imu_proto_result_t imu_proto_resent_unpack(imu_proto_resent_t *m, const uint8_t *payload, size_t len);
+size_t imu_proto_resent_encode(const imu_proto_resent_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 #define IMU_PROTO_COMMAND_SIZE ...
 typedef struct { uint8_t command; uint16_t command_seq; uint8_t args[28]; size_t args_len; } imu_proto_command_t;
 size_t imu_proto_command_pack(const imu_proto_command_t *m, uint8_t *payload);
@@ -424,6 +441,10 @@ imu_proto_result_t imu_proto_cmd_get_calibration_unpack(imu_proto_cmd_get_calibr
 typedef struct { int32_t lat_1e7deg; int32_t lon_1e7deg; int32_t height_mm; uint32_t h_acc_mm; uint32_t v_acc_mm; } imu_proto_cmd_position_fix_t;
 size_t imu_proto_cmd_position_fix_pack(const imu_proto_cmd_position_fix_t *a, uint8_t *args);
 imu_proto_result_t imu_proto_cmd_position_fix_unpack(imu_proto_cmd_position_fix_t *a, const uint8_t *args, size_t len);
+#define IMU_PROTO_CMD_RESEND_SIZE ...
+typedef struct { uint16_t first_seq; uint8_t count; } imu_proto_cmd_resend_t;
+size_t imu_proto_cmd_resend_pack(const imu_proto_cmd_resend_t *a, uint8_t *args);
+imu_proto_result_t imu_proto_cmd_resend_unpack(imu_proto_cmd_resend_t *a, const uint8_t *args, size_t len);
 int imu_proto_command_args_size(uint8_t command);
 #define IMU_PROTO_FLAG_RESTARTS_FILTER ...
 #define IMU_PROTO_FLAG_IDEMPOTENT ...
@@ -441,6 +462,7 @@ int imu_proto_command_args_size(uint8_t command);
 #define IMU_PROTO_CMD_SET_CALIBRATION_FLAGS ...
 #define IMU_PROTO_CMD_GET_CALIBRATION_FLAGS ...
 #define IMU_PROTO_CMD_POSITION_FIX_FLAGS ...
+#define IMU_PROTO_CMD_RESEND_FLAGS ...
 unsigned imu_proto_command_flags(uint8_t command);
 """
 

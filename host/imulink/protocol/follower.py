@@ -8,8 +8,8 @@ live monitor's check (which runs the host build beside the board).
 A filter run begins at sample index 0: after the ACK of a command that restarts the filter
 (protocol.RESTARTING_COMMANDS), after a HELLO with sequence number 0 (the board started up
 or was reset), or where the sample index goes backwards (a restart whose ACK was lost). A run
-is complete while every SAMPLE from index 0 has arrived: the host can reproduce its
-estimates only then.
+is complete while every SAMPLE from index 0 has arrived (live, or sent again after it was lost
+on the way: :meth:`StreamFollower.recover`): the host can reproduce its estimates only then.
 """
 from __future__ import annotations
 
@@ -17,6 +17,9 @@ from imulink import protocol
 
 #: Frames that belong to one sample of a filter run (their `index` is the sample's).
 RUN_FRAMES = frozenset({"SAMPLE", "ESTIMATE", "BARO", "GNSS", "NAV_STATE", "MARKER"})
+#: Lost SAMPLEs listed one by one for recovery; a longer gap (a board whose stream was joined
+#: late) leaves its run incomplete for good.
+MAX_LISTED_GAP = 1 << 16
 _RESTARTING_IDS = frozenset(protocol.COMMAND_IDS[name] for name in protocol.RESTARTING_COMMANDS)
 
 
@@ -25,6 +28,8 @@ class StreamFollower:
 
     segment: the current filter run's number (0 for the first).
     complete: every SAMPLE of the current run has arrived, from index 0 on.
+    missing_samples: the indices of the current run's SAMPLEs that have not arrived (lost on
+      the way, until they are recovered).
     filter_id: the active filter as the board last reported it (STATUS, SETTING, ESTIMATE);
       None before any report.
     settings: filter id -> setting index -> SETTING fields, the last reported.
@@ -39,7 +44,6 @@ class StreamFollower:
 
     def __init__(self) -> None:
         self.segment = 0
-        self.complete = True
         self.filter_id: int | None = None
         self.settings: dict[int, dict[int, dict]] = {}
         self.calibration: dict[tuple[int, int], dict] = {}
@@ -50,7 +54,14 @@ class StreamFollower:
         self.restarted_by = "start"
         self.restart_ack: dict | None = None
         self._last_index: int | None = None  # the last run frame's index in this run; None: none yet
-        self._next_sample = 0  # the index the next SAMPLE of a complete run must have
+        self._next_sample = 0  # the index after the last SAMPLE of this run
+        self.missing_samples: set[int] = set()
+        self._recovered_ahead: set[int] = set()  # recovered SAMPLEs not passed by a live one yet
+        self._beyond_recovery = False  # a gap too long to list: the run stays incomplete
+
+    @property
+    def complete(self) -> bool:
+        return not self.missing_samples and not self._beyond_recovery
 
     def follow(self, message: protocol.Message) -> int | None:
         """Take the next message; the segment of a run frame (RUN_FRAMES), None for others."""
@@ -95,7 +106,20 @@ class StreamFollower:
             self.segment += 1
             self._last_index = None
         self.restarted_by = why
-        self.complete, self._next_sample = True, 0
+        self._next_sample = 0
+        self.missing_samples = set()
+        self._recovered_ahead = set()
+        self._beyond_recovery = False
+
+    def recover(self, message: protocol.Message) -> None:
+        """A frame of this run that was lost on the way and sent again (RESENT), arriving
+        after the live frames that followed it: a SAMPLE fills its gap."""
+        if message.name != "SAMPLE":
+            return
+        index = message.fields["index"]
+        if index >= self._next_sample:
+            self._recovered_ahead.add(index)  # it came back before a later SAMPLE showed it missing
+        self.missing_samples.discard(index)
 
     def _place(self, name: str, fields: dict) -> int:
         index = fields["index"]
@@ -103,9 +127,15 @@ class StreamFollower:
             self._restart("index")
         self._last_index = index
         if name == "SAMPLE":
-            if index != self._next_sample:
-                self.complete = False  # a SAMPLE was lost: the rest of this run cannot be reproduced
-            self._next_sample = index + 1
+            if index < self._next_sample:
+                self._beyond_recovery = True  # a SAMPLE again: this run is not what the host can reproduce
+            elif index - self._next_sample > MAX_LISTED_GAP:
+                self._beyond_recovery = True
+            else:  # SAMPLEs were lost: the rest of this run cannot be reproduced unless they come again
+                self.missing_samples.update(set(range(self._next_sample, index)) - self._recovered_ahead)
+            if self._recovered_ahead:
+                self._recovered_ahead = {i for i in self._recovered_ahead if i > index}
+            self._next_sample = max(self._next_sample, index + 1)
         elif name == "ESTIMATE":
             self.filter_id = fields["filter_id"]
         return self.segment
