@@ -5,7 +5,8 @@
 (c) firmware/core includes no platform header, and the fixed build compiles
     freestanding with only the compiler's own headers;
 (d) tests/c/vector_driver.c, built with UBSan and ASan, replays every golden vector;
-(e) compiling with both or neither of IMU_FIXED / IMU_FLOAT stops at the #error.
+(e) compiling with both or neither of IMU_FIXED / IMU_FLOAT stops at the #error;
+(f) the filters' state structs have no implicit padding (a checkpoint copies them byte for byte).
 Skipped only when gcc is absent.
 """
 from __future__ import annotations
@@ -285,3 +286,36 @@ def test_arithmetic_must_be_chosen_once(defines, message):
         proc = gcc("-std=c99", *defines, f"-I{CORE}", "-fsyntax-only", src)
         assert proc.returncode != 0, f"{src.name} compiled with {defines or 'no arithmetic'}"
         assert "#error" in proc.stderr and message in proc.stderr, proc.stderr
+
+
+# --------------------------------------------------------------------------- (f) no padding in a state
+
+#: Structs that may hold implicit padding: they hold pointers or are constants, never a filter's state.
+NOT_STATE = {"imu_setting_desc_t", "imu_filter_kind_t", "imu_filter_t", "imu_cov_map_t", "imu_navcov_map_t"}
+
+
+def _padded_structs(compiler: str, *flags) -> set[str]:
+    """The structs -Wpadded reports padding in, compiling imu_filter.c (which includes every state)."""
+    proc = subprocess.run([compiler, "-std=c99", "-DIMU_FIXED", "-Wpadded", "-fsyntax-only", *flags, f"-I{CORE}",
+                           str(CORE / "imu_filter.c")], capture_output=True, text=True, timeout=120)
+    assert_ok(proc, f"{compiler} -Wpadded")
+    found = set()
+    for path, line in re.findall(r"^(\S+?\.h):(\d+):\d+: warning: padding", proc.stderr, re.M):
+        text = Path(path if Path(path).is_absolute() else CORE / Path(path).name).read_text().splitlines()
+        closing = next(t for t in text[int(line) - 1:] if t.startswith("}"))  # the struct's "} name_t;"
+        found.add(closing.strip("} ;"))
+    return found
+
+
+@pytest.mark.parametrize("target", ["host", "cortex-m4"])
+def test_filter_states_have_no_implicit_padding(target):
+    """A checkpoint (imu_filter_state) is a state struct's bytes: with no implicit padding every
+    byte is defined, and the layout is the same on the board and the host."""
+    if target == "host":
+        padded = _padded_structs(GCC)
+    else:
+        arm = shutil.which("arm-none-eabi-gcc")
+        if arm is None:
+            pytest.skip("arm-none-eabi-gcc not found")
+        padded = _padded_structs(arm, "-mcpu=cortex-m4", "-mthumb")
+    assert padded and padded <= NOT_STATE, f"implicit padding in {sorted(padded - NOT_STATE)}"

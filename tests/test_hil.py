@@ -192,7 +192,7 @@ def test_without_resend_faults_are_counted_and_every_arrived_estimate_is_account
     # In real time: the board's stream lasts long enough for the recorder's filter restarts
     # (and their retries, when an ACK was damaged) to take effect.
     with EmulatedBoard(duration_s=3.0, rate_hz=1000.0, realtime=True, faults=faults) as board:
-        result = hil.record(board.address, path, resend=False)
+        result = hil.record(board.address, path, resend=False, checkpoint_s=0.0)
     counters = result.counters
     assert counters["crc_errors"] + counters["resyncs"] > 0 and counters["lost_frames"] > 0
     assert result.filter_restarts > 0  # lost samples made the recorder restart the filter
@@ -215,7 +215,7 @@ def test_one_restart_per_loss_in_real_time(tmp_path):
     path = tmp_path / "realtime.imulog"
     with EmulatedBoard(front="tcp", duration_s=5.0, rate_hz=200.0, realtime=True,
                       faults=FaultConfig(drop_byte=3e-4, seed=8)) as board:
-        result = hil.record(board.address, path, duration_s=1.5, resend=False)
+        result = hil.record(board.address, path, duration_s=1.5, resend=False, checkpoint_s=0.0)
     recording = load_recording(path)
     assert 0 < result.filter_restarts == recording.segments - 1
     comparison = hil.compare(recording)
@@ -225,7 +225,7 @@ def test_one_restart_per_loss_in_real_time(tmp_path):
 def test_without_resync_a_lost_sample_ends_verification(tmp_path):
     path = tmp_path / "noresync.imulog"
     with EmulatedBoard(duration_s=30.0, faults=FaultConfig(drop_byte=2e-4, seed=1)) as board:
-        result = hil.record(board.address, path, resync=False, resend=False)
+        result = hil.record(board.address, path, resync=False, resend=False, checkpoint_s=0.0)
     assert result.filter_restarts == 0
     recording = load_recording(path)
     comparison = hil.compare(recording)
@@ -276,7 +276,7 @@ def test_heavy_faults_leave_too_few_verified_estimates_for_a_yes(tmp_path, capsy
     The verdict says how many, and exits 1 below --min-verified."""
     path = tmp_path / "heavy.imulog"
     with EmulatedBoard(duration_s=5.0, rate_hz=1000.0, faults=FaultConfig(drop_byte=1e-3, seed=1)) as board:
-        hil.record(board.address, path, resend=False)
+        hil.record(board.address, path, resend=False, checkpoint_s=0.0)
     recording = load_recording(path)
     received, verifiable = len(recording.estimates), _verifiable_estimates(recording)
     assert 0 < verifiable < 0.99 * received

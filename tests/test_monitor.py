@@ -80,6 +80,18 @@ def test_live_check_agrees_with_compare_and_names_a_difference(eskf_recording):
     assert check.summary.first_difference.startswith("sample index 123: euler: board")
 
 
+def test_live_check_resumes_at_the_next_checkpoint_after_a_lost_sample(eskf_recording):
+    """The recorder had the board send a checkpoint of its filter state every second (100
+    samples): after a lost SAMPLE the live check resumes there, without the float twin."""
+    messages = [m for m in _recorded_messages(eskf_recording)
+                if not (m.name == "SAMPLE" and m.fields["index"] in (150, 151))]
+    check = LiveCheck(load_recording(eskf_recording).profile)
+    angles = np.array(check.feed(messages))
+    assert check.resumed == 1
+    assert check.summary.identical == 450 and check.summary.unverifiable == 50 and check.summary.different == 0
+    assert np.isfinite(angles[:150]).all() and np.isnan(angles[150:]).all()  # no twin after the resumption
+
+
 def wait_for(predicate, timeout: float = 20.0, what: str = "") -> None:
     deadline = time.monotonic() + timeout
     while not predicate():

@@ -17,11 +17,11 @@ pytest.importorskip("matplotlib", reason="the plot extra (matplotlib) is not ins
 
 @pytest.fixture(scope="module")
 def faulty_recording(tmp_path_factory):
-    """A recording over a link that drops bytes, without RESEND: lost samples and filter restarts."""
+    """A recording over a link that drops bytes, without RESEND and checkpoints: lost samples and filter restarts."""
     path = tmp_path_factory.mktemp("plot") / "faulty.imulog"
     with EmulatedBoard(front="tcp", duration_s=5.0, rate_hz=200.0, realtime=True,
                        faults=FaultConfig(drop_byte=3e-4, seed=8)) as board:
-        hil.record(board.address, path, duration_s=2.0, resend=False)
+        hil.record(board.address, path, duration_s=2.0, resend=False, checkpoint_s=0.0)
     return path
 
 

@@ -655,7 +655,7 @@ def test_schema_formats_and_flags():
     assert protocol.NOT_IDEMPOTENT_COMMANDS == {"INJECT_SAMPLE", "RESET"}
     assert protocol.REPLY_MESSAGES == {"GET_VERSION": "HELLO", "GET_STATUS": "STATUS", "GET_SETTING": "SETTING",
                                        "GET_CALIBRATION": "CALIBRATION", "INJECT_SAMPLE": "ESTIMATE",
-                                       "RESEND": "RESENT"}
+                                       "RESEND": "RESENT", "GET_CHECKPOINT": "CHECKPOINT"}
     with pytest.raises(ValueError, match="no format"):
         protocol.field_format("ESTIMATE", "index")
     with pytest.raises(ValueError, match="decimal scale"):

@@ -172,7 +172,7 @@ def test_one_dropped_sample_mid_run_leaves_the_rest_of_the_run_verified(tmp_path
 def test_without_resend_a_lost_sample_ends_verification(tmp_path):
     path = tmp_path / "old.imulog"
     with EmulatedBoard(duration_s=3.0, filter_name="eskf", faults=FaultConfig(drop_samples=(150,))) as board:
-        result = hil.record(board.address, path, resend=False, resync=False)
+        result = hil.record(board.address, path, resend=False, resync=False, checkpoint_s=0.0)
     recording = load_recording(path)
     assert result.recovery["lost"] > 0 and result.recovery["recovered"] == 0
     assert 150 not in recording.samples.index.tolist() and not recording.samples.recovered.any()

@@ -7,7 +7,7 @@ with `--target qemu`) streaming in real time behind the fault proxy, recorded wi
 `imulink.hil.record` (which asks for every lost frame again), then loaded and compared.
 The faults are the proxy's (imulink.board.proxy.FaultConfig): bytes dropped or bits flipped
 at 2e-4, 1e-3 and 1e-2 of the board's bytes, and a 2 s stall. The nav filter runs the car
-drive with its GNSS receiver and barometer; the others the `rotations` scenario.
+drive with its GNSS receiver and barometer; the others the `random` scenario.
 
 Per case: samples the board sent that are missing from the recording, the estimates
 received and the share of them verified bit for bit, the frames recovered, the filter
@@ -48,7 +48,7 @@ FAULTS = {
 
 
 def run_case(target: str, filter_name: str, rate_hz: float, duration_s: float, fault: str, seed: int) -> dict:
-    scenario = NAV_SCENARIO if filter_name == "nav" else "rotations"
+    scenario = NAV_SCENARIO if filter_name == "nav" else "random"
     faults = FaultConfig(seed=seed, **FAULTS[fault])
     with tempfile.TemporaryDirectory() as directory:
         path = Path(directory) / "run.imulog"

@@ -19,6 +19,11 @@
 /** What the NAV filter adds to a sample: its NAV_STATE, and a MARKER when a POSITION_FIX waits. */
 #define NAV_WIRE_BYTES (WIRE_BYTES(IMU_PROTO_NAV_STATE_SIZE) + WIRE_BYTES(IMU_PROTO_MARKER_SIZE))
 
+#define ANSWER_WIRE_BYTES WIRE_BYTES(IMU_PROTO_NACK_SIZE)
+#define CHECKPOINT_WIRE_BYTES WIRE_BYTES(IMU_PROTO_CHECKPOINT_SIZE)
+/** State bytes in one CHECKPOINT frame: its data field's capacity. */
+#define CHECKPOINT_PART_BYTES (IMU_PROTO_CHECKPOINT_SIZE - IMU_PROTO_CHECKPOINT_MIN_SIZE)
+
 /** Sensor failures are reported at most once per this many microseconds, and the sensors set up
  *  again at most as often, so a dead sensor costs little and does not flood the link. */
 #define SENSOR_RETRY_US 1000000u
@@ -71,6 +76,17 @@ static uint32_t sample_rate_mhz(app_t *app)
 }
 
 /* --------------------------------------------------------------------------- output */
+
+/** Bytes the link must keep free for the next live sample's frames: what is sent besides them
+ *  (RESENT frames, checkpoints) goes only where it leaves that much room. */
+static size_t live_reserve(app_t *app)
+{
+    if (!app->streaming) {
+        return ANSWER_WIRE_BYTES;
+    }
+    return SAMPLE_WIRE_BYTES + BARO_WIRE_BYTES + GNSS_WIRE_BYTES +
+           (imu_filter_nav(&app->filter) != 0 ? NAV_WIRE_BYTES : 0u) + ANSWER_WIRE_BYTES;
+}
 
 static void send_wire(app_t *app, size_t len)
 {
@@ -214,6 +230,38 @@ static void update_filter(app_t *app, const imu_raw_sample_t *raw, uint32_t time
     }
     if (app->marker_waiting) {
         apply_marker(app, nav, timestamp_us, index, send);
+    }
+}
+
+/** Send the active filter's state after sample `index` in CHECKPOINT frames. */
+static void send_checkpoint(app_t *app, uint32_t index)
+{
+    const uint8_t *state = imu_filter_state(&app->filter);
+    const size_t size = imu_filter_state_size(&app->filter);
+    imu_proto_checkpoint_t c;
+    size_t offset, i;
+    c.index = index;
+    c.filter_id = (uint8_t)app->filter.id;
+    c.parts = (uint8_t)((size + CHECKPOINT_PART_BYTES - 1u) / CHECKPOINT_PART_BYTES);
+    c.state_size = (uint16_t)size;
+    for (offset = 0, c.part = 0; offset < size; offset += CHECKPOINT_PART_BYTES, ++c.part) {
+        c.data_len = size - offset < CHECKPOINT_PART_BYTES ? size - offset : CHECKPOINT_PART_BYTES;
+        for (i = 0; i < c.data_len; ++i) {
+            c.data[i] = state[offset + i];
+        }
+        send_wire(app, imu_proto_checkpoint_encode(&c, app->tx_seq, app->wire, sizeof app->wire));
+    }
+}
+
+/** The periodic checkpoint after live sample app->index, when it is due and the link has room for it. */
+static void checkpoint_if_due(app_t *app)
+{
+    const size_t parts = (imu_filter_state_size(&app->filter) + CHECKPOINT_PART_BYTES - 1u) / CHECKPOINT_PART_BYTES;
+    if (app->checkpoint_period == 0 || (app->index + 1u) % app->checkpoint_period != 0) {
+        return;
+    }
+    if (board_link_space() >= parts * CHECKPOINT_WIRE_BYTES + live_reserve(app)) {
+        send_checkpoint(app, app->index);
     }
 }
 
@@ -383,6 +431,7 @@ static void live_sample(app_t *app)
             send_kept(app, IMU_PROTO_MSG_GNSS, payload, imu_proto_gnss_pack(&gnss, payload));
         }
         run_filter(app, &raw, (uint32_t)read_at, app->index, have_baro ? &baro : 0, have_gnss ? &gnss : 0);
+        checkpoint_if_due(app);
     }
     ++app->index;
     update_load(app, board_cycles() - started);
@@ -566,17 +615,6 @@ static outcome_t cmd_inject_sample(app_t *app, const imu_proto_command_t *c)
 /** Frames one RESEND may ask for (its count). */
 #define RESEND_MAX_COUNT 64u
 #define RESENT_WIRE_BYTES WIRE_BYTES(IMU_PROTO_RESENT_SIZE)
-#define ANSWER_WIRE_BYTES WIRE_BYTES(IMU_PROTO_NACK_SIZE)
-
-/** Bytes the link must keep free for the next live sample's frames (live streaming goes first). */
-static size_t live_reserve(app_t *app)
-{
-    if (!app->streaming) {
-        return ANSWER_WIRE_BYTES;
-    }
-    return SAMPLE_WIRE_BYTES + BARO_WIRE_BYTES + GNSS_WIRE_BYTES +
-           (imu_filter_nav(&app->filter) != 0 ? NAV_WIRE_BYTES : 0u) + ANSWER_WIRE_BYTES;
-}
 
 static outcome_t cmd_resend(app_t *app, const imu_proto_command_t *c)
 {
@@ -704,6 +742,18 @@ static outcome_t run_command(app_t *app, const imu_proto_command_t *c)
         return cmd_position_fix(app, c);
     case IMU_PROTO_CMD_RESEND:
         return cmd_resend(app, c);
+    case IMU_PROTO_CMD_SET_CHECKPOINT_PERIOD: {
+        imu_proto_cmd_set_checkpoint_period_t a;
+        (void)imu_proto_cmd_set_checkpoint_period_unpack(&a, c->args, c->args_len);
+        app->checkpoint_period = a.period;
+        return o;
+    }
+    case IMU_PROTO_CMD_GET_CHECKPOINT:
+        if (app->index == 0) {
+            return refuse(IMU_PROTO_REASON_BUSY); /* no sample yet: the run starts from its settings */
+        }
+        send_checkpoint(app, app->index - 1u);
+        return o;
     default:
         return refuse(IMU_PROTO_REASON_UNKNOWN_COMMAND);
     }
@@ -753,6 +803,7 @@ void app_init(app_t *app, const app_config_t *config)
     app->error_log_us = 0;
     app->samples_until_status = 0;
     app->marker_waiting = 0;
+    app->checkpoint_period = 0;
     board_sample_clock_stop();
     app_send_hello(app);
     if (board_start_up_problem() != 0) {

@@ -75,6 +75,7 @@ typedef struct {
     int injection;                /**< 1 in injection mode */
     uint16_t tx_seq;              /**< sequence number of the next frame to the host */
     frame_ring_t sent;            /**< the input frames sent lately, for RESEND */
+    uint32_t checkpoint_period;   /**< live samples between CHECKPOINTs, 0: none (SET_CHECKPOINT_PERIOD) */
     imu_proto_decoder_t decoder;
     uint8_t rx_frame[IMU_PROTO_MAX_FRAME];
     uint8_t wire[IMU_PROTO_MAX_WIRE]; /**< one encoded frame on its way out */

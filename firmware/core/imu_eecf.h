@@ -124,6 +124,7 @@ typedef struct {
     imu_q16_t acc_window[IMU_EECF_AVG_LEN][3]; /**< m/s^2, Q16 */
     imu_q16_t mag_window[IMU_EECF_AVG_LEN][3]; /**< uT, Q16 */
     uint32_t saturations;         /**< saturation events since initialisation */
+    uint32_t padding;             /**< explicit padding: a state has none implicit, so a checkpoint's bytes are all defined (docs/protocol.md) */
 } imu_eecf_t;
 
 /** @brief Initialise with the default settings; the next samples align. */

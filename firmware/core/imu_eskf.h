@@ -89,6 +89,7 @@ typedef struct {
     imu_q30_t injected[4];        /**< the last correction's rotation exp(dtheta), Q30 (see filter_step) */
     imu_q30_t gyro_bias[3];       /**< rad/s, Q30 */
     imu_q30_t acc_bias[3];        /**< in units of g, Q30 */
+    int32_t padding_ref;          /**< explicit padding: a state has none implicit, so a checkpoint's bytes are all defined (docs/protocol.md) */
     imu_eskf_field_t ref;         /**< reference field; norm 0: none yet */
     imu_eskf_field_t cand;        /**< candidate reference field while disturbed; norm 0: none */
     int32_t cand_steps;           /**< turning filter steps the candidate has held */
@@ -103,6 +104,7 @@ typedef struct {
     imu_q30_t mag_weight;         /**< weight of the last heading update, Q30 */
     imu_cov_t cov;                /**< error-state covariance */
     uint32_t saturations;         /**< saturation events since initialisation */
+    uint32_t padding;             /**< explicit padding: a state has none implicit, so a checkpoint's bytes are all defined (docs/protocol.md) */
 } imu_eskf_t;
 
 /** @brief Initialise with the default settings. */

@@ -54,17 +54,18 @@ static uint32_t navfilter_saturations(const void *f)
 
 const imu_filter_kind_t imu_filter_kinds[IMU_FILTER_KIND_COUNT] = {
     {IMU_FILTER_EECF, "eecf", imu_eecf_setting_descs, &imu_eecf_setting_count, &imu_eecf_default_settings,
-     sizeof(imu_eecf_settings_t), offsetof(imu_eecf_t, saturations), eecf_init, eecf_set_settings, eecf_update,
-     eecf_get, eecf_saturations},
+     sizeof(imu_eecf_settings_t), offsetof(imu_eecf_t, saturations), sizeof(imu_eecf_t), eecf_init,
+     eecf_set_settings, eecf_update, eecf_get, eecf_saturations},
     {IMU_FILTER_KF1D, "kf1d", imu_kf1d_setting_descs, &imu_kf1d_setting_count, &imu_kf1d_default_settings,
-     sizeof(imu_kf1d_settings_t), offsetof(imu_kf1d_t, saturations), kf1d_init, kf1d_set_settings, kf1d_update,
-     kf1d_get, kf1d_saturations},
+     sizeof(imu_kf1d_settings_t), offsetof(imu_kf1d_t, saturations), sizeof(imu_kf1d_t), kf1d_init,
+     kf1d_set_settings, kf1d_update, kf1d_get, kf1d_saturations},
     {IMU_FILTER_ESKF, "eskf", imu_eskf_setting_descs, &imu_eskf_setting_count, &imu_eskf_default_settings,
-     sizeof(imu_eskf_settings_t), offsetof(imu_eskf_t, saturations), eskf_init, eskf_set_settings, eskf_update,
-     eskf_get, eskf_saturations},
+     sizeof(imu_eskf_settings_t), offsetof(imu_eskf_t, saturations), sizeof(imu_eskf_t), eskf_init,
+     eskf_set_settings, eskf_update, eskf_get, eskf_saturations},
     {IMU_FILTER_NAV, "nav", imu_navfilter_setting_descs, &imu_navfilter_setting_count,
      &imu_navfilter_default_settings, sizeof(imu_navfilter_settings_t), offsetof(imu_navfilter_t, saturations),
-     navfilter_init, navfilter_set_settings, navfilter_update, navfilter_get, navfilter_saturations},
+     sizeof(imu_navfilter_t), navfilter_init, navfilter_set_settings, navfilter_update, navfilter_get,
+     navfilter_saturations},
 };
 
 const imu_filter_kind_t *imu_filter_kind(int id)
@@ -81,8 +82,13 @@ const imu_filter_kind_t *imu_filter_kind(int id)
 imu_status_t imu_filter_init(imu_filter_t *f, int id)
 {
     const imu_filter_kind_t *kind = imu_filter_kind(id);
+    uint8_t *state = (uint8_t *)&f->u;
+    size_t i;
     if (kind == 0) {
         return IMU_ERR_UNKNOWN;
+    }
+    for (i = 0; i < kind->state_size; ++i) {
+        state[i] = 0; /* every byte of a checkpoint defined, the explicit padding too */
     }
     f->sensor = imu_sensor_default_settings;
     f->calibration = imu_calibration_identity;
@@ -134,6 +140,29 @@ void imu_filter_get(const imu_filter_t *f, imu_output_t *out)
 uint32_t imu_filter_saturations(const imu_filter_t *f)
 {
     return f->kind->saturations(&f->u);
+}
+
+const uint8_t *imu_filter_state(const imu_filter_t *f)
+{
+    return (const uint8_t *)&f->u;
+}
+
+size_t imu_filter_state_size(const imu_filter_t *f)
+{
+    return f->kind->state_size;
+}
+
+imu_status_t imu_filter_restore(imu_filter_t *f, const uint8_t *state, size_t size)
+{
+    uint8_t *to = (uint8_t *)&f->u;
+    size_t i;
+    if (size != f->kind->state_size) {
+        return IMU_ERR_RANGE;
+    }
+    for (i = 0; i < size; ++i) {
+        to[i] = state[i];
+    }
+    return IMU_OK;
 }
 
 void imu_filter_run(imu_filter_t *f, const int16_t *gyr, const int16_t *acc, const int16_t *mag, size_t n,

@@ -46,6 +46,7 @@ typedef struct {
     size_t settings_size;            /**< sizeof its settings struct, bytes */
     size_t conversion_saturations;   /**< offsetof the uint32_t in its state that counts the
                                           saturations of the count conversion */
+    size_t state_size;               /**< sizeof its state struct, bytes (a checkpoint's size) */
     void (*init)(void *state);
     imu_status_t (*set_settings)(void *state, const void *settings);
     void (*update)(void *state, const imu_sample_t *sample);
@@ -100,6 +101,26 @@ void imu_filter_get(const imu_filter_t *f, imu_output_t *out);
 
 /** @brief Saturation events counted since the last (re)start. */
 uint32_t imu_filter_saturations(const imu_filter_t *f);
+
+/**
+ * @brief The active filter's state as bytes (imu_filter_state_size() of them): everything its
+ *        next update depends on besides the sensor scales and the calibration (settings, attitude,
+ *        biases, covariance, buffers, detectors). A checkpoint: CHECKPOINT frames carry it.
+ *
+ * The bytes are the kind's state struct as it lies in memory. The state structs hold fixed-width
+ * integers only and no implicit padding (tests/test_c_build.py compiles them with -Wpadded), so
+ * the bytes are all defined and lie the same way on every little-endian target that aligns a
+ * 64-bit integer to 8 bytes (the Cortex-M4's AAPCS, x86-64): a board's checkpoint restores in the
+ * host build.
+ */
+const uint8_t *imu_filter_state(const imu_filter_t *f);
+
+/** @brief Bytes of the active filter's state (imu_filter_state). */
+size_t imu_filter_state_size(const imu_filter_t *f);
+
+/** @brief Put back a state imu_filter_state gave (of the same filter kind, with the same settings):
+ *         IMU_ERR_RANGE, and nothing changed, when `size` is not the kind's state size. */
+imu_status_t imu_filter_restore(imu_filter_t *f, const uint8_t *state, size_t size);
 
 /** @brief The ESKF state of a filter handle (for its covariance and accelerometer bias), NULL for another filter. */
 const imu_eskf_t *imu_filter_eskf(const imu_filter_t *f);

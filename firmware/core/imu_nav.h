@@ -59,6 +59,7 @@ typedef struct {
     imu_q30_t theta_prev[3];    /**< the last sample's angle increment (bias-corrected), rad, Q30 */
     imu_q16_t force_prev[3];    /**< the last sample's specific force (bias-corrected), sensor frame, m/s^2, Q16 */
     uint32_t saturations;       /**< clamped intermediate results (0 in normal operation) */
+    uint32_t padding;           /**< explicit padding: a state has none implicit, so a checkpoint's bytes are all defined (docs/protocol.md) */
 } imu_nav_t;
 
 /**

@@ -111,10 +111,12 @@ typedef struct {
     imu_nav_t nav;              /**< the strapdown state */
     imu_navcov_t cov;           /**< error-state covariance, the units above */
     imu_q30_t q_start[4];       /**< attitude at the start of the covariance interval, Q30 */
+    int32_t padding_dv;          /**< explicit padding: a state has none implicit, so a checkpoint's bytes are all defined (docs/protocol.md) */
     imu_wide_t dv[3];           /**< specific force (ENU) times dt summed over the interval, in units of 64 m/s, Q52 */
     int32_t steps;              /**< samples in the interval so far */
     imu_real_t lever_arm[3];    /**< the GNSS antenna's position in the sensor frame, m, Q20 (within +-10 m) */
     imu_rate_t rate[3];         /**< the last sample's bias-corrected rate, rad/s, Q24 */
+    int32_t padding_carry;       /**< explicit padding: a state has none implicit, so a checkpoint's bytes are all defined (docs/protocol.md) */
     imu_wide_t carry[IMU_NAVKF_STATES]; /**< the corrections' rounding, carried to the next (velocity: Q54 of
                                              m/s; biases: Q30; 0 elsewhere and in the float build) */
     int32_t cov_steps;          /**< samples per covariance interval */
@@ -122,6 +124,7 @@ typedef struct {
     imu_q30_t dt_per_64;        /**< sample interval / 64, s, Q36 (dv's factor) */
     int32_t still;              /**< consecutive still samples (stops counting at rest_steps) */
     int32_t rest_steps;         /**< still samples that make rest */
+    int32_t padding_zero_rate_var; /**< explicit padding: a state has none implicit, so a checkpoint's bytes are all defined (docs/protocol.md) */
     imu_wide_t zero_rate_var;   /**< variance of one sample's rate at rest, (rad/s)^2, Q60 */
     int32_t longest_steps;      /**< where the counts stop: a minute (without GNSS that long, rest is the sensors') */
     imu_q16_t force_fast[3];    /**< the specific force low-passed over 0.1 s, sensor frame, m/s^2, Q16 */
@@ -146,11 +149,13 @@ typedef struct {
                                      with each other; -1: none */
     int32_t reset_steps;        /**< samples of such a run after which position and velocity are reset to the fixes */
     imu_navkf_tuning_t tuning;  /**< imu_navkf_tune's (the defaults from imu_navkf_start) */
+    int32_t padding_noise_vel;   /**< explicit padding: a state has none implicit, so a checkpoint's bytes are all defined (docs/protocol.md) */
     imu_wide_t noise_vel;       /**< process noise per second from the tuning, Q54 of (64 m/s)^2 */
     imu_wide_t noise_att;       /**< ... rad^2 */
     imu_wide_t noise_gyro_bias; /**< ... (rad/s)^2 */
     imu_wide_t noise_acc_bias;  /**< ... (m/s^2)^2 */
     imu_q16_t clip_level;       /**< a specific force at or beyond this on an axis is clipped, m/s^2, Q16 */
+    int32_t padding_clip_var;    /**< explicit padding: a state has none implicit, so a checkpoint's bytes are all defined (docs/protocol.md) */
     imu_wide_t clip_var;        /**< velocity variance per clipped sample, Q60 of (64 m/s)^2 */
     imu_wide_t clipped_var;     /**< ... summed over the covariance interval so far */
     int32_t gap_steps;          /**< two fixes further apart than this (samples) are not compared */

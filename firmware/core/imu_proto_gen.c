@@ -723,6 +723,51 @@ size_t imu_proto_resent_encode(const imu_proto_resent_t *m, uint16_t seq, uint8_
     return imu_proto_frame_encode(IMU_PROTO_MSG_RESENT, seq, payload, len, wire, wire_cap);
 }
 
+size_t imu_proto_checkpoint_pack(const imu_proto_checkpoint_t *m, uint8_t *payload)
+{
+    size_t i;
+    if (m->data_len > 192u) {
+        return 0;
+    }
+    put_u32(payload + 0, (uint32_t)m->index);
+    payload[4] = (uint8_t)m->filter_id;
+    payload[5] = (uint8_t)m->part;
+    payload[6] = (uint8_t)m->parts;
+    put_u16(payload + 7, (uint16_t)m->state_size);
+    for (i = 0; i < m->data_len; ++i) {
+        payload[9 + i] = m->data[i];
+    }
+    return 9u + m->data_len;
+}
+
+imu_proto_result_t imu_proto_checkpoint_unpack(imu_proto_checkpoint_t *m, const uint8_t *payload, size_t len)
+{
+    size_t i;
+    if (len < 9u || len > IMU_PROTO_CHECKPOINT_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    m->index = get_u32(payload + 0);
+    m->filter_id = payload[4];
+    m->part = payload[5];
+    m->parts = payload[6];
+    m->state_size = get_u16(payload + 7);
+    m->data_len = len - 9u;
+    for (i = 0; i < m->data_len; ++i) {
+        m->data[i] = payload[9 + i];
+    }
+    return IMU_PROTO_OK;
+}
+
+size_t imu_proto_checkpoint_encode(const imu_proto_checkpoint_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap)
+{
+    uint8_t payload[IMU_PROTO_CHECKPOINT_SIZE];
+    size_t len = imu_proto_checkpoint_pack(m, payload);
+    if (len == 0) {
+        return 0;
+    }
+    return imu_proto_frame_encode(IMU_PROTO_MSG_CHECKPOINT, seq, payload, len, wire, wire_cap);
+}
+
 size_t imu_proto_command_pack(const imu_proto_command_t *m, uint8_t *payload)
 {
     size_t i;
@@ -918,6 +963,21 @@ imu_proto_result_t imu_proto_cmd_resend_unpack(imu_proto_cmd_resend_t *a, const 
     return IMU_PROTO_OK;
 }
 
+size_t imu_proto_cmd_set_checkpoint_period_pack(const imu_proto_cmd_set_checkpoint_period_t *a, uint8_t *args)
+{
+    put_u32(args + 0, (uint32_t)a->period);
+    return IMU_PROTO_CMD_SET_CHECKPOINT_PERIOD_SIZE;
+}
+
+imu_proto_result_t imu_proto_cmd_set_checkpoint_period_unpack(imu_proto_cmd_set_checkpoint_period_t *a, const uint8_t *args, size_t len)
+{
+    if (len != IMU_PROTO_CMD_SET_CHECKPOINT_PERIOD_SIZE) {
+        return IMU_PROTO_ERR_LENGTH;
+    }
+    a->period = get_u32(args + 0);
+    return IMU_PROTO_OK;
+}
+
 int imu_proto_command_args_size(uint8_t command)
 {
     switch (command) {
@@ -951,6 +1011,10 @@ int imu_proto_command_args_size(uint8_t command)
         return IMU_PROTO_CMD_POSITION_FIX_SIZE;
     case IMU_PROTO_CMD_RESEND:
         return IMU_PROTO_CMD_RESEND_SIZE;
+    case IMU_PROTO_CMD_SET_CHECKPOINT_PERIOD:
+        return IMU_PROTO_CMD_SET_CHECKPOINT_PERIOD_SIZE;
+    case IMU_PROTO_CMD_GET_CHECKPOINT:
+        return 0;
     default:
         return -1;
     }
@@ -989,6 +1053,10 @@ unsigned imu_proto_command_flags(uint8_t command)
         return IMU_PROTO_CMD_POSITION_FIX_FLAGS;
     case IMU_PROTO_CMD_RESEND:
         return IMU_PROTO_CMD_RESEND_FLAGS;
+    case IMU_PROTO_CMD_SET_CHECKPOINT_PERIOD:
+        return IMU_PROTO_CMD_SET_CHECKPOINT_PERIOD_FLAGS;
+    case IMU_PROTO_CMD_GET_CHECKPOINT:
+        return IMU_PROTO_CMD_GET_CHECKPOINT_FLAGS;
     default:
         return 0u;
     }

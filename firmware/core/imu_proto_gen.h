@@ -17,7 +17,7 @@
 /** Protocol version ([protocol] version), sent in HELLO. */
 #define IMU_PROTO_VERSION 1u
 /** Schema hash of shared/protocol.toml (CRC-32 of its canonical form), sent in HELLO. */
-#define IMU_PROTO_SCHEMA_HASH 0x112AC5A1u
+#define IMU_PROTO_SCHEMA_HASH 0xEFCC59B3u
 /** Largest payload of any message, bytes. */
 #define IMU_PROTO_MAX_PAYLOAD 201u
 
@@ -37,6 +37,7 @@ typedef enum {
     IMU_PROTO_MSG_NAV_STATE = 20, /**< The navigation filter's state after a sample, following its ESTIMATE (which carries the attitude and the gyroscope bias) while NAV is the active filter */
     IMU_PROTO_MSG_MARKER = 21, /**< A position fix from a known place (POSITION_FIX), as the board applied it: after the SAMPLE (or injected sample) it follows, before that sample's ESTIMATE */
     IMU_PROTO_MSG_RESENT = 22, /**< One frame a RESEND asked for, sent again inside this one (its own seq is the next of the stream, so the stream's count of lost frames stays right), or why it cannot be */
+    IMU_PROTO_MSG_CHECKPOINT = 23, /**< One part of the active filter's complete state after a sample (a checkpoint: imu_filter_state in firmware/core/imu_filter.h, the filter kind's state struct byte for byte), every checkpoint_period samples (SET_CHECKPOINT_PERIOD) and on GET_CHECKPOINT */
     IMU_PROTO_MSG_COMMAND = 32, /**< A request to the board */
 } imu_proto_msg_id_t;
 
@@ -57,6 +58,8 @@ typedef enum {
     IMU_PROTO_CMD_GET_CALIBRATION = 13, /**< Read one axis of a sensor's calibration */
     IMU_PROTO_CMD_POSITION_FIX = 14, /**< A position fix from a known place ([seed 003]'s markers) for the NAV filter: trusted as its accuracy says, never gated */
     IMU_PROTO_CMD_RESEND = 15, /**< Send again the frames first sent with seq first_seq  */
+    IMU_PROTO_CMD_SET_CHECKPOINT_PERIOD = 16, /**< Send a CHECKPOINT of the active filter after every period-th live sample (after samples period - 1, 2 period - 1,  */
+    IMU_PROTO_CMD_GET_CHECKPOINT = 17, /**< Send a CHECKPOINT of the active filter now: its state after the last sample it ran */
 } imu_proto_command_id_t;
 
 /** Filter ids (the same values as imu_filter_id_t in firmware/core/imu_filter.h). */
@@ -470,6 +473,35 @@ imu_proto_result_t imu_proto_resent_unpack(imu_proto_resent_t *m, const uint8_t 
 /** @brief Wire bytes of a RESENT frame (delimiter included); 0 when they do not fit or pack fails. */
 size_t imu_proto_resent_encode(const imu_proto_resent_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 
+/** CHECKPOINT maximum payload bytes. */
+#define IMU_PROTO_CHECKPOINT_SIZE 201u
+/** CHECKPOINT payload bytes with an empty data. */
+#define IMU_PROTO_CHECKPOINT_MIN_SIZE 9u
+
+/** CHECKPOINT (id 0x17, to_host): One part of the active filter's complete state after a sample (a
+ *  checkpoint: imu_filter_state in firmware/core/imu_filter.h, the filter kind's state struct byte
+ *  for byte), every checkpoint_period samples (SET_CHECKPOINT_PERIOD) and on GET_CHECKPOINT. The
+ *  host's replica resumes from it after a SAMPLE lost for good, and checks it where it reaches it
+ *  without a gap. Sent after that sample's ESTIMATE (and NAV_STATE), in parts 0 .. parts - 1 in
+ *  order; a checkpoint that does not fit beside the live frames is not sent.
+ */
+typedef struct {
+    uint32_t index; /**< index of the SAMPLE after whose update the state is */
+    uint8_t filter_id; /**< the filter whose state it is */
+    uint8_t part; /**< this frame's part, 0 .. parts - 1: its data is bytes part * 192 .. of the state */
+    uint8_t parts; /**< frames of this checkpoint */
+    uint16_t state_size; /**< bytes of the whole state (imu_filter_state_size) */
+    uint8_t data[192]; /**< this part's bytes of the state (192, the last part what is left) */
+    size_t data_len; /**< bytes used in data, at most 192 */
+} imu_proto_checkpoint_t;
+
+/** @brief Payload bytes of CHECKPOINT into `payload` (IMU_PROTO_CHECKPOINT_SIZE bytes); returns the payload length, 0 when a length field exceeds its maximum. */
+size_t imu_proto_checkpoint_pack(const imu_proto_checkpoint_t *m, uint8_t *payload);
+/** @brief Fields of a CHECKPOINT payload; IMU_PROTO_ERR_LENGTH when `len` is not a CHECKPOINT payload length. */
+imu_proto_result_t imu_proto_checkpoint_unpack(imu_proto_checkpoint_t *m, const uint8_t *payload, size_t len);
+/** @brief Wire bytes of a CHECKPOINT frame (delimiter included); 0 when they do not fit or pack fails. */
+size_t imu_proto_checkpoint_encode(const imu_proto_checkpoint_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
+
 /** COMMAND maximum payload bytes. */
 #define IMU_PROTO_COMMAND_SIZE 31u
 /** COMMAND payload bytes with an empty args. */
@@ -610,6 +642,18 @@ size_t imu_proto_cmd_resend_pack(const imu_proto_cmd_resend_t *a, uint8_t *args)
 /** @brief Arguments of RESEND; IMU_PROTO_ERR_LENGTH when `len` is not IMU_PROTO_CMD_RESEND_SIZE. */
 imu_proto_result_t imu_proto_cmd_resend_unpack(imu_proto_cmd_resend_t *a, const uint8_t *args, size_t len);
 
+/** SET_CHECKPOINT_PERIOD argument bytes. */
+#define IMU_PROTO_CMD_SET_CHECKPOINT_PERIOD_SIZE 4u
+/** Arguments of SET_CHECKPOINT_PERIOD. */
+typedef struct {
+    uint32_t period; /**< samples between checkpoints, 0: none */
+} imu_proto_cmd_set_checkpoint_period_t;
+
+/** @brief Argument bytes of SET_CHECKPOINT_PERIOD into `args` (IMU_PROTO_CMD_SET_CHECKPOINT_PERIOD_SIZE bytes); returns that size. */
+size_t imu_proto_cmd_set_checkpoint_period_pack(const imu_proto_cmd_set_checkpoint_period_t *a, uint8_t *args);
+/** @brief Arguments of SET_CHECKPOINT_PERIOD; IMU_PROTO_ERR_LENGTH when `len` is not IMU_PROTO_CMD_SET_CHECKPOINT_PERIOD_SIZE. */
+imu_proto_result_t imu_proto_cmd_set_checkpoint_period_unpack(imu_proto_cmd_set_checkpoint_period_t *a, const uint8_t *args, size_t len);
+
 /** @brief Argument bytes of a command; -1 for an id that is not a command (NACK UNKNOWN_COMMAND). */
 int imu_proto_command_args_size(uint8_t command);
 
@@ -647,6 +691,10 @@ int imu_proto_command_args_size(uint8_t command);
 #define IMU_PROTO_CMD_POSITION_FIX_FLAGS (IMU_PROTO_FLAG_IDEMPOTENT)
 /** RESEND: idempotent. */
 #define IMU_PROTO_CMD_RESEND_FLAGS (IMU_PROTO_FLAG_IDEMPOTENT)
+/** SET_CHECKPOINT_PERIOD: idempotent. */
+#define IMU_PROTO_CMD_SET_CHECKPOINT_PERIOD_FLAGS (IMU_PROTO_FLAG_IDEMPOTENT)
+/** GET_CHECKPOINT: idempotent. */
+#define IMU_PROTO_CMD_GET_CHECKPOINT_FLAGS (IMU_PROTO_FLAG_IDEMPOTENT)
 /** @brief IMU_PROTO_FLAG_* of a command; 0 for an id that is not a command. */
 unsigned imu_proto_command_flags(uint8_t command);
 

@@ -18,6 +18,7 @@ from imulink.cli.common import (
 from imulink.progress import StatusLine
 
 _reconnect_wait = in_range(float, 0.0, 86400.0, "must be a number of seconds from 0 to 86400")
+_checkpoint_interval = in_range(float, 0.0, 3600.0, "must be a number of seconds from 0 to 3600")
 
 
 @one_line_errors
@@ -25,7 +26,7 @@ def run(args) -> int:
     result = hil.record(args.port, args.output, duration_s=args.duration, baud=args.baud, profile=args.profile,
                         resync=not args.no_resync, silence_timeout_s=args.silence_timeout, force=args.force,
                         progress=StatusLine(), settings=settings_from_file(args), reconnect_s=args.reconnect,
-                        listen=args.listen, resend=not args.no_resend)
+                        listen=args.listen, resend=not args.no_resend, checkpoint_s=args.checkpoint)
     if args.json:
         print_json(result.to_json())
         return EXIT_INTERRUPTED if result.interrupted else 0
@@ -34,6 +35,7 @@ def run(args) -> int:
           f"{hil.link_summary(result.counters)}"
           + _recovery_summary(result.recovery)
           + (f"; filter restarts after lost samples: {result.filter_restarts}" if result.filter_restarts else "")
+          + (f"; {result.checkpoints} checkpoints of the filter state" if result.checkpoints else "")
           + (f"; the board came back {result.reconnects} time(s), each a new segment" if result.reconnects else ""))
     return EXIT_INTERRUPTED if result.interrupted else 0
 
@@ -77,6 +79,10 @@ def add_parser(sub) -> None:
                    help=f"refuse a board that states another sensor profile than this one, before a file is "
                         f"written (default: whatever the board states; profiles: {profile_list()})")
     p.add_argument("--no-resync", action="store_true", help="never restart the filter after a lost sample")
+    p.add_argument("--checkpoint", type=_checkpoint_interval, default=hil.CHECKPOINT_S, metavar="S",
+                   help=f"the board sends its filter's whole state every S seconds of samples (CHECKPOINT), from "
+                        f"which verification resumes after a sample lost for good, instead of a filter restart "
+                        f"(default: {hil.CHECKPOINT_S:g}; 0: none)")
     p.add_argument("--no-resend", action="store_true",
                    help="never ask the board again for frames lost on the way (a lost sample then restarts the "
                         "filter at once, unless --no-resync)")

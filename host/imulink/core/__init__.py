@@ -410,6 +410,23 @@ class Filter:
         return {name: list(getattr(msg, name)) if length else getattr(msg, name)
                 for name, _, length in protocol.message_fields("ESTIMATE")}
 
+    def state(self) -> bytes:
+        """The filter's complete state as the board's CHECKPOINT carries it (imu_filter_state
+        in firmware/core/imu_filter.h): fixed build only, whose bytes lie as on the board."""
+        if self.arithmetic != "fixed":
+            raise ValueError("a checkpoint is the fixed build's state")
+        lib = self.mod.lib
+        return bytes(self.mod.ffi.buffer(lib.imu_filter_state(self._handle), lib.imu_filter_state_size(self._handle)))
+
+    def restore(self, state: bytes) -> None:
+        """Put back a state :meth:`state` or a board's CHECKPOINT gave (of the same filter,
+        with the same settings); ValueError for bytes of another size."""
+        if self.arithmetic != "fixed":
+            raise ValueError("a checkpoint is the fixed build's state")
+        if self.mod.lib.imu_filter_restore(self._handle, state, len(state)) != 0:
+            raise ValueError(f"a checkpoint of {len(state)} bytes is not a state of {self.filter_name!r} "
+                             f"({self.mod.lib.imu_filter_state_size(self._handle)} bytes)")
+
     def _eskf(self):
         state = self.mod.lib.imu_filter_eskf(self._handle)
         if state == self.mod.ffi.NULL:

@@ -78,6 +78,9 @@ _DECLARATIONS += """
     void imu_filter_update_raw(imu_filter_t *f, const imu_raw_sample_t *raw);
     void imu_filter_get(const imu_filter_t *f, imu_output_t *out);
     uint32_t imu_filter_saturations(const imu_filter_t *f);
+    const uint8_t *imu_filter_state(const imu_filter_t *f);
+    size_t imu_filter_state_size(const imu_filter_t *f);
+    imu_status_t imu_filter_restore(imu_filter_t *f, const uint8_t *state, size_t size);
     void imu_filter_run(imu_filter_t *f, const int16_t *gyr, const int16_t *acc, const int16_t *mag, size_t n,
                         imu_q30_t *quat, imu_angle_t *euler, imu_rate_t *gyro_bias);
 

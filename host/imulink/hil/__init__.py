@@ -48,6 +48,7 @@ from imulink.hil.demo_job import DemoReport, demo
 from imulink.hil.export import export_csv, export_npz, replay_columns
 from imulink.hil.injection import InjectionInput, InjectResult, format_inject, inject, load_injection_input
 from imulink.hil.recorder import (
+    CHECKPOINT_S,
     INTERRUPTED,
     RECONNECT_S,
     RECORD_COMMAND_ATTEMPTS,
@@ -94,6 +95,7 @@ __all__ = [
     "read_calibration",
     "read_settings",
     "RECONNECT_S",
+    "CHECKPOINT_S",
     "record",
     "RECORD_COMMAND_ATTEMPTS",
     "RecordResult",

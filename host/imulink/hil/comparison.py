@@ -3,7 +3,7 @@ verifiable estimate bit for bit."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -26,8 +26,9 @@ class HostRun:
     """The host's computation for each recorded sample (arrays aligned with
     recording.samples). fixed: the fixed-point build's ESTIMATE fields (raw integers);
     float_quat / float_euler / float_gyro_bias: the float twin (SI, rad and rad/s);
-    verifiable: the sample's segment is complete from index 0 up to it, so the host
-    saw exactly what the board saw."""
+    verifiable: the host saw exactly what the board saw up to the sample (its segment
+    complete from index 0 up to it, or from a checkpoint of the board's state); states:
+    what became of the board's checkpoints."""
 
     fixed: dict[str, np.ndarray]
     float_quat: np.ndarray
@@ -40,6 +41,30 @@ class HostRun:
     nav: dict[str, np.ndarray] | None = None
     nav_rows: np.ndarray | None = None
     float_position: np.ndarray | None = None
+    states: StateChecks = field(default_factory=lambda: StateChecks())
+    #: rows whose float twin saw every sample of the segment up to them (the twin cannot
+    #: resume from a checkpoint, which is the fixed build's state): fixed vs float is measured there
+    twin_complete: np.ndarray | None = None
+
+
+@dataclass
+class StateChecks:
+    """What became of the board's checkpoints (CHECKPOINT: its filter's whole state after a
+    sample). received: those whose every part arrived. verified: equal byte for byte to the
+    host's state where the host reached them without a gap; different: (segment, index) of
+    those that were not. resumed: used to resume verification after a sample lost for good.
+    unusable: (segment, index, why) of those the host could not restore."""
+
+    received: int = 0
+    verified: int = 0
+    different: list[tuple[int, int]] = field(default_factory=list)
+    resumed: int = 0
+    unusable: list[tuple[int, int, str]] = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        return {"received": self.received, "verified": self.verified, "resumed_from": self.resumed,
+                "different": [{"segment": s, "sample_index": i} for s, i in self.different],
+                "unusable": [{"segment": s, "sample_index": i, "why": why} for s, i, why in self.unusable]}
 
 
 def _events_after(table, segment: int, sample_index: np.ndarray) -> np.ndarray:
@@ -68,9 +93,68 @@ def nav_inputs(recording: Recording, segment: int, sample_index: np.ndarray) -> 
             "marker_after": m[m >= 0], "markers": [marker_rows[k] for k in np.flatnonzero(m >= 0)]}
 
 
+def _consecutive_runs(index: np.ndarray) -> list[tuple[int, int]]:
+    """[start, stop) positions of each run of consecutive sample indices."""
+    breaks = (np.flatnonzero(np.diff(index) != 1) + 1).tolist()
+    return list(zip([0] + breaks, breaks + [len(index)]))
+
+
+class _Replay:
+    """The board's filter run on the host over sample rows of one segment, from its start or
+    from a checkpoint, checking the host's state against the board's checkpoints on the way."""
+
+    def __init__(self, recording: Recording, segment: int, name: str, raw_settings: dict, calibration,
+                 states: StateChecks):
+        self.recording, self.segment, self.name = recording, segment, name
+        self.raw_settings, self.calibration, self.states = raw_settings, calibration, states
+
+    def reference(self, checkpoint: bytes | None = None) -> FirmwareFilter:
+        """A fresh reference filter, at the state of `checkpoint` (ValueError: not this filter's)."""
+        reference = FirmwareFilter(self.name, self.raw_settings, self.recording.profile, self.calibration)
+        if checkpoint is not None:
+            reference.core.restore(checkpoint)
+        return reference
+
+    def run(self, reference: FirmwareFilter, rows: np.ndarray,
+            check: dict[int, bytes]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray] | None]:
+        """Run `rows` (consecutive in the stream) and compare the state after each sample index
+        in `check` with the board's. Returns the ESTIMATE fields and (nav) NAV_STATE fields per row."""
+        samples = self.recording.samples
+        index = samples.index[rows]
+        cuts = (np.flatnonzero(np.isin(index, list(check))) + 1).tolist()
+        estimates, nav_states = [], []
+        for start, stop in zip([0] + cuts, cuts + [len(rows)]):
+            if start == stop:
+                continue
+            part = rows[start:stop]
+            counts = samples.gyr[part], samples.acc[part], samples.mag[part]
+            if self.name == "nav":
+                board = reference.core.run_nav_counts(*counts, **nav_inputs(self.recording, self.segment,
+                                                                           samples.index[part]))
+                assert board.estimates is not None and board.nav_states is not None  # the fixed build
+                estimates.append(board.estimates)
+                nav_states.append(board.nav_states)
+            else:
+                estimates.append(reference.core.run_estimates(*counts))
+            last = int(samples.index[part[-1]])
+            if last in check:
+                if reference.core.state() == check[last]:
+                    self.states.verified += 1
+                else:
+                    self.states.different.append((self.segment, last))
+        joined = {key: np.concatenate([e[key] for e in estimates]) for key in _ESTIMATE_SHAPES}
+        nav = {key: np.concatenate([n[key] for n in nav_states]) for key in nav_states[0]} if nav_states else None
+        return joined, nav
+
+
 def host_run(recording: Recording) -> HostRun:
     """Re-run the recorded samples through both builds of the filter the board ran (the
-    nav filter with the barometer readings, fixes and markers the board gave it)."""
+    nav filter with the barometer readings, fixes and markers the board gave it).
+
+    A segment is verifiable from its start up to its first lost sample; after it, from the
+    first checkpoint of the board's state (CHECKPOINT) from which the samples are complete,
+    up to the next lost one. Where the host reaches a checkpoint without a gap, its own state
+    must equal the board's byte for byte (HostRun.states)."""
     samples = recording.samples
     n = len(samples)
     fixed = {name: np.zeros((n,) + shape, np.int64) for name, shape in _ESTIMATE_SHAPES.items()}
@@ -79,40 +163,76 @@ def host_run(recording: Recording) -> HostRun:
     nav: dict[str, np.ndarray] | None = None
     nav_rows: np.ndarray | None = None
     float_position: np.ndarray | None = None
+    states = StateChecks()
+    twin_complete = np.zeros(n, bool)
     for segment in np.unique(samples.segment).tolist():
         rows = np.flatnonzero(samples.segment == segment)
-        name, raw_settings = recording.filter_settings(_segment_filter(recording, segment), segment)
+        filter_id = _segment_filter(recording, segment)
+        name, raw_settings = recording.filter_settings(filter_id, segment)
         counts = samples.gyr[rows], samples.acc[rows], samples.mag[rows]
         calibration = recording.calibration(segment)
-        reference = FirmwareFilter(name, raw_settings, recording.profile, calibration)
-        twin = core.Filter(name, reference.si_settings["sample_rate"], "float", reference.si_settings,
-                           recording.profile, calibration)
+        replay = _Replay(recording, segment, name, raw_settings, calibration, states)
+        checkpoints = {}
+        for checkpoint in recording.checkpoints:
+            if checkpoint.segment == segment:
+                states.received += 1
+                if checkpoint.filter_id == filter_id:
+                    checkpoints[checkpoint.index] = checkpoint.state
+                else:
+                    states.unusable.append((segment, checkpoint.index, f"a state of filter {checkpoint.filter_id}, "
+                                                                       f"the run's is {filter_id}"))
+        index = samples.index[rows]
+        runs = _consecutive_runs(index)
+        # from the start: every row (the host's values also where they cannot be verified), the
+        # checkpoints checked up to the first lost sample
+        complete_to = runs[0][1] if len(rows) and index[0] == 0 else 0
+        reached = {c: state for c, state in checkpoints.items() if complete_to and c <= index[complete_to - 1]}
+        board_fields, board_nav = replay.run(replay.reference(), rows, reached)
+        verifiable[rows[:complete_to]] = twin_complete[rows[:complete_to]] = True
+        for start, stop in runs:  # after each gap: from the first checkpoint the samples then complete
+            first, last = int(index[start]), int(index[stop - 1])
+            if start < complete_to:
+                continue
+            for c in sorted(c for c in checkpoints if first - 1 <= c < last):
+                try:
+                    reference = replay.reference(checkpoints[c])
+                except ValueError as exc:
+                    states.unusable.append((segment, c, str(exc)))
+                    continue
+                begin = start + (c + 1 - first)
+                part = rows[begin:stop]
+                part_fields, part_nav = replay.run(reference, part, {d: state for d, state in checkpoints.items()
+                                                                     if c < d <= last})
+                states.resumed += 1
+                verifiable[part] = True
+                for key in _ESTIMATE_SHAPES:  # the run through the gap is replaced
+                    board_fields[key][begin:stop] = part_fields[key]
+                if board_nav is not None and part_nav is not None:
+                    for key in board_nav:
+                        board_nav[key][begin:stop] = part_nav[key]
+                break
+        for key in _ESTIMATE_SHAPES:
+            fixed[key][rows] = board_fields[key]
+        si_settings = replay.reference().si_settings
+        twin = core.Filter(name, si_settings["sample_rate"], "float", si_settings, recording.profile, calibration)
         if name == "nav":
-            inputs = nav_inputs(recording, segment, samples.index[rows])
-            board = reference.core.run_nav_counts(*counts, **inputs)
-            # the reference is the fixed build: the board's ESTIMATE and NAV_STATE fields
-            assert board.estimates is not None and board.nav_states is not None
-            for key in _ESTIMATE_SHAPES:
-                fixed[key][rows] = board.estimates[key]
+            assert board_nav is not None  # the fixed build's run of the nav filter
             if nav is None or nav_rows is None or float_position is None:  # the first nav segment: all three None
-                nav = {key: np.zeros((n,) + values.shape[1:], np.int64) for key, values in board.nav_states.items()}
+                nav = {key: np.zeros((n,) + values.shape[1:], np.int64) for key, values in board_nav.items()}
                 nav_rows, float_position = np.zeros(n, bool), np.full((n, 3), np.nan)
-            for key, values in board.nav_states.items():
+            for key, values in board_nav.items():
                 nav[key][rows] = values
             nav["index"][rows] = samples.index[rows]
             nav_rows[rows] = True
-            twin_nav = twin.run_nav_counts(*counts, **inputs)
-            anchored = board.nav_states["mode"] == 2
+            twin_nav = twin.run_nav_counts(*counts, **nav_inputs(recording, segment, samples.index[rows]))
+            anchored = board_nav["mode"] == 2
             float_position[rows[anchored]] = np.c_[twin_nav.lat_deg, twin_nav.lon_deg, twin_nav.height_m][anchored]
             result: core.RunResult | core.NavBoardRun = twin_nav
         else:
-            for key, values in fixed_outputs(name, raw_settings, recording.profile, *counts, calibration).items():
-                fixed[key][rows] = values
             result = twin.run_counts(*counts)
         float_quat[rows], float_euler[rows], float_bias[rows] = result.quat, result.euler, result.gyro_bias
-        complete = samples.index[rows] == np.arange(len(rows))
-        verifiable[rows] = np.cumprod(complete).astype(bool)
-    return HostRun(fixed, float_quat, float_euler, float_bias, verifiable, nav, nav_rows, float_position)
+    return HostRun(fixed, float_quat, float_euler, float_bias, verifiable, nav, nav_rows, float_position, states,
+                   twin_complete)
 
 
 def fixed_outputs(filter_name: str, raw_settings: dict[str, int], profile: SensorProfile, gyr, acc, mag,
@@ -152,6 +272,7 @@ class Verdict:
     what: str = "recorded estimates"
     damaged: bool = False
     min_verified: float = MIN_VERIFIED
+    states_different: int = 0  # the board's checkpoints that differ from the host's state
 
     @property
     def coverage(self) -> float:
@@ -164,7 +285,7 @@ class Verdict:
 
     @property
     def passed(self) -> bool:
-        return (self.verified > 0 and not self.different and not self.damaged
+        return (self.verified > 0 and not self.different and not self.damaged and not self.states_different
                 and self.coverage >= self.min_verified)
 
     def __str__(self) -> str:
@@ -172,6 +293,9 @@ class Verdict:
         covered = f"{self.verified} of {self.total} {self.what} verified"
         if self.different:
             return f"bit-exact: NO ({self.different} of the {self.verified} verified differ; {covered})"
+        if self.states_different:
+            return (f"bit-exact: NO ({self.states_different} checkpoint(s) of the board's filter state differ from "
+                    f"the host's; {covered})")
         if not self.verified:
             return f"bit-exact: no estimate to verify ({covered})"
         if self.damaged:
@@ -186,7 +310,7 @@ class Verdict:
         return {"passed": self.passed, "line": str(self), "counted": self.what, "total": self.total,
                 "verified": self.verified, "identical": self.identical, "different": self.different,
                 "verified_fraction": self.coverage, "min_verified_fraction": self.min_verified,
-                "damaged": self.damaged}
+                "damaged": self.damaged, "checkpoints_different": self.states_different}
 
 
 @dataclass
@@ -293,6 +417,7 @@ class Comparison:
     damaged: list[tuple[int, int]]
     leftover: np.ndarray
     min_verified: float = MIN_VERIFIED
+    states: StateChecks = field(default_factory=StateChecks)  # the board's checkpoints (HostRun.states)
 
     @property
     def estimates(self) -> int:
@@ -315,12 +440,13 @@ class Comparison:
     def bit_exact(self) -> bool:
         """Every verified estimate identical (at least one) and the file undamaged, however
         few were verified: :attr:`verdict` also weighs the coverage."""
-        return self.verified_count > 0 and self.identical_count == self.verified_count and not self.damaged
+        return (self.verified_count > 0 and self.identical_count == self.verified_count and not self.damaged
+                and not self.states.different)
 
     @property
     def verdict(self) -> Verdict:
         return Verdict(self.recorded_count, self.verified_count, self.identical_count, damaged=bool(self.damaged),
-                       min_verified=self.min_verified)
+                       min_verified=self.min_verified, states_different=len(self.states.different))
 
 
 def _sample_rows(recording: Recording) -> np.ndarray:
@@ -349,6 +475,8 @@ def compare(recording: Recording, run: HostRun | None = None, min_verified: floa
     sample_row = _sample_rows(recording)
     verified = sample_row >= 0
     verified[verified] = run.verifiable[sample_row[verified]]
+    # a stream left over from before the recording is not part of it (even where a checkpoint would verify it)
+    verified &= ~np.asarray(estimates.leftover, bool)
     state_row = _nav_state_rows(recording)
     host_nav, nav_rows = run.nav, run.nav_rows  # both set where the nav filter ran (host_run), else None
     if nav_rows is not None:
@@ -399,12 +527,14 @@ def compare(recording: Recording, run: HostRun | None = None, min_verified: floa
                 first = Difference(position, int(estimates.segment[position]), int(estimates.index[position]), name,
                                    board_value.tolist(), host_value.tolist())
                 break
-    fixed_vs_float = _fixed_vs_float(estimates, positions, run.float_quat[rows], run.float_euler[rows],
-                                     run.float_gyro_bias[rows])
-    if run.nav is not None and len(positions):
-        fixed_vs_float.update(_position_fixed_vs_float(recording, run, state_row[positions], rows))
+    twin = run.twin_complete[rows] if run.twin_complete is not None else np.ones(len(rows), bool)
+    twin_positions, twin_rows = positions[twin], rows[twin]
+    fixed_vs_float = _fixed_vs_float(estimates, twin_positions, run.float_quat[twin_rows], run.float_euler[twin_rows],
+                                     run.float_gyro_bias[twin_rows])
+    if run.nav is not None and len(twin_positions):
+        fixed_vs_float.update(_position_fixed_vs_float(recording, run, state_row[twin_positions], twin_rows))
     return Comparison(sample_row, verified, identical, first, fixed_vs_float, recording.damaged,
-                      np.asarray(estimates.leftover, bool), min_verified)
+                      np.asarray(estimates.leftover, bool), min_verified, run.states)
 
 
 def _position_fixed_vs_float(recording: Recording, run: HostRun, state_rows: np.ndarray, rows: np.ndarray) -> dict:
@@ -516,6 +646,14 @@ def format_comparison(recording: Recording, comparison: Comparison) -> str:
     unverifiable_at = unverifiable_spans(recording, c)
     if unverifiable_at:
         lines.append(f"unverifiable: {_spans_text(unverifiable_at)}")
+    if c.states.received:
+        st = c.states
+        lines.append(f"checkpoints: {st.received} received, {st.verified} identical to the host's state where it "
+                     f"reached them, {len(st.different)} different, {st.resumed} used to resume verification"
+                     + (f", {len(st.unusable)} unusable ({st.unusable[0][2]})" if st.unusable else ""))
+        if st.different:
+            lines.append("checkpoints that differ: " + ", ".join(f"segment {seg} sample index {i}"
+                                                                 for seg, i in st.different[:5]))
     if c.first_difference is not None:
         lines.append(f"first difference: {c.first_difference}")
     lines.append(str(c.verdict))
@@ -539,6 +677,7 @@ def comparison_json(recording: Recording, comparison: Comparison) -> dict:
                  "truncated_tail_bytes": recording.truncated_bytes},
         "damaged_spans": [{"offset_bytes": offset, "length_bytes": length} for offset, length in recording.damaged],
         "recovered_frames": dict(recording.recovered),
+        "checkpoints": c.states.to_json(),
         "estimates": {"received": c.estimates, "recorded": c.recorded_count, "verifiable": c.verified_count,
                       "verified_through_recovery": verified_through_recovery(recording, c),
                       "identical": c.identical_count, "different": c.verified_count - c.identical_count,

@@ -43,6 +43,9 @@ REOPEN_INTERVAL_S = 0.5
 #: Seconds the recorder waits after the stream for the frames it still asked for (their
 #: RESEND retried at LostFrames' pace).
 RECOVERY_WAIT_S = 3.0
+#: Seconds of samples between the board's checkpoints of its filter state (CHECKPOINT) by
+#: default: after a sample lost for good, verification resumes at the next one.
+CHECKPOINT_S = 1.0
 
 
 @dataclass
@@ -58,6 +61,7 @@ class RecordResult:
     counters: dict
     reconnects: int = 0  # the board went away (or started again) and came back; each began a new segment
     recovery: dict = field(default_factory=dict)  # LostFrames.counters(): frames lost and asked for again
+    checkpoints: int = 0  # checkpoints of the board's filter state received whole
 
     @property
     def interrupted(self) -> bool:
@@ -70,7 +74,7 @@ class RecordResult:
                 "samples": self.samples, "estimates": self.estimates, "duration_s": self.duration_s,
                 "stop_reason": self.stop_reason, "interrupted": self.interrupted,
                 "filter_restarts": self.filter_restarts, "reconnects": self.reconnects,
-                "link": link_json(self.counters), "recovery": self.recovery}
+                "link": link_json(self.counters), "recovery": self.recovery, "checkpoints": self.checkpoints}
 
 
 def default_silence_timeout(status: dict) -> float:
@@ -82,7 +86,8 @@ def default_silence_timeout(status: dict) -> float:
 def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAULT_BAUD,
            profile: SensorProfile | None = None, resync: bool = True, silence_timeout_s: float | None = None,
            force: bool = False, progress: StatusLine | None = None, settings=None,
-           reconnect_s: float = RECONNECT_S, listen: bool = False, resend: bool = True) -> RecordResult:
+           reconnect_s: float = RECONNECT_S, listen: bool = False, resend: bool = True,
+           checkpoint_s: float = CHECKPOINT_S) -> RecordResult:
     """Record a board's stream to `path` until `duration_s` s have passed, the board stops
     streaming (STATUS.streaming = 0), or Ctrl-C (then `interrupted`).
 
@@ -101,8 +106,13 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
     resend: ask the board again (RESEND) for every frame found missing, while streaming and
     after it (up to RECOVERY_WAIT_S): the board keeps its input frames (SAMPLE, BARO, GNSS,
     MARKER) of about the last second at 1 kHz, and what it sends again goes into the file,
-    where load_recording puts it back in place. A SAMPLE lost for good (older than the
-    board's memory) restarts the board's filter when `resync`.
+    where load_recording puts it back in place.
+
+    checkpoint_s: the board sends its filter's whole state (CHECKPOINT) after every
+    checkpoint_s seconds of samples (0: never), from which the host resumes verification
+    after a SAMPLE lost for good (older than the board's memory); the recorder then asks for
+    one at once (GET_CHECKPOINT). A board without checkpoints has its filter restarted
+    instead, when `resync`.
 
     listen: record a board another client commands (a fan-out TCP front, see
     imulink.board.proxy.TcpFront) without sending anything: the file starts with the board's last
@@ -145,12 +155,12 @@ def record(url: str, path, *, duration_s: float | None = None, baud: int = DEFAU
         raise
     silence = silence_timeout_s or (default_silence_timeout(status) if status else SILENCE_MIN_S)
     recorder = _StreamRecorder(link, writer, filter_id, resync and not listen, resend and not listen, progress,
-                               listen=listen,
+                               listen=listen, checkpoint_s=0.0 if listen else checkpoint_s,
                                reopen=lambda: Link(url, baud, tap=writer.received, attempts=RECORD_COMMAND_ATTEMPTS),
                                settings=settings, profile=profile, reconnect_s=reconnect_s)
     with writer:
         try:
-            return recorder.run(hello, filter_name, duration_s, silence)
+            return recorder.run(hello, filter_name, status, duration_s, silence)
         finally:
             recorder.link.close()  # the last one (closing twice is harmless)
 
@@ -213,14 +223,18 @@ class _StreamRecorder:
     RESTART_TIMEOUT_S = 1.0
 
     def __init__(self, link: Link, writer: RecordingWriter, filter_id: int, resync: bool, resend: bool,
-                 progress: StatusLine | None, *, listen: bool, reopen, settings, profile: SensorProfile | None,
-                 reconnect_s: float):
+                 progress: StatusLine | None, *, listen: bool, checkpoint_s: float, reopen, settings,
+                 profile: SensorProfile | None, reconnect_s: float):
         self.link, self.writer, self.filter_id = link, writer, filter_id
         self.resync, self.resend, self.progress = resync, resend, progress
         self._lost = LostFrames()
         self._missing_since: dict[int, float] = {}  # a missing SAMPLE's index -> when it was found missing
         self._missing_segment = 0  # the follower's segment those indices belong to
-        self.samples = self.estimates = self.restarts = self.reconnects = 0
+        self.checkpoint_s = checkpoint_s
+        self._checkpointing = False  # the board sends checkpoints (it took SET_CHECKPOINT_PERIOD)
+        self._checkpoint_parts: dict[tuple[int, int], set[int]] = {}  # (segment, index) -> parts received
+        self.checkpoints = 0
+        self.samples = self.estimates = self.restarts = self.reconnects = self.checkpoint_requests = 0
         self.listen = listen  # record without commanding (see record)
         self.reopen = reopen  # () -> a new Link on the same port
         self.settings, self.profile, self.reconnect_s = settings, profile, reconnect_s
@@ -265,7 +279,9 @@ class _StreamRecorder:
     def _follow(self, message: protocol.Message) -> None:
         name, fields = message.name, message.fields
         self._follower.follow(message)  # a lost SAMPLE: its run is unverifiable unless it comes again
-        if name == "SAMPLE":
+        if name == "CHECKPOINT":
+            self._take_checkpoint(fields)
+        elif name == "SAMPLE":
             self.samples += 1
         elif name == "ESTIMATE":
             self.estimates += 1
@@ -279,6 +295,19 @@ class _StreamRecorder:
             board_log(self.progress, fields)
         elif name == "HELLO" and message.seq == 0 and not (self.listen and self.samples == 0):
             raise _BoardRestarted  # (a listener's first HELLO is the front's copy)
+
+    def _take_checkpoint(self, fields: dict) -> None:
+        """A CHECKPOINT part: once every part of one arrived, the samples lost before it no
+        longer keep its run from being verified (the host resumes there)."""
+        key = (self._follower.segment, fields["index"])
+        parts = self._checkpoint_parts.setdefault(key, set())
+        parts.add(fields["part"])
+        if len(parts) == fields["parts"]:
+            del self._checkpoint_parts[key]
+            self.checkpoints += 1
+            self._follower.resume_at(fields["index"])
+        if len(self._checkpoint_parts) > 16:  # parts of checkpoints that will never be whole
+            del self._checkpoint_parts[min(self._checkpoint_parts)]
 
     def _lost_for_good(self) -> bool:
         """Whether a SAMPLE of the current run is missing for good: not recovered within the
@@ -300,16 +329,22 @@ class _StreamRecorder:
     def _restart_if_needed(self) -> None:
         if not self.resync or self._follower.complete or not self._lost_for_good():
             return
-        if self._restart is None or time.monotonic() - self._restart[1] > self.RESTART_TIMEOUT_S:
+        if self._restart is not None and time.monotonic() - self._restart[1] <= self.RESTART_TIMEOUT_S:
+            return
+        if self._checkpointing:  # verification resumes from the board's state: its filter runs on undisturbed
+            self._restart = (self.link.send_command("GET_CHECKPOINT"), time.monotonic())
+            self.checkpoint_requests += 1
+        else:
             self._restart = (self.link.send_command("SELECT_FILTER", filter_id=self.filter_id), time.monotonic())
             self.restarts += 1
 
-    def _start_stream(self, filter_name: str) -> None:
+    def _start_stream(self, filter_name: str, status: dict | None) -> None:
         self.filter_name = filter_name
         if self.listen:  # the stream is whatever the board sends
             self._start_ack, self._streaming, self._last_heard = None, True, time.monotonic()
             self.writer.event("listening")
             return
+        self._checkpointing = self._ask_for_checkpoints(status)
         self._start_ack = self.link.command("START_STREAM").ack
         self._streaming, self._last_heard = False, time.monotonic()
         self._follower, self._restart = StreamFollower(), None  # the snapshot restarted the filter
@@ -317,8 +352,21 @@ class _StreamRecorder:
         self._missing_segment = 0
         self.writer.event("stream_started", filter=filter_name)
 
-    def run(self, hello: dict, filter_name: str, duration_s: float | None, silence_s: float) -> RecordResult:
-        self._start_stream(filter_name)
+    def _ask_for_checkpoints(self, status: dict | None) -> bool:
+        """SET_CHECKPOINT_PERIOD for checkpoint_s at the board's rate; whether the board took it
+        (a board built before checkpoints refuses the command)."""
+        rate_hz = status["sample_rate_mhz"] / 1000.0 if status else 0.0
+        if self.checkpoint_s <= 0 or rate_hz <= 0:
+            return False
+        try:
+            self.link.command("SET_CHECKPOINT_PERIOD", period=max(1, round(self.checkpoint_s * rate_hz)))
+        except protocol.CommandError:
+            return False
+        return True
+
+    def run(self, hello: dict, filter_name: str, status: dict | None, duration_s: float | None,
+            silence_s: float) -> RecordResult:
+        self._start_stream(filter_name, status)
         # the duration counts from the board's ACK: on a lossy link START_STREAM's retries may take seconds
         started = time.monotonic()
         try:
@@ -343,7 +391,8 @@ class _StreamRecorder:
             self.progress.update(self._status_line(elapsed, counters), force=True)
             self.progress.done()
         return RecordResult(self.writer.path, hello, self.filter_name, self.samples, self.estimates, self.restarts,
-                            self.stop_reason, elapsed, counters, self.reconnects, self._lost.counters())
+                            self.stop_reason, elapsed, counters, self.reconnects, self._lost.counters(),
+                            self.checkpoints)
 
     def _recover_the_rest(self) -> None:
         """After the stream: wait up to RECOVERY_WAIT_S for the frames still asked for (the
@@ -423,13 +472,14 @@ class _StreamRecorder:
         """Take the snapshot again (the board's settings and calibration go into the file
         for the new segment) and start the stream again."""
         self.writer.event("reconnected", reason=why)
+        status = None
         if self.listen:
             _listen(self.link, self.writer, self.profile)
             filter_name = self.filter_name
         else:
-            _, self.filter_id, filter_name, _ = snapshot(self.link, self.writer, self.settings, self.profile)
+            _, self.filter_id, filter_name, status = snapshot(self.link, self.writer, self.settings, self.profile)
         self.reconnects += 1
-        self._start_stream(filter_name)
+        self._start_stream(filter_name, status)
         self._say(f"{self.link.url}: {why}: the recording goes on in a new segment")
 
     def _stop_stream(self) -> None:

@@ -356,6 +356,35 @@ class MessageTable:
         return len(self.host_time)
 
 
+@dataclass(frozen=True)
+class Checkpoint:
+    """A board's filter state after sample `index` of `segment` (its CHECKPOINT frames put
+    together): the bytes core.Filter.restore takes."""
+
+    segment: int
+    index: int
+    filter_id: int
+    state: bytes
+    host_time: float
+
+
+def _checkpoints(rows) -> list[Checkpoint]:
+    """The checkpoints whose every part arrived, in order (one per segment and index)."""
+    parts: dict[tuple, dict[int, bytes]] = {}
+    first_time: dict[tuple, float] = {}
+    for host_time, segment, fields, _ in rows:
+        key = (segment, fields["index"], fields["filter_id"], fields["parts"], fields["state_size"])
+        parts.setdefault(key, {}).setdefault(fields["part"], fields["data"])
+        first_time.setdefault(key, host_time)
+    found: dict[tuple[int, int], Checkpoint] = {}
+    for key, got in parts.items():
+        segment, index, filter_id, count, size = key
+        state = b"".join(got.get(k, b"") for k in range(count))
+        if len(got) == count and len(state) == size and (segment, index) not in found:
+            found[segment, index] = Checkpoint(segment, index, filter_id, state, first_time[key])
+    return [found[key] for key in sorted(found)]
+
+
 class NavStates(MessageTable):
     """NAV_STATE frames: the nav filter's state after each sample."""
 
@@ -376,6 +405,7 @@ class Recording:
     truncated_bytes: bytes of a damaged tail that were ignored.
     segments: number of filter runs (see the module docstring).
     recovered: message name -> frames of it that were lost on the way and recovered (RESENT).
+    checkpoints: the board's filter states (CHECKPOINT) whose every part arrived.
     """
 
     path: Path
@@ -403,6 +433,7 @@ class Recording:
     nav_states: NavStates = field(default_factory=lambda: _message_table(NavStates, "NAV_STATE", []))
     markers: Markers = field(default_factory=lambda: _message_table(Markers, "MARKER", []))
     recovered: dict[str, int] = field(default_factory=dict)
+    checkpoints: list[Checkpoint] = field(default_factory=list)
 
     def calibration(self, segment: int | None = None):
         """The board's calibration (imulink.analysis.calibration.Calibration, in this recording's
@@ -520,7 +551,8 @@ def load_recording(path, progress: CountProgress | None = None) -> Recording:
                      found.truncated_bytes, segments, follower.calibration, segment_settings, segment_calibration,
                      _baro_table(tables["BARO"]), _gnss_table(tables["GNSS"]),
                      _message_table(NavStates, "NAV_STATE", tables["NAV_STATE"]),
-                     _message_table(Markers, "MARKER", tables["MARKER"]), recovered)
+                     _message_table(Markers, "MARKER", tables["MARKER"]), recovered,
+                     _checkpoints(tables["CHECKPOINT"]))
 
 
 def _json_object(path: Path, record: LogRecord, what: str) -> dict:

@@ -14,7 +14,10 @@ go in with it), and every ESTIMATE of a complete run is compared with the fixed 
 quaternion, gyro bias and Euler angles, bit for bit (imulink.hil.comparison.EstimateCheck).
 (`imulink compare` on a recording also checks the ESKF covariance and the saturation count,
 which need the filter stepped one sample at a time.) A run with a lost sample, or one whose
-settings the monitor does not know, is not verifiable; its estimates are counted as such.
+settings the monitor does not know, is not verifiable; its estimates are counted as such, up
+to the board's next checkpoint of its filter state (CHECKPOINT, every second when the monitor
+commands the board): the fixed build resumes from it. The float twin cannot (a checkpoint is
+the fixed build's state), so a resumed run has no fixed-vs-float angle.
 """
 from __future__ import annotations
 
@@ -60,8 +63,12 @@ class _Run:
     """One filter run from sample index 0 with known settings: both host builds, stepped in batches."""
 
     def __init__(self, filter_name: str, raw_settings: dict[str, int], profile: SensorProfile,
-                 calibration: Calibration | None):
+                 calibration: Calibration | None, checkpoint: bytes | None = None):
         reference = FirmwareFilter(filter_name, raw_settings, profile, calibration)
+        self.setup = (filter_name, raw_settings, profile, calibration)  # for a run resumed from a checkpoint
+        self.twin = checkpoint is None  # the float twin saw the run from its start
+        if checkpoint is not None:
+            reference.core.restore(checkpoint)  # ValueError: not a state of this filter
         self.filter_id = reference.filter_id
         self.fixed = reference.core
         self.float = core.Filter(filter_name, reference.si_settings["sample_rate"], "float", reference.si_settings,
@@ -116,8 +123,9 @@ class _Run:
         raw = fixed.raw
         assert raw is not None  # self.fixed is the fixed build (FirmwareFilter's core)
         quat, bias, euler = (raw[k].tolist() for k in ("quat", "gyro_bias", "euler"))
+        float_quat = twin.quat if self.twin else np.full((len(index), 4), np.nan)
         for k, i in enumerate(index):
-            self.results[i] = (quat[k], bias[k], euler[k], twin.quat[k])
+            self.results[i] = (quat[k], bias[k], euler[k], float_quat[k])
         for i in list(islice(self.results, max(0, len(self.results) - _KEEP_RESULTS))):
             del self.results[i]  # the oldest: a dict keeps the order the indices came in
 
@@ -133,6 +141,9 @@ class LiveCheck:
         self.fixed_float_max_deg = 0.0
         self._expected: dict[int, tuple[str, int, int]] = {}  # command_seq -> ("filter", id, 0) | ("setting", i, v)
         self._run: _Run | None = None
+        self._lost_run: _Run | None = None  # the current run's, after a lost sample: resumes at a checkpoint
+        self._checkpoint: dict[int, bytes] = {}  # the parts of the CHECKPOINT coming in
+        self.resumed = 0  # runs resumed from a checkpoint
         self._arrived: list[tuple[int, dict]] = []  # (segment, ESTIMATE fields) not compared yet
         self._seen = 0  # estimates compared or skipped so far
 
@@ -154,32 +165,61 @@ class LiveCheck:
         self._expected[ack.fields["command_seq"]] = change
 
     def feed(self, messages) -> list[float]:
-        """Process messages in arrival order; the fixed-vs-float angle of each ESTIMATE (NaN: unverifiable)."""
+        """Process messages in arrival order; the fixed-vs-float angle of each ESTIMATE (NaN: unverifiable,
+        or verified in a run resumed from a checkpoint, which the float twin cannot follow)."""
+        angles: list[float] = []
         for message in messages:
             name, fields = message.name, message.fields
+            run_before = self._run
             segment_before = self.follower.segment
             segment = self.follower.follow(message)
             restart_ack = self.follower.restart_ack
             if name == "ACK" and restart_ack is fields:
                 self._restart(self._expected.pop(restart_ack["command_seq"], None), restart_ack["command"])
             elif name == "HELLO" and self.follower.restarted_by == "reset" and message.seq == 0:
-                self._run = None  # the board started again: default settings, unknown to us, and no calibration
+                self._run = self._lost_run = None  # the board started again: default settings, unknown to us
             elif segment is not None and self.follower.segment != segment_before:
-                self._run = None  # a run began unannounced (its ACK was lost): its settings are not known
+                self._run = self._lost_run = None  # a run began unannounced (its ACK was lost): settings unknown
+            if segment is not None and self.follower.segment != segment_before:
+                self._lost_run = None
             if name == "SAMPLE" and self._run is not None:
                 if self.follower.complete:
                     self._run.add(fields)
-                else:
-                    self._run = None  # a sample was lost: nothing after it can be reproduced
+                else:  # a sample was lost: nothing after it can be reproduced, up to a checkpoint
+                    self._run, self._lost_run = None, self._run
+            elif name == "CHECKPOINT" and self._lost_run is not None:
+                self._resume(fields)
             elif name == "ESTIMATE" and segment is not None:  # (an ESTIMATE always has its run)
                 self._arrived.append((segment, fields))
             elif name in _NAV_EVENTS and self._run is not None:
                 self._run.add_event(name, fields)
-        return self._compare()
+            if self._run is not run_before:  # the estimates that came before belong to the run before
+                angles += self._compare(run_before)
+        return angles + self._compare(self._run)
+
+    def _resume(self, fields: dict) -> None:
+        """A CHECKPOINT part after a lost sample: once the checkpoint is whole, the fixed build
+        resumes from it (the samples lost before it no longer count)."""
+        lost = self._lost_run
+        assert lost is not None
+        if fields["part"] == 0:
+            self._checkpoint = {}
+        self._checkpoint[fields["part"]] = fields["data"]
+        if len(self._checkpoint) < fields["parts"] or fields["filter_id"] != lost.filter_id:
+            return
+        state = b"".join(self._checkpoint[k] for k in sorted(self._checkpoint))
+        self._checkpoint = {}
+        try:
+            self._run = _Run(*lost.setup, checkpoint=state)
+        except ValueError:  # a state of another size: not this host build's filter
+            return
+        self._lost_run = None
+        self.resumed += 1
+        self.follower.resume_at(fields["index"])
 
     def _restart(self, change: tuple[str, int, int] | None, command: int) -> None:
         """A restarting command's ACK: a new run with what is known of the settings."""
-        self._run = None
+        self._run = self._lost_run = None
         if change is None and command == _SET_SETTING:
             return  # another client changed a setting: its value is not known here
         follower = self.follower
@@ -211,8 +251,8 @@ class LiveCheck:
             raise CalibrationError("only part of the board's calibration was received")
         return Calibration(self.profile, sensors)
 
-    def _compare(self) -> list[float]:
-        run = self._run
+    def _compare(self, run: _Run | None) -> list[float]:
+        """Compare the estimates that arrived with `run`'s results; their fixed-vs-float angles."""
         if run is not None and self._arrived:
             run.step(max(fields["index"] for _, fields in self._arrived))
         angles = np.full(len(self._arrived), np.nan)
@@ -230,7 +270,8 @@ class LiveCheck:
             float_quat.append(host[3])
         if verified:
             angles[verified] = angle_difference(np.array(board_quat) / 2.0**core.QUAT_FRAC_BITS, np.array(float_quat))
-            self.fixed_float_max_deg = max(self.fixed_float_max_deg, float(angles[verified].max()))
+            if not np.isnan(angles[verified]).all():  # (NaN in a run resumed from a checkpoint: no twin)
+                self.fixed_float_max_deg = max(self.fixed_float_max_deg, float(np.nanmax(angles[verified])))
         self._arrived = []
         return angles.tolist()
 

@@ -264,6 +264,10 @@ class LiveSource:
             hil.read_calibration(self._open_link)
         # the live check learnt the calibration from the CALIBRATION answers: a run from sample 0 with it
         self.check.expect(self._open_link.command("SELECT_FILTER", filter_id=filter_id).ack, ("filter", filter_id, 0))
+        try:  # a checkpoint of the filter state a second: the live check resumes there after a lost sample
+            self._open_link.command("SET_CHECKPOINT_PERIOD", period=max(1, round(status["sample_rate_mhz"] / 1000)))
+        except protocol.CommandError:
+            pass  # a board built before checkpoints
         self._open_link.command("START_STREAM")
         if writer is not None:
             writer.event("stream_started", filter=core.filter_name_of(filter_id))

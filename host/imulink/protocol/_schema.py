@@ -9,7 +9,7 @@ the last field only, text / bytes (length: the maximum, variable on the wire).
 from typing import Any
 
 PROTOCOL_VERSION = 1
-SCHEMA_HASH = 0x112AC5A1
+SCHEMA_HASH = 0xEFCC59B3
 HEADER_SIZE = 3
 CRC_SIZE = 4
 MAX_PAYLOAD = 201
@@ -151,6 +151,14 @@ MESSAGES: dict[str, dict[str, Any]] = {
         ('msg_id', 'u8', None),
         ('payload', 'bytes', 64),
     )},
+    'CHECKPOINT': {'id': 0x17, 'direction': 'to_host', 'fields': (
+        ('index', 'u32', None),
+        ('filter_id', 'u8', None),
+        ('part', 'u8', None),
+        ('parts', 'u8', None),
+        ('state_size', 'u16', None),
+        ('data', 'bytes', 192),
+    )},
     'COMMAND': {'id': 0x20, 'direction': 'to_board', 'fields': (
         ('command', 'u8', None),
         ('command_seq', 'u16', None),
@@ -211,6 +219,10 @@ COMMANDS: dict[str, dict[str, Any]] = {
         ('first_seq', 'u16', None),
         ('count', 'u8', None),
     ), 'restarts_filter': False, 'idempotent': True, 'reply': 'RESENT'},
+    'SET_CHECKPOINT_PERIOD': {'id': 16, 'args': (
+        ('period', 'u32', None),
+    ), 'restarts_filter': False, 'idempotent': True, 'reply': None},
+    'GET_CHECKPOINT': {'id': 17, 'args': (), 'restarts_filter': False, 'idempotent': True, 'reply': 'CHECKPOINT'},
 }
 
 #: code table name -> code name -> value
@@ -313,8 +325,8 @@ CFFI_DECLARATIONS = """
 #define IMU_PROTO_VERSION ...
 #define IMU_PROTO_SCHEMA_HASH ...
 #define IMU_PROTO_MAX_PAYLOAD ...
-typedef enum { IMU_PROTO_MSG_HELLO = 1, IMU_PROTO_MSG_STATUS = 2, IMU_PROTO_MSG_LOG = 3, IMU_PROTO_MSG_ACK = 4, IMU_PROTO_MSG_NACK = 5, IMU_PROTO_MSG_SETTING = 6, IMU_PROTO_MSG_CALIBRATION = 7, IMU_PROTO_MSG_SAMPLE = 16, IMU_PROTO_MSG_ESTIMATE = 17, IMU_PROTO_MSG_BARO = 18, IMU_PROTO_MSG_GNSS = 19, IMU_PROTO_MSG_NAV_STATE = 20, IMU_PROTO_MSG_MARKER = 21, IMU_PROTO_MSG_RESENT = 22, IMU_PROTO_MSG_COMMAND = 32 } imu_proto_msg_id_t;
-typedef enum { IMU_PROTO_CMD_START_STREAM = 1, IMU_PROTO_CMD_STOP_STREAM = 2, IMU_PROTO_CMD_SELECT_FILTER = 3, IMU_PROTO_CMD_GET_SETTING = 4, IMU_PROTO_CMD_SET_SETTING = 5, IMU_PROTO_CMD_INJECT_SAMPLE = 6, IMU_PROTO_CMD_RESET = 7, IMU_PROTO_CMD_ENTER_BOOTLOADER = 8, IMU_PROTO_CMD_GET_VERSION = 9, IMU_PROTO_CMD_GET_STATUS = 10, IMU_PROTO_CMD_SET_INJECTION_MODE = 11, IMU_PROTO_CMD_SET_CALIBRATION = 12, IMU_PROTO_CMD_GET_CALIBRATION = 13, IMU_PROTO_CMD_POSITION_FIX = 14, IMU_PROTO_CMD_RESEND = 15 } imu_proto_command_id_t;
+typedef enum { IMU_PROTO_MSG_HELLO = 1, IMU_PROTO_MSG_STATUS = 2, IMU_PROTO_MSG_LOG = 3, IMU_PROTO_MSG_ACK = 4, IMU_PROTO_MSG_NACK = 5, IMU_PROTO_MSG_SETTING = 6, IMU_PROTO_MSG_CALIBRATION = 7, IMU_PROTO_MSG_SAMPLE = 16, IMU_PROTO_MSG_ESTIMATE = 17, IMU_PROTO_MSG_BARO = 18, IMU_PROTO_MSG_GNSS = 19, IMU_PROTO_MSG_NAV_STATE = 20, IMU_PROTO_MSG_MARKER = 21, IMU_PROTO_MSG_RESENT = 22, IMU_PROTO_MSG_CHECKPOINT = 23, IMU_PROTO_MSG_COMMAND = 32 } imu_proto_msg_id_t;
+typedef enum { IMU_PROTO_CMD_START_STREAM = 1, IMU_PROTO_CMD_STOP_STREAM = 2, IMU_PROTO_CMD_SELECT_FILTER = 3, IMU_PROTO_CMD_GET_SETTING = 4, IMU_PROTO_CMD_SET_SETTING = 5, IMU_PROTO_CMD_INJECT_SAMPLE = 6, IMU_PROTO_CMD_RESET = 7, IMU_PROTO_CMD_ENTER_BOOTLOADER = 8, IMU_PROTO_CMD_GET_VERSION = 9, IMU_PROTO_CMD_GET_STATUS = 10, IMU_PROTO_CMD_SET_INJECTION_MODE = 11, IMU_PROTO_CMD_SET_CALIBRATION = 12, IMU_PROTO_CMD_GET_CALIBRATION = 13, IMU_PROTO_CMD_POSITION_FIX = 14, IMU_PROTO_CMD_RESEND = 15, IMU_PROTO_CMD_SET_CHECKPOINT_PERIOD = 16, IMU_PROTO_CMD_GET_CHECKPOINT = 17 } imu_proto_command_id_t;
 typedef enum { IMU_PROTO_FILTER_EECF = 1, IMU_PROTO_FILTER_KF1D = 2, IMU_PROTO_FILTER_ESKF = 3, IMU_PROTO_FILTER_NAV = 4 } imu_proto_filter_t;
 typedef enum { IMU_PROTO_REASON_OK = 0, IMU_PROTO_REASON_UNKNOWN_COMMAND = 1, IMU_PROTO_REASON_BAD_LENGTH = 2, IMU_PROTO_REASON_BAD_ARGUMENT = 3, IMU_PROTO_REASON_OUT_OF_RANGE = 4, IMU_PROTO_REASON_BUSY = 5, IMU_PROTO_REASON_NOT_IN_INJECTION_MODE = 6, IMU_PROTO_REASON_UNKNOWN_FILTER = 7, IMU_PROTO_REASON_UNKNOWN_SETTING = 8, IMU_PROTO_REASON_NOT_SUPPORTED = 9, IMU_PROTO_REASON_NOT_NAV = 10 } imu_proto_reason_t;
 typedef enum { IMU_PROTO_SENSOR_GYROSCOPE = 0, IMU_PROTO_SENSOR_ACCELEROMETER = 1, IMU_PROTO_SENSOR_MAGNETOMETER = 2 } imu_proto_sensor_t;
@@ -403,6 +415,11 @@ typedef struct { uint16_t original_seq; uint8_t status; uint8_t msg_id; uint8_t 
 size_t imu_proto_resent_pack(const imu_proto_resent_t *m, uint8_t *payload);
 imu_proto_result_t imu_proto_resent_unpack(imu_proto_resent_t *m, const uint8_t *payload, size_t len);
 size_t imu_proto_resent_encode(const imu_proto_resent_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
+#define IMU_PROTO_CHECKPOINT_SIZE ...
+typedef struct { uint32_t index; uint8_t filter_id; uint8_t part; uint8_t parts; uint16_t state_size; uint8_t data[192]; size_t data_len; } imu_proto_checkpoint_t;
+size_t imu_proto_checkpoint_pack(const imu_proto_checkpoint_t *m, uint8_t *payload);
+imu_proto_result_t imu_proto_checkpoint_unpack(imu_proto_checkpoint_t *m, const uint8_t *payload, size_t len);
+size_t imu_proto_checkpoint_encode(const imu_proto_checkpoint_t *m, uint16_t seq, uint8_t *wire, size_t wire_cap);
 #define IMU_PROTO_COMMAND_SIZE ...
 typedef struct { uint8_t command; uint16_t command_seq; uint8_t args[28]; size_t args_len; } imu_proto_command_t;
 size_t imu_proto_command_pack(const imu_proto_command_t *m, uint8_t *payload);
@@ -445,6 +462,10 @@ imu_proto_result_t imu_proto_cmd_position_fix_unpack(imu_proto_cmd_position_fix_
 typedef struct { uint16_t first_seq; uint8_t count; } imu_proto_cmd_resend_t;
 size_t imu_proto_cmd_resend_pack(const imu_proto_cmd_resend_t *a, uint8_t *args);
 imu_proto_result_t imu_proto_cmd_resend_unpack(imu_proto_cmd_resend_t *a, const uint8_t *args, size_t len);
+#define IMU_PROTO_CMD_SET_CHECKPOINT_PERIOD_SIZE ...
+typedef struct { uint32_t period; } imu_proto_cmd_set_checkpoint_period_t;
+size_t imu_proto_cmd_set_checkpoint_period_pack(const imu_proto_cmd_set_checkpoint_period_t *a, uint8_t *args);
+imu_proto_result_t imu_proto_cmd_set_checkpoint_period_unpack(imu_proto_cmd_set_checkpoint_period_t *a, const uint8_t *args, size_t len);
 int imu_proto_command_args_size(uint8_t command);
 #define IMU_PROTO_FLAG_RESTARTS_FILTER ...
 #define IMU_PROTO_FLAG_IDEMPOTENT ...
@@ -463,6 +484,8 @@ int imu_proto_command_args_size(uint8_t command);
 #define IMU_PROTO_CMD_GET_CALIBRATION_FLAGS ...
 #define IMU_PROTO_CMD_POSITION_FIX_FLAGS ...
 #define IMU_PROTO_CMD_RESEND_FLAGS ...
+#define IMU_PROTO_CMD_SET_CHECKPOINT_PERIOD_FLAGS ...
+#define IMU_PROTO_CMD_GET_CHECKPOINT_FLAGS ...
 unsigned imu_proto_command_flags(uint8_t command);
 """
 

@@ -16,7 +16,7 @@ from __future__ import annotations
 from imulink import protocol
 
 #: Frames that belong to one sample of a filter run (their `index` is the sample's).
-RUN_FRAMES = frozenset({"SAMPLE", "ESTIMATE", "BARO", "GNSS", "NAV_STATE", "MARKER"})
+RUN_FRAMES = frozenset({"SAMPLE", "ESTIMATE", "BARO", "GNSS", "NAV_STATE", "MARKER", "CHECKPOINT"})
 #: Lost SAMPLEs listed one by one for recovery; a longer gap (a board whose stream was joined
 #: late) leaves its run incomplete for good.
 MAX_LISTED_GAP = 1 << 16
@@ -110,6 +110,12 @@ class StreamFollower:
         self.missing_samples = set()
         self._recovered_ahead = set()
         self._beyond_recovery = False
+
+    def resume_at(self, index: int) -> None:
+        """A checkpoint of the board's filter state after sample `index` of this run arrived
+        whole: the host resumes verification there, so the SAMPLEs lost before it no longer
+        make the run incomplete."""
+        self.missing_samples = {i for i in self.missing_samples if i > index}
 
     def recover(self, message: protocol.Message) -> None:
         """A frame of this run that was lost on the way and sent again (RESENT), arriving
