@@ -195,8 +195,8 @@ def test_a_sample_lost_at_the_very_end_is_recovered(tmp_path):
 ], ids=["dropped-2e-4", "flipped-1e-3", "garbage", "dropped-1e-2"])
 def test_lossy_links_lose_no_sample_and_every_arrived_estimate_verifies(tmp_path, faults):
     path = tmp_path / "lossy.imulog"
-    with EmulatedBoard(duration_s=3.0, rate_hz=1000.0, realtime=True, filter_name="eskf", faults=faults) as board:
-        result = hil.record(board.address, path)
+    with EmulatedBoard(duration_s=5.0, rate_hz=1000.0, realtime=True, filter_name="eskf", faults=faults) as board:
+        result = hil.record(board.address, path, duration_s=3.0)
     assert result.counters["lost_frames"] > 0 and result.filter_restarts == 0
     recording = load_recording(path)
     assert recording.segments == 1
@@ -204,3 +204,17 @@ def test_lossy_links_lose_no_sample_and_every_arrived_estimate_verifies(tmp_path
     assert recording.samples.recovered.any()
     comparison = hil.compare(recording)
     assert comparison.bit_exact and comparison.verified_count == len(recording.estimates)
+
+
+def test_a_two_second_stall_loses_nothing(tmp_path):
+    """The link holds everything for 2 s (as long as the default silence timeout): the recorder
+    asks the board, which says it streams, and the recording goes on complete."""
+    path = tmp_path / "stall.imulog"
+    with EmulatedBoard(front="tcp", duration_s=12.0, realtime=True, filter_name="eskf",
+                       faults=FaultConfig(stall=1e-3, stall_s=2.0, seed=5)) as board:
+        result = hil.record(board.address, path, duration_s=6.0)
+        stalls = board.proxy.faults.counts["stalls"]
+    assert stalls >= 1 and result.counters["lost_frames"] == 0
+    recording = load_recording(path)
+    np.testing.assert_array_equal(recording.samples.index, np.arange(len(recording.samples)))
+    assert hil.compare(recording).verdict.passed
