@@ -74,14 +74,19 @@ def test_a_changed_nav_state_is_found(tmp_path):
     assert comparison.first_difference.field == "nav_state.lat" and comparison.first_difference.index == 300
 
 
-def test_a_lost_nav_state_leaves_its_estimate_unverified(tmp_path):
+def test_a_lost_nav_state_leaves_its_estimate_verified_and_the_others_compared(tmp_path):
+    """A NAV_STATE is an output (the board does not send it again): where one was lost its
+    ESTIMATE is still verified, and the other NAV_STATEs are still compared."""
     _, recording, _ = record_nav_drive("native", 5.0, tmp_path)
     kept = np.arange(len(recording.nav_states)) != 200
     recording.nav_states.segment = recording.nav_states.segment[kept]
     recording.nav_states.host_time = recording.nav_states.host_time[kept]
     recording.nav_states.fields = {k: v[kept] for k, v in recording.nav_states.fields.items()}
     comparison = hil.compare(recording)
-    assert comparison.verified_count == len(recording.estimates) - 1 and comparison.bit_exact
+    assert comparison.verified_count == len(recording.estimates) and comparison.bit_exact
+    recording.nav_states.fields["height_mm"][300] += 1
+    comparison = hil.compare(recording)
+    assert not comparison.bit_exact and comparison.first_difference.field == "nav_state.height_mm"
 
 
 def test_replay_of_a_nav_recording_has_its_positions(tmp_path, capsys):

@@ -479,12 +479,10 @@ def compare(recording: Recording, run: HostRun | None = None, min_verified: floa
     verified &= ~np.asarray(estimates.leftover, bool)
     state_row = _nav_state_rows(recording)
     host_nav, nav_rows = run.nav, run.nav_rows  # both set where the nav filter ran (host_run), else None
-    if nav_rows is not None:
-        # the nav filter's estimate is verified with its NAV_STATE: both must have arrived
-        nav = verified.copy()
-        nav[verified] = nav_rows[sample_row[verified]]
-        verified &= ~nav | (state_row >= 0)
     positions, rows = np.flatnonzero(verified), sample_row[verified]
+    # the nav filter's NAV_STATE is compared with its ESTIMATE where it arrived (an output: never sent again)
+    with_state = (np.flatnonzero(nav_rows[rows] & (state_row[positions] >= 0)) if nav_rows is not None
+                  else np.zeros(0, np.int64))
 
     def board_and_host(name: str):
         """A compared field's values at the verified estimates: the board's and the host's
@@ -492,10 +490,9 @@ def compare(recording: Recording, run: HostRun | None = None, min_verified: floa
         if not name.startswith("nav_state."):
             return getattr(estimates, name)[positions], run.fixed[name][rows]
         field = name.split(".", 1)[1]
-        assert host_nav is not None and nav_rows is not None  # nav_state fields are compared only then
-        states = np.flatnonzero(nav_rows[rows])
-        return (recording.nav_states.fields[field][state_row[positions[states]]],
-                host_nav[field][rows[states]])
+        assert host_nav is not None  # nav_state fields are compared only then
+        return (recording.nav_states.fields[field][state_row[positions[with_state]]],
+                host_nav[field][rows[with_state]])
 
     compared = list(Estimates.COMPARED)
     if host_nav is not None:
@@ -505,8 +502,7 @@ def compare(recording: Recording, run: HostRun | None = None, min_verified: floa
         board, host = board_and_host(name)
         same = board == host if board.ndim == 1 else np.all(board == host, axis=1)
         if name.startswith("nav_state."):
-            assert nav_rows is not None  # set with host_nav
-            equal[np.flatnonzero(nav_rows[rows])] &= same
+            equal[with_state] &= same
         else:
             equal &= same
     identical = np.zeros(len(verified), bool)
@@ -516,6 +512,8 @@ def compare(recording: Recording, run: HostRun | None = None, min_verified: floa
         k = int(np.flatnonzero(~equal)[0])
         position, row = int(positions[k]), int(rows[k])
         for name in compared:
+            if name.startswith("nav_state.") and state_row[position] < 0:
+                continue  # its NAV_STATE was lost: nothing of it to compare
             if name.startswith("nav_state."):
                 field = name.split(".", 1)[1]
                 assert host_nav is not None  # nav_state fields are compared only with it
