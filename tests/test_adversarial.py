@@ -416,6 +416,16 @@ def test_a_recording_of_another_schema_or_with_a_malformed_header_is_refused(fil
             assert_error(imulink("inject", "loop://", "--input", name, cwd=files), message)
 
 
+def test_a_recording_of_an_earlier_schema_this_one_only_adds_to_is_read(files):
+    """shared/protocol.toml [protocol] earlier_hashes: recordings made before RESEND and
+    CHECKPOINT decode the same."""
+    header = json.loads(read_records(files / "good.imulog").records[0].body)
+    assert protocol.READABLE_SCHEMA_HASHES == {protocol.SCHEMA_HASH, 0xA373C5B8}
+    _rewrite_header(files, "earlier.imulog", json.dumps({**header, "schema_hash": 0xA373C5B8}).encode())
+    result = imulink("compare", "earlier.imulog", cwd=files)
+    assert result.returncode == 0 and "bit-exact: yes" in result.stdout
+
+
 def test_a_malformed_event_behind_a_valid_crc_is_refused(files):
     head = struct.pack("<IBd", 4, 3, 0.0)  # an EVENT record whose JSON is a number
     path = files / "event.imulog"

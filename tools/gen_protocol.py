@@ -223,6 +223,9 @@ class Schema:
     enums: tuple[CodeTable, ...]
     messages: tuple[Message, ...]
     commands: tuple[Command, ...]
+    #: hashes of earlier definitions that this one only adds to (messages, commands, codes):
+    #: their recordings decode the same ([protocol] earlier_hashes)
+    earlier_hashes: tuple[int, ...] = ()
 
     def message(self, name: str) -> Message:
         return next(m for m in self.messages if m.name == name)
@@ -298,10 +301,13 @@ def load_schema(path: Path) -> Schema:
     with open(path, "rb") as fh:
         raw = tomllib.load(fh)
     _keys(raw, str(path), {"protocol", "enums", "message", "command"})
-    _keys(raw["protocol"], "[protocol]", {"version"})
+    _keys(raw["protocol"], "[protocol]", {"version", "earlier_hashes"})
     version = raw["protocol"]["version"]
     if not isinstance(version, int) or not 1 <= version <= 255:
         raise SchemaError("[protocol] version must be an integer in 1..255 (it travels as a u8)")
+    earlier = raw["protocol"].get("earlier_hashes", [])
+    if not all(isinstance(h, int) and 0 <= h <= 0xFFFFFFFF for h in earlier):
+        raise SchemaError("[protocol] earlier_hashes must be 32-bit schema hashes")
 
     enums = []
     for name, table in raw["enums"].items():
@@ -378,7 +384,7 @@ def load_schema(path: Path) -> Schema:
         if first != "ACK" and (first not in by_name or by_name[first].direction != "to_host"):
             raise SchemaError(f"[[command]] {c.name!r}: reply starts with ACK or with the message sent before it")
     schema = Schema(version, tuple(enums), tuple(sorted(messages, key=lambda m: m.id)),
-                    tuple(sorted(commands, key=lambda c: c.id)))
+                    tuple(sorted(commands, key=lambda c: c.id)), tuple(earlier))
     _check_command_message(schema)
     return schema
 
@@ -895,6 +901,8 @@ def render_python(schema: Schema) -> str:
         "",
         f"PROTOCOL_VERSION = {schema.version}",
         f"SCHEMA_HASH = 0x{schema_hash(schema):08X}",
+        "#: earlier definitions this one only adds to: their recordings decode the same",
+        f"EARLIER_SCHEMA_HASHES = ({''.join(f'0x{h:08X}, ' for h in schema.earlier_hashes)})",
         f"HEADER_SIZE = {HEADER_SIZE}",
         f"CRC_SIZE = {CRC_SIZE}",
         f"MAX_PAYLOAD = {schema.max_payload}",

@@ -18,7 +18,8 @@ the damaged span by offset. Bytes after which no valid record follows are a trun
 tail (a partial last record, zero fill): ignored, everything before kept.
 
 :func:`load_recording` refuses a recording whose header names another protocol
-version or schema hash than this host's: its frames would be misread. The counts' sensor
+version or schema hash than this host's (or an earlier one this host's only adds to): its
+frames would be misread. The counts' sensor
 profile is the one the board states in its HELLO (the header's only without a HELLO).
 
 :func:`load_recording` decodes the frames of a file into numpy tables of samples and
@@ -590,7 +591,7 @@ def _header(path: Path, records: list[LogRecord]) -> tuple[dict, SensorProfile |
         raise RecordingError(f"{path}: recording format {header.get('format_version')!r} is not supported "
                              f"(this imulink reads format {FORMAT_VERSION})")
     version, schema = header.get("protocol_version"), header.get("schema_hash")
-    if version != protocol.PROTOCOL_VERSION or schema != protocol.SCHEMA_HASH:
+    if version != protocol.PROTOCOL_VERSION or schema not in protocol.READABLE_SCHEMA_HASHES:
         schema_text = f"0x{schema:08X}" if isinstance(schema, int) else repr(schema)
         raise RecordingError(f"{path} was recorded with protocol v{version!r}, schema hash {schema_text}; this "
                              f"imulink decodes v{protocol.PROTOCOL_VERSION}, 0x{protocol.SCHEMA_HASH:08X}: read it "

@@ -31,6 +31,9 @@ from imulink.protocol import _schema as _schema
 
 PROTOCOL_VERSION: int = _schema.PROTOCOL_VERSION
 SCHEMA_HASH: int = _schema.SCHEMA_HASH
+#: Schema hashes whose recordings this host decodes: its own and the earlier definitions it only
+#: adds to (messages, commands, codes; shared/protocol.toml [protocol] earlier_hashes).
+READABLE_SCHEMA_HASHES: frozenset[int] = frozenset((SCHEMA_HASH, *_schema.EARLIER_SCHEMA_HASHES))
 DIRECTIONS = ("to_host", "to_board")
 HEADER_SIZE: int = _schema.HEADER_SIZE
 CRC_SIZE: int = _schema.CRC_SIZE

@@ -10,6 +10,8 @@ from typing import Any
 
 PROTOCOL_VERSION = 1
 SCHEMA_HASH = 0xEFCC59B3
+#: earlier definitions this one only adds to: their recordings decode the same
+EARLIER_SCHEMA_HASHES = (0xA373C5B8, )
 HEADER_SIZE = 3
 CRC_SIZE = 4
 MAX_PAYLOAD = 201
