@@ -71,7 +71,8 @@ def _measure(target: str, filter_name: str, rate_hz: float, duration_s: float, f
         with EmulatedBoard(target, duration_s=duration_s + 30.0, rate_hz=rate_hz, filter_name=filter_name,
                            scenario=scenario, realtime=True, faults=faults, seed=seed) as board:
             result = hil.record(board.address, path, duration_s=duration_s)
-            stalls = board.proxy.faults.counts["stalls"] if board.proxy is not None else 0
+            injector = board.proxy.faults if board.proxy is not None else None  # None on a clean link
+            stalls = injector.counts["stalls"] if injector is not None else 0
         recording = load_recording(path)
         comparison = hil.compare(recording, min_verified=0.0)
     samples = recording.samples

@@ -49,7 +49,10 @@ class FaultConfig:
     drop_byte / flip_bit: probability that each byte is dropped / has one random bit
     flipped. garbage: probability that a burst of 1..garbage_max random bytes precedes a
     frame. stall: probability that the board goes silent for stall_s seconds before a
-    frame (nothing passes either way meanwhile). seed makes it reproducible.
+    frame (nothing passes either way meanwhile); stalls do not follow each other: after one,
+    the frames of the next stall_s seconds pass (the frames held up by one would otherwise
+    draw the next at once, and stalls would chain into one long outage). seed makes it
+    reproducible.
     drop_samples: indices of SAMPLE frames dropped whole, the first time each passes (a
     loss placed exactly, for tests).
     """
@@ -93,6 +96,7 @@ class FaultInjector:
             ("dropped_bytes", "flipped_bits", "garbage_bursts", "garbage_bytes", "stalls", "damaged_frames",
              "dropped_samples"), 0)
         self._samples_to_drop = set(config.drop_samples)
+        self._calm_until = 0.0  # no stall before this time.monotonic()
 
     def damage(self, wire: bytes) -> bytes:
         """The bytes actually sent for one frame."""
@@ -135,8 +139,9 @@ class FaultInjector:
 
     def stall(self) -> float:
         """Seconds to stay silent before the next frame (0 almost always)."""
-        if self.config.stall and self._rng.random() < self.config.stall:
+        if self.config.stall and self._rng.random() < self.config.stall and time.monotonic() >= self._calm_until:
             self.counts["stalls"] += 1
+            self._calm_until = time.monotonic() + 2 * self.config.stall_s  # the stall, then as long again
             return self.config.stall_s
         return 0.0
 

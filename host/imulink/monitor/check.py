@@ -51,6 +51,8 @@ class CheckSummary:
     unverifiable: int = 0
     first_difference: str | None = None
     fixed_float_max_deg: float = 0.0
+    resumed: int = 0  # runs verified on from a checkpoint of the board's state after a lost sample
+    recovered: int = 0  # samples lost on the way and sent again (a recording's; the live stream has none)
 
     @property
     def verdict(self) -> str:
@@ -156,7 +158,7 @@ class LiveCheck:
         e, first = self.estimates, self.estimates.first
         text = None if first is None else (f"sample index {first.index}: {first.field}: board {first.board}, "
                                            f"host {first.host}")
-        return CheckSummary(e.identical, e.different, e.unverifiable, text, self.fixed_float_max_deg)
+        return CheckSummary(e.identical, e.different, e.unverifiable, text, self.fixed_float_max_deg, self.resumed)
 
     def expect(self, ack: protocol.Message, change: tuple[str, int, int]) -> None:
         """A command the monitor sent and the board ACKed changes the filter (``("filter", id, 0)``)

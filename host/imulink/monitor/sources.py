@@ -529,7 +529,8 @@ class ReplaySource:
                                unverifiable=int((~c.verified & shown).sum()),
                                first_difference=str(c.first_difference) if c.first_difference else None,
                                fixed_float_max_deg=float(np.nanmax(
-                                   self.estimate_rows[shown, ESTIMATE_COLUMNS.index("fixed_float")], initial=0.0)))
+                                   self.estimate_rows[shown, ESTIMATE_COLUMNS.index("fixed_float")], initial=0.0)),
+                               resumed=c.states.resumed, recovered=rec.recovered.get("SAMPLE", 0))
         return Health("replay", f"{self.path.name}: {self._position:.1f} of {self.duration:.1f} s at "
                                 f"{self.speed:g}x", counters=rec.counters, hello=rec.hello, status=rec.status,
                       check=summary)

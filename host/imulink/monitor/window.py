@@ -475,8 +475,10 @@ class MonitorWindow(QtWidgets.QMainWindow):
         k = h.check
         colour = "#c22" if k.different else ("#2a7" if k.identical else "#888")
         rows.append(f"bit-exact: <b style='color:{colour}'>{k.verdict}</b> ({k.identical} identical, "
-                    f"{k.different} different, {k.unverifiable} unverifiable); fixed vs float max "
-                    f"{k.fixed_float_max_deg:.5f}°")
+                    f"{k.different} different, {k.unverifiable} unverifiable"
+                    + (f", {k.recovered} samples recovered" if k.recovered else "")
+                    + (f", resumed from {k.resumed} checkpoint(s)" if k.resumed else "")
+                    + f"); fixed vs float max {k.fixed_float_max_deg:.5f}°")
         if k.first_difference:
             rows.append(f"first difference: {_escape(k.first_difference)}")
         if h.recording:
