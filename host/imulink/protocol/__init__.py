@@ -355,11 +355,6 @@ def message_of_payload(msg_id: int, seq: int, payload: bytes) -> Message:
     return codec.message(frame)
 
 
-def direction_of(name: str) -> str:
-    """Who sends a message: "to_host" (the board) or "to_board" (the host)."""
-    return _codec(name).direction
-
-
 def decode(wire: bytes) -> Message:
     """Decode one frame as :func:`encode` wrote it (the trailing delimiter may be left off).
 

@@ -127,11 +127,11 @@ class LostFrames:
 
 
 def in_sent_order(received: Sequence[tuple[protocol.Message, Any]]) -> Iterator[tuple[protocol.Message, Any, bool]]:
-    """A board's frames (with anything the caller attaches to each, e.g. the time it arrived)
-    in the order the board first sent them: each recovered frame (inside a RESENT) is put
-    back at its original place, where the live one was lost; a frame that arrived both live
-    and recovered, or recovered twice, is given once. Yields (message, attached, recovered);
-    the RESENT frames themselves are left out.
+    """A board's frames (only the board's: its seq count orders them), with anything the caller
+    attaches to each (e.g. the time it arrived), in the order the board first sent them: each
+    recovered frame (inside a RESENT) is put back at its original place, where the live one
+    was lost; a frame that arrived both live and recovered, or recovered twice, is given once.
+    Yields (message, attached, recovered); the RESENT frames themselves are left out.
 
     Frames are ordered by seq within each run of the board's seq count (a reset starts a new
     one); a recovered frame is placed by its original seq, counted back from the RESENT's own.
@@ -143,8 +143,6 @@ def in_sent_order(received: Sequence[tuple[protocol.Message, Any]]) -> Iterator[
     position = run_start = 0
     expected: int | None = None
     for arrival, (message, attached) in enumerate(received):
-        if protocol.direction_of(message.name) != "to_host":
-            continue
         if _restarts(message, expected):
             run_start = position = position + 0x10000  # after everything of the last run
         elif expected is not None:
