@@ -61,9 +61,10 @@ def add_parser(sub) -> None:
                     "full disk everything received before is kept, and the command ends with one line saying "
                     "so (exit status 2). The file takes its name only once the board has answered. Frames lost "
                     "on the way are asked for again (RESEND; the board keeps its input frames of about the last "
-                    "second at 1 kHz) and go into the file, marked as recovered (unless --no-resend). After a "
-                    "SAMPLE lost for good the filter is restarted (unless --no-resync), so that the rest of the "
-                    "recording can still be verified bit for bit.")
+                    "second at 1 kHz) and go into the file, marked as recovered (unless --no-resend). The board "
+                    "sends its filter's whole state every second (--checkpoint): after a SAMPLE lost for good, "
+                    "verification resumes there; a board without checkpoints has its filter restarted instead "
+                    "(unless --no-resync), so that the rest of the recording can still be verified bit for bit.")
     port_arguments(p)
     p.add_argument("--output", "-o", required=True, help="recording file to write (e.g. run.imulog); an existing "
                                                           "file is refused unless --force")
@@ -84,8 +85,8 @@ def add_parser(sub) -> None:
                         f"which verification resumes after a sample lost for good, instead of a filter restart "
                         f"(default: {hil.CHECKPOINT_S:g}; 0: none)")
     p.add_argument("--no-resend", action="store_true",
-                   help="never ask the board again for frames lost on the way (a lost sample then restarts the "
-                        "filter at once, unless --no-resync)")
+                   help="never ask the board again for frames lost on the way (a lost sample is then lost for "
+                        "good: verification resumes at the next checkpoint)")
     p.add_argument("--listen", action="store_true",
                    help="record a board that another client commands (the TCP front of imulink emulate or imulink "
                         "proxy takes several clients: the first commands, the others listen) without sending it "
