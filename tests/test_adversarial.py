@@ -181,6 +181,8 @@ BAD_ARGUMENTS = [
     (["record", "loop://", "-o", "x.imulog", "--duration", "inf"], "--duration: must be a positive finite number"),
     (["record", "loop://", "-o", "x.imulog", "--duration", "0"], "--duration: must be a positive finite number"),
     (["record", "loop://", "-o", "x.imulog", "--silence-timeout", "nan"], "--silence-timeout: must be a positive"),
+    (["record", "loop://", "-o", "x.imulog", "--checkpoint", "-1"], "--checkpoint: must be a number of seconds"),
+    (["record", "loop://", "-o", "x.imulog", "--checkpoint", "inf"], "--checkpoint: must be a number of seconds"),
     (["record", "loop://", "-o", "x.imulog", "--profile", "x"], "unknown sensor profile 'x'"),
     (["record", "loop://", "-o", "/dev/null"], "/dev/null exists and is not a regular file"),
     (["record", "loop://", "-o", "/dev/null", "--force"], "/dev/null exists and is not a regular file"),
