@@ -12,6 +12,7 @@ from imulink import core, hil, protocol, sim
 from imulink.board.emulator import NAV_SCENARIO, EmulatedBoard
 from imulink.board.link import Link
 from imulink.board.proxy import FaultConfig
+from imulink.hil.comparison import unverifiable_spans
 from imulink.io.recording import load_recording
 
 
@@ -55,10 +56,12 @@ def test_verification_resumes_at_the_next_checkpoint_after_a_sample_lost_for_goo
     assert states.resumed == 2 and not states.different and not states.unusable
     assert states.verified == states.received - states.resumed >= 6
     assert comparison.bit_exact and comparison.identical_count == comparison.verified_count
-    unverifiable = recording.estimates.index[~comparison.verified].tolist()
-    assert 150 in unverifiable and 420 in unverifiable
-    # after each loss, at most the samples up to the next checkpoint (1 s: 100 samples) are unverifiable
-    assert len(unverifiable) <= 2 * 100 and comparison.verified[recording.estimates.index == 799].all()
+    # after each loss, the estimates up to the next checkpoint that arrived are unverifiable, no more
+    spans = unverifiable_spans(recording, comparison)
+    checkpoints = {c.index for c in recording.checkpoints}
+    assert [span["first_index"] for span in spans] == [150, 420]
+    assert all(span["last_index"] in checkpoints for span in spans)
+    assert comparison.verified[-1]
 
 
 def test_without_checkpoints_the_filter_is_restarted(tmp_path):
