@@ -11,7 +11,7 @@ from imulink.board.link import Link
 from imulink.board.proxy import FaultConfig
 from imulink.io.recording import load_recording
 from imulink.protocol.follower import StreamFollower
-from imulink.protocol.recovery import RESEND_STATUS, LostFrames, in_sent_order, resent_message
+from imulink.protocol.recovery import RESEND_STATUS, CheckpointParts, LostFrames, in_sent_order, resent_message
 
 
 def _sample(seq: int, index: int) -> protocol.Message:
@@ -218,3 +218,20 @@ def test_a_two_second_stall_loses_nothing(tmp_path):
     recording = load_recording(path)
     np.testing.assert_array_equal(recording.samples.index, np.arange(len(recording.samples)))
     assert hil.compare(recording).verdict.passed
+
+
+def test_checkpoint_parts_give_the_state_once_whole():
+    parts = CheckpointParts()
+    state = bytes(range(200)) + bytes(range(100))
+
+    def part(k: int, index: int = 9) -> dict:
+        return {"index": index, "filter_id": 3, "part": k, "parts": 2, "state_size": 300,
+                "data": state[192 * k:192 * (k + 1)]}
+
+    assert parts.add(part(1)) is None and parts.add(part(1)) is None  # out of order, and twice
+    assert parts.add(part(0)) == state
+    assert parts.add(part(0, index=10), key=(0,)) is None
+    assert parts.add(part(1, index=10), key=(1,)) is None  # another run's: not the same checkpoint
+    for index in range(11, 11 + CheckpointParts.KEEP + 1):  # checkpoints that never become whole
+        parts.add(part(0, index))
+    assert parts.add(part(1, index=10), key=(0,)) is None  # its first part was forgotten

@@ -26,7 +26,7 @@ from imulink.io.files import check_writable_target, create_beside, publish
 from imulink.io.recording import RecordingError, RecordingWriter
 from imulink.progress import StatusLine
 from imulink.protocol.follower import StreamFollower
-from imulink.protocol.recovery import LostFrames
+from imulink.protocol.recovery import CheckpointParts, LostFrames
 
 #: Attempts of each command of the recorder: over a link that loses 1 % of its bytes a
 #: SETTING and its ACK both arrive about one time in two, and the snapshot is some twenty
@@ -239,7 +239,7 @@ class _StreamRecorder:
         self._checkpointing = False  # the board sends checkpoints (it took SET_CHECKPOINT_PERIOD)
         self._checkpoint_asked = float("-inf")  # when the last GET_CHECKPOINT went
         self._asked_silent = False  # a silent board answered that it streams, and no SAMPLE came since
-        self._checkpoint_parts: dict[tuple[int, int], set[int]] = {}  # (segment, index) -> parts received
+        self._checkpoint_parts = CheckpointParts()
         self.checkpoints = 0
         self.samples = self.estimates = self.restarts = self.reconnects = 0
         self.listen = listen  # record without commanding (see record)
@@ -307,15 +307,9 @@ class _StreamRecorder:
     def _take_checkpoint(self, fields: dict) -> None:
         """A CHECKPOINT part: once every part of one arrived, the samples lost before it no
         longer keep its run from being verified (the host resumes there)."""
-        key = (self._follower.segment, fields["index"])
-        parts = self._checkpoint_parts.setdefault(key, set())
-        parts.add(fields["part"])
-        if len(parts) == fields["parts"]:
-            del self._checkpoint_parts[key]
+        if self._checkpoint_parts.add(fields, key=(self._follower.segment,)) is not None:
             self.checkpoints += 1
             self._follower.resume_at(fields["index"])
-        if len(self._checkpoint_parts) > 16:  # parts of checkpoints that will never be whole
-            del self._checkpoint_parts[min(self._checkpoint_parts)]
 
     def _lost_for_good(self) -> bool:
         """Whether a SAMPLE of the current run is missing for good: not recovered within the

@@ -52,7 +52,7 @@ from imulink.errors import ImulinkError
 from imulink.io.files import FileError, read_regular_file
 from imulink.progress import CountProgress
 from imulink.protocol.follower import RUN_FRAMES, StreamFollower
-from imulink.protocol.recovery import in_sent_order
+from imulink.protocol.recovery import CheckpointParts, in_sent_order
 
 MAGIC = b"IMULOG1\n"
 FORMAT_VERSION = 1
@@ -360,7 +360,7 @@ class MessageTable:
 @dataclass(frozen=True)
 class Checkpoint:
     """A board's filter state after sample `index` of `segment` (its CHECKPOINT frames put
-    together): the bytes core.Filter.restore takes."""
+    together; host_time: when the last of them arrived): the bytes core.Filter.restore takes."""
 
     segment: int
     index: int
@@ -371,18 +371,12 @@ class Checkpoint:
 
 def _checkpoints(rows) -> list[Checkpoint]:
     """The checkpoints whose every part arrived, in order (one per segment and index)."""
-    parts: dict[tuple, dict[int, bytes]] = {}
-    first_time: dict[tuple, float] = {}
-    for host_time, segment, fields, _ in rows:
-        key = (segment, fields["index"], fields["filter_id"], fields["parts"], fields["state_size"])
-        parts.setdefault(key, {}).setdefault(fields["part"], fields["data"])
-        first_time.setdefault(key, host_time)
+    parts = CheckpointParts()
     found: dict[tuple[int, int], Checkpoint] = {}
-    for key, got in parts.items():
-        segment, index, filter_id, count, size = key
-        state = b"".join(got.get(k, b"") for k in range(count))
-        if len(got) == count and len(state) == size and (segment, index) not in found:
-            found[segment, index] = Checkpoint(segment, index, filter_id, state, first_time[key])
+    for host_time, segment, fields, _ in rows:
+        state, index = parts.add(fields, key=(segment,)), fields["index"]
+        if state is not None and (segment, index) not in found:
+            found[segment, index] = Checkpoint(segment, index, fields["filter_id"], state, host_time)
     return [found[key] for key in sorted(found)]
 
 

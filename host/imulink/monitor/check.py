@@ -34,6 +34,7 @@ from imulink.core.counts import SensorProfile
 from imulink.hil.comparison import BATCH_COMPARED, EstimateCheck
 from imulink.hil.replica import FirmwareFilter
 from imulink.protocol.follower import StreamFollower
+from imulink.protocol.recovery import CheckpointParts
 
 _SET_SETTING = protocol.COMMAND_IDS["SET_SETTING"]
 #: What the nav filter takes besides the samples: message name -> run_nav_counts' argument.
@@ -144,7 +145,7 @@ class LiveCheck:
         self._expected: dict[int, tuple[str, int, int]] = {}  # command_seq -> ("filter", id, 0) | ("setting", i, v)
         self._run: _Run | None = None
         self._lost_run: _Run | None = None  # the current run's, after a lost sample: resumes at a checkpoint
-        self._checkpoint: dict[int, bytes] = {}  # the parts of the CHECKPOINT coming in
+        self._checkpoint_parts = CheckpointParts()
         self.resumed = 0  # runs resumed from a checkpoint
         self._arrived: list[tuple[int, dict]] = []  # (segment, ESTIMATE fields) not compared yet
         self._seen = 0  # estimates compared or skipped so far
@@ -204,13 +205,9 @@ class LiveCheck:
         resumes from it (the samples lost before it no longer count)."""
         lost = self._lost_run
         assert lost is not None
-        if fields["part"] == 0:
-            self._checkpoint = {}
-        self._checkpoint[fields["part"]] = fields["data"]
-        if len(self._checkpoint) < fields["parts"] or fields["filter_id"] != lost.filter_id:
+        state = self._checkpoint_parts.add(fields, key=(self.follower.segment,))
+        if state is None or fields["filter_id"] != lost.filter_id:
             return
-        state = b"".join(self._checkpoint[k] for k in sorted(self._checkpoint))
-        self._checkpoint = {}
         try:
             self._run = _Run(*lost.setup, checkpoint=state)
         except ValueError:  # a state of another size: not this host build's filter

@@ -10,6 +10,7 @@ sends any of them again inside a RESENT frame when the host asks by seq (firmwar
 - :func:`resent_message`: the original message inside a RESENT frame.
 - :func:`in_sent_order`: a received stream with its recovered frames put back where they were
   first sent, each marked as recovered or not.
+- :class:`CheckpointParts`: a board's CHECKPOINT frames put together into its filter's state.
 """
 from __future__ import annotations
 
@@ -163,3 +164,29 @@ def in_sent_order(received: Sequence[tuple[protocol.Message, Any]]) -> Iterator[
         if at != last:
             yield message, attached, recovered
         last = at
+
+
+class CheckpointParts:
+    """Puts a board's CHECKPOINT frames together: :meth:`add` each one; the filter's whole
+    state comes back when the last of its parts arrives. Parts of checkpoints that never
+    become whole (one was lost) are forgotten once KEEP others wait."""
+
+    KEEP = 16
+
+    def __init__(self) -> None:
+        self._parts: dict[tuple, dict[int, bytes]] = {}
+
+    def add(self, fields: dict, key: tuple = ()) -> bytes | None:
+        """A CHECKPOINT's fields (`key` tells apart checkpoints of the same index, e.g. the
+        filter run); the state once every part of its checkpoint has arrived, else None."""
+        count = fields["parts"]
+        name = (*key, fields["index"], fields["filter_id"], count, fields["state_size"])
+        got = self._parts.setdefault(name, {})
+        got.setdefault(fields["part"], fields["data"])
+        if set(got) != set(range(count)):
+            while len(self._parts) > self.KEEP:
+                del self._parts[next(iter(self._parts))]  # the oldest: a dict keeps the order they came in
+            return None
+        del self._parts[name]
+        state = b"".join(got[k] for k in range(count))
+        return state if len(state) == fields["state_size"] else None
