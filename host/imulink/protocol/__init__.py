@@ -435,7 +435,7 @@ class FrameDecoder:
                 self.resyncs += 1
                 continue
             messages.append(message)
-            # sequence accounting, inline: it runs for every frame
+            # sequence accounting, inline: it runs for every frame (recovery._missed is the same rule)
             name, seq = message.name, message.seq
             direction = _DIRECTIONS[name]
             expected = next_seq.get(direction)

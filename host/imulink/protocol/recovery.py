@@ -39,12 +39,15 @@ def resent_message(message: protocol.Message) -> protocol.Message | None:
         return None
 
 
-def _restarts(message: protocol.Message, expected: int | None) -> bool:
-    """Whether the board's seq count starts again with this frame (a HELLO with seq 0 after a
-    reset, or a seq that went backwards)."""
+def _missed(message: protocol.Message, expected: int | None) -> int | None:
+    """Frames missing before this one, given the seq `expected` next (None: none yet, 0
+    missing); None when the board's seq count starts again with it (a HELLO with seq 0 after
+    a reset, or a seq that went backwards). protocol.FrameDecoder counts lost frames by the
+    same rule, inline."""
     if expected is None:
-        return False
-    return (message.name == "HELLO" and message.seq == 0) or (message.seq - expected) & 0xFFFF >= _HALF
+        return 0
+    gap = (message.seq - expected) & 0xFFFF
+    return None if (message.name == "HELLO" and message.seq == 0) or gap >= _HALF else gap
 
 
 class LostFrames:
@@ -77,13 +80,14 @@ class LostFrames:
     def follow(self, message: protocol.Message) -> protocol.Message | None:
         """Take the next frame received; for a RESENT that answers a missing seq, the recovered
         message (see :func:`resent_message`), else None."""
-        if _restarts(message, self._expected):
+        missed = _missed(message, self._expected)
+        if missed is None:
             self.gone += len(self._asked)  # the board started again: its ring went with it
             self._asked.clear()
-        elif self._expected is not None:
-            for seq in range(self._expected, self._expected + ((message.seq - self._expected) & 0xFFFF)):
+        elif missed:
+            for seq in range(message.seq - missed, message.seq):
                 self._asked[seq & 0xFFFF] = (float("-inf"), 0)
-                self.lost += 1
+            self.lost += missed
         self._expected = (message.seq + 1) & 0xFFFF
         if message.name != "RESENT" or message.fields["original_seq"] not in self._asked:
             return None
@@ -144,10 +148,11 @@ def in_sent_order(received: Sequence[tuple[protocol.Message, Any]]) -> Iterator[
     position = run_start = 0
     expected: int | None = None
     for arrival, (message, attached) in enumerate(received):
-        if _restarts(message, expected):
+        missed = _missed(message, expected)
+        if missed is None:
             run_start = position = position + 0x10000  # after everything of the last run
         elif expected is not None:
-            position += 1 + ((message.seq - expected) & 0xFFFF)
+            position += 1 + missed
         expected = (message.seq + 1) & 0xFFFF
         if message.name != "RESENT":
             placed.append((position, arrival, message, attached, False))
