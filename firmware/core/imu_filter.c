@@ -165,19 +165,25 @@ imu_status_t imu_filter_restore(imu_filter_t *f, const uint8_t *state, size_t si
     return IMU_OK;
 }
 
+void imu_filter_update_counts(imu_filter_t *f, const int16_t gyr[3], const int16_t acc[3], const int16_t mag[3])
+{
+    imu_raw_sample_t raw;
+    int k;
+    for (k = 0; k < 3; ++k) {
+        raw.gyr[k] = gyr[k];
+        raw.acc[k] = acc[k];
+        raw.mag[k] = mag[k];
+    }
+    imu_filter_update_raw(f, &raw);
+}
+
 void imu_filter_run(imu_filter_t *f, const int16_t *gyr, const int16_t *acc, const int16_t *mag, size_t n,
                     imu_q30_t *quat, imu_angle_t *euler, imu_rate_t *gyro_bias)
 {
     size_t i, k;
     for (i = 0; i < n; ++i) {
-        imu_raw_sample_t raw;
         imu_output_t out;
-        for (k = 0; k < 3; ++k) {
-            raw.gyr[k] = gyr[3 * i + k];
-            raw.acc[k] = acc[3 * i + k];
-            raw.mag[k] = mag[3 * i + k];
-        }
-        imu_filter_update_raw(f, &raw);
+        imu_filter_update_counts(f, gyr + 3 * i, acc + 3 * i, mag + 3 * i);
         imu_filter_get(f, &out);
         for (k = 0; k < 4 && quat != 0; ++k) {
             quat[4 * i + k] = out.quat[k];

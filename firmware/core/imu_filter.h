@@ -96,6 +96,9 @@ imu_status_t imu_filter_set_calibration(imu_filter_t *f, const imu_calibration_t
 /** @brief Calibrate and convert one raw sample and update the filter. */
 void imu_filter_update_raw(imu_filter_t *f, const imu_raw_sample_t *raw);
 
+/** @brief The same for one sample's counts given as three x, y, z triples (rows of count arrays). */
+void imu_filter_update_counts(imu_filter_t *f, const int16_t gyr[3], const int16_t acc[3], const int16_t mag[3]);
+
 /** @brief Current estimate. */
 void imu_filter_get(const imu_filter_t *f, imu_output_t *out);
 

@@ -208,19 +208,6 @@ static void navkf_run(imu_navkf_t *f, size_t n, const imu_rate_t *gyr, const imu
 # saturations, the position (lat, lon, height, velocity: n x 6) and, in the fixed build,
 # the NAV_STATE (NULL: not wanted).
 _NAVFILTER_RUN = """
-/* Update the filter with sample k of (n, 3) count arrays, as imu_filter_run does. */
-static void update_with_sample(imu_filter_t *f, const int16_t *gyr, const int16_t *acc, const int16_t *mag, size_t k)
-{
-    imu_raw_sample_t raw;
-    int i;
-    for (i = 0; i < 3; ++i) {
-        raw.gyr[i] = gyr[3 * k + i];
-        raw.acc[i] = acc[3 * k + i];
-        raw.mag[i] = mag[3 * k + i];
-    }
-    imu_filter_update_raw(f, &raw);
-}
-
 static void navfilter_run(imu_filter_t *f, size_t n, const int16_t *gyr, const int16_t *acc, const int16_t *mag,
                           const int32_t *baro_after, size_t baro_count, const int32_t *baro_pa,
                           const int32_t *gnss_after, size_t gnss_count, const imu_proto_gnss_t *gnss,
@@ -233,7 +220,7 @@ static void navfilter_run(imu_filter_t *f, size_t n, const int16_t *gyr, const i
     int i;
     for (k = 0; k < n; ++k) {
         const imu_navkf_t *state;
-        update_with_sample(f, gyr, acc, mag, k);
+        imu_filter_update_counts(f, gyr + 3 * k, acc + 3 * k, mag + 3 * k);
         for (; b < baro_count && baro_after[b] == (int32_t)k; ++b) {
             imu_navfilter_baro(nav, baro_pa[b]);
         }
@@ -283,7 +270,7 @@ static void estimates_run(imu_filter_t *f, size_t n, const int16_t *gyr, const i
     size_t k;
     for (k = 0; k < n; ++k) {
         imu_output_t out;
-        update_with_sample(f, gyr, acc, mag, k);
+        imu_filter_update_counts(f, gyr + 3 * k, acc + 3 * k, mag + 3 * k);
         imu_filter_get(f, &out);
         imu_wire_estimate(f, &out, (uint32_t)k, (imu_proto_estimate_t *)estimates + k);
     }
