@@ -187,7 +187,8 @@ def host_run(recording: Recording) -> HostRun:
         # checkpoints checked up to the first lost sample
         complete_to = runs[0][1] if len(rows) and index[0] == 0 else 0
         reached = {c: state for c, state in checkpoints.items() if complete_to and c <= index[complete_to - 1]}
-        board_fields, board_nav = replay.run(replay.reference(), rows, reached)
+        from_start = replay.reference()
+        board_fields, board_nav = replay.run(from_start, rows, reached)
         verifiable[rows[:complete_to]] = twin_complete[rows[:complete_to]] = True
         for start, stop in runs:  # after each gap: from the first checkpoint the samples then complete
             first, last = int(index[start]), int(index[stop - 1])
@@ -213,7 +214,7 @@ def host_run(recording: Recording) -> HostRun:
                 break
         for key in _ESTIMATE_SHAPES:
             fixed[key][rows] = board_fields[key]
-        si_settings = replay.reference().si_settings
+        si_settings = from_start.si_settings
         twin = core.Filter(name, si_settings["sample_rate"], "float", si_settings, recording.profile, calibration)
         if name == "nav":
             assert board_nav is not None  # the fixed build's run of the nav filter
