@@ -52,6 +52,7 @@ WEAK_HANDLER(usart1_irq_handler);
 WEAK_HANDLER(usart2_irq_handler);
 WEAK_HANDLER(exti9_5_irq_handler);
 WEAK_HANDLER(tim5_irq_handler);
+WEAK_HANDLER(dma2_stream7_irq_handler);
 
 #define IRQ_COUNT 82
 
@@ -92,7 +93,8 @@ __attribute__((section(".isr_vector"), used)) void (*const vector_table[16 + IRQ
     default_handler, default_handler, default_handler, default_handler, default_handler,
     default_handler, default_handler, default_handler, default_handler, default_handler,
     default_handler, default_handler, default_handler, default_handler, default_handler,
-    default_handler, default_handler, default_handler, default_handler, default_handler,
+    default_handler, default_handler, default_handler, default_handler,
+    dma2_stream7_irq_handler, /* 70 */
     default_handler, default_handler, default_handler, default_handler, default_handler,
     default_handler, default_handler, default_handler, default_handler, default_handler,
     default_handler,

@@ -102,6 +102,7 @@ typedef struct {
 #define RCC_CFGR_PPRE2_DIV2 (4u << 13)
 #define RCC_AHB1ENR_GPIOAEN (1u << 0)
 #define RCC_AHB1ENR_GPIOBEN (1u << 1)
+#define RCC_AHB1ENR_DMA2EN (1u << 22)
 #define RCC_APB2ENR_SYSCFGEN (1u << 14)
 #define RCC_APB1ENR_TIM2EN (1u << 0)
 #define RCC_APB1ENR_TIM5EN (1u << 3)
@@ -175,6 +176,30 @@ typedef struct {
 #define USART_CR1_RXNEIE (1u << 5)
 #define USART_CR1_TXEIE (1u << 7)
 #define USART_CR1_UE (1u << 13)
+#define USART_CR3_DMAT (1u << 7)
+
+/* --------------------------------------------------------------------------- DMA (RM0090 section 10.5) */
+
+typedef struct {
+    REG CR, NDTR, PAR, M0AR, M1AR, FCR;
+} dma_stream_t;
+typedef struct {
+    REG LISR, HISR, LIFCR, HIFCR;
+    dma_stream_t S[8];
+} dma_t;
+#define DMA2 ((dma_t *)0x40026400u)
+#define DMA_SxCR_EN (1u << 0)
+#define DMA_SxCR_TEIE (1u << 2)
+#define DMA_SxCR_TCIE (1u << 4)
+#define DMA_SxCR_DIR_M2P (1u << 6)
+#define DMA_SxCR_MINC (1u << 10)
+#define DMA_SxCR_CHSEL(ch) ((uint32_t)(ch) << 25)
+/* A stream's flags (FEIF, DMEIF, TEIF, HTIF, TCIF) in LISR/HISR and LIFCR/HIFCR: streams 0 and 4
+ * at bit 0, 1 and 5 at bit 6, 2 and 6 at bit 16, 3 and 7 at bit 22. */
+#define DMA_FLAGS_SHIFT(stream) (((stream) & 2u) ? (((stream) & 1u) ? 22u : 16u) : (((stream) & 1u) ? 6u : 0u))
+#define DMA_FLAG_TEIF 0x08u
+#define DMA_FLAG_TCIF 0x20u
+#define DMA_FLAGS_ALL 0x3Du
 
 /* --------------------------------------------------------------------------- TIM2..TIM5 (RM0090 section 18.4) */
 
@@ -239,6 +264,7 @@ typedef struct {
 #define IRQ_USART1 37
 #define IRQ_USART2 38
 #define IRQ_TIM5 50
+#define IRQ_DMA2_STREAM7 70
 
 /* --------------------------------------------------------------------------- helpers */
 
@@ -289,6 +315,8 @@ STM32F4_OFFSET_CHECK(rcc_t, AHB1ENR, 0x30);
 STM32F4_OFFSET_CHECK(rcc_t, APB2ENR, 0x44);
 STM32F4_OFFSET_CHECK(gpio_t, AFR, 0x20);
 STM32F4_OFFSET_CHECK(usart_t, GTPR, 0x18);
+STM32F4_OFFSET_CHECK(dma_t, S, 0x10);
+STM32F4_OFFSET_CHECK(dma_stream_t, FCR, 0x14);
 STM32F4_OFFSET_CHECK(tim_t, ARR, 0x2C);
 STM32F4_OFFSET_CHECK(i2c_regs_t, FLTR, 0x24);
 STM32F4_OFFSET_CHECK(syscfg_t, CMPCR, 0x20);

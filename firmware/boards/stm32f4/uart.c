@@ -38,6 +38,8 @@ void uart_init(uart_t *u, usart_t *regs, int irq, uint32_t pclk_hz, uint32_t bau
     u->rx_head = u->rx_tail = 0;
     u->tx_head = u->tx_tail = 0;
     u->rx_overruns = 0;
+    u->dma.controller = 0;
+    u->dma.moving = 0;
     configure(regs, pclk_hz, baud, USART_CR1_RXNEIE);
     irq_enable(irq, priority);
 }
@@ -70,6 +72,67 @@ void uart_irq(uart_t *u)
     }
 }
 
+int uart_tx_dma(uart_t *u, dma_t *dma, uint32_t stream, uint32_t channel, int irq, uint8_t priority)
+{
+    dma_stream_t *s = &dma->S[stream & 7u];
+    s->CR = 0; /* disabled: every register may be written */
+    s->NDTR = 1u;
+    if (s->NDTR != 1u) {
+        return 0; /* no DMA controller answers here */
+    }
+    s->NDTR = 0;
+    s->PAR = (uint32_t)(uintptr_t)&u->regs->DR;
+    s->FCR = 0; /* direct mode: one byte per request */
+    s->CR = DMA_SxCR_CHSEL(channel) | DMA_SxCR_MINC | DMA_SxCR_DIR_M2P | DMA_SxCR_TCIE | DMA_SxCR_TEIE;
+    u->dma.controller = dma;
+    u->dma.stream = s;
+    u->dma.flags_shift = DMA_FLAGS_SHIFT(stream);
+    u->dma.moving = 0;
+    u->regs->CR3 |= USART_CR3_DMAT;
+    irq_enable(irq, priority);
+    return 1;
+}
+
+static volatile uint32_t *dma_flags_clear(const uart_dma_t *d)
+{
+    return d->stream >= &d->controller->S[4] ? &d->controller->HIFCR : &d->controller->LIFCR;
+}
+
+/** Start a transfer of the ring's next contiguous stretch when the stream is idle; interrupts masked. */
+static void dma_start(uart_t *u)
+{
+    uart_dma_t *d = &u->dma;
+    uint32_t offset, n;
+    if (d->moving != 0u || u->tx_tail == u->tx_head) {
+        return;
+    }
+    offset = u->tx_tail % UART_TX_SIZE;
+    n = u->tx_head - u->tx_tail;
+    if (n > UART_TX_SIZE - offset) {
+        n = UART_TX_SIZE - offset; /* up to the ring's end; the rest is the next transfer */
+    }
+    *dma_flags_clear(d) = DMA_FLAGS_ALL << d->flags_shift; /* RM0090 10.3.17: clear them before EN */
+    d->stream->M0AR = (uint32_t)(uintptr_t)&u->tx[offset];
+    d->stream->NDTR = n;
+    d->moving = n;
+    d->stream->CR |= DMA_SxCR_EN;
+}
+
+void uart_dma_irq(uart_t *u)
+{
+    uart_dma_t *d = &u->dma;
+    const volatile uint32_t *status = d->stream >= &d->controller->S[4] ? &d->controller->HISR : &d->controller->LISR;
+    const uint32_t flags = (*status >> d->flags_shift) & DMA_FLAGS_ALL;
+    if (flags & (DMA_FLAG_TCIF | DMA_FLAG_TEIF)) {
+        /* done (or, after a transfer error, given up: those bytes are lost, the link's
+         * sequence numbers tell the host) */
+        *dma_flags_clear(d) = flags << d->flags_shift;
+        u->tx_tail += d->moving;
+        d->moving = 0;
+        dma_start(u);
+    }
+}
+
 size_t uart_read(uart_t *u, uint8_t *buf, size_t cap)
 {
     size_t n = 0;
@@ -93,6 +156,11 @@ size_t uart_space(const uart_t *u)
 void uart_pump(uart_t *u)
 {
     const uint32_t primask = irq_save(); /* the interrupt handler takes bytes from the same ring */
+    if (u->dma.controller != 0) {
+        dma_start(u);
+        irq_restore(primask);
+        return;
+    }
     while (u->tx_tail != u->tx_head && (u->regs->SR & USART_SR_TXE)) {
         u->regs->DR = u->tx[u->tx_tail % UART_TX_SIZE];
         ++u->tx_tail;
@@ -112,9 +180,11 @@ void uart_write(uart_t *u, const uint8_t *data, size_t len)
             ++u->tx_head;
             --len;
         }
-        primask = irq_save(); /* CR1 is also written by the interrupt handler */
-        u->regs->CR1 |= USART_CR1_TXEIE;
-        irq_restore(primask);
+        if (u->dma.controller == 0) {
+            primask = irq_save(); /* CR1 is also written by the interrupt handler */
+            u->regs->CR1 |= USART_CR1_TXEIE;
+            irq_restore(primask);
+        }
         uart_pump(u);
     }
 }

@@ -6,7 +6,9 @@
  * Interrupt mode: RXNE moves every received byte into the receive ring (a full ring
  * drops the byte and counts it); uart_write() fills the transmit ring and enables
  * TXEIE, and the TXE interrupt moves the ring to DR one byte at a time until it is
- * empty. The USART's interrupt handler must call uart_irq(). The writing calls also
+ * empty. With uart_tx_dma(), a DMA stream moves the transmit ring instead, a contiguous
+ * stretch per transfer (one interrupt per stretch, not per byte: RM0090 section 10.3 and
+ * 30.3.13, "transmission using DMA"); the stream's interrupt handler calls uart_dma_irq(). The USART's interrupt handler must call uart_irq(). The writing calls also
  * move bytes themselves while TXE is set: one at a time on a real USART (TXE clears
  * until the byte has moved on), all of them on a model whose transmission is
  * synchronous and which raises no TXE interrupt (QEMU 7.2's), so the same code works on
@@ -23,9 +25,18 @@
 #define UART_RX_SIZE 1024u /**< receive ring, bytes (a power of two) */
 #define UART_TX_SIZE 4096u /**< transmit ring, bytes (a power of two): 44 ms at 921600 baud */
 
+/** The DMA stream that moves a transmit ring, when there is one. */
+typedef struct {
+    dma_t *controller;          /**< NULL: the TXE interrupt moves the bytes */
+    dma_stream_t *stream;
+    uint32_t flags_shift;       /**< the stream's flags in LISR/HISR (DMA_FLAGS_SHIFT) */
+    volatile uint32_t moving;   /**< bytes of the transfer under way (0: the stream is idle) */
+} uart_dma_t;
+
 typedef struct {
     usart_t *regs;
     int irq;
+    uart_dma_t dma;
     uint8_t rx[UART_RX_SIZE];
     uint8_t tx[UART_TX_SIZE];
     volatile uint32_t rx_head, rx_tail; /* written by the interrupt / the main loop */
@@ -49,6 +60,18 @@ void uart_set_baud(uart_t *u, uint32_t pclk_hz, uint32_t baud);
 /** @brief The USART's interrupt handler calls this. */
 void uart_irq(uart_t *u);
 
+/**
+ * @brief Move the transmit ring with DMA stream `stream` of `dma` on `channel` (the USART's TX
+ *        request: RM0090 tables 42-43), its transfer-complete interrupt `irq` at `priority`.
+ *        The controller's clock must be on. Returns 1 when the stream answers (its NDTR reads
+ *        back what was written), 0 when it does not (a model without DMA): the TXE interrupt
+ *        then moves the bytes as before.
+ */
+int uart_tx_dma(uart_t *u, dma_t *dma, uint32_t stream, uint32_t channel, int irq, uint8_t priority);
+
+/** @brief The DMA stream's interrupt handler calls this. */
+void uart_dma_irq(uart_t *u);
+
 /** @brief Received bytes, at most `cap`; never waits. */
 size_t uart_read(uart_t *u, uint8_t *buf, size_t cap);
 
@@ -58,7 +81,7 @@ size_t uart_space(const uart_t *u);
 /** @brief Queue bytes; waits for room while the ring is full. */
 void uart_write(uart_t *u, const uint8_t *data, size_t len);
 
-/** @brief Move bytes from the ring to DR while TXE is set; never waits. */
+/** @brief Move bytes from the ring to DR while TXE is set (or start the DMA stream); never waits. */
 void uart_pump(uart_t *u);
 
 /** @brief Wait until the ring is empty and the last byte has left the shift register (TC). */
