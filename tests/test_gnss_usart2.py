@@ -73,7 +73,7 @@ void h_poll(uint32_t now_ms)
 HARNESS_LD = (ROOT / "tests" / "c" / "arm_harness.ld").read_text()
 
 SOURCES = [FIRMWARE / "boards" / "stm32f407" / "gnss_usart2.c", FIRMWARE / "boards" / "stm32f4" / "uart.c",
-           *(FIRMWARE / "drivers" / name for name in ("gnss.c", "ubx.c", "nmea.c"))]
+           FIRMWARE / "app" / "text.c", *(FIRMWARE / "drivers" / name for name in ("gnss.c", "ubx.c", "nmea.c"))]
 
 
 @pytest.fixture(scope="module")

@@ -835,8 +835,14 @@ app_result_t app_poll(app_t *app)
 
     ticks = board_sample_ticks();
     if (ticks > 0 && app->streaming) {
+        uint8_t level;
+        const char *news;
         app->dropped_samples += ticks - 1; /* ticks that came while the last sample was still at work */
         live_sample(app);
+        news = board_news(&level);
+        if (news != 0) {
+            send_log(app, level, news);
+        }
         result = APP_BUSY;
     }
     return result;

@@ -109,6 +109,14 @@ int board_gnss_read(uint64_t now_us, imu_proto_gnss_t *fix);
  *         WARNING after HELLO; NULL when nothing did. */
 const char *board_start_up_problem(void);
 
+/**
+ * @brief A change on the board since the last call that the host should hear of (a GNSS
+ *        receiver found, configured, lost, never answering, or sending damaged frames).
+ *        Called after each live sample; NULL when there is none.
+ * @param level the LOG level of the line (IMU_PROTO_LOG_LEVEL_*)
+ */
+const char *board_news(uint8_t *level);
+
 /** @brief Sleep until something may have happened (a byte, a tick, an interrupt). May return early. */
 void board_idle(void);
 

@@ -85,8 +85,7 @@ static uint32_t candidate(const gnss_t *g, uint8_t k)
     return g->config.baud;
 }
 
-/** Number of candidates. */
-static uint8_t candidates(const gnss_t *g)
+uint8_t gnss_candidates(const gnss_t *g)
 {
     unsigned i, n = 1;
     for (i = 0; i < USUAL_COUNT; ++i) {
@@ -291,7 +290,7 @@ void gnss_poll(gnss_t *g, uint32_t now_ms)
     switch (g->state) {
     case GNSS_SEARCHING:
         if (elapsed(g, g->started_ms, GNSS_LISTEN_MS)) {
-            listen_at(g, (uint8_t)((g->step + 1u) % candidates(g)));
+            listen_at(g, (uint8_t)((g->step + 1u) % gnss_candidates(g)));
         }
         break;
     case GNSS_CONFIGURING:

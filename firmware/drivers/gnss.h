@@ -136,6 +136,9 @@ size_t gnss_take_tx(gnss_t *g, uint8_t *out, size_t cap);
 /** @brief The baud the board's UART must have now. */
 uint32_t gnss_baud(const gnss_t *g);
 
+/** @brief How many bauds one search tries (the configured one and the usual ones). */
+uint8_t gnss_candidates(const gnss_t *g);
+
 /** @brief gnss_state_t. */
 gnss_state_t gnss_state(const gnss_t *g);
 

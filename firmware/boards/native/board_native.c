@@ -323,6 +323,12 @@ void board_restart(void)
     native.clock_running = 0;
 }
 
+const char *board_news(uint8_t *level)
+{
+    (void)level;
+    return 0; /* the feed's receiver has no state of its own to report */
+}
+
 const char *board_start_up_problem(void)
 {
     return 0;

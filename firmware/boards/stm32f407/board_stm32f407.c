@@ -248,6 +248,11 @@ int board_gnss_read(uint64_t now_us, imu_proto_gnss_t *fix)
     return gnss_usart2_poll((uint32_t)(now_us / 1000u), fix); /* ms, wrapping as the driver expects */
 }
 
+const char *board_news(uint8_t *level)
+{
+    return gnss_usart2_news(level);
+}
+
 const char *board_start_up_problem(void)
 {
     return start_up_problem[0] != '\0' ? start_up_problem : 0;

@@ -25,4 +25,11 @@ void gnss_usart2_init(uint32_t pclk1_hz, uint8_t priority, uint32_t now_ms);
  */
 int gnss_usart2_poll(uint32_t now_ms, imu_proto_gnss_t *fix);
 
+/**
+ * @brief What changed with the receiver since the last call, as a LOG line (found, configured,
+ *        NMEA only, lost, no answer after a whole search, damaged frames at most every 10 s);
+ *        NULL when nothing did. @param level the line's LOG level
+ */
+const char *gnss_usart2_news(uint8_t *level);
+
 #endif /* GNSS_USART2_H */
