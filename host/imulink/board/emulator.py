@@ -34,15 +34,17 @@ from typing import IO
 import numpy as np
 
 from imulink import core, protocol, sim
+from imulink.board import stm32f407
 from imulink.board.chips import ms5611
 from imulink.board.proxy import FaultConfig, Proxy, make_front
+from imulink.board.stm32f407.core import FLASH_BASE
 from imulink.core.counts import DEFAULT_PROFILE, PROFILES, SensorProfile, si_to_counts
 from imulink.errors import ImulinkError
 from imulink.io.files import FileError, read_regular_file
-from imulink.io.firmware_image import MAX_IMAGE_BYTES
+from imulink.io.firmware_image import MAX_IMAGE_BYTES, ImageError, load_image
 from imulink.sim import navigation
 
-TARGETS = ("native", "qemu")
+TARGETS = ("native", "qemu", "stm32f407")
 #: The navigation scenario: a car drive (imulink.sim.navigation.car_drive) with the MPU6050's
 #: data-sheet noise and turn-on biases, a GNSS receiver at 1 Hz (GnssModel's defaults) and
 #: the barometer along it. SCENARIOS: the attitude scenarios (imulink.sim) and it.
@@ -59,7 +61,12 @@ BARO_HEIGHT_M = 450.0
 BARO_TEMPERATURE_CDEG = 2500
 #: QEMU machine of the qemu target and the ELF the firmware build names for it.
 QEMU_MACHINE = "netduinoplus2"
-_IMAGES = {"native": ("native", "imulink-native"), "qemu": ("qemu", "imulink-qemu-netduinoplus2.elf")}
+_IMAGES = {"native": ("native", "imulink-native"), "qemu": ("qemu", "imulink-qemu-netduinoplus2.elf"),
+           "stm32f407": ("stm32f407", "imulink-stm32f407-gy86.elf")}
+#: The reference image's board name (its identification block and HELLO).
+REFERENCE_BOARD = "stm32f407-gy86"
+#: The reference image's sample rate after start-up (board_stm32f407.c): the virtual GY-86 is fed at it.
+REFERENCE_RATE_HZ = 100.0
 _START_TIMEOUT_S = 10.0
 
 
@@ -96,7 +103,7 @@ def find_image(target: str, image: str | os.PathLike | None = None) -> Path:
             if candidate.is_file():
                 return candidate
     how = ("`make -C firmware native` (or reinstall the package)" if target == "native" else
-           "`make -C firmware qemu` (it needs arm-none-eabi-gcc: `make setup` installs it)")
+           f"`make -C firmware {target}` (it needs arm-none-eabi-gcc: `make setup` installs it)")
     raise EmulatorError(f"the {target} board's firmware ({name}) is not built: run {how}")
 
 
@@ -107,7 +114,11 @@ _IMAGE_MARKS = {"native": b"usage: imulink-native", "qemu": b"qemu-stm32f405"}
 
 
 def _check_image(target: str, path: Path) -> None:
-    """EmulatorError unless `path` is an ELF file of `target`'s board."""
+    """EmulatorError unless `path` is an image of `target`'s board (the reference board: an ELF,
+    Intel HEX or raw .bin image whose identification block names it)."""
+    if target == "stm32f407":
+        reference_flash(path)
+        return
     try:
         data = read_regular_file(path, MAX_IMAGE_BYTES)
     except FileError as exc:
@@ -117,6 +128,23 @@ def _check_image(target: str, path: Path) -> None:
     arm = int.from_bytes(data[18:20], "little") == _ELF_ARM
     if arm != (target == "qemu") or _IMAGE_MARKS[target] not in data:
         raise EmulatorError(f"{path} is not the {target} board's firmware (an image for another board)")
+
+
+def reference_flash(path: Path) -> tuple[bytes, bytes | None]:
+    """The flash bytes from 0x08000000 of a reference-board image (ELF, HEX, or .bin placed
+    there) and the ELF itself when it is one (for function names); EmulatorError otherwise."""
+    try:
+        image = load_image(path, FLASH_BASE if Path(path).suffix.lower() == ".bin" else None)
+    except ImageError as exc:
+        raise EmulatorError(str(exc)) from None
+    ident = image.identification
+    if ident is None or ident.board != REFERENCE_BOARD:
+        raise EmulatorError(f"{path} is not the {REFERENCE_BOARD} board's firmware "
+                            f"({'an image for ' + ident.board if ident else 'no imulink identification block'})")
+    if image.start != FLASH_BASE:
+        raise EmulatorError(f"{path} does not start at the flash (0x{FLASH_BASE:08X}) but at 0x{image.start:08X}")
+    elf = Path(path).read_bytes() if image.format == "elf" else None
+    return image.bytes_at(FLASH_BASE, image.end - FLASH_BASE), elf
 
 
 def find_qemu() -> str:
@@ -244,7 +272,8 @@ class EmulatedBoard:
     """An emulated board. ``start()`` launches it (also a context manager), ``stop()`` ends it.
 
     Args:
-        target: "native" or "qemu".
+        target: "native", "qemu" or "stm32f407" (the reference image on the virtual board:
+            imulink.board.stm32f407; its rate is REFERENCE_RATE_HZ and its profile the default).
         front: what the host opens: "pty" (default), "tcp" (127.0.0.1:`port`, 0 any) or a
             serial port URL the board should be on (e.g. one end of a null-modem cable).
         scenario, duration_s, rate_hz, seed: the simulated run the sensors deliver
@@ -263,6 +292,7 @@ class EmulatedBoard:
             of the simulation's trajectory); none by default.
         baro: the barometer's samples along the trajectory (imulink.sim.navigation.baro_samples);
             by default still air at BARO_HEIGHT_M every BARO_PERIOD_S.
+        chip_faults: faults of the virtual reference board's chips and receiver (stm32f407 only).
     """
 
     def __init__(self, target: str = "native", *, front: str = "pty", port: int = 0, scenario: str = "rests",
@@ -271,7 +301,8 @@ class EmulatedBoard:
                  faults: FaultConfig | None = None, schema_hash: int | None = None,
                  image: str | os.PathLike | None = None, baud: int = 921600,
                  simulation: sim.SimResult | None = None, gnss: navigation.GnssFixes | None = None,
-                 baro: navigation.BaroSamples | None = None):
+                 baro: navigation.BaroSamples | None = None,
+                 chip_faults: stm32f407.ChipFaults | None = None):
         if filter_name not in core.BOARD_FILTERS:
             raise EmulatorError(f"unknown filter {filter_name!r}; choose one of {', '.join(core.BOARD_FILTERS)}")
         core.Filter(filter_name, rate_hz)  # SettingsError for a rate the filter is not made for (nor the host's replay)
@@ -279,7 +310,20 @@ class EmulatedBoard:
         if profile.name not in PROFILES or PROFILES[profile.name] != profile:
             raise EmulatorError(f"the firmware knows the sensor profiles {', '.join(PROFILES)}, "
                                 f"not {profile.name!r}")
+        if target == "stm32f407":
+            if rate_hz != REFERENCE_RATE_HZ:
+                raise EmulatorError(f"the reference image samples at {REFERENCE_RATE_HZ:g} Hz after start-up, "
+                                    f"not {rate_hz:g} Hz (change its rate with `imulink settings` once it runs)")
+            if profile != DEFAULT_PROFILE:
+                raise EmulatorError(f"the reference image configures its GY-86 as {DEFAULT_PROFILE.name}, "
+                                    f"not {profile.name}")
+        elif chip_faults is not None and chip_faults.active:
+            raise EmulatorError("chip faults need the virtual reference board (--target stm32f407)")
+        self.chip_faults = chip_faults
         self.target = target
+        #: The board's stream ends with the simulated run (the feed's last frame says so); the
+        #: virtual reference board's chips go on measuring their last sample instead.
+        self.feed_ends = target != "stm32f407"
         self.image = find_image(target, image)
         self._qemu = find_qemu() if target == "qemu" else None
         self.front, self.port, self.baud = front, port, baud
@@ -309,6 +353,7 @@ class EmulatedBoard:
         self._dir: Path | None = None
         self._process: subprocess.Popen | None = None
         self._feed: FeedServer | None = None
+        self.virtual: stm32f407.BoardServer | None = None
         self.proxy: Proxy | None = None
         self.address: str | None = None
 
@@ -330,8 +375,10 @@ class EmulatedBoard:
             frames = feed_frames(self.simulation, self.profile, self.gnss, self.baro)
             if self.target == "native":
                 self._start_native(frames, directory)
-            else:
+            elif self.target == "qemu":
                 self._start_qemu(frames, directory)
+            else:
+                self._start_reference()
         except BaseException:
             self.stop()
             raise
@@ -381,6 +428,22 @@ class EmulatedBoard:
         except Exception as exc:
             raise EmulatorError(f"QEMU did not start: {exc}; {self._log_tail()}") from None
 
+    def _start_reference(self) -> None:
+        flash, elf = reference_flash(self.image)
+        sim = self.simulation
+        gyr, acc, mag = self._counts
+        feed = stm32f407.Feed(sim.rate_hz, gyr, acc, mag, baro=baro_conversions(len(gyr), sim.rate_hz, self.baro),
+                              gnss=gnss_messages(self.gnss, sim.rate_hz, len(gyr)) if self.gnss is not None else {})
+        board = stm32f407.ReferenceBoard(flash, elf=elf, feed=feed, faults=self.chip_faults, line_baud=self.baud)
+        if self.filter_name != "eskf":  # the image starts with the ESKF: a first command selects another
+            board.run_for(0.3)
+            filter_id = core.BOARD_FILTERS[self.filter_name][0]
+            board.put(protocol.encode_command(0, "SELECT_FILTER", 0xFFFF, filter_id=filter_id))
+            board.run_for(0.05)
+            board.take()  # its start-up messages and the ACK: the host asks for HELLO when it connects
+        self.virtual = stm32f407.BoardServer(board, realtime=self.realtime).start()
+        self.address = self._start_proxy(f"socket://127.0.0.1:{self.virtual.port}")
+
     def _start_proxy(self, board_url: str) -> str:
         front = make_front(self.front, self.port, self.baud)
         self.proxy = Proxy(board_url, front, faults=self.faults, schema_hash=self.schema_hash,
@@ -406,6 +469,9 @@ class EmulatedBoard:
         if self._feed is not None:
             self._feed.close()
             self._feed = None
+        if self.virtual is not None:
+            self.virtual.stop()
+            self.virtual = None
         if self._dir is not None:
             shutil.rmtree(self._dir, ignore_errors=True)
             self._dir = None
@@ -415,6 +481,8 @@ class EmulatedBoard:
         """Why the board stopped on its own (its process exited, its proxy failed), or None."""
         if self._process is not None and self._process.poll() is not None:
             return f"the {self.target} board exited with status {self._process.returncode}: {self._log_tail()}"
+        if self.virtual is not None and self.virtual.error is not None:
+            return f"the virtual {self.target} board stopped: {self.virtual.error}"
         if self.proxy is not None and self.proxy.error is not None:
             return f"the link to the {self.target} board failed: {self.proxy.error}"
         return None
@@ -441,13 +509,18 @@ class EmulatedBoard:
 
     def positions(self, gyr, acc, mag) -> np.ndarray:
         """Position in the simulated run of each recorded sample (see :meth:`truth`); -1 where none."""
-        fed = np.concatenate(self._counts, axis=1)
-        got = np.concatenate([np.asarray(a, np.int16).reshape(-1, 3) for a in (gyr, acc, mag)], axis=1)
+        # gyroscope and accelerometer: a magnetometer that measures at its own rate (the virtual
+        # HMC5883L at 75 Hz) repeats its last field between measurements
+        fed = np.concatenate(self._counts[:2], axis=1)
+        got = np.concatenate([np.asarray(a, np.int16).reshape(-1, 3) for a in (gyr, acc)], axis=1)
         positions = np.full(len(got), -1, np.int64)
         start = 0
         for i, row in enumerate(got):
             if start < len(fed) and (fed[start] == row).all():  # the usual case: nothing was lost
                 positions[i] = start
+            elif start > 0 and (fed[start - 1] == row).all():  # read twice (a chip on its own clock)
+                positions[i] = start - 1
+                continue
             else:
                 ahead = np.flatnonzero((fed[start:] == row).all(axis=1))
                 if not len(ahead):

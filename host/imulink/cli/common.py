@@ -238,10 +238,12 @@ def simulation_arguments(p, duration: float):
 
 
 def target_arguments(p):
-    p.add_argument("--target", choices=("native", "qemu"), default="native",
-                   help="the firmware as a native process (default) or its ARM image in QEMU's netduinoplus2")
+    p.add_argument("--target", choices=("native", "qemu", "stm32f407"), default="native",
+                   help="the firmware as a native process (default), its ARM image in QEMU's netduinoplus2, or the "
+                        "reference board's image (the one that gets flashed) on the virtual STM32F407 + GY-86")
     p.add_argument("--image", metavar="FILE", help="firmware to run instead of the built one "
-                                                   "(the native executable or the QEMU ELF)")
+                                                   "(the native executable, the QEMU ELF, or for stm32f407 the "
+                                                   "reference image as ELF, .hex or .bin)")
 
 
 def front_arguments(p, what: str, baud: bool = True):

@@ -14,6 +14,7 @@ from imulink.cli.common import (
     profile_named,
     scenario_for,
     simulation_arguments,
+    target_arguments,
 )
 from imulink.io.files import check_output
 
@@ -37,7 +38,7 @@ def run(args) -> int:
         if not Path(args.screenshot).parent.is_dir():
             raise UsageError(f"cannot write {args.screenshot}: its directory does not exist")
     emulation = dict(scenario=scenario_for(args), duration_s=args.duration, rate_hz=args.rate, seed=args.seed,
-                     filter_name=args.filter)
+                     filter_name=args.filter, target=args.target, image=args.image)
     if args.listen and (args.emulate or args.port is None or Path(args.port).is_file()):
         raise UsageError("--listen is for a board's PORT that another client commands")
     source = sources.open_source(args.port, emulate=args.emulate, baud=args.baud, profile=args.profile,
@@ -65,7 +66,9 @@ def add_parser(sub) -> None:
     p.add_argument("--profile", type=profile_named, default=None,
                    help=f"refuse a board that states another sensor profile than this one (default: whatever "
                         f"the board states; profiles: {profile_list()})")
-    p.add_argument("--emulate", action="store_true", help="start an emulated board (the native firmware) and show it")
+    p.add_argument("--emulate", action="store_true", help="start an emulated board (the native firmware, or "
+                                                          "--target qemu / stm32f407) and show it")
+    target_arguments(p)
     p.add_argument("--listen", action="store_true",
                    help="show a board another client commands (the TCP front of imulink emulate or imulink proxy "
                         "takes several clients) without sending it anything; its controls are then off")

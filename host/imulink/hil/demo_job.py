@@ -85,8 +85,9 @@ def demo(*, target: str = "native", transport: str = "tcp", scenario: str = "res
          progress: StatusLine | None = None, min_verified: float = MIN_VERIFIED) -> DemoReport:
     """Record an emulated board's simulated run (as fast as the link goes) and verify it.
 
-    `target` is "native" (the firmware as a native process) or "qemu" (the ARM image in
-    QEMU). `scenario` is one of emulator.SCENARIOS: NAV_SCENARIO feeds the board a
+    `target` is "native" (the firmware as a native process), "qemu" (the ARM image in
+    QEMU) or "stm32f407" (the reference image on the virtual board). `scenario` is one of
+    emulator.SCENARIOS: NAV_SCENARIO feeds the board a
     receiver's fixes and the barometer too, and the nav filter's accuracy is reported.
     `output` keeps the recording (an existing file only with `force`); without it the
     recording lives in a temporary directory that is removed at the end.
@@ -100,7 +101,10 @@ def demo(*, target: str = "native", transport: str = "tcp", scenario: str = "res
         path = Path(output) if output is not None else Path(scratch) / "demo.imulog"
         address = board.address
         assert address is not None  # set by the board's start (the with statement)
-        result = record(address, path, force=force, progress=progress)
+        # a simulated feed ends by itself (native, QEMU); the virtual reference board's chips do not:
+        # it is recorded for the run's length (of wall time: it runs at most in real time)
+        result = record(address, path, force=force, progress=progress,
+                        duration_s=None if board.feed_ends else duration_s)
         recording = load_recording(path)
         samples = recording.samples
         truth = board.truth(samples.gyr, samples.acc, samples.mag)
