@@ -419,6 +419,16 @@ def test_enter_bootloader_then_flash_over_the_same_line(image):
     assert found and found[0].name == "HELLO" and found[0].seq == 0
 
 
+def test_imulink_flash_enters_the_bootloader_of_the_emulated_board(image):
+    """`imulink emulate --target stm32f407` on a pty carries raw bytes: `imulink flash --enter
+    command` sends ENTER_BOOTLOADER, talks AN3155 to the system memory's bootloader, and its Go
+    starts the flashed bytes."""
+    with EmulatedBoard("stm32f407", duration_s=5.0) as board:
+        result = flashing.flash_uart(load_image(image), board.address, enter="command", log=lambda *_: None)
+        assert board.virtual is not None and board.virtual.board.boots == 2 and board.error is None
+    assert result.verified and result.started and result.hello["board"] == "stm32f407-gy86"
+
+
 def test_emulate_refuses_what_the_reference_image_cannot_do(image):
     with pytest.raises(Exception, match="samples at 100 Hz"):
         EmulatedBoard("stm32f407", rate_hz=200.0)

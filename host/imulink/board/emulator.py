@@ -36,7 +36,7 @@ import numpy as np
 from imulink import core, protocol, sim
 from imulink.board import stm32f407
 from imulink.board.chips import ms5611
-from imulink.board.proxy import FaultConfig, Proxy, make_front
+from imulink.board.proxy import FaultConfig, Proxy, PtyFront, make_front
 from imulink.board.stm32f407.core import FLASH_BASE
 from imulink.core.counts import DEFAULT_PROFILE, PROFILES, SensorProfile, si_to_counts
 from imulink.errors import ImulinkError
@@ -441,8 +441,13 @@ class EmulatedBoard:
             board.put(protocol.encode_command(0, "SELECT_FILTER", 0xFFFF, filter_id=filter_id))
             board.run_for(0.05)
             board.take()  # its start-up messages and the ACK: the host asks for HELLO when it connects
-        self.virtual = stm32f407.BoardServer(board, realtime=self.realtime).start()
-        self.address = self._start_proxy(f"socket://127.0.0.1:{self.virtual.port}")
+        if self._needs_proxy():
+            self.virtual = stm32f407.BoardServer(board, realtime=self.realtime).start()
+            self.address = self._start_proxy(f"socket://127.0.0.1:{self.virtual.port}")
+        else:  # a pty carries raw bytes both ways: `imulink flash --enter command` reaches the bootloader
+            front = PtyFront()
+            self.virtual = stm32f407.BoardServer(board, realtime=self.realtime, pty=front).start()
+            self.address = front.address
 
     def _start_proxy(self, board_url: str) -> str:
         front = make_front(self.front, self.port, self.baud)

@@ -29,6 +29,7 @@ import socket
 import threading
 import time
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -330,20 +331,24 @@ class ReferenceBoard:
 
 
 class BoardServer:
-    """A ReferenceBoard behind a TCP socket on 127.0.0.1 (``port``), run by a thread in real
-    time (virtual time follows the wall clock) or as fast as it goes. ``error``: why it
-    stopped (a hang, a fault), or None."""
+    """A ReferenceBoard run by a thread in real time (virtual time follows the wall clock) or as
+    fast as it goes, its host line served on a TCP socket on 127.0.0.1 (``port``; the first
+    client), on a given connected socket (`sock`), or on a pseudo-terminal (`pty`: an
+    imulink.board.proxy.PtyFront; raw bytes both ways, so the AN3155 bootloader answers too).
+    ``error``: why it stopped (a hang, a fault), or None."""
 
     CHUNK_S = 0.002
 
-    def __init__(self, board: ReferenceBoard, *, realtime: bool = True, sock: socket.socket | None = None):
+    def __init__(self, board: ReferenceBoard, *, realtime: bool = True, sock: socket.socket | None = None,
+                 pty=None):
         self.board = board
         self.realtime = realtime
         self.error: str | None = None
         self._stop = threading.Event()
         self._client: socket.socket | None = sock
+        self._pty = pty
         self._server: socket.socket | None = None
-        if sock is None:
+        if sock is None and pty is None:
             self._server = socket.create_server(("127.0.0.1", 0))
             self.port = self._server.getsockname()[1]
         self._thread = threading.Thread(target=self._run, name="imulink-stm32f407", daemon=True)
@@ -359,59 +364,58 @@ class BoardServer:
         self._thread.join(timeout=5)
         if self._client is not None:
             self._client.close()
+        if self._pty is not None:
+            self._pty.close()
 
     def _run(self) -> None:
         try:
-            if self._client is None:
-                assert self._server is not None
-                self._server.settimeout(0.2)
-                while not self._stop.is_set():
-                    try:
-                        self._client, _ = self._server.accept()
-                        break
-                    except TimeoutError:
-                        continue
-                    except OSError:
-                        return
-            if self._client is None:
+            if self._pty is not None:
+                self._serve(self._pty.read, self._pty.write)
                 return
-            self._client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1) \
-                if self._client.family != socket.AF_UNIX else None
-            self._client.setblocking(False)
-            self._serve(self._client)
+            client = self._client if self._client is not None else self._accept()
+            if client is None:
+                return
+            self._client = client
+            if client.family != socket.AF_UNIX:
+                client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            client.setblocking(False)
+            self._serve(lambda: _receive(client), lambda data: _send(client, data))
         except Fault as exc:
             self.error = str(exc)
         except Exception as exc:  # surfaced through .error
             self.error = f"the virtual board stopped: {exc!r}"
-        finally:
-            if self._client is not None:
-                try:
-                    self._client.sendall(self.board.take())
-                except OSError:
-                    pass
 
-    def _serve(self, client: socket.socket) -> None:
+    def _accept(self) -> socket.socket | None:
+        assert self._server is not None
+        self._server.settimeout(0.2)
+        while not self._stop.is_set():
+            try:
+                return self._server.accept()[0]
+            except TimeoutError:
+                continue
+            except OSError:
+                return None
+        return None
+
+    def _serve(self, receive: Callable[[], bytes | None], send: Callable[[bytes], int]) -> None:
+        """Run the board in chunks of CHUNK_S, passing the line's bytes (`receive` gives b"" when
+        nothing came, None when the host has gone; `send` says how many bytes it took)."""
         board = self.board
         start_wall = time.monotonic()
         start_virtual = board.now_s
         pending: deque[bytes] = deque()
         while not self._stop.is_set():
-            try:
-                data = client.recv(65536)
-                if data == b"":
-                    return  # the host closed the line
+            data = receive()
+            if data is None:
+                return  # the host closed the line
+            if data:
                 board.put(data)
-            except BlockingIOError:
-                pass
             board.run_for(self.CHUNK_S)
             out = board.take()
             if out:
                 pending.append(out)
             while pending:
-                try:
-                    sent = client.send(pending[0])
-                except BlockingIOError:
-                    break
+                sent = send(pending[0])
                 if sent < len(pending[0]):
                     pending[0] = pending[0][sent:]
                     break
@@ -420,3 +424,18 @@ class BoardServer:
                 ahead = (board.now_s - start_virtual) - (time.monotonic() - start_wall)
                 if ahead > 0:
                     time.sleep(ahead)
+
+
+def _receive(client: socket.socket) -> bytes | None:
+    try:
+        data = client.recv(65536)
+    except BlockingIOError:
+        return b""
+    return data or None
+
+
+def _send(client: socket.socket, data: bytes) -> int:
+    try:
+        return client.send(data)
+    except BlockingIOError:
+        return 0
