@@ -419,6 +419,15 @@ def test_enter_bootloader_then_flash_over_the_same_line(image):
     assert found and found[0].name == "HELLO" and found[0].seq == 0
 
 
+def test_demo_on_the_virtual_board_is_bit_exact_and_as_accurate_as_the_filter(image):
+    """`imulink demo --target stm32f407`: in real time, for the run's length; its samples are the
+    simulated ones, so its accuracy is the ESKF's (the native board's demo: about 2 deg)."""
+    report = hil.demo(target="stm32f407", duration_s=13.0)
+    assert report.comparison.bit_exact and report.comparison.verified_count == len(report.recording.estimates)
+    assert len(report.recording.samples) >= 1250
+    assert report.accuracy["total"] < 5.0
+
+
 def test_imulink_flash_enters_the_bootloader_of_the_emulated_board(image):
     """`imulink emulate --target stm32f407` on a pty carries raw bytes: `imulink flash --enter
     command` sends ENTER_BOOTLOADER, talks AN3155 to the system memory's bootloader, and its Go

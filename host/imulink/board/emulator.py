@@ -523,8 +523,8 @@ class EmulatedBoard:
         for i, row in enumerate(got):
             if start < len(fed) and (fed[start] == row).all():  # the usual case: nothing was lost
                 positions[i] = start
-            elif start > 0 and (fed[start - 1] == row).all():  # read twice (a chip on its own clock)
-                positions[i] = start - 1
+            elif start > 0 and positions[i - 1] == start - 1 != positions[i - 2] and (fed[start - 1] == row).all():
+                positions[i] = start - 1  # read twice (a chip on its own clock); more often: the run is over
                 continue
             else:
                 ahead = np.flatnonzero((fed[start:] == row).all(axis=1))
