@@ -1,6 +1,8 @@
 """`imulink emulate`."""
 from __future__ import annotations
 
+import sys
+
 from imulink import hil
 from imulink.board.emulator import EmulatedBoard, EmulatorError
 from imulink.board.link import Link
@@ -46,6 +48,8 @@ def run(args) -> int:
                           realtime=not args.fast, profile=args.profile, faults=faults, schema_hash=args.schema_hash,
                           image=args.image, baud=args.baud, chip_faults=chip_faults(args))
     with board:
+        if board.virtual is not None:  # what the register-level models find wrong, as it happens
+            board.virtual.board.on_problem = lambda line: print(f"problem: {line}", file=sys.stderr, flush=True)
         if settings is not None:
             assert board.address is not None  # set by the board's start (the with statement)
             with Link(board.address, args.baud) as link:

@@ -192,12 +192,15 @@ class ReferenceBoard:
         self.seed = seed
         self.bootloader: Stm32Bootloader | None = None
         self.boots = 0
+        #: told every problem the models report, as a line (the chip's, also after a Go rebuilt it)
+        self.on_problem: Callable[[str], None] | None = None
         self._build()
 
     # ------------------------------------------------------------------ assembly
 
     def _build(self) -> None:
         soc = self.soc = Soc(self.flash, elf=self.elf)
+        soc.on_problem = lambda line: self.on_problem(line) if self.on_problem is not None else None
         self.boots += 1
         self.gpio = {letter: soc.add(GpioPort(soc, letter)) for letter in "ABCDEFGHI"}
         a, b = self.gpio["A"], self.gpio["B"]

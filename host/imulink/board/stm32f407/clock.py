@@ -71,6 +71,3 @@ class Scheduler:
             self.now = max(self.now, event.time)
             event.action()
         self.now = max(self.now, time)
-
-    def clear(self) -> None:
-        self._queue.clear()

@@ -171,10 +171,6 @@ class I2CPeripheral(Peripheral):
             self.violation(f"TRISE = {self.trise & 0x3F}, below {needed} for the {RISE_NS[fast]} ns rise time "
                            f"at {pclk1 / 1e6:g} MHz (27.6.9)")
 
-    def _byte_ps(self) -> int:
-        scl = self.scl_hz() or 100_000.0
-        return int(9 * PS_PER_S / scl)
-
     def schedule(self, kind: str, bits: float) -> None:
         """The bus event `kind` ends after `bits` SCL periods."""
         scl = self.scl_hz() or 100_000.0

@@ -285,10 +285,6 @@ class Rcc(Peripheral):
             self.regs[CFGR] = (self.regs[CFGR] & ~0xC) | sw << 2
             self.clocks_changed()
 
-    def describe(self) -> str:
-        return (f"SYSCLK {self.sysclk_hz / 1e6:g} MHz, HCLK {self.hclk_hz / 1e6:g} MHz, "
-                f"APB1 {self.pclk1_hz / 1e6:g} MHz, APB2 {self.pclk2_hz / 1e6:g} MHz")
-
 
 class Pwr(Peripheral):
     """PWR_CR (VOS, reset 1 on the F405/407) and PWR_CSR (VOSRDY; RM0090 5.4)."""

@@ -255,6 +255,3 @@ class Soc:
     def _clock_changed(self) -> None:
         self.cycle_ps = period_ps(self.rcc.hclk_hz)
         self._access_ps = ACCESS_CYCLES * self.cycle_ps
-
-    def now_us(self) -> float:
-        return self.scheduler.now / PS_PER_US
