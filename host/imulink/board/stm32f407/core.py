@@ -4,12 +4,13 @@ what unicorn leaves to the system around it, after the ARMv7-M architecture refe
 DUI"), and PM0214 (the STM32F4 programming manual):
 
 - exception entry and return (ARMv7-M ARM B1.5.6-B1.5.8): the eight-word frame on the main
-  stack, 8-byte aligned with bit 9 of the stacked xPSR (CCR.STKALIGN = 1 from reset), LR =
-  EXC_RETURN, the vector from the table at VTOR; nesting by group priority (AIRCR.PRIGROUP,
-  four priority bits: PM0214 4.3.7); a handler returns by loading EXC_RETURN into the PC
-  (unicorn stops there, and this module unstacks). Unicorn cannot leave handler mode, so
-  handlers run with IPSR = 0 and this module keeps the active exceptions itself; the image
-  must not read IPSR (it does not);
+  stack, 8-byte aligned with bit 9 of the stacked xPSR (CCR.STKALIGN = 1 from reset), the
+  vector from the table at VTOR; nesting by group priority (AIRCR.PRIGROUP, four priority
+  bits: PM0214 4.3.7). Unicorn cannot leave handler mode, so handlers run with IPSR = 0, this
+  module keeps the active exceptions itself, and LR holds the address of TRAMPOLINE (below),
+  which unstacks as EXC_RETURN 0xFFFFFFF9 would; a handler that loads an EXC_RETURN value
+  into the PC is unstacked here too. The image must not read IPSR or compare LR with
+  EXC_RETURN values (it does neither);
 - PRIMASK and BASEPRI mask (B1.5.4); an interrupt is taken the instant the instruction that
   clears PRIMASK (CPSIE i, MSR PRIMASK) has executed: those instructions are hooked where they
   are in the image;
