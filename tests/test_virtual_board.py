@@ -213,6 +213,21 @@ def test_a_faulty_chip_is_reported_and_the_board_answers(image, fault, expected)
     assert not [p for p in board.soc.problems if "hang" in p]
 
 
+def test_a_chip_that_answers_again_is_set_up_again_and_the_stream_resumes(image):
+    board = start(image, faults=stm32f407.ChipFaults(nack={"mpu6050"}))
+    board.run_for(0.5)
+    board.put(protocol.encode_command(0, "START_STREAM", 1))
+    board.run_for(1.5)
+    before = messages(board)
+    assert not [m for m in before if m.name == "SAMPLE"]
+    board.faults.nack.clear()  # the MPU6050 answers again (a loose wire pressed back)
+    board.run_for(2.5)
+    after = messages(board)
+    assert any(text.startswith("GY-86: MPU6050 + HMC5883L ready") for text in logs(after)), logs(after)
+    assert len([m for m in after if m.name == "SAMPLE"]) >= 100
+    assert board.soc.problems == []
+
+
 def test_a_magnetometer_that_stops_answering_is_counted_and_the_stream_goes_on(image):
     faults = stm32f407.ChipFaults(silent_after={"hmc5883l": 40})
     board = start(image, faults=faults)
