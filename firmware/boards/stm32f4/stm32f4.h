@@ -171,6 +171,8 @@ typedef struct {
 #define USART_SR_RXNE (1u << 5)
 #define USART_SR_TC (1u << 6)
 #define USART_SR_TXE (1u << 7)
+#define USART_SR_LBD (1u << 8)
+#define USART_SR_CTS (1u << 9)
 #define USART_CR1_RE (1u << 2)
 #define USART_CR1_TE (1u << 3)
 #define USART_CR1_RXNEIE (1u << 5)

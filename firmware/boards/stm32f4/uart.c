@@ -115,6 +115,9 @@ static void dma_start(uart_t *u)
     d->stream->M0AR = (uint32_t)(uintptr_t)&u->tx[offset];
     d->stream->NDTR = n;
     d->moving = n;
+    /* RM0090 30.3.13 step 6: TC cleared by writing 0 to it (the DMA's writes to DR do not clear
+     * it), so that uart_flush waits for these bytes; the other rc_w0 flags are written 1. */
+    u->regs->SR = USART_SR_RXNE | USART_SR_LBD | USART_SR_CTS;
     d->stream->CR |= DMA_SxCR_EN;
 }
 

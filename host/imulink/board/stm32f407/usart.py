@@ -105,8 +105,7 @@ class Usart(Peripheral):
         if self.shifting is not None or self.tdr is None or not self._can_send():
             return
         self.shifting, self.tdr = self.tdr, None
-        self.sr |= TXE
-        self.sr &= ~TC
+        self.sr |= TXE  # TC stays as it is: only software clears it (SR read + DR write, or a 0)
         self._tx_event = self.soc.scheduler.after(self._frame_ps(), self._shift_done)
         self._line()
         self._dma_request()
