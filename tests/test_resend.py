@@ -2,6 +2,8 @@
 frames, the host's bookkeeping of what is missing, and recordings that stay verifiable."""
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 
@@ -139,10 +141,13 @@ def test_board_resends_its_input_frames_byte_for_byte(streaming_link):
 
 def test_board_says_what_it_no_longer_holds_and_refuses_bad_counts(streaming_link):
     link = streaming_link
-    for _ in range(30):  # at 100 Hz the ring holds about 11 s; the emulator streams as fast as it is read
+    # 5 000 frames (2 000 samples, 80 kB of SAMPLE frames) have pushed the first ones out of the
+    # board's 36 KiB ring: a seq 30 000 back is older than what it holds. The emulator streams as
+    # fast as it is read: a few seconds, longer on a busy machine.
+    deadline = time.monotonic() + 60.0
+    while link.counters()["frames"] <= 5000:
+        assert time.monotonic() < deadline, "the emulated board did not stream 5 000 frames in 60 s"
         link.receive(timeout=0.2)
-        if link.counters()["frames"] > 40000:
-            break
     latest = max(item.message.seq for item in link.receive(timeout=0.2))
     old = _resend(link, (latest - 30000) & 0xFFFF, 1)
     assert [fields["status"] for fields in old] == [RESEND_STATUS["GONE"]]

@@ -160,7 +160,7 @@ def test_the_same_scripted_run_gives_the_same_bytes(image):
 @pytest.mark.parametrize("filter_name", [f for f in core.BOARD_FILTERS if f != "nav"])
 def test_record_and_compare_over_the_link_is_bit_exact(image, filter_name, tmp_path):
     with EmulatedBoard("stm32f407", front="tcp", scenario="random", duration_s=60.0, seed=2,
-                       filter_name=filter_name) as board:
+                       filter_name=filter_name, realtime=True) as board:  # real time: leaves the other tests a core
         path = tmp_path / "live.imulog"
         result = hil.record(board.address, path, duration_s=3.0)
         recording = load_recording(path)
@@ -179,7 +179,7 @@ def test_record_and_compare_over_the_link_is_bit_exact(image, filter_name, tmp_p
 
 def test_the_nav_filter_with_receiver_and_barometer_is_bit_exact(image, tmp_path):
     with EmulatedBoard("stm32f407", front="tcp", scenario="car", duration_s=60.0, seed=1,
-                       filter_name="nav") as board:
+                       filter_name="nav", realtime=True) as board:
         path = tmp_path / "nav.imulog"
         hil.record(board.address, path, duration_s=9.0)
         recording = load_recording(path)
@@ -242,6 +242,7 @@ def test_a_magnetometer_that_stops_answering_is_counted_and_the_stream_goes_on(i
     assert not [p for p in board.soc.problems if "hang" in p]
 
 
+@pytest.mark.long  # 12 s of the board flat out each: after `make test`, not beside its real-time tests
 @pytest.mark.parametrize("fault, news", [
     (None, ["GNSS: receiver found at 9600 baud",
             "GNSS: u-blox receiver configured: NAV-PVT every 100 ms at 115200 baud"]),
@@ -463,7 +464,8 @@ def test_emulate_refuses_what_the_reference_image_cannot_do(image):
 
 
 def test_the_link_answers_through_imulink_emulate(image):
-    with EmulatedBoard("stm32f407", front="tcp", duration_s=5.0) as board, Link(board.address) as link:
+    with EmulatedBoard("stm32f407", front="tcp", duration_s=5.0, realtime=True) as board, \
+            Link(board.address) as link:
         hello = link.connect()
         status = link.command("GET_STATUS").data.fields
     assert hello["board"] == "stm32f407-gy86" and status["cycle_hz"] == 168_000_000
