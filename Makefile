@@ -36,9 +36,9 @@ demo: setup
 ## a test that hangs fails after 10 min with its name (pytest-timeout); the 15 slowest are
 ## listed at the end
 test: setup
-	$(BIN)/python -m pytest -q -n auto --timeout=600 --durations=15 -m "not long"
+	$(BIN)/python -m pytest -q -n auto --dist loadgroup --timeout=600 --durations=15 -m "not long"
 
-## test-long: the sanitizer campaigns (tests marked long); CI runs them after `make test`
+## test-long: the sanitizer campaigns and the virtual board's long runs (tests marked long); CI runs them after `make test`
 test-long: setup
 	$(BIN)/python -m pytest -q -n auto --timeout=1200 --durations=15 -m long
 

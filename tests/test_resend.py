@@ -192,6 +192,7 @@ def test_a_sample_lost_at_the_very_end_is_recovered(tmp_path):
     assert recording.samples.index.tolist() == list(range(200)) and recording.samples.recovered[-1]
 
 
+@pytest.mark.xdist_group("takes-a-core")  # never beside the virtual board (tests/test_virtual_board.py)
 @pytest.mark.parametrize("faults", [
     FaultConfig(drop_byte=2e-4, seed=1),
     FaultConfig(flip_bit=1e-3, seed=2),
@@ -211,6 +212,7 @@ def test_lossy_links_lose_no_sample_and_every_arrived_estimate_verifies(tmp_path
     assert comparison.bit_exact and comparison.verified_count == len(recording.estimates)
 
 
+@pytest.mark.xdist_group("takes-a-core")
 def test_a_two_second_stall_loses_nothing(tmp_path):
     """The link holds everything for 2 s (as long as the default silence timeout): the recorder
     asks the board, which says it streams, and the recording goes on complete."""

@@ -37,6 +37,11 @@ from imulink.board.stm32f407.soc import Soc
 from imulink.io.firmware_image import load_image
 from imulink.io.recording import load_recording
 
+#: The virtual board takes a core: these tests never run beside the real-time lossy-link tests
+#: (tests/test_resend.py), whose 1 kHz boards lose samples when the machine is starved
+#: (`make test` runs with --dist loadgroup).
+pytestmark = pytest.mark.xdist_group("takes-a-core")
+
 ROOT = Path(__file__).resolve().parents[1]
 FIRMWARE = ROOT / "firmware"
 ELF = FIRMWARE / "build" / "stm32f407" / "imulink-stm32f407-gy86.elf"
