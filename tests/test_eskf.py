@@ -91,6 +91,42 @@ def test_magnetic_disturbance_is_down_weighted():
     assert rms["trusting"] > 5 * rms["gated"]
 
 
+def _turntable_with_magnet(magnet_s, duration_s, seed=0):
+    """A board turning at 30 deg/s about the vertical; an extra field fixed in the room
+    (a magnet: the field's norm and dip change) for `magnet_s` = (start, end). Returns the
+    times and the heading errors (deg)."""
+    traj = sim.turntable(duration_s, RATE, rate_dps=30.0)
+    suite = sim.SensorSuite.default()
+    suite.mag.disturbances = [(*magnet_s, np.array([20.0, -15.0, 10.0]))]
+    data = sim.simulate(traj, suite, seed=seed)
+    out = core.run("eskf", data.gyr, data.acc, data.mag, RATE, "fixed", settings=scenarios.SIM_SETTINGS["eskf"])
+    return data.t, np.abs(attitude_errors(out.quat, data.quat_true)["heading"])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_magnet_beside_a_turning_board_is_not_taken_for_the_field(seed):
+    """The magnet stays 30 s while the board turns: it keeps one norm and dip in the room,
+    as a new local field would. After 150 s of the earth's field it is not taken (a new
+    field must hold longer than the reference was trusted): the gyroscope carries the
+    heading through it. (Taken after 20 s, as before, the heading followed the magnet's
+    direction and, re-linearised on the measured field, ran on to 180 deg.)"""
+    t, heading = _turntable_with_magnet((150.0, 180.0), 260.0, seed)
+    outside = ((t > 20) & (t < 150)) | (t >= 200)
+    assert heading[outside].max() < 1.0
+    assert heading[(t >= 150) & (t < 200)].max() < 3.0
+
+
+def test_a_lasting_field_is_taken_and_the_earth_field_taken_back():
+    """A field that stays (the magnet for 180 s of turning) becomes the reference after a
+    minute (TRUST_LIMIT); its horizontal direction is then north (79 deg from the earth's
+    here). When it goes, the earth's field is taken back a minute later, and the heading
+    returns to the truth from 80 deg away, not on to 180 deg."""
+    t, heading = _turntable_with_magnet((150.0, 330.0), 560.0)
+    assert heading[(t > 20) & (t < 200)].max() < 3.0
+    assert heading[(t > 230) & (t < 330)].min() > 60.0  # the magnet's field taken
+    assert heading[t > 450].max() < 1.0
+
+
 def test_taps_and_free_fall_do_not_tilt_the_estimate():
     traj = sim.static(60, RATE)
     taps = [(20.0 + 2 * k, 100.0) for k in range(5)]

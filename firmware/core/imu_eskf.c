@@ -66,10 +66,16 @@ const int imu_eskf_setting_count = (int)(sizeof imu_eskf_setting_descs / sizeof 
  *  below 5 uT it is a magnetometer that has not converted yet (an HMC5883L reads zeros). */
 #define MIN_REF_FIELD IMU_QCONST(5.0, 16)
 #define MAX_REF_FIELD IMU_QCONST(500.0, 16)
-/** A disturbed field that keeps one norm and dip in the earth frame for NEW_FIELD_TIME (s,
- *  Q16) while the board turns faster than NEW_FIELD_MIN_RATE (rad/s, Q30: 20 deg/s) is
- *  fixed to the earth, not to the board: it becomes the new reference. */
+/** A disturbed field that keeps one norm and dip in the earth frame while the board turns
+ *  faster than NEW_FIELD_MIN_RATE (rad/s, Q30: 20 deg/s) is fixed to the earth, not to the
+ *  board. It becomes the new reference once it has held for longer than the reference was
+ *  trusted (turning, undisturbed), and for at least NEW_FIELD_TIME (s, Q16): a magnet that
+ *  stays beside a turning board for a while does not outweigh the field that held before
+ *  it, and a field that was taken by mistake is given up as quickly as it was taken. The
+ *  trust counts up to TRUST_LIMIT (s, Q16; VQF's longest rejection of a disturbance), so a
+ *  lasting new field (the board moved into a vehicle) is taken after a minute of turning. */
 #define NEW_FIELD_TIME IMU_QCONST(20.0, 16)
+#define TRUST_LIMIT IMU_QCONST(60.0, 16)
 #define NEW_FIELD_MIN_RATE IMU_QCONST(0.34906585, 30)
 /** Largest specific force and field the filter takes, m/s^2 or uT, Q16 (beyond every range
  *  of the MPU6050 and HMC5883L): larger values come only from scale settings no real
@@ -164,8 +170,10 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
     f->cand.norm = f->cand.dip = 0;
     f->cand_steps = 0;
     f->turning = 0;
-    /* NEW_FIELD_TIME * filter rate, as learn_steps. */
+    /* NEW_FIELD_TIME and TRUST_LIMIT * filter rate, as learn_steps. */
     f->new_field_steps = IMU_MUL_TO_INT(NEW_FIELD_TIME, s->sample_rate, 32) / 3;
+    f->trust_limit_steps = IMU_MUL_TO_INT(TRUST_LIMIT, s->sample_rate, 32) / 3;
+    f->ref_trust_steps = 0;
     f->acc_weight = 0;
     f->mag_weight = 0;
     f->cov.n = 0;
@@ -245,6 +253,7 @@ static int acquire_reference(imu_eskf_t *f, const imu_rotation_t *rot, const imu
     }
     set_reference(&f->ref, norm, dip);
     f->steps = 0;
+    f->ref_trust_steps = 0;
     f->cand.norm = 0;
     f->cand_steps = 0;
     return 1;
@@ -558,8 +567,11 @@ static void follow_field(imu_eskf_field_t *field, imu_q16_t norm, imu_angle_t di
 }
 
 /**
- * A disturbed field: track it as a candidate reference; once it has kept its norm and
- * dip for NEW_FIELD_TIME of turning, it is fixed to the earth and becomes the reference.
+ * A disturbed field: track it as a candidate reference; it becomes the reference as
+ * NEW_FIELD_TIME's comment says. (Aligning the heading to the new field at once, so that
+ * its turn is not learnt as gyro bias, was tried: in the 24 h soak the earth's own field,
+ * taken back after an hour's accelerations had moved the reference's dip, then turned the
+ * heading by up to 19 deg, from one mean of three samples in motion.)
  */
 static void track_candidate(imu_eskf_t *f, imu_q16_t norm, imu_angle_t dip)
 {
@@ -567,8 +579,9 @@ static void track_candidate(imu_eskf_t *f, imu_q16_t norm, imu_angle_t dip)
     if (f->cand.norm > 0 && field_weight(f, norm, dip, &f->cand, &w_norm) >= IMU_QCONST(0.5, 30)) {
         follow_field(&f->cand, norm, dip, IMU_MUL(f->period, LEARN_RATE, 30));
         f->cand_steps += f->turning;
-        if (f->cand_steps >= f->new_field_steps) {
+        if (f->cand_steps >= f->new_field_steps && f->cand_steps > f->ref_trust_steps) {
             f->ref = f->cand;
+            f->ref_trust_steps = f->cand_steps;
             f->cand.norm = 0;
             f->cand_steps = 0;
         }
@@ -622,6 +635,9 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_rota
         follow_field(&f->ref, norm, dip, IMU_MUL(f->period, REF_RATE, 30));
         f->cand.norm = 0;
         f->cand_steps = 0;
+        if (f->ref_trust_steps < f->trust_limit_steps) {
+            f->ref_trust_steps += f->turning;
+        }
     } else {
         track_candidate(f, norm, dip);
     }
@@ -635,9 +651,13 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_rota
         return;
     }
     sigma = IMU_DIV_SAT(st->mag_noise, norm, 24, &f->saturations);
-    /* z = east share of the unit field in the estimate's earth frame, m_E = horizontal
-     * * sin(heading error). An attitude error dtheta (sensor frame) moves it by
-     * (-m_U north + m_N up) . dtheta: the heading error and, through the field's vertical
+    /* z = m_H psi: the unit field's horizontal share m_H times the heading error psi, the
+     * angle of the horizontal field from the estimate's north (up to 1 rad: beyond it the
+     * steps that follow do the rest). Near zero it is the east share m_E = m_H sin(psi);
+     * unlike m_E it grows with psi up to a half turn (the east share's sine, linearised with
+     * the measured north share m_N = m_H cos(psi), made a heading error beyond 90 deg turn
+     * on to 180 deg). An attitude error dtheta (sensor frame) moves z by
+     * (m_H up - m_U north) . dtheta: the heading error and, through the field's vertical
      * part, the tilt error, which H must include (left out, a constant tilt error would
      * pass for heading information: tan(dip) times it). The gain map lets the update
      * correct only the vertical components of the attitude and the gyro bias, so that
@@ -646,10 +666,15 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_rota
         h[i] = 0;
     }
     for (i = 0; i < 3; ++i) {
-        h[ATT + i] = IMU_SUB(IMU_MUL(earth[1], up[i], 30), IMU_MUL(earth[2], north[i], 30)); /* |h| <= |m| = 1 */
+        h[ATT + i] = IMU_SUB(IMU_MUL(horizontal, up[i], 30), IMU_MUL(earth[2], north[i], 30)); /* |h| <= |m| = 1 */
     }
     set_gain_map(&gain_map, 1, !f->at_rest, 0, up);
-    z = earth[0];
+    {
+        const imu_angle_t one_rad = IMU_QCONST(1.0, 29);
+        imu_angle_t psi = imu_atan2(earth[0], earth[1]); /* Q29 rad */
+        psi = psi > one_rad ? one_rad : (psi < -one_rad ? -one_rad : psi);
+        z = IMU_MUL(horizontal, psi, 29); /* Q30 * Q29 >> 29 -> Q30, at most 1 */
+    }
     scalar_update(f, h, z, IMU_WMUL(sigma, sigma), 48, f->mag_weight, &gain_map, dx);
 }
 

@@ -94,6 +94,8 @@ typedef struct {
     imu_eskf_field_t cand;        /**< candidate reference field while disturbed; norm 0: none */
     int32_t cand_steps;           /**< turning filter steps the candidate has held */
     int32_t new_field_steps;      /**< filter steps of NEW_FIELD_TIME */
+    int32_t trust_limit_steps;    /**< filter steps of TRUST_LIMIT */
+    int32_t ref_trust_steps;      /**< turning, undisturbed filter steps of the reference (up to trust_limit_steps) */
     int turning;                  /**< 1 when the last filter step turned faster than 20 deg/s */
     imu_q30_t acc_alpha;          /**< low-pass weight T / (acc_lowpass + T), Q30 */
     imu_wide_t acc_earth[3];      /**< low-passed specific force in the estimated earth frame, m/s^2, Q46:
