@@ -255,3 +255,86 @@ def test_vqf_on_a_broad_trial(broad_dir):
     trial = eval_broad.load_trial(broad_dir / "02_undisturbed_slow_rotation_B.mat")
     err = eval_broad.broad_errors(eval_broad.run_vqf(trial), trial.quat_ref, trial.movement)
     assert err["total"] < 3.0  # VQF's published accuracy class (1.4 deg here)
+
+
+# --- eval_rough: the filters against VQF on rough simulated cases ----------------------
+
+eval_rough = _load("eval_rough")
+
+
+def test_rough_scenarios_make_their_conditions():
+    from imulink.analysis import rough
+
+    seconds = 40.0
+    for name, make in rough.SCENARIOS.items():
+        data, mask = make(1, seconds)
+        assert len(data) == int(seconds * rough.RATE_HZ) and mask.shape == (len(data),), name
+        np.testing.assert_array_equal(mask, data.t >= rough.SETTLE_S)
+        again, _ = make(1, seconds)
+        np.testing.assert_array_equal(again.gyr_counts, data.gyr_counts)  # deterministic per seed
+    assert rough.shocks(1, seconds)[0].saturated["acc"] > 0  # beyond the accelerometer's range
+    silent = np.all(rough.outage(1, seconds)[0].mag_counts == 0, axis=1)
+    assert 0.15 < silent.mean() < 0.25  # a fifth of the run
+    drift = rough.acc_bias_drift(1, seconds)[0].acc_bias_true
+    assert 0.15 < np.linalg.norm(drift[-1] - drift[0]) < 0.25
+
+
+@pytest.mark.skipif(not _has_vqf(), reason="vqf not installed (pip install 'imulink[bench]')")
+def test_rough_evaluation_is_sane_and_a_broken_estimate_scores_worse():
+    from imulink.analysis import rough
+
+    case = rough.evaluate_case("handheld", 0, duration_s=60.0)
+    assert set(case["errors"]) == {*rough.FILTERS, *rough.REFERENCES}
+    assert case["samples"] == int(50.0 * rough.RATE_HZ)
+    for name, errors in case["errors"].items():
+        assert set(errors) == set(rough.KINDS)
+        assert all(np.isfinite(v) and v >= 0 for v in errors.values()), name
+        assert errors["heading"] <= errors["total"] + 1e-9 and errors["inclination"] <= errors["total"] + 1e-9
+    assert case["errors"]["eskf"]["inclination"] < 5.0
+    data, mask = rough.handheld(0, 60.0)
+    identity = np.tile([1.0, 0.0, 0.0, 0.0], (len(data), 1))
+    broken = rough.score(identity, data, mask)
+    for name in rough.FILTERS:
+        assert broken["total"] > case["errors"][name]["total"], name
+    # the worst over seeds is the largest per-seed RMSE, kind by kind
+    results = rough.evaluate(["handheld"], [0, 1], ["eskf", "vqf"], duration_s=30.0)
+    per_seed = results["handheld"]["seeds"]
+    for kind in rough.KINDS:
+        worst = results["handheld"]["worst"]["eskf"][kind]
+        assert worst["rmse"] == max(per_seed[s]["errors"]["eskf"][kind] for s in (0, 1))
+        assert per_seed[worst["seed"]]["errors"]["eskf"][kind] == worst["rmse"]
+    # a filter is flagged where it loses to VQF: against itself shifted up, every kind of every seed
+    for case in per_seed.values():
+        case["errors"]["vqf"] = {k: v - 1.0 for k, v in case["errors"]["eskf"].items()}
+    for kind in rough.KINDS:
+        results["handheld"]["worst"]["vqf"][kind]["rmse"] = results["handheld"]["worst"]["eskf"][kind]["rmse"] - 1.0
+        (loss,) = rough.worse_than_vqf(results, "eskf")[kind]
+        assert loss["excess"] == pytest.approx(1.0)
+        (paired,) = rough.paired_losses(results, "eskf")[kind]
+        assert paired["seeds_worse"] == 2 and paired["excess"] == pytest.approx(1.0)
+
+
+@pytest.mark.skipif(not _has_vqf(), reason="vqf not installed (pip install 'imulink[bench]')")
+def test_rough_command_line(capsys):
+    argv = ["--seeds", "0", "--scenarios", "magnet-room", "--filters", "eskf9", "--duration", "30", "--workers", "1"]
+    assert eval_rough.main([*argv, "--markdown"]) == 0
+    out = capsys.readouterr()
+    assert "| magnet-room | eskf9 |" in out.out and "| magnet-room | VQF (ref.) |" in out.out
+    summary = out.out.strip().splitlines()[-2:]
+    assert summary[0].startswith("- eskf9: worse than VQF (worst seed vs worst seed)")
+    assert summary[1].startswith("- eskf9: worse than VQF on the same seed")
+    assert "magnet-room      seed   0" in out.err  # progress on stderr
+    assert eval_rough.main([*argv, "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert set(report["scenarios"]["magnet-room"]["worst"]) == {"eskf9", "vqf", "gyro"}
+    assert set(report["worse_than_vqf"]["eskf9"]) == {"total", "heading", "inclination"}
+    assert set(report["paired_losses"]["eskf9"]) == {"total", "heading", "inclination"}
+
+
+@pytest.mark.parametrize("argv, word", [(["--scenarios", "handheld,moon"], "'moon'"),
+                                        (["--filters", "kalman"], "'kalman'"),
+                                        (["--seeds", "a"], "--seeds")])
+def test_rough_usage_errors_are_one_line(argv, word, capsys):
+    assert eval_rough.main(argv) == eval_rough.EXIT_USAGE
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and word in err
