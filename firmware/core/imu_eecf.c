@@ -100,31 +100,34 @@ imu_status_t imu_eecf_set_settings(imu_eecf_t *f, const imu_eecf_settings_t *s)
     /* ki (Q30, <= 1) * dt (Q30, <= 0.1) >> 26 -> Q34, at most 0.1 * 2^34 < 2^31. */
     f->ki_dt = IMU_MUL(s->ki, f->dt, 26);
     f->ki_mag_dt = IMU_MUL(s->ki_mag, f->dt, 26);
-    /* At most 60 s * 32768 Hz < 2^31 samples; 10 s * 32768 Hz + 1 for the warm-up. */
+    /* At most 60 s * 32768 Hz < 2^31 samples. */
     f->align_samples = IMU_MUL_TO_INT(s->align_time, s->sample_rate, 32);
-    f->rest_confirm = IMU_MUL_TO_INT(s->rest_time, s->sample_rate, 32);
-    f->rest_warmup = IMU_MUL_TO_INT(s->rest_tau, s->sample_rate, 32) + 1;
     /* At most 1000 s * 32768 Hz + 1 < 2^25 samples. */
     f->bias_warmup = IMU_MUL_TO_INT(s->rest_bias_tau, s->sample_rate, 32) + 1;
+    {
+        /* The core's rest detector, every sample, with the turn tests and no rate test: the
+         * bias may be as large as the MPU6050's zero-rate offset before it is estimated
+         * (imu_eecf.h). rest_tau Q16 -> Q24 (at most 10 s: below 2^28). */
+        imu_rest_config_t config;
+        config.gyro = s->rest_gyro;
+        config.acc = s->rest_acc;
+        config.rate = 0;
+        config.turn = s->rest_turn;
+        config.min_time = s->rest_time;
+        config.tau = IMU_SHL_SAT(s->rest_tau, 8, &f->saturations);
+        imu_rest_init(&f->rest, &config, f->dt, &f->saturations);
+    }
     f->sample_count = 0;
-    f->rest_count = 0;
-    f->acc_still_count = 0;
-    f->mag_still_count = 0;
     f->gyr_count = 0;
-    f->acc_turn_limit = 0;
-    f->mag_turn_limit = 0;
-    f->gravity = IMU_STANDARD_GRAVITY; /* until the first rest measures it */
-    f->acc_ref_norm = IMU_STANDARD_GRAVITY;
+    f->at_rest = 0;
+    f->still_from_start = 1;
+    f->gravity = IMU_STANDARD_GRAVITY; /* until the first quiet stretch measures it */
     f->q[0] = IMU_ONE_Q30;
     for (i = 0; i < 3; ++i) {
         f->q[i + 1] = 0;
         f->integral[i] = 0;
         f->align_euler[i] = 0;
         f->gyr_mean[i] = 0;
-        f->acc_mean[i] = 0;
-        f->mag_mean[i] = 0;
-        f->acc_turn_ref[i] = 0;
-        f->mag_turn_ref[i] = 0;
     }
     return IMU_OK;
 }
@@ -136,64 +139,10 @@ int imu_eecf_aligning(const imu_eecf_t *f)
 
 int imu_eecf_at_rest(const imu_eecf_t *f)
 {
-    return f->rest_count >= f->rest_warmup && f->acc_still_count >= f->rest_confirm &&
-           f->mag_still_count >= f->rest_confirm;
+    return f->at_rest;
 }
 
-/* ---- Rest detection ---------------------------------------------------------------- */
-
-/**
- * 1 when |a - b| is below `limit` (strictly when `strict`, else at most `limit`), for
- * two vectors of one Q format and a limit in that format, 0 <= limit < 2^30.
- * Each difference is checked first, so the three squares summed are below 2^60 each.
- */
-static int distance_within(const imu_real_t a[3], const imu_real_t b[3], imu_real_t limit, int strict,
-                           uint32_t *sat)
-{
-    imu_wide_t sum = 0; /* squared distance, Q of a times two */
-    imu_wide_t limit2;
-    int k;
-    for (k = 0; k < 3; ++k) {
-        const imu_real_t d = IMU_SUB_SAT(a[k], b[k], sat);
-        if (strict ? (d >= limit || d <= -limit) : (d > limit || d < -limit)) {
-            return 0;
-        }
-        sum += IMU_WMUL(d, d); /* wide: below 3 * 2^60 */
-    }
-    limit2 = IMU_WMUL(limit, limit);
-    return strict ? sum < limit2 : sum <= limit2;
-}
-
-/** The turn test of the specific force compares the run's mean against this from now on. */
-static void take_acc_reference(imu_eecf_t *f)
-{
-    imu_real_t norm;
-    int k;
-    for (k = 0; k < 3; ++k) {
-        f->acc_turn_ref[k] = f->acc_mean[k];
-    }
-    /* Limit |v| rest_turn: |v| (Q16, int32) * rest_turn (Q30, <= 0.5) >> 30 -> Q16,
-     * at most 2^30. A zero vector has limit 0 and never fails. */
-    if (imu_vec3_normalize(f->acc_turn_ref, NULL, &norm)) {
-        f->acc_turn_limit = IMU_MUL(norm, f->settings.rest_turn, 30);
-        f->acc_ref_norm = norm;
-    } else {
-        f->acc_turn_limit = 0;
-    }
-    f->acc_still_count = 0;
-}
-
-/** The same for the field (a board without magnetometer reads zero: never fails). */
-static void take_mag_reference(imu_eecf_t *f)
-{
-    imu_real_t norm;
-    int k;
-    for (k = 0; k < 3; ++k) {
-        f->mag_turn_ref[k] = f->mag_mean[k];
-    }
-    f->mag_turn_limit = imu_vec3_normalize(f->mag_turn_ref, NULL, &norm) ? IMU_MUL(norm, f->settings.rest_turn, 30) : 0;
-    f->mag_still_count = 0;
-}
+/* ---- Rest detection and the gyroscope mean --------------------------------------- */
 
 /** First-order low-pass y += alpha (x - y) of three values of one Q format: y stays
  *  between its old value and x (alpha in [0, 1]), so the sum cannot overflow. */
@@ -215,90 +164,34 @@ static imu_q30_t mean_weight(int32_t n, int32_t warmup, imu_q30_t alpha)
     return alpha;
 }
 
-/** The gyroscope mean starts again at this sample. */
-static void restart_gyro_mean(imu_eecf_t *f, const imu_sample_t *s)
-{
-    int k;
-    for (k = 0; k < 3; ++k) {
-        f->gyr_mean[k] = s->gyr[k];
-    }
-    f->gyr_count = 1;
-}
-
 /**
- * Rest tests of one sample (see imu_eecf.h). A run is a stretch of samples whose
- * gyroscope and specific force stayed steady. The means of specific force and field
- * start with the run: running means for rest_tau, first-order low-passes with that
- * time constant after. Restarting them with each run keeps the motion before it out:
- * the turn tests see no low-pass settling. Once they have settled, each turn test
- * counts the samples since its reference; a turn beyond rest_turn takes a new
- * reference and restarts the count. The gyroscope mean starts with the run too, and
- * again whenever a turn test fails (its readings held a rotation, not only bias): a
- * running mean for rest_bias_tau, a low-pass after.
+ * The rest detector's decisions for one sample (imu_rest.h; the decisions are all its
+ * own), and the gyroscope mean the bias is learnt from. The detector's low-passed rate
+ * (time constant rest_tau) is too short an average for the bias: at rest the gyroscope's
+ * noise averages down with time, so the mean starts when the detector begins to see the
+ * board still (its calm count is 1) and runs over every sample it stays still, a running
+ * mean for rest_bias_tau, a low-pass with that time constant after.
  */
-static void rest_update(imu_eecf_t *f, const imu_sample_t *s)
+static void rest_step(imu_eecf_t *f, const imu_sample_t *s)
 {
+    int32_t calm;
     int k;
-    if (f->rest_count > 0) {
-        /* The run so far holds rest_count samples, the gyroscope mean gyr_count. */
-        const imu_q30_t alpha = mean_weight(f->rest_count, f->rest_warmup, f->rest_alpha);
-        lowpass3(f->acc_mean, s->acc, alpha, &f->saturations);
-        lowpass3(f->mag_mean, s->mag, alpha, &f->saturations);
+    f->at_rest = imu_rest_update(&f->rest, s->gyr, NULL, s->acc, s->mag, &f->saturations);
+    calm = imu_rest_calm(&f->rest);
+    if (calm == 0) {
+        /* Moving, or gravity or the field turned: the readings held a rotation. */
+        f->still_from_start = 0;
+    } else if (calm == 1) {
+        for (k = 0; k < 3; ++k) {
+            f->gyr_mean[k] = s->gyr[k];
+        }
+        f->gyr_count = 1;
+    } else {
         lowpass3(f->gyr_mean, s->gyr, mean_weight(f->gyr_count, f->bias_warmup, f->bias_alpha), &f->saturations);
         if (f->gyr_count < INT32_MAX) {
             ++f->gyr_count;
         }
-        /* Steady gyroscope and accelerometer: the sample's deviations from the means
-         * (limits below 2^25 in their formats). */
-        if (distance_within(s->gyr, f->gyr_mean, f->settings.rest_gyro, 1, &f->saturations) &&
-            distance_within(s->acc, f->acc_mean, f->settings.rest_acc, 1, &f->saturations)) {
-            /* The counts stop below 2^31 - 1. */
-            if (f->rest_count < INT32_MAX) {
-                ++f->rest_count;
-            }
-            if (f->rest_count == f->rest_warmup) {
-                take_acc_reference(f);
-                take_mag_reference(f);
-            } else if (f->rest_count > f->rest_warmup) {
-                /* Gravity turned: a slow rotation about a horizontal axis, or a steady
-                 * acceleration began. The field turned: a slow rotation, or the field
-                 * changed. */
-                if (!distance_within(f->acc_mean, f->acc_turn_ref, f->acc_turn_limit, 0, &f->saturations)) {
-                    take_acc_reference(f);
-                    restart_gyro_mean(f, s);
-                } else if (f->acc_still_count < INT32_MAX) {
-                    ++f->acc_still_count;
-                }
-                if (!distance_within(f->mag_mean, f->mag_turn_ref, f->mag_turn_limit, 0, &f->saturations)) {
-                    take_mag_reference(f);
-                    restart_gyro_mean(f, s);
-                } else if (f->mag_still_count < INT32_MAX) {
-                    ++f->mag_still_count;
-                }
-            }
-            return;
-        }
     }
-    /* A new run starts at this sample. */
-    for (k = 0; k < 3; ++k) {
-        f->acc_mean[k] = s->acc[k];
-        f->mag_mean[k] = s->mag[k];
-    }
-    restart_gyro_mean(f, s);
-    f->rest_count = 1;
-    f->acc_still_count = 0;
-    f->mag_still_count = 0;
-    if (f->rest_warmup == 1) {
-        take_acc_reference(f);
-        take_mag_reference(f);
-    }
-}
-
-/** 1 when the run is steady and gravity has not turned for rest_time: no linear
- *  acceleration, the attitude may follow the accelerometer and magnetometer closely. */
-static int quiet(const imu_eecf_t *f)
-{
-    return f->rest_count >= f->rest_warmup && f->acc_still_count >= f->rest_confirm;
 }
 
 /** Clamp of a wide value to +-limit. */
@@ -323,17 +216,11 @@ static void window_mean(imu_q16_t window[IMU_EECF_AVG_LEN][3], int n, imu_q16_t 
     }
 }
 
-/** One alignment step: [seed 004] eq. 4-8. The rest tests of this sample ran before. */
+/** One alignment step: [seed 004] eq. 4-8. The rest detector saw this sample before. */
 static void align_step(imu_eecf_t *f, const imu_sample_t *s)
 {
     const int slot = f->sample_count % IMU_EECF_AVG_LEN;
     const int filled = f->sample_count < IMU_EECF_AVG_LEN ? f->sample_count + 1 : IMU_EECF_AVG_LEN;
-    /* Every sample so far passed the rest tests and neither turn test restarted: the
-     * board has been still (the counts reach at most the sample number, < 2^31). */
-    const int still = f->rest_count == f->sample_count + 1 &&
-                      (f->rest_count < f->rest_warmup ||
-                       (f->acc_still_count == f->rest_count - f->rest_warmup &&
-                        f->mag_still_count == f->rest_count - f->rest_warmup));
     imu_q16_t acc[3], mag[3];
     imu_angle_t meas[3];
     int k;
@@ -373,23 +260,19 @@ static void align_step(imu_eecf_t *f, const imu_sample_t *s)
             f->align_euler[k] = imu_angle_add(pred[k], IMU_MUL(f->align_alpha, innovation, 30));
         }
     }
-    if (f->sample_count + 1 == f->align_samples && still) {
-        /* Still through the whole alignment: steady gyroscope and accelerometer, and
-         * gravity and field did not turn (a turntable's steady rate is no bias). The
-         * mean gyroscope reading (of every sample, unless the alignment is longer than
-         * rest_bias_tau) is the bias: the integral starts there. The attitude is then
-         * best measured directly: eq. 4-5 on the run's mean specific force and field
-         * (their mean over the last rest_tau), free of the gyro bias that the
-         * complementary filter integrated. After an alignment under motion the
+    if (f->sample_count + 1 == f->align_samples && f->still_from_start) {
+        /* The rest detector saw the board still through the whole alignment: steady
+         * gyroscope and accelerometer, gravity and field unturned. The attitude is then
+         * best measured directly: eq. 4-5 on the detector's low-passed specific force and
+         * field (time constant rest_tau), free of the gyro bias that the complementary
+         * filter integrated. The bias is the detector's to confirm: at the first rest
+         * (with the defaults the next sample) the integral takes the mean gyroscope
+         * reading of every sample so far. A turntable turning from power-up turns the
+         * field, which tells its rate from a bias. After an alignment under motion the
          * complementary filter's angles stand and the integral starts at zero (the
          * first rest or the PI loop finds the bias). */
-        const imu_wide_t limit = IMU_WMUL(f->settings.bias_limit, IMU_ONE_Q30); /* Q24 -> Q54, <= 2^54 */
-        for (k = 0; k < 3; ++k) {
-            /* Q24 (< 2^31) times 2^30 -> Q54, below 2^61. */
-            f->integral[k] = clamp_wide(-IMU_WMUL(f->gyr_mean[k], IMU_ONE_Q30), limit);
-        }
-        if (imu_tilt_from_acc(f->acc_mean, &f->align_euler[0], &f->align_euler[1])) {
-            f->align_euler[2] = imu_heading_from_mag(f->mag_mean, f->align_euler[0], f->align_euler[1]);
+        if (imu_tilt_from_acc(imu_rest_acc(&f->rest), &f->align_euler[0], &f->align_euler[1])) {
+            f->align_euler[2] = imu_heading_from_mag(imu_rest_field(&f->rest), f->align_euler[0], f->align_euler[1]);
         }
     }
     imu_euler_to_quat(f->align_euler, f->q);
@@ -471,26 +354,33 @@ void imu_eecf_update(imu_eecf_t *f, const imu_sample_t *s)
     imu_q16_t kp, kp_mag;     /* proportional gains of this sample, 1/s, Q16 */
     int k;
 
-    rest_update(f, s);
+    rest_step(f, s);
     if (imu_eecf_aligning(f)) {
         align_step(f, s);
         ++f->sample_count;
         return;
     }
 
-    if (imu_eecf_at_rest(f)) {
-        /* At rest the mean gyroscope reading is the bias: the integral (minus the
-         * bias) follows it with time constant rest_tau. Difference in Q24
-         * (saturated), times alpha (Q30, <= 1) -> Q54 below 2^61; the integral is at
-         * most 2^54 before: no overflow. */
+    if (f->at_rest) {
+        /* At rest the mean gyroscope reading is the bias. Still since initialisation, the
+         * mean of every reading so far is all there is to know of it (a 20 deg/s offset
+         * is learnt at once): the integral (minus the bias) takes it, Q24 (< 2^31) times
+         * 2^30 -> Q54 below 2^61, clamped. After motion the integral (what the PI loop
+         * learnt) follows the mean with time constant rest_tau: difference in Q24
+         * (saturated), times alpha (Q30, <= 1) -> Q54 below 2^61; the integral is at most
+         * 2^54 before: no overflow. */
         for (k = 0; k < 3; ++k) {
-            const imu_rate_t current = IMU_NARROW(IMU_WSHR(f->integral[k], 30)); /* Q54 -> Q24, |.| <= 2^24 */
-            const imu_rate_t diff =
-                IMU_SUB_SAT(IMU_NEG_SAT(f->gyr_mean[k], &f->saturations), current, &f->saturations);
-            f->integral[k] = clamp_wide(f->integral[k] + IMU_WMUL(diff, f->rest_alpha), limit);
+            if (f->still_from_start) {
+                f->integral[k] = clamp_wide(-IMU_WMUL(f->gyr_mean[k], IMU_ONE_Q30), limit);
+            } else {
+                const imu_rate_t current = IMU_NARROW(IMU_WSHR(f->integral[k], 30)); /* Q54 -> Q24, |.| <= 2^24 */
+                const imu_rate_t diff =
+                    IMU_SUB_SAT(IMU_NEG_SAT(f->gyr_mean[k], &f->saturations), current, &f->saturations);
+                f->integral[k] = clamp_wide(f->integral[k] + IMU_WMUL(diff, f->rest_alpha), limit);
+            }
         }
     }
-    if (quiet(f)) {
+    if (imu_rest_quiet(&f->rest)) {
         /* No linear acceleration (steady accelerometer, gravity unturned): the
          * attitude follows the accelerometer and magnetometer with the gains for
          * their noise alone, and |acc| is the gravity the integral's weight uses. A
@@ -498,7 +388,9 @@ void imu_eecf_update(imu_eecf_t *f, const imu_sample_t *s)
          * of this. */
         kp = f->settings.rest_kp;
         kp_mag = f->settings.rest_kp_mag;
-        f->gravity = f->acc_ref_norm;
+        if (imu_rest_gravity(&f->rest) > 0) { /* zero: no specific force at the reference */
+            f->gravity = imu_rest_gravity(&f->rest);
+        }
     } else {
         kp = f->settings.kp;
         kp_mag = f->settings.kp_mag;

@@ -144,7 +144,7 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
         f->acc_earth[k] = 0;
         f->gyr_sum[k] = 0;
     }
-    imu_rest_init(&f->rest, f->period, &f->saturations);
+    imu_rest_init(&f->rest, &imu_rest_default_config, f->period, &f->saturations);
     /* arw^2 / T = arw (Q32) * (sample_rate / 3) (Q16): Q48 wide (below 2^62) -> Q24 (below 2^37),
      * times arw in Q24 (below 2^23) -> Q48, below 2^60. */
     f->rest_var = IMU_WMUL(IMU_WSHR(IMU_WMUL(s->gyro_arw, s->sample_rate) / 3, 24), IMU_SHR(s->gyro_arw, 8));
@@ -836,7 +836,7 @@ static void filter_step(imu_eskf_t *f)
             bias[k] = IMU_SHR(f->gyro_bias[k], 6);
         }
         /* Rest: still, and the specific force is gravity (not free fall). */
-        f->at_rest = imu_rest_update(&f->rest, gyr, bias, acc, &f->saturations) &&
+        f->at_rest = imu_rest_update(&f->rest, gyr, bias, acc, NULL, &f->saturations) &&
                      (f->clipped & (IMU_CLIPPED_GYR | IMU_CLIPPED_ACC)) == 0 && near_gravity(f, acc);
     }
     if ((f->clipped & IMU_CLIPPED_GYR) != 0) {
