@@ -257,6 +257,23 @@ def test_vqf_on_a_broad_trial(broad_dir):
     assert err["total"] < 3.0  # VQF's published accuracy class (1.4 deg here)
 
 
+def test_madgwick_on_a_broad_trial_in_the_dataset_frame(broad_dir):
+    """Madgwick's earth frame is north-west-up: turned into ENU, its error is of its class
+    (about 1.7 deg here); left in its own frame the heading would be a quarter turn off."""
+    pytest.importorskip("ahrs")
+    trial = eval_broad.load_trial(broad_dir / "02_undisturbed_slow_rotation_B.mat")
+    err = eval_broad.broad_errors(eval_broad.run_madgwick(trial), trial.quat_ref, trial.movement)
+    assert err["total"] < 3.0
+
+
+def test_means_table_has_the_nine_state_variant(broad_dir, capsys):
+    argv = ["--data", str(broad_dir), "--filters", "eskf,eskf9", "--arithmetic", "float", "--means"]
+    assert eval_broad.main(argv) == 0
+    rows = {line.split(" | ")[0].strip("| "): line for line in capsys.readouterr().out.splitlines()}
+    assert "ESKF float" in rows and "ESKF9 float" in rows
+    assert rows["ESKF float"] != rows["ESKF9 float"].replace("ESKF9", "ESKF")  # the states change the result
+
+
 # --- eval_rough: the filters against VQF on rough simulated cases ----------------------
 
 eval_rough = _load("eval_rough")

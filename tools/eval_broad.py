@@ -19,7 +19,11 @@ reference implementation by the authors of BROAD, used for comparison only:
 ``VQF(1 / rate).updateBatch(gyr, acc, mag)["quat9D"]`` with its default parameters, on
 the recordings' SI values as stored, not on register counts), and the report says
 whether each selected filter's mean total RMSE beats VQF's. ``vqf`` is not a runtime
-dependency of imulink: ``pip install 'imulink[bench]'`` installs it.
+dependency of imulink: ``pip install 'imulink[bench]'`` installs it. ``--madgwick`` adds
+Madgwick's MARG filter likewise (the ``ahrs`` package's ``Madgwick``, its default gain
+0.041, earth frame north-west-up turned into ENU). The filter ``eskf9`` is the ESKF with
+its accelerometer-bias states (``estimate_acc_bias`` 1). ``--means`` prints one markdown
+table of the mean total, heading and inclination RMSE of every column.
 
 Examples::
 
@@ -29,6 +33,8 @@ Examples::
     .venv/bin/python tools/eval_broad.py --markdown
     .venv/bin/python tools/eval_broad.py --markdown --vqf
     .venv/bin/python tools/eval_broad.py --json --vqf
+    .venv/bin/python tools/eval_broad.py --means --vqf --madgwick --arithmetic fixed \
+        --filters eecf,eskf,eskf9
 """
 from __future__ import annotations
 
@@ -57,6 +63,14 @@ VQF_MISSING = "error: --vqf needs the vqf package (a reference for comparison on
 
 #: Key of the VQF reference in the results of :func:`evaluate`.
 VQF_KEY = ("vqf", "reference")
+#: Exit code and message of --madgwick without the ahrs package.
+EXIT_NO_AHRS = 3
+AHRS_MISSING = ("error: --madgwick needs the ahrs package (a reference for comparison only): "
+                "pip install 'imulink[bench]'")
+#: Key of the Madgwick reference in the results of :func:`evaluate`.
+MADGWICK_KEY = ("madgwick", "reference")
+#: Filters that are a core filter with settings of their own: name -> (core filter, settings).
+VARIANTS = {"eskf9": ("eskf", {"estimate_acc_bias": 1})}
 
 ERROR_KINDS = ("total", "heading", "inclination")
 
@@ -129,20 +143,40 @@ def run_vqf(trial: BroadTrial):
     return out["quat9D"]
 
 
+def import_madgwick():
+    """The ``ahrs.filters.Madgwick`` class; ImportError (with the install hint) without ahrs."""
+    try:
+        from ahrs.filters import Madgwick
+    except ImportError as exc:
+        raise ImportError(AHRS_MISSING) from exc
+    return Madgwick
+
+
+def run_madgwick(trial: BroadTrial):
+    """Madgwick's MARG filter (the ahrs package, default gain) on one trial, w-first,
+    sensor-to-earth ENU: its earth frame is north-west-up, a quarter turn about up from ENU."""
+    from imulink.sim import quat
+
+    Madgwick = import_madgwick()
+    q_nwu = Madgwick(gyr=trial.gyr, acc=trial.acc, mag=trial.mag, frequency=trial.rate_hz).Q
+    return quat.multiply(quat.from_axis_angle([0.0, 0.0, 1.0], np.pi / 2), q_nwu)
+
+
 def _mean_errors(per) -> dict[str, float]:
     per = list(per)
     return {k: float(np.mean([e[k] for e in per])) for k in ERROR_KINDS}
 
 
-def evaluate_vqf(trials, log=None) -> dict:
-    """VQF's errors on every trial: {"trials": {name: errors}, "mean": {...}}."""
+def evaluate_vqf(trials, log=None, run=run_vqf, label="vqf   9D   ") -> dict:
+    """A reference's errors on every trial (VQF's unless `run` says otherwise):
+    {"trials": {name: errors}, "mean": {...}}."""
     out: dict = {"trials": {}}
     for trial in trials:
         t0 = time.perf_counter()
-        err = broad_errors(run_vqf(trial), trial.quat_ref, trial.movement)
+        err = broad_errors(run(trial), trial.quat_ref, trial.movement)
         out["trials"][trial.name] = err
         if log:
-            log(f"vqf   9D    {trial.name:40s} total {err['total']:7.3f} deg ({time.perf_counter() - t0:.2f} s)")
+            log(f"{label} {trial.name:40s} total {err['total']:7.3f} deg ({time.perf_counter() - t0:.2f} s)")
     out["mean"] = _mean_errors(out["trials"].values())
     return out
 
@@ -187,19 +221,26 @@ def run_filter(trial: BroadTrial, filter_name: str, arithmetic: str, settings: d
     from imulink import core
     from imulink.core.counts import BROAD_PROFILE
 
+    if filter_name in VARIANTS:
+        filter_name, own = VARIANTS[filter_name]
+        settings = {**own, **(settings or {})}
     return core.run(filter_name, trial.gyr, trial.acc, trial.mag, rate_hz=trial.rate_hz,
                     arithmetic=arithmetic, profile=BROAD_PROFILE, settings=settings)
 
 
-def evaluate(trials, filters, arithmetics, settings=None, log=None, vqf: bool = False) -> dict:
+def evaluate(trials, filters, arithmetics, settings=None, log=None, vqf: bool = False,
+             madgwick: bool = False) -> dict:
     """Errors of every filter x arithmetic on every trial.
 
     Returns {(filter, arithmetic): {"trials": {name: errors}, "mean": {...}}} and, when
     both arithmetics ran, {(filter, "diff"): {name: max fixed-vs-float deg}}; with
-    `vqf`, also {VQF_KEY: {"trials": ..., "mean": ...}} (ImportError without vqf).
+    `vqf`, also {VQF_KEY: {"trials": ..., "mean": ...}} (ImportError without vqf), with
+    `madgwick` {MADGWICK_KEY: ...} likewise.
     """
     if vqf:
         import_vqf()  # fail before the long part
+    if madgwick:
+        import_madgwick()
     settings = settings or {}
     results: dict = {}
     for f in filters:
@@ -225,7 +266,24 @@ def evaluate(trials, filters, arithmetics, settings=None, log=None, vqf: bool = 
             results[(f, arith)]["mean"] = _mean_errors(results[(f, arith)]["trials"].values())
     if vqf:
         results[VQF_KEY] = evaluate_vqf(trials, log)
+    if madgwick:
+        results[MADGWICK_KEY] = evaluate_vqf(trials, log, run_madgwick, "madgwick   ")
     return results
+
+
+def format_means(results, filters, arithmetics) -> str:
+    """One markdown row per filter x arithmetic and reference: mean total, heading and
+    inclination RMSE over the trials (deg)."""
+    names = {VQF_KEY: "VQF 2.1.2 (reference)", MADGWICK_KEY: "Madgwick, ahrs 0.4.0 (reference)"}
+    keys = [(f, a) for f in filters for a in arithmetics] + [k for k in names if k in results]
+    lines = ["| estimator | total | heading | inclination |", "|---|---|---|---|"]
+    for key in keys:
+        m = results[key]["mean"]
+        label = names.get(key, f"{key[0].upper()} {key[1]}")
+        lines.append(f"| {label} | {m['total']:.3f} | {m['heading']:.3f} | {m['inclination']:.3f} |")
+    lines.append("")
+    lines.append(f"Mean over {len(results[keys[0]]['trials'])} trials of the RMSE (deg) over the movement phase.")
+    return "\n".join(lines)
 
 
 def mean_total_rmse(trials, filter_name, arithmetic="float", settings=None) -> float:
@@ -330,8 +388,9 @@ def main(argv=None) -> int:
                    help="directory with the BROAD .mat files (default: $IMULINK_BROAD_DIR, else "
                         "shared/data/broad beside the repository)")
     p.add_argument("--filters", default=",".join(core.FILTERS),
-                   type=lambda v: csv_choice(v, list(core.FILTERS), "filter"),
-                   help=f"comma-separated filters (default: {','.join(core.FILTERS)})")
+                   type=lambda v: csv_choice(v, [*core.FILTERS, *VARIANTS], "filter"),
+                   help=f"comma-separated filters (default: {','.join(core.FILTERS)}; eskf9: the ESKF with "
+                        "its accelerometer-bias states)")
     p.add_argument("--arithmetic", default="fixed,float",
                    type=lambda v: csv_choice(v, list(core.ARITHMETICS), "arithmetic"),
                    help="comma-separated arithmetics: fixed, float (default: fixed,float)")
@@ -342,6 +401,11 @@ def main(argv=None) -> int:
     p.add_argument("--vqf", action="store_true",
                    help="add VQF (the vqf package, default parameters) as a reference column; "
                         "needs pip install 'imulink[bench]'")
+    p.add_argument("--madgwick", action="store_true",
+                   help="add Madgwick's MARG filter (the ahrs package, default gain) as a reference column; "
+                        "needs pip install 'imulink[bench]'")
+    p.add_argument("--means", action="store_true",
+                   help="print one markdown table of the mean total, heading and inclination RMSE")
     args = p.parse_args(argv)
 
     if args.vqf:
@@ -350,6 +414,12 @@ def main(argv=None) -> int:
         except ImportError:
             print(VQF_MISSING, file=sys.stderr)
             return EXIT_NO_VQF
+    if args.madgwick:
+        try:
+            import_madgwick()
+        except ImportError:
+            print(AHRS_MISSING, file=sys.stderr)
+            return EXIT_NO_AHRS
 
     settings = {}
     if args.settings:
@@ -359,7 +429,7 @@ def main(argv=None) -> int:
             p.error(f"--settings is not valid JSON: {exc}")
         if not isinstance(settings, dict) or not all(isinstance(v, dict) for v in settings.values()):
             p.error('--settings must be an object of objects, e.g. {"eecf": {"kp": 0.5}}')
-        unknown = sorted(set(settings) - set(core.FILTERS))
+        unknown = sorted(set(settings) - {*core.FILTERS, *VARIANTS})
         if unknown:
             p.error(f"--settings names unknown filters {unknown}")
 
@@ -382,7 +452,8 @@ def main(argv=None) -> int:
         clipped = si_to_counts(trial.gyr, trial.acc, trial.mag, BROAD_PROFILE, return_saturation=True)[3]
         log(f"{trial.name}: sensor values clipped by {BROAD_PROFILE.name}: {clipped}")
     try:
-        results = evaluate(trials, args.filters, args.arithmetic, settings, log, vqf=args.vqf)
+        results = evaluate(trials, args.filters, args.arithmetic, settings, log, vqf=args.vqf,
+                           madgwick=args.madgwick)
     except core.SettingsError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2  # a usage error, like argparse's
@@ -391,6 +462,8 @@ def main(argv=None) -> int:
         if args.vqf:
             out["comparison_with_vqf"] = compare_with_vqf(results, args.filters, args.arithmetic)
         print(json.dumps(out, indent=1))
+    elif args.means:
+        print(format_means(results, args.filters, args.arithmetic))
     elif args.markdown:
         print(format_markdown(results, trials, args.filters, args.arithmetic))
     else:
