@@ -141,6 +141,17 @@ def test_bias_steps_are_in_the_readings_and_the_truth():
     np.testing.assert_allclose(res.acc_bias_true[res.t < 12.0], [[0.1, 0.0, 0.0]] * int((res.t < 12.0).sum()))
 
 
+def test_a_gyro_scale_error_reads_the_rate_through_i_plus_m():
+    traj = sim.random_motion(5.0, 100.0, seed=3, max_rate_dps=300.0)
+    error = np.array([[0.02, 0.01, -0.005], [0.0, -0.015, 0.008], [0.003, -0.01, 0.01]])
+    gyro = GyroModel.ideal()
+    gyro.scale_error = error
+    res = sim.simulate(traj, SensorSuite(gyro, AccModel(), MagModel(), saturate=False), seed=1)
+    np.testing.assert_allclose(res.gyr, traj.gyr @ (np.eye(3) + error).T, atol=2e-3)  # 2e-3: a count of the range
+    plain = sim.simulate(traj, SensorSuite(GyroModel.ideal(), AccModel(), MagModel(), saturate=False), seed=1)
+    np.testing.assert_array_equal(plain.acc, res.acc)  # the rest unchanged
+
+
 def test_a_shock_along_a_direction_clips_and_otherwise_leaves_no_velocity():
     traj = sim.static(4.0, 100.0)
     calm = sim.simulate(traj, seed=2)

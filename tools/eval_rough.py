@@ -19,6 +19,9 @@ and +-8 g, HMC5883L at +-1.3 Ga), plus the scenario's condition:
                    0.2 m/s^2 along a random direction.
   gyro-bias-step   handheld with a gyro bias step of 0.5 deg/s (random sign) on a random
                    axis at 150 s.
+  gyro-scale       continuous rotation up to 300 deg/s (1 m/s^2) read by an uncalibrated
+                   gyroscope: scale-factor errors of 1-2 % and cross-axis sensitivities up
+                   to 1 %, random signs (the MPU6050 allows 3 % and 2 %).
   magnet-room      handheld with an extra 25 uT fixed in the room (random direction) for 30 s
                    starting at 90-180 s.
   attached-magnet  handheld with a magnet on the board: a 15 uT hard-iron offset (random body

@@ -26,16 +26,19 @@ placements. Times and lengths of events are given for the default 300 s and scal
    90 % of the run that add up to 0.2 m/s^2 along a random direction (AccModel.bias_steps).
 6. ``gyro-bias-step``: ``handheld`` with a gyro bias step of 0.5 deg/s (random sign) on a
    random axis halfway through (GyroModel.bias_steps): a knock, a mount that shifts.
-7. ``magnet-room``: ``handheld`` with an extra field of 25 uT fixed in the room, in a random
+7. ``gyro-scale``: continuous rotation up to 300 deg/s with 1 m/s^2 of linear acceleration,
+   read by an uncalibrated gyroscope (GyroModel.scale_error): scale-factor errors of 1-2 %
+   and cross-axis sensitivities up to 1 %, random signs (the MPU6050 allows 3 % and 2 %).
+8. ``magnet-room``: ``handheld`` with an extra field of 25 uT fixed in the room, in a random
    direction, for 30 s (a tenth of the run) starting at 30-60 % of the run
    (MagModel.disturbances, with 0.5 s ramps).
-8. ``attached-magnet``: ``handheld`` with a magnet on the board: a hard-iron offset of 15 uT
+9. ``attached-magnet``: ``handheld`` with a magnet on the board: a hard-iron offset of 15 uT
    in a random body direction for the WHOLE run (MagModel has only a constant hard_iron,
    so it cannot be switched on for a while; no filter is told about it).
-9. ``shocks``: ``handheld`` with knocks: a :class:`Shock` every 2-5 s (a Ricker pulse of
+10. ``shocks``: ``handheld`` with knocks: a :class:`Shock` every 2-5 s (a Ricker pulse of
    200 m/s^2, 15 ms main lobe, random body direction), clipped at the accelerometer's
    +-8 g (78 m/s^2).
-10. ``outage``: ``handheld`` with the magnetometer reading zeros (counts 0: no field, which
+11. ``outage``: ``handheld`` with the magnetometer reading zeros (counts 0: no field, which
     the filters and VQF take as "no magnetometer sample") for 60 s (a fifth of the run)
     starting at 30-60 % of the run.
 
@@ -169,6 +172,20 @@ def gyro_bias_step(seed: int, duration_s: float = DURATION_S) -> Case:
     return data, _mask(data)
 
 
+def gyro_scale(seed: int, duration_s: float = DURATION_S) -> Case:
+    """Continuous rotation up to 300 deg/s (1 m/s^2 of linear acceleration) read by an
+    uncalibrated gyroscope: scale-factor errors of 1-2 % and cross-axis sensitivities up
+    to 1 % (random signs; the MPU6050's data sheet allows 3 % and 2 %)."""
+    rng = _events_rng(seed, "gyro-scale")
+    error = rng.uniform(-0.01, 0.01, (3, 3))
+    np.fill_diagonal(error, rng.uniform(0.01, 0.02, 3) * rng.choice([-1.0, 1.0], 3))
+    suite = sim.SensorSuite.default()
+    suite.gyro.scale_error = error
+    traj = sim.random_motion(duration_s, RATE_HZ, seed=seed, max_rate_dps=300.0, accel_std=1.0)
+    data = sim.simulate(traj, suite, seed=seed)
+    return data, _mask(data)
+
+
 def magnet_room(seed: int, duration_s: float = DURATION_S) -> Case:
     """``handheld`` with 25 uT fixed in the room for a tenth of the run."""
     rng = _events_rng(seed, "magnet-room")
@@ -221,6 +238,7 @@ SCENARIOS: dict[str, Callable[..., Case]] = {
     "acc-bias": acc_bias,
     "acc-bias-drift": acc_bias_drift,
     "gyro-bias-step": gyro_bias_step,
+    "gyro-scale": gyro_scale,
     "magnet-room": magnet_room,
     "attached-magnet": attached_magnet,
     "shocks": shocks,

@@ -77,6 +77,9 @@ class GyroModel:
         bias_steps: list of ``(time_s, (3,) rad/s)``: a step added to the bias from that
             time on (a knock, a mount that shifts, a temperature jump: what the
             Gauss-Markov and random-walk terms do not make), in ``gyro_bias_true`` too.
+        scale_error: (3, 3) sensitivity error M: the gyroscope reads ``(I + M) w`` for the
+            true rate w; the diagonal is each axis's scale-factor error, the rest the
+            cross-axis sensitivity (the MPU6050's data sheet: +-3 % and +-2 %). None: none.
     """
 
     arw: np.ndarray | float
@@ -85,6 +88,7 @@ class GyroModel:
     bias: tuple | np.ndarray = (0.0, 0.0, 0.0)
     bias_instability_tau_s: float = 100.0
     bias_steps: tuple | list = ()
+    scale_error: np.ndarray | None = None
 
     @classmethod
     def seed000(cls, bias_dps=(0.0, 0.0, 0.0)) -> "GyroModel":
@@ -496,6 +500,8 @@ def simulate(traj: Trajectory, suite: SensorSuite | None = None, seed: int = 0,
     # Gyroscope: truth + bias + white noise.
     white, bias = suite.gyro.sample(n, dt, rng_gyr)
     gyr = traj.gyr + bias + white
+    if suite.gyro.scale_error is not None:  # only then, so that a run without stays bit for bit what it was
+        gyr = gyr + traj.gyr @ np.asarray(suite.gyro.scale_error, dtype=np.float64).T
     if vib_gyr is not None:
         gyr += vib_gyr
 
