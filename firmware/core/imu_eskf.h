@@ -16,8 +16,8 @@
  * group at the end of a stream is not yet fused.
  *
  * Measurements: gravity (from the specific force low-passed in the estimated earth frame),
- * heading (east share of the unit field, correcting only the vertical attitude and gyro
- * bias components) and, at rest (imu_rest.h), the gyro bias; each is down-weighted
+ * heading (the horizontal field's angle from north, correcting only the vertical attitude
+ * and gyro bias components) and, at rest (imu_rest.h), the gyro bias; each is down-weighted
  * smoothly as its input departs from its model. Clipped sensors skip their update or
  * re-align the attitude. Inputs beyond 1024 m/s^2 or 1024 uT are clamped and count as
  * clipped.
