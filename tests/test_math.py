@@ -644,3 +644,32 @@ def test_deviation_weight_is_the_formula(build):
         assert abs(got - want) < (2.0**-28 if build == "fixed" else 1e-15), (dev, tol, got, want)
         assert sat == 0
         assert impl.deviation_weight(-dev, tol)[0] == got
+
+
+@pytest.mark.parametrize("build", ["fixed", "float"])
+def test_a_new_field_must_outlast_the_trust_of_the_old(build):
+    """imu_field_trust_t, the ESKF's and the nav filter's one rule: a candidate replaces the
+    reference once it has held for at least the minimum and for longer than the reference
+    was trusted; trust stops at the limit; a candidate given up starts again from zero."""
+    lib, ffi = BUILDS[build].lib, BUILDS[build].ffi
+    t = ffi.new("imu_field_trust_t *")
+    lib.imu_field_trust_reset(t)
+
+    def hold(steps):
+        return [lib.imu_field_trust_hold(t, 1, 20) for _ in range(steps)]
+
+    assert hold(20)[-1] == 1 and t.trusted == 20 and t.held == 0  # no trust yet: the minimum
+    for _ in range(50):
+        lib.imu_field_trust_confirm(t, 1, 60)
+    assert t.trusted == 60  # 20 + 50 stops at the limit
+    lib.imu_field_trust_confirm(t, 0, 60)  # a step that does not count (the ESKF: not turning)
+    assert t.trusted == 60
+    assert not any(hold(60)) and t.held == 60  # as long as the trust: not yet
+    assert lib.imu_field_trust_hold(t, 0, 20) == 0  # a step that does not count
+    assert lib.imu_field_trust_hold(t, 1, 20) == 1 and t.trusted == 61  # longer: taken, its trust its hold
+    hold(30)
+    lib.imu_field_trust_drop(t)  # the candidate went: its count restarts
+    assert t.held == 0 and t.trusted == 61
+    hold(5)
+    lib.imu_field_trust_confirm(t, 1, 60)  # the reference held again: the candidate is given up
+    assert t.held == 0 and t.trusted == 61  # above the limit already: no more counted

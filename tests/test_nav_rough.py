@@ -190,3 +190,23 @@ def test_a_field_that_turns_while_driving_is_left_out():
         settled = t >= 60.0
         assert rms(e["heading"][settled]) < 0.5, arithmetic
         assert e["heading"][settled].max() < 1.5, arithmetic
+
+
+def test_a_field_that_stays_turned_is_taken_after_outlasting_the_trust_of_the_old():
+    """The attitude ESKF's rule, shared (imu_field_trust_t): a field turned by 10 deg that
+    stays becomes the field once it has been held out for longer than the field before it
+    held (a minute at most). Turned 40 s into the drive, the old field had held for less
+    than a minute: taken sooner than a minute; turned at 150 s: after a minute. Taken, the
+    heading follows the turned field (10 deg off the truth)."""
+    def heading_off_at(start):
+        traj = nv.car_drive(300.0, RATE, seed=0)
+        suite = nv.datasheet_sensors(RATE)
+        suite.mag.disturbances = [rotated_field(suite.mag, start, 400.0, declination_change_deg=10.0)]
+        result = nav.run(simulated_input(simulate(traj, suite, seed=0), nv.gnss_fixes(traj, nv.GnssModel(), seed=0)),
+                         "fixed")
+        heading = nav.errors(result, traj)["heading"]
+        t = traj.t[result.start:]
+        return t[np.abs(heading) > 5.0][0]
+
+    assert 60.0 < heading_off_at(40.0) < 40.0 + 55.0
+    assert heading_off_at(150.0) > 150.0 + 60.0

@@ -68,14 +68,11 @@ const int imu_eskf_setting_count = (int)(sizeof imu_eskf_setting_descs / sizeof 
 #define MAX_REF_FIELD IMU_QCONST(500.0, 16)
 /** A disturbed field that keeps one norm and dip in the earth frame while the board turns
  *  faster than NEW_FIELD_MIN_RATE (rad/s, Q30: 20 deg/s) is fixed to the earth, not to the
- *  board. It becomes the new reference once it has held for longer than the reference was
- *  trusted (turning, undisturbed), and for at least NEW_FIELD_TIME (s, Q16): a magnet that
- *  stays beside a turning board for a while does not outweigh the field that held before
- *  it, and a field that was taken by mistake is given up as quickly as it was taken. The
- *  trust counts up to TRUST_LIMIT (s, Q16; VQF's longest rejection of a disturbance), so a
- *  lasting new field (the board moved into a vehicle) is taken after a minute of turning. */
-#define NEW_FIELD_TIME IMU_QCONST(20.0, 16)
-#define TRUST_LIMIT IMU_QCONST(60.0, 16)
+ *  board. It becomes the new reference by the rule the nav filter shares (imu_field_trust_t),
+ *  counting only the turning steps: once it has held for longer than the reference was
+ *  trusted (turning, undisturbed) and for at least IMU_FIELD_NEW_TIME; the trust counts up
+ *  to IMU_FIELD_TRUST_LIMIT, so a lasting new field (the board moved into a vehicle) is
+ *  taken after a minute of turning. */
 #define NEW_FIELD_MIN_RATE IMU_QCONST(0.34906585, 30)
 /** Largest specific force and field the filter takes, m/s^2 or uT, Q16 (beyond every range
  *  of the MPU6050 and HMC5883L): larger values come only from scale settings no real
@@ -168,12 +165,11 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
     }
     f->ref.norm = f->ref.dip = 0;
     f->cand.norm = f->cand.dip = 0;
-    f->cand_steps = 0;
+    imu_field_trust_reset(&f->trust);
     f->turning = 0;
-    /* NEW_FIELD_TIME and TRUST_LIMIT * filter rate, as learn_steps. */
-    f->new_field_steps = IMU_MUL_TO_INT(NEW_FIELD_TIME, s->sample_rate, 32) / 3;
-    f->trust_limit_steps = IMU_MUL_TO_INT(TRUST_LIMIT, s->sample_rate, 32) / 3;
-    f->ref_trust_steps = 0;
+    /* IMU_FIELD_NEW_TIME and IMU_FIELD_TRUST_LIMIT * filter rate, as learn_steps. */
+    f->new_field_steps = IMU_MUL_TO_INT(IMU_FIELD_NEW_TIME, s->sample_rate, 32) / 3;
+    f->trust_limit_steps = IMU_MUL_TO_INT(IMU_FIELD_TRUST_LIMIT, s->sample_rate, 32) / 3;
     f->acc_weight = 0;
     f->mag_weight = 0;
     f->cov.n = 0;
@@ -253,9 +249,8 @@ static int acquire_reference(imu_eskf_t *f, const imu_rotation_t *rot, const imu
     }
     set_reference(&f->ref, norm, dip);
     f->steps = 0;
-    f->ref_trust_steps = 0;
     f->cand.norm = 0;
-    f->cand_steps = 0;
+    imu_field_trust_reset(&f->trust);
     return 1;
 }
 
@@ -568,7 +563,7 @@ static void follow_field(imu_eskf_field_t *field, imu_q16_t norm, imu_angle_t di
 
 /**
  * A disturbed field: track it as a candidate reference; it becomes the reference as
- * NEW_FIELD_TIME's comment says. (Aligning the heading to the new field at once, so that
+ * NEW_FIELD_MIN_RATE's comment says. (Aligning the heading to the new field at once, so that
  * its turn is not learnt as gyro bias, was tried: in the 24 h soak the earth's own field,
  * taken back after an hour's accelerations had moved the reference's dip, then turned the
  * heading by up to 19 deg, from one mean of three samples in motion.)
@@ -578,16 +573,13 @@ static void track_candidate(imu_eskf_t *f, imu_q16_t norm, imu_angle_t dip)
     imu_q30_t w_norm;
     if (f->cand.norm > 0 && field_weight(f, norm, dip, &f->cand, &w_norm) >= IMU_QCONST(0.5, 30)) {
         follow_field(&f->cand, norm, dip, IMU_MUL(f->period, LEARN_RATE, 30));
-        f->cand_steps += f->turning;
-        if (f->cand_steps >= f->new_field_steps && f->cand_steps > f->ref_trust_steps) {
+        if (imu_field_trust_hold(&f->trust, f->turning, f->new_field_steps)) {
             f->ref = f->cand;
-            f->ref_trust_steps = f->cand_steps;
             f->cand.norm = 0;
-            f->cand_steps = 0;
         }
     } else if (norm >= MIN_REF_FIELD && norm <= MAX_REF_FIELD) {
         set_reference(&f->cand, norm, dip);
-        f->cand_steps = 0;
+        imu_field_trust_drop(&f->trust);
     }
 }
 
@@ -634,10 +626,7 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_rota
         /* Undisturbed: follow slow changes of the reference (time constant 30 s). */
         follow_field(&f->ref, norm, dip, IMU_MUL(f->period, REF_RATE, 30));
         f->cand.norm = 0;
-        f->cand_steps = 0;
-        if (f->ref_trust_steps < f->trust_limit_steps) {
-            f->ref_trust_steps += f->turning;
-        }
+        imu_field_trust_confirm(&f->trust, f->turning, f->trust_limit_steps);
     } else {
         track_candidate(f, norm, dip);
     }

@@ -30,6 +30,7 @@
 
 #include "imu_common.h"
 #include "imu_cov.h"
+#include "imu_math.h"
 #include "imu_rest.h"
 #include "imu_sensor.h"
 
@@ -92,10 +93,9 @@ typedef struct {
     int32_t padding_ref;          /**< explicit padding: a state has none implicit, so a checkpoint's bytes are all defined (docs/protocol.md) */
     imu_eskf_field_t ref;         /**< reference field; norm 0: none yet */
     imu_eskf_field_t cand;        /**< candidate reference field while disturbed; norm 0: none */
-    int32_t cand_steps;           /**< turning filter steps the candidate has held */
-    int32_t new_field_steps;      /**< filter steps of NEW_FIELD_TIME */
-    int32_t trust_limit_steps;    /**< filter steps of TRUST_LIMIT */
-    int32_t ref_trust_steps;      /**< turning, undisturbed filter steps of the reference (up to trust_limit_steps) */
+    imu_field_trust_t trust;      /**< turning filter steps the reference held and the candidate has held */
+    int32_t new_field_steps;      /**< filter steps of IMU_FIELD_NEW_TIME */
+    int32_t trust_limit_steps;    /**< filter steps of IMU_FIELD_TRUST_LIMIT */
     int turning;                  /**< 1 when the last filter step turned faster than 20 deg/s */
     imu_q30_t acc_alpha;          /**< low-pass weight T / (acc_lowpass + T), Q30 */
     imu_wide_t acc_earth[3];      /**< low-passed specific force in the estimated earth frame, m/s^2, Q46:

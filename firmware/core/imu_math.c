@@ -861,3 +861,33 @@ imu_q30_t imu_field_weight(imu_real_t norm, imu_real_t ref_norm, imu_angle_t dip
                                    sat);
     return IMU_MUL(*w_norm, imu_deviation_weight(IMU_SHR(imu_angle_diff(dip, ref_dip), 5), dip_tolerance, sat), 30);
 }
+
+void imu_field_trust_reset(imu_field_trust_t *t)
+{
+    t->trusted = 0;
+    t->held = 0;
+}
+
+void imu_field_trust_confirm(imu_field_trust_t *t, int32_t steps, int32_t limit)
+{
+    if (t->trusted < limit) {
+        t->trusted += steps;
+    }
+    t->held = 0;
+}
+
+void imu_field_trust_drop(imu_field_trust_t *t)
+{
+    t->held = 0;
+}
+
+int imu_field_trust_hold(imu_field_trust_t *t, int32_t steps, int32_t minimum)
+{
+    t->held += steps;
+    if (t->held < minimum || t->held <= t->trusted) {
+        return 0;
+    }
+    t->trusted = t->held;
+    t->held = 0;
+    return 1;
+}

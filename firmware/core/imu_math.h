@@ -181,4 +181,40 @@ imu_angle_t imu_field_dip(const imu_q30_t earth[3], imu_q30_t *horizontal);
 imu_q30_t imu_field_weight(imu_real_t norm, imu_real_t ref_norm, imu_angle_t dip, imu_angle_t ref_dip,
                            imu_real_t norm_tolerance, imu_real_t dip_tolerance, imu_q30_t *w_norm, uint32_t *sat);
 
+/** The magnetic-disturbance rule's times, s, Q16: a new field replaces the reference once it
+ *  has held for longer than the reference was trusted and for at least IMU_FIELD_NEW_TIME;
+ *  trust counts up to IMU_FIELD_TRUST_LIMIT (VQF's longest rejection of a disturbance). */
+#define IMU_FIELD_NEW_TIME IMU_QCONST(20.0, 16)
+#define IMU_FIELD_TRUST_LIMIT IMU_QCONST(60.0, 16)
+
+/**
+ * @brief The one rule of the attitude ESKF and the nav filter for replacing a magnetic
+ *        reference: a disturbance that stays (a magnet beside the board for half a minute)
+ *        does not outweigh the field that held for minutes before it, and a field taken by
+ *        mistake is given up as quickly as it was taken. Counts are steps of the caller's
+ *        (the ESKF counts only the steps in which the board turns: only then can a field
+ *        fixed to the earth be told from one fixed to the board).
+ */
+typedef struct {
+    int32_t trusted; /**< steps the reference held, up to the caller's limit */
+    int32_t held;    /**< steps the candidate (a new field) has held */
+} imu_field_trust_t;
+
+/** @brief A new reference: no trust yet, no candidate. */
+void imu_field_trust_reset(imu_field_trust_t *t);
+
+/** @brief The reference held for `steps` (0 or 1) more steps: its trust grows (up to `limit`)
+ *         and a candidate is given up. */
+void imu_field_trust_confirm(imu_field_trust_t *t, int32_t steps, int32_t limit);
+
+/** @brief The candidate is dropped (a different one, or the reference back). */
+void imu_field_trust_drop(imu_field_trust_t *t);
+
+/**
+ * @brief The candidate held for `steps` (0 or 1) more steps. Returns 1 when it replaces the
+ *        reference: it has held for at least `minimum` and for longer than the reference
+ *        was trusted; its count then becomes the new reference's trust.
+ */
+int imu_field_trust_hold(imu_field_trust_t *t, int32_t steps, int32_t minimum);
+
 #endif /* IMU_MATH_H */

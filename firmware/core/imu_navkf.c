@@ -80,13 +80,18 @@ static const imu_navkf_tuning_t DEFAULT_TUNING = IMU_NAVKF_DEFAULT_TUNING;
 /** The field's turn against the gyroscope (field_still): the sine of 2 deg (Q29) beyond its
  *  low-pass over 2 s (the weight per covariance interval, 50 ms / 2 s, Q30) turns it out
  *  (some five times the data sheet's noise in a horizontal field of 20 uT); within the sine
- *  of 1 deg of where it was it is back; held out 1200 intervals (60 s) at most. Below
+ *  of 1 deg of where it was it is back; otherwise the turned field becomes the field by the
+ *  rule the attitude ESKF shares (imu_field_trust_t): once it has been held out for longer
+ *  than the field before it held, and for at least FIELD_NEW intervals (IMU_FIELD_NEW_TIME,
+ *  20 s); the trust counts up to FIELD_TRUST_LIMIT intervals (IMU_FIELD_TRUST_LIMIT, 60 s:
+ *  the longest a field is held out, as before the rule was shared). Below
  *  FIELD_MIN_HORIZONTAL (Q30) of horizontal share (near a magnetic pole) the field shows no
  *  heading. */
 #define FIELD_TURN IMU_QCONST(0.0348995, 29)
 #define FIELD_TURN_BACK IMU_QCONST(0.0174524, 29)
 #define FIELD_TURN_WEIGHT IMU_QCONST(0.025, 30)
-#define FIELD_TURN_HOLD 1200
+#define FIELD_NEW 400
+#define FIELD_TRUST_LIMIT 1200
 #define FIELD_MIN_HORIZONTAL IMU_QCONST(0.1, 30)
 /** The dip's reference is the mean of the dips seen in the estimate's frame while the field's
  *  strength is the start's (its weight at least FIELD_DISTURBED): over all of them for the
@@ -463,8 +468,8 @@ static imu_angle_t east_share(imu_q30_t east, imu_q30_t horizontal)
  *  against that sum's low-pass over 2 s. A gyro bias turns it slowly (0.5 deg/s
  *  leaves it 1 deg behind); a field that turns (iron, a magnet; also one that keeps its
  *  strength and dip, which the weight cannot see) turns it at once: beyond FIELD_TURN the
- *  field is left out until it turns back to where it was, or for FIELD_TURN_HOLD at most
- *  (then the field as it is now is the field). */
+ *  field is left out until it turns back to where it was, or until the shared rule takes
+ *  it (FIELD_NEW's comment: then the field as it is now is the field). */
 static int field_still(imu_navkf_t *f, const imu_q30_t earth[3], imu_q30_t horizontal)
 {
     uint32_t ignored = 0; /* sines, within [-1, 1], and sums of them over a minute at most */
@@ -488,6 +493,7 @@ static int field_still(imu_navkf_t *f, const imu_q30_t earth[3], imu_q30_t horiz
         const imu_angle_t summed = IMU_ADD_SAT(f->field_apart, turn, &ignored);
         f->field_apart = IMU_SUB(summed, IMU_MUL(summed, FIELD_TURN_WEIGHT, 30));
         if (f->field_apart <= FIELD_TURN && f->field_apart >= -FIELD_TURN) {
+            imu_field_trust_confirm(&f->field_trust, 1, FIELD_TRUST_LIMIT);
             return 1;
         }
         f->field_turned = 1;
@@ -495,13 +501,14 @@ static int field_still(imu_navkf_t *f, const imu_q30_t earth[3], imu_q30_t horiz
         return 0;
     }
     f->field_away = IMU_ADD_SAT(f->field_away, turn, &ignored);
-    if ((f->field_away <= FIELD_TURN_BACK && f->field_away >= -FIELD_TURN_BACK) || f->field_turned >= FIELD_TURN_HOLD) {
-        f->field_turned = 0;
-        f->field_apart = 0;
-        return 1;
+    if (f->field_away <= FIELD_TURN_BACK && f->field_away >= -FIELD_TURN_BACK) {
+        imu_field_trust_drop(&f->field_trust); /* the field before is back */
+    } else if (!imu_field_trust_hold(&f->field_trust, 1, FIELD_NEW)) {
+        return 0;
     }
-    ++f->field_turned;
-    return 0;
+    f->field_turned = 0;
+    f->field_apart = 0;
+    return 1;
 }
 
 /** The magnetometer's heading: the field has no east component (the magnetic north is the
@@ -805,6 +812,7 @@ imu_status_t imu_navkf_start(imu_navkf_t *f, imu_real_t rate, const imu_q16_t ac
         f->field_apart = f->field_away = f->field_after = 0;
         f->field_north = f->field_up = 0;
         f->field_turned = -1;
+        imu_field_trust_reset(&f->field_trust);
     }
     for (k = 0; k < 3; ++k) {
         f->last_offset[k] = f->last_at[k] = f->last_vel[k] = 0;

@@ -48,6 +48,7 @@
 #ifndef IMU_NAVKF_H
 #define IMU_NAVKF_H
 
+#include "imu_math.h"
 #include "imu_nav.h"
 #include "imu_navcov.h"
 
@@ -144,7 +145,8 @@ typedef struct {
                                      moved by the corrections since */
     imu_real_t field_north;     /**< the field's north over its horizontal component, Q29 (a correction's effect) */
     imu_real_t field_up;        /**< its up over its horizontal component, Q24 */
-    int32_t field_turned;       /**< intervals the field has been left out for turning (0: not; -1: no heading yet) */
+    int32_t field_turned;       /**< 1 while the field is left out for turning (0: not; -1: no heading yet) */
+    imu_field_trust_t field_trust; /**< intervals the field held, and the turned field has been held out */
     int32_t doubting;           /**< samples since the first of the current run of rejected GNSS fixes that agree
                                      with each other; -1: none */
     int32_t reset_steps;        /**< samples of such a run after which position and velocity are reset to the fixes */

@@ -107,6 +107,11 @@ _DECLARATIONS += """
     imu_angle_t imu_heading_from_mag_tilt(const imu_real_t mag[3], imu_q30_t sr, imu_q30_t cr, imu_q30_t sp,
                                           imu_q30_t cp);
     imu_q30_t imu_deviation_weight(imu_real_t deviation, imu_real_t tolerance, uint32_t *sat);
+    typedef struct { int32_t trusted; int32_t held; } imu_field_trust_t;
+    void imu_field_trust_reset(imu_field_trust_t *t);
+    void imu_field_trust_confirm(imu_field_trust_t *t, int32_t steps, int32_t limit);
+    void imu_field_trust_drop(imu_field_trust_t *t);
+    int imu_field_trust_hold(imu_field_trust_t *t, int32_t steps, int32_t minimum);
     void imu_quat_to_euler(const imu_q30_t q[4], imu_angle_t euler[3]);
     typedef struct { imu_q30_t up[3]; imu_q30_t y[3]; imu_q30_t cos_pitch; } imu_euler_axes_t;
     void imu_quat_to_euler_axes(const imu_q30_t q[4], imu_angle_t euler[3], imu_euler_axes_t *axes);
