@@ -714,6 +714,65 @@ def test_truncated_and_corrupt_recordings(tmp_path, capsys):
     assert_one_line_error(err, "cannot read")
 
 
+# ---------------------------------------------------------------------------- many recordings
+
+
+def test_compare_over_a_directory_gives_one_line_each_and_fails_if_any_fails(tmp_path, capsys):
+    """Four files (a clean recording, one with a changed estimate, one damaged, one that is no
+    recording): one line each in the order of the directory, a summary, exit status 1; the
+    rows say what `compare FILE` says of each; serial and parallel runs agree."""
+    runs = tmp_path / "runs"
+    runs.mkdir()
+    _synthetic_recording(runs / "a_clean.imulog", tamper=None)
+    _synthetic_recording(runs / "b_changed.imulog", tamper=42)
+    data = bytearray((runs / "a_clean.imulog").read_bytes())
+    data[len(data) // 3] ^= 0x01
+    (runs / "c_damaged.imulog").write_bytes(bytes(data))
+    (runs / "d_notes.txt").write_text("not a recording\n")
+    code, out, err = run_cli(capsys, "compare", runs, "--jobs", "2")
+    assert code == 1 and "comparing 4 recordings, 2 at a time" in err
+    lines = out.strip().splitlines()
+    assert [line.split()[0] for line in lines[1:5]] == [str(runs / n) for n in
+                                                        ("a_clean.imulog", "b_changed.imulog", "c_damaged.imulog",
+                                                         "d_notes.txt")]
+    assert [line.split()[6] for line in lines[1:5]] == ["yes", "NO", "NO", "ERROR"]
+    assert "estimate #42" in lines[2] and lines[-1] == "4 recordings: 1 bit-exact, 2 not, 1 could not be read"
+    code, out, _ = run_cli(capsys, "compare", runs, "--jobs", "1", "--json")
+    report = json.loads(out)
+    assert code == 1 and (report["count"], report["passed"], report["failed"], report["errors"]) == (4, 1, 2, 1)
+    for row in report["recordings"][:3]:  # each as the single-file report says
+        _, single, _ = run_cli(capsys, "compare", row["recording"], "--json")
+        assert json.loads(single)["verdict"]["line"] == row["verdict"]
+    assert batch_rows_equal(runs)
+
+
+def batch_rows_equal(directory) -> bool:
+    """The same rows in one process and in two workers."""
+    from imulink.hil import batch
+
+    paths = batch.expand([str(directory)])
+    return batch.compare_many(paths, jobs=1) == batch.compare_many(paths, jobs=2)
+
+
+def test_compare_takes_files_and_quoted_globs_and_passes_when_all_pass(tmp_path, capsys):
+    for name in ("one.imulog", "two.imulog"):
+        _synthetic_recording(tmp_path / name, tamper=None)
+    code, out, _ = run_cli(capsys, "compare", str(tmp_path / "*.imulog"))
+    assert code == 0 and out.strip().splitlines()[-1] == "2 recordings: 2 bit-exact, 0 not, 0 could not be read"
+    code, out, _ = run_cli(capsys, "compare", tmp_path / "one.imulog", tmp_path / "two.imulog", tmp_path / "one.imulog")
+    assert code == 0 and "2 recordings" in out  # each file once
+
+
+@pytest.mark.parametrize("argument, words", [("missing.imulog", "no such file or directory"),
+                                             ("*.nothing", "no recording matches"), ("empty", "holds no file")])
+def test_compare_of_nothing_is_one_line_and_exit_2(tmp_path, capsys, argument, words):
+    (tmp_path / "empty").mkdir()
+    _synthetic_recording(tmp_path / "one.imulog", tamper=None)
+    code, _, err = run_cli(capsys, "compare", tmp_path / "one.imulog", str(tmp_path / argument))
+    assert code == 2
+    assert_one_line_error(err, words)
+
+
 # ---------------------------------------------------------------------------- inject
 
 

@@ -174,6 +174,7 @@ probability = in_range(float, 0.0, 1.0, "must be a probability from 0 to 1")
 seed_number = in_range(int, 0, 2**32 - 1, "must be an integer from 0 to 4294967295")
 tcp_port = in_range(int, 0, 65535, "must be a TCP port from 0 to 65535 (0: any free port)")
 baud_rate = in_range(int, 1, 100_000_000, "must be a baud rate from 1 to 100000000")
+worker_count = in_range(int, 1, 256, "must be a number of workers from 1 to 256")
 u32_number = in_range(lambda text: int(text, 0), 0, 0xFFFFFFFF,
                  "must be an integer from 0 to 0xFFFFFFFF (e.g. 0x1234ABCD)")
 
