@@ -19,7 +19,7 @@ from imulink.io.recording import load_recording
 
 @one_line_errors
 def run(args) -> int:
-    single = len(args.files) == 1 and os.path.isfile(args.files[0])
+    single = len(args.files) == 1 and not os.path.isdir(args.files[0]) and not batch.is_pattern(args.files[0])
     if single:
         recording = load_recording(args.files[0])
         comparison = hil.compare(recording, min_verified=args.min_verified)

@@ -25,6 +25,11 @@ class BatchError(ImulinkError):
     """An argument that names no recording."""
 
 
+def is_pattern(argument: str) -> bool:
+    """A glob pattern: it has a pattern character and is not itself an existing path."""
+    return any(c in argument for c in GLOB_CHARACTERS) and not os.path.exists(argument)
+
+
 def expand(arguments: Sequence[str]) -> list[Path]:
     """The recordings the arguments name, in their order: a file as it is, a directory's
     regular files (sorted, not its subdirectories), a glob pattern's matches (sorted);
@@ -32,7 +37,7 @@ def expand(arguments: Sequence[str]) -> list[Path]:
     that names no file."""
     found: dict[Path, None] = {}
     for argument in arguments:
-        if any(c in argument for c in GLOB_CHARACTERS) and not os.path.exists(argument):
+        if is_pattern(argument):
             matches = [Path(m) for m in sorted(glob.glob(argument)) if Path(m).is_file()]
             if not matches:
                 raise BatchError(f"no recording matches {argument!r}")
