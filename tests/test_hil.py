@@ -763,6 +763,35 @@ def test_compare_takes_files_and_quoted_globs_and_passes_when_all_pass(tmp_path,
     assert code == 0 and "2 recordings" in out  # each file once
 
 
+def _compare_and_log(path, min_verified):
+    """A stand-in for batch.compare_one: notes the file in `path`.log, then takes a while."""
+    with open(f"{path}.log", "a") as log:
+        log.write("compared\n")
+    time.sleep(0.05)
+    return {"passed": True}
+
+
+def test_an_interrupted_batch_stops_its_workers(tmp_path, monkeypatch):
+    """Ctrl-C (here: at the third result) leaves the queued recordings uncompared (only
+    those the workers had begun finish) and no worker behind."""
+    import multiprocessing
+
+    from imulink.hil import batch
+
+    monkeypatch.setattr(batch, "compare_one", _compare_and_log)  # the workers are forked: they see it
+    paths = [tmp_path / "one.imulog"] * 40
+
+    def interrupt_at_third(done, row):
+        if done == 3:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        batch.compare_many(paths, jobs=2, progress=interrupt_at_third)
+    assert multiprocessing.active_children() == []
+    compared = (tmp_path / "one.imulog.log").read_text().count("compared")
+    assert 3 <= compared < 10  # of 40
+
+
 @pytest.mark.parametrize("argument, words", [("missing.imulog", "no such file or directory"),
                                              ("*.nothing", "no recording matches"), ("empty", "holds no file")])
 def test_compare_of_nothing_is_one_line_and_exit_2(tmp_path, capsys, argument, words):

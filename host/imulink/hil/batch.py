@@ -85,12 +85,17 @@ def compare_many(paths: Sequence[Path], min_verified: float = MIN_VERIFIED, jobs
             if progress:
                 progress(k + 1, rows[k])  # type: ignore[arg-type]
         return rows  # type: ignore[return-value]
-    with ProcessPoolExecutor(max_workers=min(jobs, len(paths))) as pool:
+    pool = ProcessPoolExecutor(max_workers=min(jobs, len(paths)))
+    try:
         futures = {pool.submit(compare_one, path, min_verified): k for k, path in enumerate(paths)}
         for done, future in enumerate(as_completed(futures), 1):
             rows[futures[future]] = future.result()
             if progress:
                 progress(done, rows[futures[future]])  # type: ignore[arg-type]
+    finally:
+        # on Ctrl-C or an error, the files not yet begun are not compared: only the workers'
+        # current recordings finish (waiting for every queued one would take as long as the run)
+        pool.shutdown(wait=True, cancel_futures=True)
     return rows  # type: ignore[return-value]
 
 
