@@ -215,7 +215,7 @@ def _fake_broad_dir(tmp_path, seconds=20.0, rate=100.0):
 
 def test_vqf_missing_is_a_one_line_error(tmp_path, monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "vqf", None)  # import vqf -> ImportError
-    assert eval_broad.main(["--vqf", "--data", str(tmp_path)]) == eval_broad.EXIT_NO_VQF
+    assert eval_broad.main(["--vqf", "--data", str(tmp_path)]) == eval_broad.EXIT_NO_REFERENCE
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1
     assert "pip install 'imulink[bench]'" in err

@@ -39,6 +39,7 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import sys
 import time
@@ -55,16 +56,15 @@ DEFAULT_DATA = broad_data_dir()
 
 #: Exit code for a missing data directory, missing trial files or a file that is not a trial.
 EXIT_NO_DATA = 2
-#: Exit code for --vqf without the vqf package.
-EXIT_NO_VQF = 3
+#: Exit code for --vqf or --madgwick without its reference package.
+EXIT_NO_REFERENCE = 3
 
 #: The one-line message of --vqf without the vqf package.
 VQF_MISSING = "error: --vqf needs the vqf package (a reference for comparison only): pip install 'imulink[bench]'"
 
 #: Key of the VQF reference in the results of :func:`evaluate`.
 VQF_KEY = ("vqf", "reference")
-#: Exit code and message of --madgwick without the ahrs package.
-EXIT_NO_AHRS = 3
+#: The one-line message of --madgwick without the ahrs package.
 AHRS_MISSING = ("error: --madgwick needs the ahrs package (a reference for comparison only): "
                 "pip install 'imulink[bench]'")
 #: Key of the Madgwick reference in the results of :func:`evaluate`.
@@ -125,13 +125,18 @@ def fixed_float_difference(q_fixed, q_float) -> float:
     return float(np.rad2deg(np.max(angle_between(q_fixed, q_float))))
 
 
-def import_vqf():
-    """The ``vqf.VQF`` class; ImportError (with the install hint) when vqf is not installed."""
+def _reference_class(module: str, name: str, missing: str):
+    """`name` from the reference package `module`; ImportError with the install hint
+    `missing` when the package is not installed."""
     try:
-        from vqf import VQF
+        return getattr(importlib.import_module(module), name)
     except ImportError as exc:
-        raise ImportError(VQF_MISSING) from exc
-    return VQF
+        raise ImportError(missing) from exc
+
+
+def import_vqf():
+    """The ``vqf.VQF`` class (ImportError with the install hint without vqf)."""
+    return _reference_class("vqf", "VQF", VQF_MISSING)
 
 
 def run_vqf(trial: BroadTrial):
@@ -144,12 +149,8 @@ def run_vqf(trial: BroadTrial):
 
 
 def import_madgwick():
-    """The ``ahrs.filters.Madgwick`` class; ImportError (with the install hint) without ahrs."""
-    try:
-        from ahrs.filters import Madgwick
-    except ImportError as exc:
-        raise ImportError(AHRS_MISSING) from exc
-    return Madgwick
+    """The ``ahrs.filters.Madgwick`` class (ImportError with the install hint without ahrs)."""
+    return _reference_class("ahrs.filters", "Madgwick", AHRS_MISSING)
 
 
 def run_madgwick(trial: BroadTrial):
@@ -167,9 +168,9 @@ def _mean_errors(per) -> dict[str, float]:
     return {k: float(np.mean([e[k] for e in per])) for k in ERROR_KINDS}
 
 
-def evaluate_vqf(trials, log=None, run=run_vqf, label="vqf   9D   ") -> dict:
-    """A reference's errors on every trial (VQF's unless `run` says otherwise):
-    {"trials": {name: errors}, "mean": {...}}."""
+def evaluate_reference(trials, run, label: str, log=None) -> dict:
+    """The errors of a reference (`run(trial)`: its quaternions) on every trial:
+    {"trials": {name: errors}, "mean": {...}}; `label` heads its progress lines."""
     out: dict = {"trials": {}}
     for trial in trials:
         t0 = time.perf_counter()
@@ -265,9 +266,9 @@ def evaluate(trials, filters, arithmetics, settings=None, log=None, vqf: bool = 
         for arith in arithmetics:
             results[(f, arith)]["mean"] = _mean_errors(results[(f, arith)]["trials"].values())
     if vqf:
-        results[VQF_KEY] = evaluate_vqf(trials, log)
+        results[VQF_KEY] = evaluate_reference(trials, run_vqf, "vqf   9D   ", log)
     if madgwick:
-        results[MADGWICK_KEY] = evaluate_vqf(trials, log, run_madgwick, "madgwick   ")
+        results[MADGWICK_KEY] = evaluate_reference(trials, run_madgwick, "madgwick   ", log)
     return results
 
 
@@ -408,18 +409,13 @@ def main(argv=None) -> int:
                    help="print one markdown table of the mean total, heading and inclination RMSE")
     args = p.parse_args(argv)
 
-    if args.vqf:
+    for wanted, import_reference in ((args.vqf, import_vqf), (args.madgwick, import_madgwick)):
         try:
-            import_vqf()
-        except ImportError:
-            print(VQF_MISSING, file=sys.stderr)
-            return EXIT_NO_VQF
-    if args.madgwick:
-        try:
-            import_madgwick()
-        except ImportError:
-            print(AHRS_MISSING, file=sys.stderr)
-            return EXIT_NO_AHRS
+            if wanted:
+                import_reference()
+        except ImportError as exc:
+            print(exc, file=sys.stderr)
+            return EXIT_NO_REFERENCE
 
     settings = {}
     if args.settings:
