@@ -757,9 +757,10 @@ def batch_rows_equal(directory) -> bool:
 def test_compare_takes_files_and_quoted_globs_and_passes_when_all_pass(tmp_path, capsys):
     for name in ("one.imulog", "two.imulog"):
         _synthetic_recording(tmp_path / name, tamper=None)
-    code, out, _ = run_cli(capsys, "compare", str(tmp_path / "*.imulog"))
+    code, out, _ = run_cli(capsys, "compare", str(tmp_path / "*.imulog"), "--jobs", "1")
     assert code == 0 and out.strip().splitlines()[-1] == "2 recordings: 2 bit-exact, 0 not, 0 could not be read"
-    code, out, _ = run_cli(capsys, "compare", tmp_path / "one.imulog", tmp_path / "two.imulog", tmp_path / "one.imulog")
+    code, out, _ = run_cli(capsys, "compare", tmp_path / "one.imulog", tmp_path / "two.imulog", tmp_path / "one.imulog",
+                           "--jobs", "1")
     assert code == 0 and "2 recordings" in out  # each file once
 
 

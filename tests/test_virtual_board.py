@@ -38,8 +38,8 @@ from imulink.io.firmware_image import load_image
 from imulink.io.recording import load_recording
 
 #: The virtual board takes a core: these tests never run beside the real-time lossy-link tests
-#: (tests/test_resend.py), whose 1 kHz boards lose samples when the machine is starved
-#: (`make test` runs with --dist loadgroup).
+#: (tests/test_resend.py), whose 1 kHz boards lose samples when the machine is starved, nor
+#: beside the QEMU board (tests/test_qemu.py) (`make test` runs with --dist loadgroup).
 pytestmark = pytest.mark.xdist_group("takes-a-core")
 
 ROOT = Path(__file__).resolve().parents[1]
