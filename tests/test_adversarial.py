@@ -562,11 +562,27 @@ def test_a_killed_recorder_leaves_a_readable_file_and_the_next_one_names_the_lef
     assert "lost sample" not in result.stdout
 
 
+def _wait_for_client(address: str, timeout_s: float = TIME_LIMIT_S) -> None:
+    """Until a TCP connection to the board's port is established (Linux: /proc/net/tcp*):
+    on a loaded machine the CLI may take seconds to start and connect."""
+    port = int(address.rsplit(":", 1)[1])
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        for table in ("/proc/net/tcp", "/proc/net/tcp6"):
+            with open(table) as f:
+                rows = [line.split() for line in f.readlines()[1:]]
+            if any(int(row[1].rsplit(":", 1)[1], 16) == port and row[3] == "01" for row in rows):
+                return
+        time.sleep(0.1)
+    raise AssertionError(f"nothing connected to {address} within {timeout_s} s")
+
+
 def test_inject_into_a_board_that_disconnects(tmp_path):
     board = EmulatedBoard(front="tcp", duration_s=600.0).start()
     process = subprocess.Popen(CLI + ["inject", board.address, "--input", "sim:rests:600:100"],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(3.0)
+    _wait_for_client(board.address)
+    time.sleep(1.0)  # mid-run: the injection has begun
     board.stop()
     result = _finish(process)
     assert_error(result, "disconnected")
