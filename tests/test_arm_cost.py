@@ -44,7 +44,8 @@ SAMPLES = 300
 
 #: Ceilings on the mean instructions of imu_filter_update_raw over the 300 samples of
 #: this test (arm-none-eabi-gcc 12.2.1 (12.2.rel1), -O2, unicorn 2.1.4): measured at
-#: EECF 2 897, KF1D 3 447, ESKF 6 states 6 110 and ESKF 9 states 8 914, plus about 10 %.
+#: EECF 2 897, KF1D 3 447, ESKF 6 states 6 361 and ESKF 9 states 9 266, plus about 10 %;
+#: the 9-state one's is issue 41's 10 000 per sample with get (about 500) instead.
 #: Instruction counts from an emulator are deterministic for a given
 #: compiler: a failure means the code got slower (or the compiler changed; then measure
 #: again with `tools/bench_arm.py --samples 300` and update these, with the reason in the
@@ -52,8 +53,8 @@ SAMPLES = 300
 UPDATE_CEILING = {
     "eecf": 3_190,
     "kf1d": 3_790,
-    "eskf": 6_720,
-    "eskf9": 9_810,
+    "eskf": 7_000,
+    "eskf9": 9_500,
 }
 
 #: Ceilings on the mean instructions of imu_filter_get over the same samples: measured

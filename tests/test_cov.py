@@ -50,10 +50,19 @@ def gain_matrix(n, gain_map):
 
 
 class Predict(NamedTuple):
-    """A time update: Phi is the identity but for rows[t] at row moving[t]; process noise qvar."""
+    """A time update: Phi is the identity but for rows[t] at row moving[t]; process noise
+    diag(qvar) plus a 3 x 3 block of states 0-2 (zero: none)."""
     moving: list
     rows: np.ndarray
     qvar: list
+    block: np.ndarray = np.zeros((3, 3))
+
+
+def process_noise(step: Predict) -> np.ndarray:
+    """The n x n Q of a time update."""
+    q = np.diag(np.asarray(step.qvar, dtype=float))
+    q[:3, :3] += step.block
+    return q
 
 
 def run_driver(exe, variances, updates):
@@ -64,7 +73,7 @@ def run_driver(exe, variances, updates):
     for step in updates:
         if isinstance(step, Predict):
             words += ["p", str(len(step.moving)), *(str(i) for i in step.moving)]
-            words += [repr(float(v)) for v in (*np.ravel(step.rows), *step.qvar)]
+            words += [repr(float(v)) for v in (*np.ravel(step.rows), *step.qvar, *step.block[np.triu_indices(3)])]
             continue
         h, r, z, w, g = step
         words += ["u"] + [repr(float(v)) for v in (*h, r, z, w)] + ["0" if g is None else "1"]
@@ -99,7 +108,7 @@ def reference(p0, updates):
         if isinstance(step, Predict):
             phi = np.eye(len(p0))
             phi[step.moving] = step.rows
-            p = phi @ p @ phi.T + np.diag(step.qvar)
+            p = phi @ p @ phi.T + process_noise(step)
             out.append((np.zeros(len(p0)), p))
             continue
         h, r, z, w, g = step
@@ -203,6 +212,35 @@ def test_time_update_moves_only_the_given_rows(drivers, seed):
              (rng.uniform(-1, 1, 9), 2e-4, 0.01, 1.0, None),
              Predict([1, 4], dense, list(rng.uniform(1e-9, 1e-6, 9)))]
     expected = reference(p0, steps)
+    for build, tol in (("float", 1e-12), ("fixed", 2e-6)):
+        got = run_driver(drivers[build], p0, steps)
+        assert len(got) == len(steps)
+        for (dx, p), (dx_ref, p_ref) in zip(got, expected):
+            assert_covariance_close(p, p_ref, tol * 10, build)
+            np.testing.assert_array_equal(p, p.T)
+
+
+@pytest.mark.parametrize("seed", [8, 9])
+def test_time_update_with_a_full_attitude_block_of_process_noise(drivers, seed):
+    """The ESKF's tilt-only scale noise: a block of states 0-2 of the form
+    (I - v v^T) D (I - v v^T), rank two, with covariances of its own, added to a rotation of
+    correlated attitude errors; the same steps without it differ."""
+    rng = np.random.default_rng(seed)
+    p0 = [1e-2, 2e-2, 5e-3, 1e-6, 3e-7, 2e-6]
+    attitude = np.zeros((3, 6))
+    attitude[:, 0:3] = _rotation(rng, 0.3).T
+    attitude[:, 3:6] = -0.03 * np.eye(3)
+    up = rng.standard_normal(3)
+    up /= np.linalg.norm(up)
+    tilt = (np.eye(3) - np.outer(up, up)) * rng.uniform(1e-4, 3e-3, 3)
+    qvar = [1e-8] * 3 + [1e-10] * 3
+    steps = [(rng.uniform(-1, 1, 6), 2e-4, 0.01, 1.0, None),
+             Predict([0, 1, 2], attitude, qvar, tilt @ tilt.T),
+             (rng.uniform(-1, 1, 6) * [1, 1, 1, 0, 0, 0], 1e-6, 0.002, 1.0, None),
+             Predict([0, 1, 2], attitude, qvar, tilt @ tilt.T)]
+    expected = reference(p0, steps)
+    without = reference(p0, [s._replace(block=np.zeros((3, 3))) if isinstance(s, Predict) else s for s in steps])
+    assert np.max(np.abs(expected[-1][1] - without[-1][1])) > 1e-7  # the block matters here
     for build, tol in (("float", 1e-12), ("fixed", 2e-6)):
         got = run_driver(drivers[build], p0, steps)
         assert len(got) == len(steps)

@@ -116,11 +116,14 @@ def _rotation_matrix(rotvec):
     return np.eye(3) + np.sin(angle) * kx + (1 - np.cos(angle)) * kx @ kx
 
 
-def test_covariance_follows_the_exact_transition_in_fast_rotation():
+@pytest.mark.parametrize("scale_std", [0.0, 0.003, 0.05])
+def test_covariance_follows_the_exact_transition_in_fast_rotation(scale_std):
     """Item 7: Phi = I - [phi x] is first order; at 30 rad/s and a 33 Hz filter rate
     (0.9 rad per step) it inflates the attitude variance step after step. Without any
     aiding (no specific force, no field after the first sample) the filter's covariance
-    must be the exact propagation P <- Phi P Phi^T + Q with Phi_att = R(phi)^T."""
+    must be the exact propagation P <- Phi P Phi^T + Q with Phi_att = R(phi)^T, and Q's
+    attitude block the gyro noise plus the scale errors' tilt share
+    (I - v v^T) diag(sigma phi)^2 (I - v v^T), v the estimate's vertical in the sensor frame."""
     rate = 100.0
     traj = sim.turntable(10, rate, rate_dps=np.rad2deg(30.0), initial=Q.from_zyx(0.5, 0.3, 0.0), settle_s=0.0)
     data = sim.simulate(traj, sim.SensorSuite.default(), seed=16)
@@ -128,19 +131,23 @@ def test_covariance_follows_the_exact_transition_in_fast_rotation():
     data.mag_counts[1:] = 0
     defaults = core.default_settings("eskf")
     period = 3.0 / rate
-    p = np.diag([defaults["init_attitude_std"] ** 2] * 3 + [defaults["init_gyro_bias_std"] ** 2] * 3)
-    q = np.diag([defaults["gyro_arw"] ** 2 * period] * 3 + [defaults["gyro_rrw"] ** 2 * period] * 3)
-    gyr = data.gyr_counts[1:].astype(float) * core.DEFAULT_PROFILE.gyro_scale / rate
-    for t1, t2, t3 in gyr[: len(gyr) // 3 * 3].reshape(-1, 3, 3):
-        phi = t1 + t2 + t3 + 33 / 80 * np.cross(t1, t3) + 57 / 80 * np.cross(t2, t3 - t1)
-        transition = np.eye(6)
-        transition[:3, :3] = _rotation_matrix(phi).T
-        transition[:3, 3:] = -period * np.eye(3)
-        p = transition @ p @ transition.T + q
     for arithmetic in ("fixed", "float"):
-        f = core.Filter("eskf", rate, arithmetic)
-        f.run_counts(data.gyr_counts, data.acc_counts, data.mag_counts)
-        np.testing.assert_allclose(f.covariance(), p, rtol=1e-3, atol=1e-9)
+        f = core.Filter("eskf", rate, arithmetic, settings={"gyro_scale_std": scale_std})
+        out = f.run_counts(data.gyr_counts, data.acc_counts, data.mag_counts)
+        p = np.diag([defaults["init_attitude_std"] ** 2] * 3 + [defaults["init_gyro_bias_std"] ** 2] * 3)
+        q = np.diag([defaults["gyro_arw"] ** 2 * period] * 3 + [defaults["gyro_rrw"] ** 2 * period] * 3)
+        gyr = data.gyr_counts[1:].astype(float) * core.DEFAULT_PROFILE.gyro_scale / rate
+        for step, (t1, t2, t3) in enumerate(gyr[: len(gyr) // 3 * 3].reshape(-1, 3, 3)):
+            phi = t1 + t2 + t3 + 33 / 80 * np.cross(t1, t3) + 57 / 80 * np.cross(t2, t3 - t1)
+            transition = np.eye(6)
+            transition[:3, :3] = _rotation_matrix(phi).T
+            transition[:3, 3:] = -period * np.eye(3)
+            up = Q.to_rotmat(out.quat[3 * step + 3])[2]  # the sensor frame's vertical after the step
+            tilt = (np.eye(3) - np.outer(up, up)) * (scale_std * phi)
+            scale_noise = np.zeros((6, 6))
+            scale_noise[:3, :3] = tilt @ tilt.T
+            p = transition @ p @ transition.T + q + scale_noise
+        np.testing.assert_allclose(f.covariance(), p, rtol=1e-3, atol=1e-9, err_msg=arithmetic)
 
 
 def test_attitude_variance_is_capped_below_one_radian_squared():

@@ -47,7 +47,8 @@ drawn from N(0, init_attitude_std^2).
 the filter's model: an isotropic gyroscope (the settings' mean ARW and RRW on every
 axis) without the Gauss-Markov bias instability the filter does not model, and
 ``acc_noise`` / ``mag_noise`` set to the noise of the three-sample average the
-filter actually fuses (per-sample noise / sqrt(3)).
+filter actually fuses (per-sample noise / sqrt(3)), and ``gyro_scale_std`` 0: the
+simulated gyroscope has no scale error.
 
 Examples::
 
@@ -181,6 +182,7 @@ class Config:
         if self.matched:
             s["acc_noise"] = s["acc_noise"] / np.sqrt(3.0)
             s["mag_noise"] = s["mag_noise"] / np.sqrt(3.0)
+            s["gyro_scale_std"] = 0.0
         if self.acc_bias:
             s["estimate_acc_bias"] = 1.0
         s.update(self.settings or {})

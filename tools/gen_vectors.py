@@ -77,17 +77,22 @@ SETTINGS = {
         "standard": {"gyro_arw": 8.7e-4, "gyro_rrw": 4.2e-5, "acc_bias_rw": 1e-4, "acc_noise": 0.05,
                      "mag_noise": 0.3, "init_attitude_std": 0.1, "init_gyro_bias_std": 0.01,
                      "init_acc_bias_std": 0.1, "estimate_acc_bias": 1.0, "gravity": 9.80665,
-                     "acc_tolerance": 0.05, "mag_tolerance": 0.05, "dip_tolerance": 0.05, "acc_lowpass": 0.0},
-        # As tuned on real data: 6 states, earth-frame low-pass, loose gravity gate.
+                     "acc_tolerance": 0.05, "mag_tolerance": 0.05, "dip_tolerance": 0.05, "acc_lowpass": 0.0,
+                     "gyro_scale_std": 0.0},
+        # As tuned on real data: 6 states, earth-frame low-pass, loose gravity gate, a calibrated
+        # gyroscope's scale uncertainty.
         "tuned": {"gyro_arw": 8.7e-4, "gyro_rrw": 1e-5, "acc_bias_rw": 1e-4, "acc_noise": 0.3,
                   "mag_noise": 1.0, "init_attitude_std": 0.1, "init_gyro_bias_std": 0.01,
                   "init_acc_bias_std": 0.1, "estimate_acc_bias": 0.0, "gravity": 9.80665,
-                  "acc_tolerance": 0.25, "mag_tolerance": 0.05, "dip_tolerance": 0.02, "acc_lowpass": 3.0},
-        # Very uncertain start and loose gates: large gains, the wide-range corners of P.
+                  "acc_tolerance": 0.25, "mag_tolerance": 0.05, "dip_tolerance": 0.02, "acc_lowpass": 3.0,
+                  "gyro_scale_std": 0.003},
+        # Very uncertain start and loose gates: large gains, the wide-range corners of P (and the
+        # largest scale noise).
         "no_align": {"gyro_arw": 0.01, "gyro_rrw": 1e-3, "acc_bias_rw": 0.01, "acc_noise": 0.005,
                      "mag_noise": 0.01, "init_attitude_std": 3.0, "init_gyro_bias_std": 0.5,
                      "init_acc_bias_std": 5.0, "estimate_acc_bias": 1.0, "gravity": 9.81,
-                     "acc_tolerance": 1.0, "mag_tolerance": 1.0, "dip_tolerance": 1.5, "acc_lowpass": 0.5},
+                     "acc_tolerance": 1.0, "mag_tolerance": 1.0, "dip_tolerance": 1.5, "acc_lowpass": 0.5,
+                     "gyro_scale_std": 0.05},
     },
 }
 

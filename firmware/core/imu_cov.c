@@ -683,8 +683,12 @@ static inline imu_wide_t transformed(const imu_cov_t *c, const transition_t *tr,
     return wide_ldexp(sum, tr->m_exp[si] - tr->f[sj], sat);
 }
 
+/** Index in a block's upper triangle (imu_cov_predict) of its element (i, j), i, j < 3. */
+static const unsigned char BLOCK_CELL[3][3] = {{0, 1, 2}, {1, 3, 4}, {2, 4, 5}};
+
 void imu_cov_predict(imu_cov_t *c, imu_q30_t rows[][IMU_COV_MAX], const int moving[], int count,
-                     const imu_wide_t qvar[], int qvar_q, uint32_t *sat)
+                     const imu_wide_t qvar[], const imu_wide_t block[IMU_COV_BLOCK_CELLS], int qvar_q,
+                     uint32_t *sat)
 {
     /* Scaled coordinates: phi~_ik = phi_ik 2^(e_k - e_i); P~' = phi~ P~ phi~^T. Each moving
      * row of phi~ is a row of int32 multipliers with an exponent of its own (scaled_row), so
@@ -733,13 +737,21 @@ void imu_cov_predict(imu_cov_t *c, imu_q30_t rows[][IMU_COV_MAX], const int movi
     }
     for (i = 0; i < n; ++i) {
         d[i] = transformed(c, &tr, i, i, sat) + variance_mantissa(c, i, qvar[i], qvar_q, sat); /* below 2^62 each */
+        if (block != NULL && i < 3) {
+            d[i] += variance_mantissa(c, i, block[BLOCK_CELL[i][i]], qvar_q, sat);
+        }
     }
     diagonal_shifts(c, d, shift, sat);
     for (i = 0; i < n; ++i) {
         k = cell(i, i);
         c->p[k] = rescaled(d[i], 2 * shift[i], sat);
         for (j = i + 1, ++k; j < n; ++j, ++k) {
-            if (!(tr.slot[i] < 0 && tr.slot[j] < 0 && shift[i] + shift[j] == 0)) { /* else P~_ij stays */
+            if (block != NULL && j < 3) {
+                /* B_ij in the old exponents: at most the geometric mean of B_ii and B_jj in
+                 * theirs, and the sum at most that of two diagonals of d */
+                const imu_wide_t b = wide_ldexp(block[BLOCK_CELL[i][j]], 30 - qvar_q - c->e[i] - c->e[j], sat);
+                c->p[k] = rescaled(transformed(c, &tr, i, j, sat) + b, shift[i] + shift[j], sat);
+            } else if (!(tr.slot[i] < 0 && tr.slot[j] < 0 && shift[i] + shift[j] == 0)) { /* else P~_ij stays */
                 c->p[k] = rescaled(transformed(c, &tr, i, j, sat), shift[i] + shift[j], sat);
             }
         }

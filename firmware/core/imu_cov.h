@@ -22,6 +22,8 @@
 #ifndef IMU_COV_H
 #define IMU_COV_H
 
+#include <stddef.h> /* NULL (imu_cov_predict) */
+
 #include "imu_arith.h"
 
 /** Largest number of states. */
@@ -45,16 +47,23 @@ void imu_cov_init(imu_cov_t *c, int n, const imu_wide_t var[], int var_q, uint32
  *  transition is mostly identity, and each moving row costs stack. */
 #define IMU_COV_MOVING_MAX 3
 
+/** Elements of a symmetric 3 x 3 block (imu_cov_predict): (0,0) (0,1) (0,2) (1,1) (1,2) (2,2). */
+#define IMU_COV_BLOCK_CELLS 6
+
 /**
- * @brief Time update P <- Phi P Phi^T + diag(qvar), for a Phi that is the identity but for
- *        `count` rows (at most IMU_COV_MOVING_MAX).
+ * @brief Time update P <- Phi P Phi^T + diag(qvar) + B, for a Phi that is the identity but
+ *        for `count` rows (at most IMU_COV_MOVING_MAX) and a process noise B of states 0-2
+ *        that need not be diagonal.
  * @param rows   those rows of Phi in real units, Q30 (|phi_ij| < 2), row stride IMU_COV_MAX:
  *               rows[t] is row moving[t]; used as scratch: their contents are undefined afterwards.
  * @param moving the states whose rows are given, each once
  * @param qvar   n process-noise variances, wide values in Q`qvar_q` (fixed build).
+ * @param block  B's upper triangle (IMU_COV_BLOCK_CELLS, row by row) in the same format, B
+ *               positive semi-definite; NULL: none.
  */
 void imu_cov_predict(imu_cov_t *c, imu_q30_t rows[][IMU_COV_MAX], const int moving[], int count,
-                     const imu_wide_t qvar[], int qvar_q, uint32_t *sat);
+                     const imu_wide_t qvar[], const imu_wide_t block[IMU_COV_BLOCK_CELLS], int qvar_q,
+                     uint32_t *sat);
 
 /** What a gain map lets a measurement correct in a block of three states. */
 typedef enum {

@@ -30,6 +30,7 @@ const imu_eskf_settings_t imu_eskf_default_settings = {
     IMU_QCONST(0.05, 30),     /* mag_tolerance, fraction of the reference field */
     IMU_QCONST(0.02, 30),     /* dip_tolerance, rad */
     IMU_QCONST(3.0, 16),      /* acc_lowpass, s */
+    IMU_QCONST(0.003, 30),    /* gyro_scale_std, fraction (a calibrated gyroscope's residual) */
 };
 
 /* Each field with its Q format, unit and accepted range [lo, hi] in the unit. */
@@ -51,6 +52,7 @@ const imu_setting_desc_t imu_eskf_setting_descs[] = {
     DESC(mag_tolerance, 30, "1", 1e-3, 1.0),
     DESC(dip_tolerance, 30, "rad", 1e-3, 1.5),
     DESC(acc_lowpass, 16, "s", 0.0, 60.0),
+    DESC(gyro_scale_std, 30, "1", 0.0, 0.05),
 };
 #undef DESC
 const int imu_eskf_setting_count = (int)(sizeof imu_eskf_setting_descs / sizeof imu_eskf_setting_descs[0]);
@@ -344,19 +346,57 @@ static void limit_to_one_radian(imu_q30_t v[3])
 }
 
 /**
+ * The tilt share of the gyroscope's scale and misalignment errors over a step that turned
+ * by `phi` (rad, Q30, in the error state's frame): a scale error s_k of axis k turns the
+ * estimate by s_k phi_k about that axis, variance (sigma phi_k)^2, sigma = gyro_scale_std.
+ * Only its tilt part u_k = (I - v v^T) sigma phi_k e_k enters, v the vertical in the sensor
+ * frame: gravity corrects the tilt within seconds, and a faster tilt loop while the board
+ * turns is what these errors ask for; a heading share would let every magnetic disturbance
+ * in while the board turns (docs/filters.md). block: sum_k u_k u_k^T, Q64 rad^2
+ * (imu_cov_predict's upper triangle).
+ */
+static void scale_noise(const imu_eskf_t *f, const imu_wide_t phi[3], imu_wide_t block[IMU_COV_BLOCK_CELLS])
+{
+    imu_q30_t v[3];
+    imu_real_t tilt[3][3]; /* column k: u_k, rad, Q32 */
+    int a, b, k, cell = 0;
+    imu_quat_matrix_row(f->q, 2, v); /* up, in the sensor frame */
+    for (k = 0; k < 3; ++k) {
+        /* sigma Q30 * phi Q30 >> 28 -> Q32: at most 0.05 * 5.3 rad, within int32 */
+        const imu_real_t turned = (imu_real_t)IMU_WSHR(IMU_WMUL(f->settings.gyro_scale_std, phi[k]), 28);
+        for (a = 0; a < 3; ++a) {
+            const imu_q30_t projector = IMU_SUB(a == k ? IMU_ONE_Q30 : 0, IMU_MUL(v[a], v[k], 30)); /* |.| <= 1 */
+            tilt[a][k] = IMU_MUL(projector, turned, 30);
+        }
+    }
+    for (a = 0; a < 3; ++a) {
+        for (b = a; b < 3; ++b) {
+            /* three products of Q32 values below 0.27 rad: below 2^62 */
+            block[cell++] = IMU_WMUL(tilt[a][0], tilt[b][0]) + IMU_WMUL(tilt[a][1], tilt[b][1]) +
+                            IMU_WMUL(tilt[a][2], tilt[b][2]);
+        }
+    }
+}
+
+/**
  * Covariance time update over one filter period whose frame turned by dq (the last
  * correction and the step's rotation): Phi_att,att = R(dq)^T (the exact transition of
  * the attitude error; the first-order
  * I - [phi x] lets the variance grow without bound in fast rotation), Phi_att,bias = -T I.
- * The attitude variances are then kept below 1 rad^2.
+ * The process noise adds the gyroscope scale errors' tilt share of the step's gyro rotation
+ * `phi` (scale_noise). The attitude variances are then kept below 1 rad^2.
  */
-static void predict_covariance(imu_eskf_t *f, const imu_q30_t dq[4])
+static void predict_covariance(imu_eskf_t *f, const imu_q30_t dq[4], const imu_wide_t phi[3])
 {
     static const int attitude_rows[3] = {ATT, ATT + 1, ATT + 2}; /* the biases' rows are the identity's */
     imu_q30_t m[3][IMU_COV_MAX];
     imu_q30_t row[3];
+    imu_wide_t block[IMU_COV_BLOCK_CELLS];
     const int n = imu_eskf_state_count(f);
     int i, j;
+    if (f->settings.gyro_scale_std != 0) {
+        scale_noise(f, phi, block);
+    }
     for (i = 0; i < 3; ++i) {
         for (j = 0; j < n; ++j) {
             m[i][j] = 0;
@@ -369,7 +409,8 @@ static void predict_covariance(imu_eskf_t *f, const imu_q30_t dq[4])
         }
         m[i][GYRO_BIAS + i] = -f->period;
     }
-    imu_cov_predict(&f->cov, m, attitude_rows, 3, f->process_var, 64, &f->saturations);
+    imu_cov_predict(&f->cov, m, attitude_rows, 3, f->process_var, f->settings.gyro_scale_std != 0 ? block : NULL,
+                    64, &f->saturations);
     for (i = 0; i < 3; ++i) {
         imu_cov_cap_unit_variance(&f->cov, ATT + i);
     }
@@ -810,7 +851,7 @@ static void filter_step(imu_eskf_t *f)
          * they carry no heading information: without a magnetometer the filter becomes
          * overconfident in heading. The first-order reset I - [dtheta/2 x] halves that.) */
         imu_quat_mul(f->injected, dq, turn);
-        predict_covariance(f, turn);
+        predict_covariance(f, turn, phi);
         f->turning = longer_than(phi, IMU_MUL(NEW_FIELD_MIN_RATE, f->period, 30));
     }
     {

@@ -51,6 +51,7 @@ typedef struct {
     imu_real_t mag_tolerance;      /**< field norm deviation scale, fraction of the reference, Q30, [1e-3, 1] */
     imu_real_t dip_tolerance;      /**< field dip deviation scale, rad, Q30, [1e-3, 1.5] */
     imu_real_t acc_lowpass;        /**< time constant of the earth-frame specific-force low-pass, s, Q16, [0, 60] */
+    imu_real_t gyro_scale_std;     /**< gyro scale-factor and misalignment uncertainty, fraction of the rotation, Q30, [0, 0.05] */
 } imu_eskf_settings_t;
 
 extern const imu_eskf_settings_t imu_eskf_default_settings;
@@ -71,6 +72,7 @@ typedef struct {
     imu_q30_t dt;                 /**< sensor period, s, Q30 */
     imu_q30_t period;             /**< filter period T = 3 dt, s, Q30 */
     imu_q30_t inv_gravity;        /**< 1 / gravity, 1/(m/s^2), Q30 */
+    uint32_t saturations;         /**< saturation events since initialisation */
     imu_wide_t process_var[9];    /**< per-step process noise, Q64: rad^2, (rad/s)^2, g^2 */
     int initialised;              /**< 0 until the first sample set the attitude */
     int in_group;                 /**< gyro increments buffered in the current group, 0..2 */
@@ -105,8 +107,6 @@ typedef struct {
     imu_q30_t acc_weight;         /**< weight of the last gravity update, Q30 */
     imu_q30_t mag_weight;         /**< weight of the last heading update, Q30 */
     imu_cov_t cov;                /**< error-state covariance */
-    uint32_t saturations;         /**< saturation events since initialisation */
-    uint32_t padding;             /**< explicit padding: a state has none implicit, so a checkpoint's bytes are all defined (docs/protocol.md) */
 } imu_eskf_t;
 
 /** @brief Initialise with the default settings. */

@@ -32,7 +32,7 @@ typedef struct {
 
 void imu_navcov_init(imu_navcov_t *c, int n, const imu_wide_t var[], int var_q, uint32_t *sat);
 void imu_navcov_predict(imu_navcov_t *c, imu_q30_t rows[][IMU_NAVCOV_MAX], const int moving[], int count,
-                        const imu_wide_t qvar[], int qvar_q, uint32_t *sat);
+                        const imu_wide_t qvar[], const imu_wide_t block[6], int qvar_q, uint32_t *sat);
 int imu_navcov_update(imu_navcov_t *c, const imu_q30_t h[], imu_wide_t r, int r_q, imu_q30_t z, imu_q30_t w,
                       const imu_navcov_map_t *gain_map, imu_q30_t dx[], uint32_t *sat);
 void imu_navcov_reset_state(imu_navcov_t *c, int i, imu_wide_t var, int var_q, uint32_t *sat);

@@ -240,7 +240,7 @@ static void covariance_step(imu_navkf_t *f)
             rows[i][ACC_BIAS + j] = -IMU_MUL(rm[i][j], t2, 30);
         }
     }
-    imu_navcov_predict(&f->cov, rows, POSITION_ROWS, 3, qvar, 60, sat);
+    imu_navcov_predict(&f->cov, rows, POSITION_ROWS, 3, qvar, NULL, 60, sat);
 
     clear_rows(rows);
     minus_cross_columns(dvu, r0, rows, ATT);
@@ -250,7 +250,7 @@ static void covariance_step(imu_navkf_t *f)
             rows[i][ACC_BIAS + j] = -IMU_MUL(rm[i][j], t64, 30);
         }
     }
-    imu_navcov_predict(&f->cov, rows, VELOCITY_ROWS, 3, qvar, 60, sat);
+    imu_navcov_predict(&f->cov, rows, VELOCITY_ROWS, 3, qvar, NULL, 60, sat);
 
     clear_rows(rows);
     for (i = 0; i < 3; ++i) {
@@ -266,7 +266,7 @@ static void covariance_step(imu_navkf_t *f)
         qvar[ACC_BIAS + i] = IMU_WSHR(IMU_WMUL(f->noise_acc_bias, t), 24);
     }
     qvar[BARO_BIAS] = IMU_WSHR(IMU_WMUL(NOISE_BARO_BIAS, t), 24);
-    imu_navcov_predict(&f->cov, rows, ATTITUDE_ROWS, 3, qvar, 60, sat);
+    imu_navcov_predict(&f->cov, rows, ATTITUDE_ROWS, 3, qvar, NULL, 60, sat);
     for (i = 0; i < 3; ++i) {
         imu_navcov_cap_unit_variance(&f->cov, ATT + i); /* an attitude error beyond a radian means nothing */
     }

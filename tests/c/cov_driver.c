@@ -3,8 +3,9 @@
  *   u h[n] r z w has_map [block[(n + 2) / 3] v[3]]
  * a measurement update (a gain map: each block of three states 0 none, 1 all, 2 along the
  * unit vector v), or
- *   p count moving[count] rows[count][n] qvar[n]
- * a time update whose transition is the identity but for the given rows,
+ *   p count moving[count] rows[count][n] qvar[n] block[6]
+ * a time update whose transition is the identity but for the given rows (process noise
+ * diag(qvar) plus a block of states 0-2, its upper triangle row by row; all zero: none),
  * (real values) and prints after each step "dx" (zero for a time update) and the n x n
  * covariance as reals. Built twice, with -DIMU_FIXED and -DIMU_FLOAT; with -DNAVCOV, for
  * the navigation filter's 15-state instance (imu_navcov.c) instead of imu_cov.c. */
@@ -90,7 +91,8 @@ int main(void)
         }
         if (step[0] == 'p') {
             imu_q30_t rows[IMU_COV_MOVING_MAX][IMU_COV_MAX];
-            int moving[IMU_COV_MOVING_MAX], count, t;
+            imu_wide_t block[6]; /* (0,0) (0,1) (0,2) (1,1) (1,2) (2,2) */
+            int moving[IMU_COV_MOVING_MAX], count, t, any_block = 0;
             if (scanf("%d", &count) != 1 || count < 0 || count > IMU_COV_MOVING_MAX) {
                 return 2;
             }
@@ -113,7 +115,14 @@ int main(void)
                 }
                 var[i] = TO_WIDE(v);
             }
-            imu_cov_predict(&cov, rows, moving, count, var, 60, &sat);
+            for (i = 0; i < 6; ++i) {
+                if (scanf("%lf", &v) != 1) {
+                    return 2;
+                }
+                block[i] = TO_WIDE(v);
+                any_block = any_block || v != 0.0;
+            }
+            imu_cov_predict(&cov, rows, moving, count, var, any_block ? block : NULL, 60, &sat);
             print_step(&cov, n, dx);
             continue;
         }
