@@ -66,6 +66,14 @@ def test_when_the_commander_leaves_the_oldest_listener_commands(board):
             second.connect(timeout=0.5, attempts=1)
 
 
+def _wait_until_recording(path, timeout_s: float = 30.0) -> None:
+    """Until the recording at `path` holds some frames (about 20 samples' bytes)."""
+    deadline = time.monotonic() + timeout_s
+    while not (path.exists() and path.stat().st_size > 4000):
+        assert time.monotonic() < deadline, f"{path} did not grow within {timeout_s} s"
+        time.sleep(0.05)
+
+
 def test_one_commander_and_two_readers_a_listening_recorder_verifies_after_a_restart(board, tmp_path):
     """A script commands; `record --listen` and a raw listener read. The recording starts
     mid-run (unverifiable), and the filter run the commander starts after it is verified
@@ -79,7 +87,8 @@ def test_one_commander_and_two_readers_a_listening_recorder_verifies_after_a_res
         recorder.start()
         with Link(board.address) as reader:
             reader.listen()
-            time.sleep(1.0)
+            _wait_until_recording(path)  # on a loaded machine the recorder may take seconds to join
+            time.sleep(0.5)
             commander.command("SELECT_FILTER", filter_id=protocol.FILTER_IDS["ESKF"])  # a new run from sample 0
             seen = _samples(reader, 1.5)
         recorder.join(timeout=30)
