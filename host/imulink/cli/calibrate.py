@@ -10,10 +10,12 @@ from imulink import hil
 from imulink.analysis import calibration as cal
 from imulink.board.link import DEFAULT_BAUD, Link
 from imulink.cli.common import (
+    PORT_HELP,
     UsageError,
     baud_rate,
     late_progress,
     one_line_errors,
+    place_arguments,
     positive_float,
     profile_list,
     profile_named,
@@ -173,8 +175,8 @@ def add_parser(sub) -> None:
         p = kinds.add_parser(kind, help=summary, description=f"{summary[0].upper()}{summary[1:]}. {inputs_help}"
                              + (f" {live_help}" if kind == "mag" else ""))
         p.add_argument("input", metavar="INPUT" if kind != "mag" else "INPUT|PORT",
-                       help="a recording, a replay CSV or a BROAD .mat" + (", or a board's PORT" if kind == "mag"
-                                                                           else ""))
+                       help="a recording, a replay CSV or a BROAD .mat" + (f", or the board: {PORT_HELP}"
+                                                                           if kind == "mag" else ""))
         p.add_argument("--output", "-o", default="calibration.json",
                        help="calibration file to write or update (default: calibration.json)")
         p.add_argument("--profile", type=profile_named, default=None,
@@ -194,6 +196,8 @@ def add_parser(sub) -> None:
                                 f"(default: {DEFAULT_MAX_DURATION_S:g})")
             p.add_argument("--baud", type=baud_rate, default=DEFAULT_BAUD,
                            help=f"with a PORT: line rate of a real serial port (default: {DEFAULT_BAUD})")
+            place_arguments(p)
+            p.set_defaults(place_attribute="input")
         p.set_defaults(func=run, misalignment=False, allow_gaps=False, apply=False)
     p = kinds.add_parser(
         "apply", help="give a board the calibration of a file",
@@ -202,9 +206,10 @@ def add_parser(sub) -> None:
                     "keeps it until a RESET or a power cycle; `imulink record` stores it in the recording, so "
                     "replay and compare reproduce the board bit for bit. --identity takes it away.")
     p.add_argument("file", metavar="FILE", nargs="?", help="calibration file (imulink calibrate ... -o FILE)")
-    p.add_argument("port", metavar="PORT", help="serial device or pyserial URL of the board")
+    p.add_argument("port", metavar="PORT", help=PORT_HELP)
     p.add_argument("--identity", action="store_true", help="give the board the identity calibration instead of FILE")
     p.add_argument("--baud", type=baud_rate, default=DEFAULT_BAUD,
                    help=f"line rate of a real serial port (default: {DEFAULT_BAUD}; ignored by sockets and ptys)")
+    place_arguments(p)
     p.set_defaults(func=run_apply)
 

@@ -3,13 +3,14 @@ and the arguments several commands take."""
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import signal
 import sys
 import time
 
 from imulink import core, hil
-from imulink.board import emulator
+from imulink.board import emulator, lab
 from imulink.board.emulator import NAV_SCENARIO
 from imulink.board.link import DEFAULT_BAUD
 from imulink.board.proxy import FaultConfig
@@ -49,7 +50,8 @@ def one_line_errors(func):
     def run(args) -> int:
         signal.signal(signal.SIGTERM, interrupt)  # `kill` stops a command as cleanly as Ctrl-C
         try:
-            return func(args)
+            with held_port(args):
+                return func(args)
         except (ImulinkError, OSError) as exc:
             print(f"imulink: error: {exc}", file=sys.stderr)
             return EXIT_ERROR
@@ -63,6 +65,28 @@ def one_line_errors(func):
 
 def interrupt(signum, frame):
     raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def held_port(args):
+    """A command's PORT that is a labgrid place (lg://PLACE[/NAME]): the place is acquired
+    for the whole command, `args.port` becomes its serial port's URL, and the place is
+    released when the command ends, however it ends (imulink.board.lab.held_place). Any
+    other PORT is left as it is."""
+    attribute = getattr(args, "place_attribute", "port")  # calibrate mag: its INPUT may be a PORT
+    address = getattr(args, attribute, None)
+    if not lab.is_place(address):
+        yield
+        return
+    with lab.held_place(address, getattr(args, "coordinator", None), wait_s=getattr(args, "place_wait", 0.0)) \
+            as place:
+        print(f"imulink: place {place.name} acquired from {place.coordinator}: {place.resource} at {place.url}",
+              file=sys.stderr)
+        setattr(args, attribute, place.url)
+        try:
+            yield
+        finally:
+            setattr(args, attribute, address)
 
 
 def json_value(value):
@@ -218,11 +242,27 @@ def settings_argument(p, what: str):
                         f"--settings FILTER --write FILE` writes it): {what}")
 
 
+#: What a PORT argument may be, for the commands' help.
+PORT_HELP = ("serial device (/dev/ttyACM0, COM3), pyserial URL (socket://HOST:PORT, rfc2217://HOST:PORT, loop://) "
+             "or labgrid place (lg://PLACE[/RESOURCE], acquired for the command: docs/farm.md)")
+
+
+def place_arguments(p):
+    """--coordinator and --place-wait: where a PORT lg://PLACE is looked up, how long to wait for it."""
+    group = p.add_argument_group("labgrid places (a PORT lg://PLACE; needs imulink[lab])")
+    group.add_argument("--coordinator", metavar="HOST:PORT",
+                       help=f"the labgrid coordinator (default: $LG_COORDINATOR, else {lab.DEFAULT_COORDINATOR}); it "
+                            f"must answer within {lab.TIMEOUT_S:g} s")
+    group.add_argument("--place-wait", type=non_negative_float, default=0.0, metavar="S",
+                       help="wait up to S seconds for a place another job holds (default: 0, refuse at once with who "
+                            "holds it)")
+
+
 def port_arguments(p):
-    p.add_argument("port", metavar="PORT", help="serial device (/dev/ttyACM0, COM3) or pyserial URL "
-                                                 "(socket://HOST:PORT, rfc2217://HOST:PORT, loop://)")
+    p.add_argument("port", metavar="PORT", help=PORT_HELP)
     p.add_argument("--baud", type=baud_rate, default=DEFAULT_BAUD,
                    help=f"line rate of a real serial port (default: {DEFAULT_BAUD}; ignored by sockets and ptys)")
+    place_arguments(p)
 
 
 def simulation_arguments(p, duration: float):

@@ -9,7 +9,7 @@ from imulink.board import flash
 from imulink.board.flash import FlashError, swd
 from imulink.board.flash.swd import available_methods
 from imulink.board.link import DEFAULT_BAUD
-from imulink.cli.common import baud_rate, one_line_errors, u32_number
+from imulink.cli.common import baud_rate, one_line_errors, place_arguments, u32_number
 from imulink.io.firmware_image import ImageError, load_image
 from imulink.progress import Bars
 
@@ -117,7 +117,8 @@ def add_parser(sub) -> None:
                     "Without PORT, --dry-run checks the image alone.")
     p.add_argument("image", metavar="IMAGE", help="firmware image: .elf, .hex or .bin")
     p.add_argument("port", metavar="PORT", nargs="?",
-                   help="serial port of the UART bootloader, or swd / pyocd / openocd")
+                   help="serial port of the UART bootloader (a device, a pyserial URL or a labgrid place "
+                        "lg://PLACE[/RESOURCE]: its serial port), or swd / pyocd / openocd")
     p.add_argument("--method", choices=("uart", "pyocd", "openocd"), help="how to flash (default: from PORT)")
     p.add_argument("--address", type=u32_number, help="load address of a raw .bin image (e.g. 0x08000000)")
     p.add_argument("--enter", choices=("manual", "command", "dtr-rts"), default="manual",
@@ -140,5 +141,6 @@ def add_parser(sub) -> None:
                    help="flash an image without identification, for another board, or of another schema")
     p.add_argument("--unprotect", action="store_true",
                    help="clear readout protection if it is on: the chip ERASES ITS WHOLE FLASH first")
+    place_arguments(p)
     p.set_defaults(func=run)
 

@@ -6,9 +6,11 @@ import sys
 from imulink.board.link import DEFAULT_BAUD
 from imulink.cli.common import (
     EXIT_ERROR,
+    PORT_HELP,
     UsageError,
     baud_rate,
     one_line_errors,
+    place_arguments,
     positive_float,
     profile_list,
     profile_named,
@@ -60,9 +62,10 @@ def add_parser(sub) -> None:
                     "settings, stream, record and reset controls. A lost port is reopened when it comes back. "
                     "Needs the monitor extra: pip install 'imulink[monitor]'. docs/monitor.md describes it.")
     p.add_argument("port", metavar="PORT|FILE", nargs="?",
-                   help="serial device or pyserial URL of a board, or a recording to replay")
+                   help=f"a recording to replay, or the board: {PORT_HELP}")
     p.add_argument("--baud", type=baud_rate, default=DEFAULT_BAUD,
                    help=f"line rate of a real serial port (default: {DEFAULT_BAUD})")
+    place_arguments(p)
     p.add_argument("--profile", type=profile_named, default=None,
                    help=f"refuse a board that states another sensor profile than this one (default: whatever "
                         f"the board states; profiles: {profile_list()})")

@@ -4,11 +4,13 @@ from __future__ import annotations
 from imulink import core, hil, protocol
 from imulink.board.link import DEFAULT_BAUD, Link
 from imulink.cli.common import (
+    PORT_HELP,
     UsageError,
     assignments_of,
     baud_rate,
     json_argument,
     one_line_errors,
+    place_arguments,
     print_json,
     text_columns,
 )
@@ -81,13 +83,14 @@ def add_parser(sub) -> None:
                     "--save writes what the board then runs with to a settings file (record, inject, emulate and "
                     "core.run take it with --settings FILE). A value the board refuses ends the command with its "
                     "reason; the settings set before it stay.")
-    p.add_argument("port", metavar="PORT", help="serial device or pyserial URL of the board")
+    p.add_argument("port", metavar="PORT", help=PORT_HELP)
     p.add_argument("assignments", metavar="NAME=VALUE", nargs="*", help="settings to set, in SI units")
     p.add_argument("--filter", choices=list(core.BOARD_FILTERS), help="make this filter active first")
     p.add_argument("--load", metavar="FILE", help="give the board the settings of FILE (and make its filter active)")
     p.add_argument("--save", metavar="FILE", help="write the board's settings to FILE (a settings file)")
     p.add_argument("--baud", type=baud_rate, default=DEFAULT_BAUD,
                    help=f"line rate of a real serial port (default: {DEFAULT_BAUD}; ignored by sockets and ptys)")
+    place_arguments(p)
     json_argument(p, "the filter and its settings")
     p.set_defaults(func=run)
 

@@ -1,0 +1,372 @@
+"""Boards of a labgrid farm: `lg://PLACE` as a board address.
+
+A lab shares its boards through labgrid (the optional extra ``imulink[lab]``): exporters
+publish each board's serial port (a USB serial adapter behind ser2net, or any network
+serial port) to a coordinator, and a *place* names one board's resources. A job acquires
+the place, which locks it against every other client of the coordinator, uses the board
+and releases it. This module is the only one that speaks to labgrid:
+
+    with held_place("lg://imu-3") as place:     # acquired here, released on leaving (errors, Ctrl-C too)
+        Link(place.url)                         # socket://HOST:PORT or rfc2217://HOST:PORT
+
+- ``lg://PLACE`` takes the place's one serial port; ``lg://PLACE/NAME`` the one whose
+  resource name (or its match's rename) is NAME, when the place has several.
+- The coordinator is the one labgrid's own tools use: the ``coordinator`` argument, else
+  ``$LG_COORDINATOR``, else labgrid's default 127.0.0.1:20408.
+- A place that another job holds is never shared: acquisition is refused at once with who
+  holds it (LabBusy), or after ``wait_s`` seconds of waiting for it.
+- Every failure is a :class:`LabError` in one line: labgrid missing (the extra to install),
+  a coordinator that does not answer within ``timeout_s``, an unknown place, a place
+  without a serial port, an exporter that is gone.
+"""
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import fnmatch
+import io
+import logging
+import os
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+from imulink.errors import ImulinkError
+
+#: The scheme of a place address.
+SCHEME = "lg://"
+#: labgrid's coordinator port when an address names none (labgrid-coordinator's default).
+DEFAULT_COORDINATOR = "127.0.0.1:20408"
+#: Seconds a coordinator has to answer before it counts as down.
+TIMEOUT_S = 10.0
+#: Seconds between two looks at a busy place while waiting for it.
+_WAIT_POLL_S = 0.25
+#: The resource class a place's serial port has on the coordinator: what an exporter
+#: publishes for a RawSerialPort or USBSerialPort (through ser2net) and for a network
+#: serial port given as such.
+SERIAL_CLASS = "NetworkSerialPort"
+
+
+class LabError(ImulinkError):
+    """A place that cannot be used, said in one line."""
+
+
+class LabBusy(LabError):
+    """The place is acquired by another job."""
+
+
+@dataclass
+class PlaceInfo:
+    """A place as the coordinator lists it."""
+
+    name: str
+    tags: dict[str, str] = field(default_factory=dict)
+    #: who holds it ("HOST/USER"), or None when it is free
+    acquired: str | None = None
+    comment: str = ""
+
+
+@dataclass
+class HeldPlace:
+    """An acquired place and its serial port as a pyserial URL."""
+
+    name: str
+    url: str
+    resource: str
+    speed: int
+    tags: dict[str, str]
+    coordinator: str
+
+
+def is_place(address: str | None) -> bool:
+    """Whether a PORT argument is a place address (lg://...)."""
+    return isinstance(address, str) and address.startswith(SCHEME)
+
+
+def parse_place(address: str) -> tuple[str, str | None]:
+    """(place, resource name or None) of `lg://PLACE[/NAME]`; LabError when malformed."""
+    rest = address[len(SCHEME):] if address.startswith(SCHEME) else ""
+    name, _, resource = rest.partition("/")
+    if not name or "/" in resource or any(c in name for c in "*?[ "):
+        raise LabError(f"{address!r} is not a place address: use lg://PLACE or lg://PLACE/RESOURCE")
+    return name, resource or None
+
+
+def coordinator_address(given: str | None = None) -> str:
+    """The coordinator: `given`, else $LG_COORDINATOR (labgrid's convention), else DEFAULT_COORDINATOR."""
+    return given or os.environ.get("LG_COORDINATOR") or DEFAULT_COORDINATOR
+
+
+def _labgrid():
+    """labgrid's client module; LabError naming the extra when labgrid is not installed."""
+    try:
+        from labgrid.remote import client
+    except ImportError as exc:
+        raise LabError(f"lg:// places need labgrid, which is not installed ({exc}): pip install 'imulink[lab]' "
+                       "(docs/farm.md)") from None
+    return client
+
+
+class _QuietLabgrid(logging.Filter):
+    """labgrid's client logs a lost coordinator on the root logger (and Python prints that
+    as a bare line when nothing is configured); imulink reports it as its own error line."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return f"{os.sep}labgrid{os.sep}" not in record.pathname
+
+
+_loops = threading.local()
+
+
+def _event_loop() -> asyncio.AbstractEventLoop:
+    """This thread's event loop for coordinator sessions, made once and never closed: gRPC's
+    asyncio poller stays bound to a loop after its channel is closed, and reports (on
+    stderr) every later event of a loop closed under it."""
+    loop = getattr(_loops, "loop", None)
+    if loop is None:
+        loop = _loops.loop = asyncio.new_event_loop()
+    return loop
+
+
+class Coordinator:
+    """A client session with a labgrid coordinator, synchronous: each call runs the thread's
+    session loop until the coordinator has answered (or `timeout_s` has passed).
+    Close it (or use it as a context manager) when done."""
+
+    def __init__(self, address: str | None = None, timeout_s: float = TIMEOUT_S):
+        client = _labgrid()
+        self.address = coordinator_address(address)
+        self.timeout_s = timeout_s
+        self._quiet = _QuietLabgrid()
+        logging.getLogger().addFilter(self._quiet)
+        self._loop = _event_loop()
+        self._session = None
+        try:
+            from labgrid.util.proxy import proxymanager
+
+            target = proxymanager.get_grpc_address(self.address, default_port=20408)
+
+            async def make():  # the gRPC channel belongs to the loop it is made in: this session's
+                return client.ClientSession(target, self._loop)
+
+            session = self._loop.run_until_complete(make())
+            self._session = session  # stop() is safe from here on
+            self._run(session.start(), "connect")
+        except BaseException:
+            self.close()
+            raise
+
+    def _run(self, coroutine, doing: str):
+        client = _labgrid()
+        try:
+            return self._loop.run_until_complete(asyncio.wait_for(coroutine, self.timeout_s))
+        except (asyncio.TimeoutError, client.ServerError) as exc:
+            if isinstance(exc, asyncio.TimeoutError):
+                detail = f"no answer within {self.timeout_s:g} s"
+            else:  # labgrid's "Error: Could not connect to coordinator": refused, unreachable
+                detail = str(exc).strip().removeprefix("Error: ").lower() or "no answer"
+            raise LabError(f"the labgrid coordinator at {self.address} does not answer ({detail}, trying to "
+                           f"{doing}; the limit is {self.timeout_s:g} s): is labgrid-coordinator running there? "
+                           "(set LG_COORDINATOR or --coordinator)") from None
+
+    def __enter__(self) -> "Coordinator":
+        return self
+
+    def __exit__(self, *exc_info) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """End the session (idempotent); never raises."""
+        session, self._session = self._session, None
+        try:
+            if session is not None:
+                with contextlib.suppress(Exception):
+                    self._loop.run_until_complete(asyncio.wait_for(session.stop(), 2.0))
+                with contextlib.suppress(Exception):
+                    self._loop.run_until_complete(asyncio.wait_for(session.close(), 2.0))
+        finally:
+            logging.getLogger().removeFilter(self._quiet)
+
+    @property
+    def session(self):
+        if self._session is None:
+            raise LabError("the session with the labgrid coordinator is closed")
+        return self._session
+
+    def sync(self) -> None:
+        """Wait until the coordinator has sent every change of places and resources so far."""
+        if not self._run(self.session.sync_with_coordinator(), "synchronise"):
+            raise LabError(f"the labgrid coordinator at {self.address} went away")
+
+    # ------------------------------------------------------------------ places
+
+    def places(self, pattern: str = "*") -> list[PlaceInfo]:
+        """The places whose name matches the glob `pattern`, sorted by name."""
+        return [PlaceInfo(name, dict(place.tags), place.acquired or None, place.comment or "")
+                for name, place in sorted(self.session.places.items()) if fnmatch.fnmatchcase(name, pattern)]
+
+    def _place(self, name: str):
+        place = self.session.places.get(name)
+        if place is None:
+            known = ", ".join(sorted(self.session.places)) or "none"
+            raise LabError(f"no place {name!r} on the labgrid coordinator at {self.address} (places: {known})")
+        return place
+
+    def _serial_resources(self, place, paths) -> list[tuple[str, object]]:
+        """(name, resource entry) of the serial ports among resource `paths` of `place`."""
+        found = []
+        for path in paths:
+            exporter, group, cls, resource_name = path
+            if cls != SERIAL_CLASS:
+                continue
+            match = place.getmatch(path)
+            entry = self.session.resources.get(exporter, {}).get(group, {}).get(resource_name)
+            found.append(((match.rename if match is not None and match.rename else resource_name), entry))
+        return found
+
+    def _matched_paths(self, place) -> list[tuple[str, str, str, str]]:
+        return [(exporter, group_name, entry.cls, resource_name)
+                for exporter, groups in self.session.resources.items()
+                for group_name, group in groups.items()
+                for resource_name, entry in group.items()
+                if place.hasmatch((exporter, group_name, entry.cls, resource_name))]
+
+    def check_serial(self, name: str, resource: str | None = None) -> None:
+        """LabError unless place `name` exists and one of its matches is a connected serial port
+        (named `resource` if given): an unknown place, a place without a serial port and one
+        whose exporter is not connected are told apart."""
+        place = self._place(name)
+        paths = self._matched_paths(place)
+        serial = [n for n, _ in self._serial_resources(place, paths)]
+        if resource is not None and resource not in serial:
+            serial = []
+        if serial:
+            return
+        missing = place.unmatched(paths)
+        if missing is not None:
+            raise LabError(f"place {name}: nothing on the coordinator matches {missing}: its exporter is not "
+                           "connected (exporter down or lost?)")
+        what = f"serial port named {resource!r}" if resource else "serial port"
+        raise LabError(f"place {name} has no {what} ({SERIAL_CLASS}: an exported RawSerialPort, USBSerialPort or "
+                       f"NetworkSerialPort); add one with `labgrid-client -p {name} add-match EXPORTER/GROUP/"
+                       f"{SERIAL_CLASS}/NAME`")
+
+    def acquire(self, name: str, resource: str | None = None, wait_s: float = 0.0) -> None:
+        """Acquire place `name` for this job. LabBusy (with who holds it) when another job has
+        it and it is not released within `wait_s` s; LabError as check_serial."""
+        client = _labgrid()
+        deadline = time.monotonic() + wait_s
+        while True:
+            self.check_serial(name, resource)
+            holder = self._place(name).acquired
+            if not holder:
+                self.session.args = _Args(place=name)
+                try:
+                    with contextlib.redirect_stdout(io.StringIO()):  # labgrid-client's own messages
+                        self._run(self.session.acquire(), f"acquire {name}")
+                    return
+                except client.UserError as exc:
+                    raise LabError(f"place {name}: {exc}") from None
+                except LabError:
+                    self.sync()  # another job came first (the coordinator refused): who?
+                    holder = self._place(name).acquired
+                    if not holder:
+                        raise
+            if time.monotonic() >= deadline:
+                waited = f" (waited {wait_s:g} s)" if wait_s > 0 else ""
+                raise LabBusy(f"place {name} is acquired by {holder}: another job holds the board{waited}; try "
+                              "later, or wait for it (--place-wait SECONDS, farm verify --wait SECONDS)")
+            self._loop.run_until_complete(asyncio.sleep(_WAIT_POLL_S))  # the session takes the place's updates
+            self.sync()
+
+    def release(self, name: str) -> None:
+        """Release place `name` (acquired by this job)."""
+        self.session.args = _Args(place=name)
+        with contextlib.redirect_stdout(io.StringIO()):
+            self._run(self.session.release(), f"release {name}")
+
+    def serial_port(self, name: str, resource: str | None = None) -> tuple[str, str, int]:
+        """(resource name, pyserial URL, speed) of the serial port of acquired place `name`."""
+        place = self._place(name)
+        ports = self._serial_resources(place, [tuple(p) for p in place.acquired_resources])
+        if resource is not None:
+            ports = [(n, entry) for n, entry in ports if n == resource]
+        if not ports:
+            self.check_serial(name, resource)  # says why
+            raise LabError(f"place {name}: its serial port was not acquired with it")
+        if len(ports) > 1:
+            raise LabError(f"place {name} has several serial ports ({', '.join(n for n, _ in ports)}): name one, "
+                           f"lg://{name}/NAME")
+        port_name, entry = ports[0]
+        if entry is None or not getattr(entry, "avail", False):
+            raise LabError(f"place {name}: its serial port {port_name} is not available (its exporter is gone, or "
+                           "the adapter is unplugged)")
+        params = entry.args  # type: ignore[attr-defined]
+        protocol = params.get("protocol", "rfc2217")
+        scheme = {"raw": "socket", "rfc2217": "rfc2217"}.get(protocol)
+        if scheme is None:
+            raise LabError(f"place {name}: its serial port speaks {protocol!r}, neither raw nor rfc2217")
+        host, port = _host_and_port(params, entry.extra)  # type: ignore[attr-defined]
+        return port_name, f"{scheme}://{host}:{port}", int(params.get("speed") or 115200)
+
+
+@dataclass
+class _Args:
+    """The arguments labgrid-client's place commands read (its argparse namespace)."""
+
+    place: str
+    allow_unmatched: bool = False
+    kick: bool = False
+
+
+def _host_and_port(params: dict, extra: dict) -> tuple[str, int]:
+    """The address to open, through labgrid's SSH proxy when the exporter asks for one
+    (or $LG_PROXY is set): labgrid's own rule for network resources."""
+    from labgrid.resource.serialport import NetworkSerialPort
+    from labgrid.util.proxy import proxymanager
+
+    resource = NetworkSerialPort(None, None, host=params["host"], port=int(params["port"]),
+                                 speed=int(params.get("speed") or 115200), protocol=params.get("protocol", "rfc2217"))
+    resource.extra = extra
+    try:
+        host, port = proxymanager.get_host_and_port(resource)
+    except Exception as exc:  # labgrid's ExecutionError of an SSH forward, or an OS error
+        raise LabError(f"cannot reach {params['host']}:{params['port']} through labgrid's proxy: {exc}") from None
+    return host, int(port)
+
+
+@contextlib.contextmanager
+def held_place(address: str, coordinator: str | None = None, timeout_s: float = TIMEOUT_S,
+               wait_s: float = 0.0) -> Iterator[HeldPlace]:
+    """Acquire the place of `address` (lg://PLACE[/NAME]) for the body of the with statement
+    and release it after, whatever ends the body (an error, Ctrl-C). The coordinator
+    session is closed while the body runs: an acquired place stays acquired until released."""
+    name, resource = parse_place(address)
+    with Coordinator(coordinator, timeout_s) as lab:
+        lab.acquire(name, resource, wait_s)
+        try:
+            port_name, url, speed = lab.serial_port(name, resource)
+            tags = dict(lab._place(name).tags)
+        except BaseException:
+            _release(lab.address, name, timeout_s, lab)
+            raise
+        address_used = lab.address
+    try:
+        yield HeldPlace(name, url, port_name, speed, tags, address_used)
+    finally:
+        _release(address_used, name, timeout_s)
+
+
+def _release(address: str, name: str, timeout_s: float, lab: Coordinator | None = None) -> None:
+    """Release a place; a failure is one warning line (the job's own outcome stands)."""
+    try:
+        if lab is not None:
+            lab.release(name)
+            return
+        with Coordinator(address, timeout_s) as again:
+            again.release(name)
+    except (ImulinkError, Exception) as exc:  # labgrid's own errors are plain Exceptions
+        print(f"imulink: warning: place {name} was not released ({exc}); release it with "
+              f"`labgrid-client -x {address} -p {name} release`", file=sys.stderr)
