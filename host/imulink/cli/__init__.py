@@ -14,6 +14,7 @@ from imulink.cli import (
     compare,
     demo,
     emulate,
+    farm,
     filters,
     flash,
     inject,
@@ -31,7 +32,7 @@ from imulink.cli.common import EXIT_STATUS_HELP, Parser
 
 #: The commands in the order `imulink --help` lists them.
 COMMANDS = (simulate, filters, allan, nav, calibrate, demo, emulate, proxy, flash, settings, ports, record, replay,
-            plot, compare, monitor, inject)
+            plot, compare, monitor, inject, farm)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,192 @@
+"""The same verification over many boards of a labgrid farm at once (`imulink farm verify`).
+
+Each matching place is verified in a worker process of its own, so one board that fails,
+hangs up or is held by another job is that place's row and never stops the others:
+
+1. the place is acquired (imulink.board.lab.held_place: locked against every other client
+   of the coordinator, released at the end whatever happens);
+2. the board's HELLO is read; with an image, the board must run that image's firmware
+   (board, version, protocol schema). Nothing is flashed here: a board is flashed with
+   `imulink flash IMAGE lg://PLACE` (its serial port's UART bootloader) before, and an
+   emulated board runs the image it was started with;
+3. the injection test (imulink.hil.injection.inject): every sample of a simulated run is
+   injected and every estimate compared bit for bit with the host build, and the attitude
+   compared with the simulated truth.
+
+Workers are started with the spawn method: the parent's gRPC session to the coordinator
+must not be forked.
+"""
+from __future__ import annotations
+
+import fnmatch
+import multiprocessing
+import signal
+from collections.abc import Callable, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from pathlib import Path
+
+from imulink.board import lab
+from imulink.board.link import Link
+from imulink.errors import ImulinkError
+from imulink.hil.comparison import MIN_VERIFIED
+from imulink.hil.injection import inject, load_injection_input
+from imulink.io.firmware_image import Identification, ImageError, load_image
+
+#: What each board gets when nothing else is asked: 30 s of rests (10 s to settle, 20 s of
+#: attitude to compare with the truth), 3000 samples at 100 Hz.
+DEFAULT_INPUT = "sim:rests:30"
+
+
+class FarmError(ImulinkError):
+    """Arguments that name no place to verify, or an image that cannot be checked."""
+
+
+def image_identity(path: str | Path) -> Identification:
+    """The identification block of a firmware image (FarmError without one)."""
+    try:
+        image = load_image(path)
+    except ImageError as exc:
+        raise FarmError(str(exc)) from None
+    if image.identification is None:
+        raise FarmError(f"{path} has no imulink identification block: nothing to check a board's HELLO against")
+    return image.identification
+
+
+def select_places(pattern: str, tags: dict[str, str], coordinator: str | None = None,
+                  timeout_s: float = lab.TIMEOUT_S) -> list[lab.PlaceInfo]:
+    """The coordinator's places whose name matches the glob `pattern` and that carry every tag
+    of `tags`; FarmError when none does (naming the places there are)."""
+    with lab.Coordinator(coordinator, timeout_s) as session:
+        every = session.places()
+        address = session.address
+    chosen = [p for p in every if fnmatch.fnmatchcase(p.name, pattern)
+              and all(p.tags.get(k) == v for k, v in tags.items())]
+    if not chosen:
+        wanted = repr(pattern) + "".join(f" with {k}={v}" for k, v in tags.items())
+        known = ", ".join(p.name for p in every) or "none"
+        raise FarmError(f"no place matches {wanted} on the labgrid coordinator at {address} (places: {known})")
+    return chosen
+
+
+def _hello_firmware(hello: dict) -> str:
+    return f"{hello['firmware_major']}.{hello['firmware_minor']}.{hello['firmware_patch']}"
+
+
+def _check_image(hello: dict, ident: Identification) -> None:
+    """FarmError unless the board's HELLO is the image's: board, firmware version, schema."""
+    runs = f"{hello['board']} {_hello_firmware(hello)} (schema 0x{hello['schema_hash']:08X})"
+    wants = f"{ident.board} {ident.version_text} (schema 0x{ident.schema_hash:08X})"
+    same = (hello["board"] == ident.board and tuple(ident.firmware_version) == (
+        hello["firmware_major"], hello["firmware_minor"], hello["firmware_patch"])
+        and hello["schema_hash"] == ident.schema_hash)
+    if not same:
+        raise FarmError(f"the board runs {runs}, the image is {wants}: flash it first "
+                        "(imulink flash IMAGE lg://PLACE)")
+
+
+def verify_place(place: str, *, input_spec: str = DEFAULT_INPUT, image: str | None = None,
+                 filter_name: str | None = None, min_verified: float = MIN_VERIFIED,
+                 coordinator: str | None = None, wait_s: float = 0.0, timeout_s: float = lab.TIMEOUT_S) -> dict:
+    """One place's row: {"place", "port", "board", "firmware", "image" (None, or "matches"),
+    "samples", "answered", "identical", "bit_exact", "passed", "verdict", "accuracy" (RMS deg
+    after the settling time, or None), "first_difference", "error" (None, or the one line that
+    says why the place could not be verified: it then fails)}."""
+    row: dict = {"place": place, "port": None, "board": None, "firmware": None, "image": None, "samples": 0,
+                 "answered": 0, "identical": 0, "bit_exact": False, "passed": False, "verdict": None,
+                 "accuracy": None, "first_difference": None, "error": None}
+    try:
+        source = load_injection_input(input_spec)
+        ident = image_identity(image) if image is not None else None
+        with lab.held_place(f"{lab.SCHEME}{place}", coordinator, timeout_s, wait_s) as held:
+            row["port"] = held.url
+            with Link(held.url, held.speed) as link:
+                hello = link.connect()
+            row.update(board=hello["board"], firmware=_hello_firmware(hello))
+            if ident is not None:
+                _check_image(hello, ident)
+                row["image"] = "matches"
+            result = inject(held.url, source, baud=held.speed, filter_name=filter_name, min_verified=min_verified)
+    except (ImulinkError, OSError) as exc:
+        row["error"] = str(exc)
+        return row
+    verdict = result.verdict
+    accuracy = result.accuracy
+    row.update(samples=result.samples, answered=result.answered, identical=result.identical,
+               bit_exact=result.bit_exact, passed=verdict.passed, verdict=str(verdict),
+               accuracy=None if not accuracy else {"rms_total_deg": accuracy["total"],
+                                                   "rms_heading_deg": accuracy["heading"],
+                                                   "rms_inclination_deg": accuracy["inclination"]},
+               first_difference=result.first_difference)
+    return row
+
+
+def _worker_start() -> None:
+    """A worker's SIGTERM is a KeyboardInterrupt, as in the command: its place is released."""
+    signal.signal(signal.SIGTERM, _interrupt)
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def verify_places(places: Sequence[str], jobs: int, progress: Callable[[int, dict], None] | None = None,
+                  **options) -> list[dict]:
+    """verify_place for every place, `jobs` worker processes at a time; rows in the order of
+    `places`; `progress(done, row)` as each place finishes. `options`: verify_place's."""
+    rows: list[dict | None] = [None] * len(places)
+    pool = ProcessPoolExecutor(max_workers=max(1, min(jobs, len(places))),
+                               mp_context=multiprocessing.get_context("spawn"), initializer=_worker_start)
+    try:
+        futures = {pool.submit(verify_place, place, **options): k for k, place in enumerate(places)}
+        for done, future in enumerate(as_completed(futures), 1):
+            k = futures[future]
+            try:
+                rows[k] = future.result()
+            except Exception as exc:  # a worker that died (killed, out of memory): that place's row
+                rows[k] = {"place": places[k], "port": None, "board": None, "firmware": None, "image": None,
+                           "samples": 0, "answered": 0, "identical": 0, "bit_exact": False, "passed": False,
+                           "verdict": None, "accuracy": None, "first_difference": None,
+                           "error": f"the worker verifying it failed: {exc or type(exc).__name__}"}
+            if progress:
+                progress(done, rows[k])  # type: ignore[arg-type]
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+    return rows  # type: ignore[return-value]
+
+
+def _mark(row: dict) -> str:
+    if row["error"] is not None:
+        return "ERROR"
+    return "yes" if row["passed"] else "NO"
+
+
+def format_table(rows: Sequence[dict]) -> str:
+    """One line per place and a summary: place, board, firmware, samples, bit-exact, accuracy
+    (RMS total, deg), and the error or what was not identical."""
+    header = ("place", "board", "firmware", "samples", "bit-exact", "accuracy", "errors")
+    lines = [header]
+    for r in rows:
+        accuracy = f"{r['accuracy']['rms_total_deg']:.3f} deg" if r["accuracy"] else "-"
+        detail = r["error"] or ""
+        if not detail and r["first_difference"]:
+            d = r["first_difference"]
+            detail = f"first difference: sample {d['sample_index']}: {d['field']}"
+        elif not detail and not r["passed"]:
+            detail = r["verdict"] or ""
+        lines.append((r["place"], r["board"] or "-", r["firmware"] or "-", str(r["samples"]), _mark(r), accuracy,
+                      detail))
+    widths = [max(len(line[k]) for line in lines) for k in range(len(header))]
+    text = ["  ".join(cell.ljust(w) for cell, w in zip(line, widths)).rstrip() for line in lines]
+    passed = sum(r["passed"] for r in rows)
+    errors = sum(r["error"] is not None for r in rows)
+    text.append(f"{len(rows)} places: {passed} proven bit-exact, {len(rows) - passed - errors} not, "
+                f"{errors} could not be verified")
+    return "\n".join(text)
+
+
+def farm_json(rows: Sequence[dict], input_spec: str, image: str | None) -> dict:
+    """What `imulink farm verify --json` prints."""
+    passed = sum(r["passed"] for r in rows)
+    errors = sum(r["error"] is not None for r in rows)
+    return {"input": input_spec, "image": image, "places": list(rows), "count": len(rows), "passed": passed,
+            "failed": len(rows) - passed - errors, "errors": errors}
