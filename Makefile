@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 
-.PHONY: help setup system-packages firmware demo test test-long check bench clean
+.PHONY: help setup system-packages firmware demo test test-long test-farm check bench clean
 
 ## help: this list
 help:
@@ -42,6 +42,27 @@ test: setup
 test-long: setup
 	$(BIN)/python -m pytest -q -n auto --timeout=1200 --durations=15 -m long
 
+# The lab's virtualenv: the package with its lab extra (labgrid, whose coordinator and exporter
+# the farm tests start), apart from .venv so that the main suite keeps testing pyserial itself.
+# pyserial-labgrid (labgrid's pyserial fork, the same `serial` module) is reinstalled last so
+# that the module on disk is the one labgrid is tested with (docs/farm.md).
+LAB_VENV := .venv-lab
+LAB_BIN  := $(LAB_VENV)/bin
+
+$(LAB_BIN)/imulink: pyproject.toml setup.py host/imulink/core/_build.py host/imulink/protocol/_schema.py \
+		$(wildcard firmware/core/*.c firmware/core/*.h)
+	$(PYTHON) -m venv $(LAB_VENV)
+	$(LAB_BIN)/pip install --quiet --upgrade pip
+	$(LAB_BIN)/pip install --quiet -e '.[lab]' 'pytest>=7' 'pytest-timeout>=2.2' 'pytest-xdist>=3.5'
+	$(LAB_BIN)/pip install --quiet --force-reinstall --no-deps \
+		"pyserial-labgrid==$$($(LAB_BIN)/python -c 'from importlib.metadata import version; print(version("pyserial-labgrid"))')"
+	@touch $@
+
+## test-farm: the labgrid farm tests (tests/test_farm.py) in .venv-lab, with a coordinator and an
+## exporter of emulated boards started on this machine; CI runs them after `make test-long`
+test-farm: setup $(LAB_BIN)/imulink
+	IMULINK_REQUIRE_LABGRID=1 $(LAB_BIN)/python -m pytest -q --timeout=300 --durations=10 tests/test_farm.py
+
 ## check: lint (ruff), types (mypy) and generated files up to date (tools/gen_protocol.py --check)
 check: setup
 	$(BIN)/ruff check host tests tools
@@ -56,5 +77,5 @@ bench: setup
 
 ## clean: remove the virtualenv, every build and the generated C of the cffi modules
 clean:
-	rm -rf $(VENV) build firmware/build host/*.egg-info host/imulink/core/_*.so host/imulink/core/_fixed.c host/imulink/core/_float.c \
+	rm -rf $(VENV) $(LAB_VENV) build firmware/build host/*.egg-info host/imulink/core/_*.so host/imulink/core/_fixed.c host/imulink/core/_float.c \
 		host/imulink/firmware

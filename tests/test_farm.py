@@ -1,0 +1,326 @@
+"""A labgrid farm on this machine: a coordinator and exporters started here, emulated boards
+(native processes, and the ARM image in QEMU) exported as network serial ports, places
+created and tagged with labgrid-client, and imulink using them by lg://PLACE.
+
+Needs labgrid (imulink[lab]): `make test-farm` runs this module in .venv-lab, where
+IMULINK_REQUIRE_LABGRID=1 turns a missing labgrid into a failure instead of a skip.
+"""
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+try:
+    import labgrid  # noqa: F401
+except ImportError:
+    if os.environ.get("IMULINK_REQUIRE_LABGRID"):
+        raise
+    pytest.skip("labgrid is not installed (pip install 'imulink[lab]'; `make test-farm` runs these tests)",
+                allow_module_level=True)
+
+from imulink.board import lab
+from imulink.board.emulator import EmulatedBoard
+
+# the boards, the coordinator and the farm's workers take the machine's cores
+pytestmark = pytest.mark.xdist_group("takes-a-core")
+
+BIN = Path(sys.executable).parent
+IMULINK = [sys.executable, "-m", "imulink.cli"]
+#: Seconds any one imulink or labgrid-client command of these tests may take.
+COMMAND_TIMEOUT_S = 120
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _wait_for(condition, timeout: float, what: str) -> None:
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            raise AssertionError(f"{what} within {timeout:g} s")
+        time.sleep(0.1)
+
+
+class Lab:
+    """A coordinator on a free port, its exporters, places made with labgrid-client."""
+
+    def __init__(self, directory: Path):
+        self.dir = directory
+        self.address = f"127.0.0.1:{_free_port()}"
+        self.env = {**os.environ, "LG_COORDINATOR": self.address}
+        self.env.pop("LG_PROXY", None)
+        self.processes: dict[str, subprocess.Popen] = {}
+        self.coordinator = self._start("coordinator", [str(BIN / "labgrid-coordinator"), "-l", self.address])
+        host, port = self.address.split(":")
+
+        def listening() -> bool:
+            with socket.socket() as s:
+                return s.connect_ex((host, int(port))) == 0
+        _wait_for(listening, 20, "the coordinator did not listen")
+
+    def _start(self, name: str, command: list[str]) -> subprocess.Popen:
+        log = open(self.dir / f"{name}.log", "wb")
+        process = subprocess.Popen(command, cwd=self.dir, stdout=log, stderr=subprocess.STDOUT,
+                                   stdin=subprocess.DEVNULL, env=self.env)
+        self.processes[name] = process
+        return process
+
+    def exporter(self, name: str, ports: dict[str, str]) -> subprocess.Popen:
+        """An exporter `name` with a NetworkSerialPort (raw TCP) per group: {group: socket://HOST:PORT}."""
+        lines = []
+        for group, url in ports.items():
+            host, port = url.removeprefix("socket://").split(":")
+            lines += [f"{group}:", "  NetworkSerialPort:", f"    host: {host}", f"    port: {port}",
+                      "    speed: 921600", "    protocol: raw"]
+        config = self.dir / f"{name}.yaml"
+        config.write_text("\n".join(lines) + "\n")
+        process = self._start(f"exporter-{name}", [str(BIN / "labgrid-exporter"), "-c", self.address, "-n", name,
+                                                   "--hostname", "127.0.0.1", str(config)])
+
+        def published() -> bool:
+            with lab.Coordinator(self.address) as session:
+                return set(session.session.resources.get(name, {})) >= set(ports)
+        _wait_for(published, 30, f"exporter {name} did not publish its ports")
+        return process
+
+    def client(self, *args: str) -> subprocess.CompletedProcess:
+        return subprocess.run([str(BIN / "labgrid-client"), "-x", self.address, *args], env=self.env,
+                              capture_output=True, text=True, timeout=COMMAND_TIMEOUT_S, check=True)
+
+    def places(self, places: dict[str, tuple[str | None, dict[str, str]]]) -> None:
+        """Create places {name: (match or None, tags)}, each step for all of them at once."""
+        steps = [[("-p", name, "create") for name in places],
+                 [("-p", name, "add-match", match) for name, (match, _) in places.items() if match],
+                 [("-p", name, "set-tags", *(f"{k}={v}" for k, v in tags.items()))
+                  for name, (_, tags) in places.items() if tags]]
+        for step in steps:
+            running = [subprocess.Popen([str(BIN / "labgrid-client"), "-x", self.address, *args], env=self.env,
+                                        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                       for args in step]
+            for process in running:
+                out, _ = process.communicate(timeout=COMMAND_TIMEOUT_S)
+                assert process.returncode == 0, out
+
+    def stop(self, name: str | None = None) -> None:
+        for key in [name] if name else list(self.processes):
+            process = self.processes.pop(key)
+            process.terminate()
+            try:
+                process.wait(10)
+            except subprocess.TimeoutExpired:
+                process.kill()
+                process.wait()
+
+
+def imulink(*args: str, env: dict | None = None, timeout: float = COMMAND_TIMEOUT_S) -> subprocess.CompletedProcess:
+    return subprocess.run([*IMULINK, *args], capture_output=True, text=True, timeout=timeout, env=env,
+                          stdin=subprocess.DEVNULL)
+
+
+def _board(target: str = "native") -> EmulatedBoard:
+    return EmulatedBoard(target, front="tcp", duration_s=5.0, filter_name="eskf").start()
+
+
+@pytest.fixture(scope="module")
+def farm(tmp_path_factory):
+    """A coordinator and exporter `rack1` with two native boards and (where QEMU is) one QEMU
+    board as places imu-native-1, imu-native-2, imu-qemu-1, tagged by board; a place
+    spare-empty with no resource at all."""
+    directory = tmp_path_factory.mktemp("farm")
+    boards = {"native-1": _board(), "native-2": _board()}
+    if shutil.which("qemu-system-arm"):
+        boards["qemu-1"] = _board("qemu")
+    the_lab = Lab(directory)
+    try:
+        the_lab.exporter("rack1", {name: board.address for name, board in boards.items()})
+        places: dict[str, tuple[str | None, dict[str, str]]] = {
+            f"imu-{name}": (f"rack1/{name}/NetworkSerialPort", {"board": name.split("-")[0], "rack": "rack1"})
+            for name in boards}
+        places["spare-empty"] = (None, {})
+        the_lab.places(places)
+        the_lab.boards = boards  # type: ignore[attr-defined]
+        yield the_lab
+    finally:
+        the_lab.stop()
+        for board in boards.values():
+            board.stop()
+
+
+def test_a_place_is_a_port_for_every_command(farm):
+    """`imulink settings lg://PLACE`: acquired for the command, the board answers, released after."""
+    done = imulink("settings", "lg://imu-native-1", "--json", env=farm.env)
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout)["filter"] == "eskf"
+    assert "place imu-native-1 acquired" in done.stderr
+    with lab.Coordinator(farm.address) as session:
+        assert {p.name: p.acquired for p in session.places("imu-*")}["imu-native-1"] is None  # released
+
+
+def test_farm_verify_proves_every_board(farm):
+    done = imulink("farm", "verify", "--places", "imu-*", "--input", "sim:rests:12", "--json", env=farm.env)
+    assert done.returncode == 0, done.stderr + done.stdout
+    report = json.loads(done.stdout)
+    rows = {row["place"]: row for row in report["places"]}
+    assert set(rows) == {f"imu-{name}" for name in farm.boards}
+    for place, row in rows.items():
+        assert row["error"] is None and row["bit_exact"] and row["passed"], row
+        assert row["samples"] == row["answered"] == row["identical"] == 1200
+        assert row["accuracy"] is not None and row["accuracy"]["rms_total_deg"] < 5.0
+    assert rows["imu-native-1"]["board"] == "native"
+    if "imu-qemu-1" in rows:
+        assert rows["imu-qemu-1"]["board"] == "qemu-stm32f405"
+    with lab.Coordinator(farm.address) as session:
+        assert all(p.acquired is None for p in session.places("imu-*"))  # every place released
+
+
+def test_farm_verify_checks_the_image_a_board_runs(farm):
+    """--image: a board runs it (the QEMU board, its own image) or its place is not proven."""
+    if "qemu-1" not in farm.boards:
+        pytest.skip("no qemu-system-arm")
+    image = str(farm.boards["qemu-1"].image)
+    done = imulink("farm", "verify", "--places", "imu-*", "--image", image, "--input", "sim:rests:2", env=farm.env)
+    assert done.returncode == 1, done.stderr
+    lines = {line.split()[0]: line for line in done.stdout.splitlines()[1:-1]}
+    assert " yes " in lines["imu-qemu-1"]
+    assert "ERROR" in lines["imu-native-1"] and "the image is qemu-stm32f405" in lines["imu-native-1"]
+    tagged = imulink("farm", "verify", "--tag", "board=qemu", "--image", image, "--input", "sim:rests:2",
+                     env=farm.env)
+    assert tagged.returncode == 0, tagged.stderr + tagged.stdout
+    assert "1 places: 1 proven bit-exact" in tagged.stdout
+
+
+def test_a_second_job_on_a_held_place_is_refused_then_waits(farm):
+    """Two jobs on one place: the second is refused at once (naming the holder), or with
+    --place-wait gets the board once the first is done; the first's run is untouched."""
+    first = subprocess.Popen([*IMULINK, "inject", "lg://imu-native-2", "--input", "sim:rests:40", "--json"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=farm.env)
+    try:
+        def held() -> bool:
+            with lab.Coordinator(farm.address) as session:
+                return any(p.acquired for p in session.places("imu-native-2"))
+        _wait_for(held, 60, "the first job did not acquire the place")
+        second = imulink("record", "lg://imu-native-2", "-o", str(farm.dir / "second.imulog"), env=farm.env)
+        assert second.returncode == 2
+        assert second.stderr.count("\n") == 1 and "place imu-native-2 is acquired by" in second.stderr, second.stderr
+        assert not (farm.dir / "second.imulog").exists()
+        waiting = imulink("settings", "lg://imu-native-2", "--place-wait", "90", "--json", env=farm.env)
+        out, err = first.communicate(timeout=COMMAND_TIMEOUT_S)
+    finally:
+        if first.poll() is None:
+            first.kill()
+    assert first.returncode == 0, err
+    report = json.loads(out)
+    assert report["answered"] == report["samples"] == 4000 and report["verdict"]["passed"]
+    assert waiting.returncode == 0, waiting.stderr
+
+
+def test_a_board_lost_mid_run_is_its_place_only(farm):
+    """Two more boards on their own exporter; one is stopped while the farm verifies both:
+    its row says so, the other is proven, the exit status is 1, both places are released."""
+    boards = {"a": _board(), "b": _board()}
+    try:
+        farm.exporter("rack2", {name: board.address for name, board in boards.items()})
+        farm.places({f"lost-{name}": (f"rack2/{name}/NetworkSerialPort", {}) for name in boards})
+        run = subprocess.Popen([*IMULINK, "farm", "verify", "--places", "lost-*", "--input", "sim:rests:60",
+                                "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               env=farm.env)
+        try:
+            def answering() -> bool:  # the board has been injected into for a while: it has sent estimates
+                with lab.Coordinator(farm.address) as session:
+                    return any(p.acquired for p in session.places("lost-b"))
+            _wait_for(answering, 60, "the farm did not acquire lost-b")
+            time.sleep(1.5)
+            boards["b"].stop()
+            out, err = run.communicate(timeout=COMMAND_TIMEOUT_S)
+        finally:
+            if run.poll() is None:
+                run.kill()
+        assert run.returncode == 1, err
+        rows = {row["place"]: row for row in json.loads(out)["places"]}
+        assert rows["lost-a"]["passed"] and rows["lost-a"]["identical"] == 6000
+        assert not rows["lost-b"]["passed"] and rows["lost-b"]["error"], rows["lost-b"]
+        with lab.Coordinator(farm.address) as session:
+            assert all(p.acquired is None for p in session.places("lost-*"))
+    finally:
+        farm.stop("exporter-rack2")
+        for board in boards.values():
+            board.stop()
+
+
+def _one_error_line(done: subprocess.CompletedProcess, *words: str) -> None:
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("imulink: error: "), done.stderr
+    for word in words:
+        assert word in lines[0], lines[0]
+
+
+def test_an_unknown_place(farm):
+    _one_error_line(imulink("record", "lg://imu-nowhere", "-o", str(farm.dir / "x.imulog"), env=farm.env),
+                    "no place 'imu-nowhere'", "imu-native-1")
+    _one_error_line(imulink("farm", "verify", "--places", "nowhere-*", env=farm.env), "no place matches")
+
+
+def test_a_place_without_a_serial_port(farm):
+    _one_error_line(imulink("inject", "lg://spare-empty", "--input", "sim:rests:1", env=farm.env),
+                    "place spare-empty has no serial port")
+
+
+def test_a_coordinator_that_is_down(farm):
+    """Nothing listens at the address: one line within the stated timeout."""
+    down = f"127.0.0.1:{_free_port()}"
+    started = time.monotonic()
+    _one_error_line(imulink("settings", "lg://imu-native-1", "--coordinator", down, env=farm.env),
+                    f"coordinator at {down} does not answer")
+    _one_error_line(imulink("farm", "verify", "--coordinator", down, "--timeout", "3", env=farm.env),
+                    f"coordinator at {down} does not answer", "the limit is 3 s")
+    assert time.monotonic() - started < 2 * (lab.TIMEOUT_S + 10)
+
+
+def test_a_lost_exporter(farm):
+    """The exporter of a place's board goes away: the place's serial port is gone, in one line."""
+    board = _board()
+    try:
+        farm.exporter("rack3", {"c": board.address})
+        farm.places({"gone-c": ("rack3/c/NetworkSerialPort", {})})
+        assert imulink("settings", "lg://gone-c", env=farm.env).returncode == 0
+        farm.stop("exporter-rack3")
+
+        def forgotten() -> bool:
+            with lab.Coordinator(farm.address) as session:
+                return "rack3" not in session.session.resources or not any(
+                    entry.avail for group in session.session.resources["rack3"].values() for entry in group.values())
+        _wait_for(forgotten, 30, "the coordinator did not notice the exporter's end")
+        _one_error_line(imulink("settings", "lg://gone-c", env=farm.env), "place gone-c", "exporter")
+    finally:
+        board.stop()
+
+
+def test_labgrids_serial_module_is_the_lab_environments():
+    """In the lab's environment (`make test-farm`), the `serial` module on disk is
+    pyserial-labgrid's (reinstalled last by the Makefile), which labgrid is tested with."""
+    if not os.environ.get("IMULINK_REQUIRE_LABGRID"):
+        pytest.skip("only in the lab environment of `make test-farm`")
+    from importlib.metadata import distribution
+
+    import serial
+
+    dist = distribution("pyserial-labgrid")
+    record = {str(f): f.hash.value for f in dist.files or [] if f.hash is not None}
+    module = Path(serial.__file__)
+    import base64
+    import hashlib
+
+    digest = base64.urlsafe_b64encode(hashlib.sha256(module.read_bytes()).digest()).rstrip(b"=").decode()
+    assert record["serial/__init__.py"] == digest
