@@ -309,7 +309,10 @@ class Coordinator:
         if scheme is None:
             raise LabError(f"place {name}: its serial port speaks {protocol!r}, neither raw nor rfc2217")
         host, port = _host_and_port(params, entry.extra)  # type: ignore[attr-defined]
-        return port_name, f"{scheme}://{host}:{port}", int(params.get("speed") or 115200)
+        # ser2net answers no SET_CONTROL (modem lines) of RFC 2217: labgrid's own serial driver
+        # tells pyserial not to wait for it, and so does imulink
+        options = "?ign_set_control" if scheme == "rfc2217" else ""
+        return port_name, f"{scheme}://{host}:{port}{options}", int(params.get("speed") or 115200)
 
 
 @dataclass
