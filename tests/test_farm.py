@@ -258,6 +258,37 @@ def test_a_board_lost_mid_run_is_its_place_only(farm):
             board.stop()
 
 
+def test_a_usb_serial_board_through_ser2net(farm):
+    """A lab's usual board: a serial device (here the native board's pty; a USB serial adapter in
+    a lab) exported as a RawSerialPort, which the exporter shares through ser2net (RFC 2217)
+    while the place is acquired. The board is reached as rfc2217:// and proven bit-exact."""
+    if not (shutil.which("ser2net") or Path("/usr/sbin/ser2net").exists()):
+        if os.environ.get("IMULINK_REQUIRE_LABGRID"):
+            pytest.fail("ser2net is missing: tools/install-system-packages.sh installs it")
+        pytest.skip("ser2net is not installed")
+    board = EmulatedBoard("native", front="pty", duration_s=5.0, filter_name="eskf").start()
+    try:
+        config = farm.dir / "usb.yaml"
+        config.write_text(f"usb-1:\n  RawSerialPort:\n    port: {board.address}\n    speed: 921600\n")
+        farm._start("exporter-usb", [str(BIN / "labgrid-exporter"), "-c", farm.address, "-n", "usb-rack",
+                                     "--hostname", "127.0.0.1", str(config)])
+
+        def published() -> bool:
+            with lab.Coordinator(farm.address) as session:
+                return "usb-1" in session.session.resources.get("usb-rack", {})
+        _wait_for(published, 30, "the exporter did not publish the serial device")
+        farm.places({"usb-1": ("usb-rack/usb-1/NetworkSerialPort", {"board": "native", "link": "usb"})})
+        # each injected sample waits for its answer: through ser2net that is tens of ms, so a short run
+        done = imulink("inject", "lg://usb-1", "--input", "sim:rests:1", "--json", env=farm.env)
+        assert done.returncode == 0, done.stderr
+        assert "RawSerialPort at rfc2217://127.0.0.1:" in done.stderr
+        report = json.loads(done.stdout)
+        assert report["samples"] == report["answered"] == 100 and report["verdict"]["passed"]
+    finally:
+        farm.stop("exporter-usb")
+        board.stop()
+
+
 def _one_error_line(done: subprocess.CompletedProcess, *words: str) -> None:
     assert done.returncode == 2, done.stderr
     lines = done.stderr.strip().splitlines()
@@ -286,6 +317,19 @@ def test_a_coordinator_that_is_down(farm):
     _one_error_line(imulink("farm", "verify", "--coordinator", down, "--timeout", "3", env=farm.env),
                     f"coordinator at {down} does not answer", "the limit is 3 s")
     assert time.monotonic() - started < 2 * (lab.TIMEOUT_S + 10)
+
+
+def test_a_coordinator_that_never_answers(farm):
+    """Something listens at the address but never speaks gRPC: the stated timeout, then one line."""
+    silent = socket.create_server(("127.0.0.1", 0))
+    address = f"127.0.0.1:{silent.getsockname()[1]}"
+    try:
+        started = time.monotonic()
+        _one_error_line(imulink("farm", "places", "--coordinator", address, "--timeout", "2", env=farm.env),
+                        f"coordinator at {address} does not answer", "no answer within 2 s")
+        assert time.monotonic() - started < 2 + 15  # the timeout, the interpreter's start, the session's end
+    finally:
+        silent.close()
 
 
 def test_a_lost_exporter(farm):

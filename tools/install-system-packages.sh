@@ -12,6 +12,8 @@
 #                                              minimal Debian lacks (Qt 6.5+ needs libxcb-cursor0)
 #   libgl1, libglx-mesa0, libegl1,             OpenGL in software (Mesa's llvmpipe) for the monitor's 3D
 #   libgl1-mesa-dri                            board view, in Xvfb too
+#   ser2net                                    a labgrid exporter shares a board's serial port through it
+#                                              (RFC 2217): `make test-farm` exports an emulated board's pty
 #
 # Installs only what is missing: as root directly, otherwise through sudo. Exits 1 with the
 # apt-get command to run when it cannot install them itself.
@@ -67,6 +69,7 @@ for lib in xcb-cursor.so.0:libxcb-cursor0 xcb-icccm.so.4:libxcb-icccm4 xcb-keysy
     ldconfig -p 2>/dev/null | grep -q "lib${lib%%:*}" || missing="$missing ${lib#*:}"
 done
 ls /usr/lib/*/dri/swrast_dri.so >/dev/null 2>&1 || missing="$missing libgl1-mesa-dri"
+have ser2net || [ -x /usr/sbin/ser2net ] || missing="$missing ser2net"
 
 [ -z "$missing" ] || install_packages "$missing"
 
