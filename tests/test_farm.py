@@ -167,6 +167,18 @@ def test_a_place_is_a_port_for_every_command(farm):
         assert {p.name: p.acquired for p in session.places("imu-*")}["imu-native-1"] is None  # released
 
 
+def test_the_board_fixture_takes_the_lab_s_place(farm, tmp_path):
+    """A project's HIL test (tests/test_board_fixture.py) with LG_PLACE set gets the farm's board:
+    the place is held for the test session and released after."""
+    from test_board_fixture import run_project_tests
+
+    done = run_project_tests(tmp_path, env={**farm.env, "LG_PLACE": "imu-native-2"})
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "BOARD place=imu-native-2 target=None" in done.stdout
+    with lab.Coordinator(farm.address) as session:
+        assert session.places("imu-native-2")[0].acquired is None
+
+
 def test_farm_verify_proves_every_board(farm):
     done = imulink("farm", "verify", "--places", "imu-*", "--input", "sim:rests:12", "--json", env=farm.env)
     assert done.returncode == 0, done.stderr + done.stdout

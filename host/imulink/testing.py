@@ -1,0 +1,93 @@
+"""A pytest plugin for a project's hardware-in-the-loop tests: the `board` fixture, a real
+board of the lab's labgrid farm where there is one and an emulated board where there is not
+(CI), with the same test code::
+
+    # conftest.py
+    pytest_plugins = ["imulink.testing"]
+
+    # test_firmware.py
+    def test_bit_exact(board):
+        result = hil.inject(board.url, hil.load_injection_input("sim:rests:20"))
+        assert result.verdict.passed
+
+Which board, in this order: ``--imulink-board BOARD``, ``$IMULINK_BOARD``, ``lg://$LG_PLACE``
+(labgrid's variable for the place a developer works with), else ``native``. BOARD is a place
+(lg://PLACE[/RESOURCE]: acquired for the test session, released after; needs imulink[lab]),
+an emulated target (native, qemu, stm32f407: started for the session, on a TCP port) or any
+PORT the commands take (a device, socket://, rfc2217://: used as it is).
+
+labgrid's own pytest plugin (``--lg-env``) hands a test drivers of a place acquired beforehand
+with labgrid-client; this fixture acquires and releases the place itself and hands the one
+thing imulink needs, the board's serial port, so a CI job needs no labgrid-client step.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import pytest
+
+from imulink.board import lab
+from imulink.board.emulator import TARGETS, EmulatedBoard
+from imulink.board.link import DEFAULT_BAUD, Link
+
+#: The board when nothing names one: the firmware as a native process.
+DEFAULT_BOARD = "native"
+#: Seconds of simulated sensors an emulated board of a test session has (it streams only when
+#: asked; injection does not use them).
+EMULATED_RUN_S = 600.0
+
+
+@dataclass
+class Board:
+    """The board of a test session: its serial port as a URL every imulink function opens."""
+
+    url: str
+    #: the labgrid place it belongs to, or None
+    place: str | None = None
+    #: the emulated target it is (native, qemu, stm32f407), or None for a real board
+    target: str | None = None
+    baud: int = DEFAULT_BAUD
+
+    def link(self, **options) -> Link:
+        """A new link to the board (close it, or use it in a with statement)."""
+        return Link(self.url, self.baud, **options)
+
+
+def pytest_addoption(parser) -> None:
+    group = parser.getgroup("imulink", "imulink's board fixture")
+    group.addoption("--imulink-board", metavar="BOARD", default=None,
+                    help="the `board` fixture's board: lg://PLACE (a labgrid place), native / qemu / stm32f407 (an "
+                         "emulated board) or a PORT (default: $IMULINK_BOARD, else lg://$LG_PLACE, else native)")
+
+
+def board_address(config) -> str:
+    """The BOARD a session uses (see the module's docstring)."""
+    given = config.getoption("imulink_board", default=None) or os.environ.get("IMULINK_BOARD")
+    if given:
+        return given
+    if os.environ.get("LG_PLACE"):
+        return f"{lab.SCHEME}{os.environ['LG_PLACE']}"
+    return DEFAULT_BOARD
+
+
+@pytest.fixture(scope="session")
+def board(request) -> Iterator[Board]:
+    """The session's board: a labgrid place held for the session, an emulated board started for
+    it, or a port as given. A place that cannot be had fails the tests that use it, in one line."""
+    address = board_address(request.config)
+    if address in TARGETS:
+        with EmulatedBoard(address, front="tcp", duration_s=EMULATED_RUN_S) as emulated:
+            assert emulated.address is not None  # set by start()
+            yield Board(emulated.address, target=address)
+    elif lab.is_place(address):
+        with contextlib.ExitStack() as stack:
+            try:
+                place = stack.enter_context(lab.held_place(address))
+            except lab.LabError as exc:
+                pytest.fail(f"the board {address}: {exc}", pytrace=False)
+            yield Board(place.url, place=place.name, baud=place.speed)
+    else:
+        yield Board(address)
