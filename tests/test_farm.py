@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
 import socket
 import subprocess
 import sys
@@ -215,7 +216,7 @@ def test_farm_verify_checks_the_image_a_board_runs(farm):
 def test_a_second_job_on_a_held_place_is_refused_then_waits(farm):
     """Two jobs on one place: the second is refused at once (naming the holder), or with
     --place-wait gets the board once the first is done; the first's run is untouched."""
-    first = subprocess.Popen([*IMULINK, "inject", "lg://imu-native-2", "--input", "sim:rests:40", "--json"],
+    first = subprocess.Popen([*IMULINK, "inject", "lg://imu-native-2", "--input", "sim:rests:80", "--json"],
                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=farm.env)
     try:
         def held() -> bool:
@@ -233,8 +234,29 @@ def test_a_second_job_on_a_held_place_is_refused_then_waits(farm):
             first.kill()
     assert first.returncode == 0, err
     report = json.loads(out)
-    assert report["answered"] == report["samples"] == 4000 and report["verdict"]["passed"]
+    assert report["answered"] == report["samples"] == 8000 and report["verdict"]["passed"]
     assert waiting.returncode == 0, waiting.stderr
+
+
+def test_ctrl_c_releases_the_place(farm):
+    """A job stopped with Ctrl-C (SIGINT) in the middle of its run gives the place back."""
+    job = subprocess.Popen([*IMULINK, "inject", "lg://imu-native-1", "--input", "sim:rests:300"],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=farm.env)
+    try:
+        def held() -> bool:
+            with lab.Coordinator(farm.address) as session:
+                return session.places("imu-native-1")[0].acquired is not None
+        _wait_for(held, 60, "the job did not acquire the place")
+        time.sleep(1.0)  # 30000 samples: tens of seconds of injection, stopped in its first seconds
+        job.send_signal(signal.SIGINT)
+        _, err = job.communicate(timeout=COMMAND_TIMEOUT_S)
+    finally:
+        if job.poll() is None:
+            job.kill()
+    assert job.returncode == 130, err
+    assert "imulink: interrupted" in err
+    with lab.Coordinator(farm.address) as session:
+        assert session.places("imu-native-1")[0].acquired is None
 
 
 def test_a_board_lost_mid_run_is_its_place_only(farm):
