@@ -1,5 +1,5 @@
-"""imulink.testing's `board` fixture, as a project's HIL tests use it (tests/test_farm.py has
-it on a labgrid place)."""
+"""The `board` fixture of imulink.hil.pytest_plugin, as a project's HIL tests use it
+(tests/test_farm.py has it on a labgrid place)."""
 from __future__ import annotations
 
 import os
@@ -21,8 +21,8 @@ def test_the_board_is_bit_exact(board):
 def run_project_tests(directory: Path, *options: str, env: dict | None = None) -> subprocess.CompletedProcess:
     """The project test above, run by pytest with the plugin, in its own directory."""
     (directory / "test_project.py").write_text(PROJECT_TEST)
-    command = [sys.executable, "-m", "pytest", "-q", "-s", "-p", "imulink.testing", "-p", "no:cacheprovider",
-               str(directory / "test_project.py"), *options]
+    command = [sys.executable, "-m", "pytest", "-q", "-s", "-p", "imulink.hil.pytest_plugin", "-p",
+               "no:cacheprovider", str(directory / "test_project.py"), *options]
     return subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=directory, env=env)
 
 

@@ -3,7 +3,7 @@ board of the lab's labgrid farm where there is one and an emulated board where t
 (CI), with the same test code::
 
     # conftest.py
-    pytest_plugins = ["imulink.testing"]
+    pytest_plugins = ["imulink.hil.pytest_plugin"]
 
     # test_firmware.py
     def test_bit_exact(board):
