@@ -342,6 +342,17 @@ def test_a_place_without_a_serial_port(farm):
                     "place spare-empty has no serial port")
 
 
+def test_a_place_whose_board_another_place_holds(farm):
+    """Two places that share one serial port: while one is held, the other is refused, naming it."""
+    farm.places({"alias-native-1": ("rack1/native-1/NetworkSerialPort", {})})
+    farm.client("-p", "imu-native-1", "acquire")
+    try:
+        _one_error_line(imulink("settings", "lg://alias-native-1", env=farm.env),
+                        "place alias-native-1: the coordinator refused to acquire it", "imu-native-1")
+    finally:
+        farm.client("-p", "imu-native-1", "release")
+
+
 def test_a_coordinator_that_is_down(farm):
     """Nothing listens at the address: one line within the stated timeout."""
     down = f"127.0.0.1:{_free_port()}"

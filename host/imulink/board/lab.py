@@ -263,17 +263,22 @@ class Coordinator:
             holder = self._place(name).acquired
             if not holder:
                 self.session.args = _Args(place=name)
+                said = io.StringIO()  # labgrid-client's own messages: why a refusal was
                 try:
-                    with contextlib.redirect_stdout(io.StringIO()):  # labgrid-client's own messages
-                        self._run(self.session.acquire(), f"acquire {name}")
+                    with contextlib.redirect_stdout(said):
+                        self._loop.run_until_complete(asyncio.wait_for(self.session.acquire(), self.timeout_s))
                     return
                 except client.UserError as exc:
                     raise LabError(f"place {name}: {exc}") from None
-                except LabError:
-                    self.sync()  # another job came first (the coordinator refused): who?
+                except asyncio.TimeoutError:
+                    raise LabError(f"the labgrid coordinator at {self.address} does not answer (no answer within "
+                                   f"{self.timeout_s:g} s, trying to acquire {name})") from None
+                except client.ServerError as exc:
+                    self.sync()  # another job may have come first: who?
                     holder = self._place(name).acquired
-                    if not holder:
-                        raise
+                    if not holder:  # e.g. a resource it shares with another place, acquired with that one
+                        why = " ".join([str(exc).strip(), *said.getvalue().split("\n")[-2:]]).strip()
+                        raise LabError(f"place {name}: the coordinator refused to acquire it: {why}") from None
             if time.monotonic() >= deadline:
                 waited = f" (waited {wait_s:g} s)" if wait_s > 0 else ""
                 raise LabBusy(f"place {name} is acquired by {holder}: another job holds the board{waited}; try "
