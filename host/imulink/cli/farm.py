@@ -20,6 +20,10 @@ from imulink.cli.common import (
 )
 from imulink.hil import farm
 
+#: Places verified at once unless --jobs says: each is a worker process (an interpreter, the
+#: host build replaying its board), and a board waits on its link far more than it computes.
+DEFAULT_JOBS = 16
+
 
 def _tags(texts: list[str]) -> dict[str, str]:
     tags = {}
@@ -36,7 +40,7 @@ def run_verify(args) -> int:
     if args.image is not None:
         farm.image_identity(args.image)  # an image without identification is a usage error, before any place
     places = farm.select_places(args.places, _tags(args.tag), args.coordinator, args.timeout)
-    jobs = args.jobs or len(places)
+    jobs = args.jobs or min(len(places), DEFAULT_JOBS)
     print(f"verifying {len(places)} places ({', '.join(p.name for p in places)}), {min(jobs, len(places))} at a "
           f"time, with {args.input}", file=sys.stderr)
 
@@ -108,7 +112,8 @@ def add_parser(sub) -> None:
     v.add_argument("--filter", choices=list(core.FILTERS), help="select this filter first (default: each board's "
                                                                  "active filter)")
     v.add_argument("--jobs", type=worker_count, default=0, metavar="N",
-                   help="places verified at once (default: all of them)")
+                   help=f"places verified at once, each in a worker process (default: all of them, up to "
+                        f"{DEFAULT_JOBS})")
     v.add_argument("--wait", type=non_negative_float, default=0.0, metavar="S",
                    help="wait up to S seconds for a place another job holds (default: 0: that place fails at once, "
                         "naming who holds it)")
