@@ -180,6 +180,28 @@ def test_the_board_fixture_takes_the_lab_s_place(farm, tmp_path):
         assert session.places("imu-native-2")[0].acquired is None
 
 
+def test_a_farm_board_on_a_local_port(farm):
+    """`imulink proxy lg://PLACE --tcp`: the place held while the proxy serves it, released when it stops."""
+    proxy = subprocess.Popen([*IMULINK, "proxy", "lg://imu-native-1", "--tcp", "0"], stdout=subprocess.PIPE,
+                             stderr=subprocess.PIPE, text=True, env=farm.env)
+    try:
+        assert proxy.stdout is not None
+        address = proxy.stdout.readline().strip()
+        assert address.startswith("socket://127.0.0.1:"), proxy.stderr.read() if proxy.poll() is not None else address
+        done = imulink("settings", address, "--json", env=farm.env)
+        assert done.returncode == 0, done.stderr
+        with lab.Coordinator(farm.address) as session:
+            assert session.places("imu-native-1")[0].acquired is not None
+        proxy.terminate()
+        proxy.wait(COMMAND_TIMEOUT_S)
+    finally:
+        if proxy.poll() is None:
+            proxy.kill()
+    assert proxy.returncode == 0
+    with lab.Coordinator(farm.address) as session:
+        assert session.places("imu-native-1")[0].acquired is None
+
+
 def test_farm_verify_proves_every_board(farm):
     done = imulink("farm", "verify", "--places", "imu-*", "--input", "sim:rests:12", "--json", env=farm.env)
     assert done.returncode == 0, done.stderr + done.stdout
