@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import os
 import socket
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -415,15 +417,23 @@ def test_a_narrow_window_leaves_the_plots_the_room(qt, eskf_recording):
         window.close()
 
 
-def test_screenshot_from_the_command_line(qt, tmp_path, eskf_recording, capsys):
+def test_screenshot_from_the_command_line(qt, tmp_path, eskf_recording):
+    """The command as a user runs it, in a process of its own: its Qt event loop (app.exec)
+    is not the test worker's, and a crash in it fails this test instead of the worker."""
+    env = dict(os.environ, QT_QPA_PLATFORM="offscreen", XDG_CONFIG_HOME=str(tmp_path / "config"))
+    cli = [sys.executable, "-m", "imulink.cli"]
     png = tmp_path / "shot.png"
-    assert main(["monitor", str(eskf_recording), "--speed", "5", "--screenshot", str(png), "--exit-after", "1"]) == 0
+    shot = subprocess.run(cli + ["monitor", str(eskf_recording), "--speed", "5", "--screenshot", str(png),
+                                 "--exit-after", "1"], env=env, capture_output=True, text=True, timeout=120)
+    assert shot.returncode == 0, shot.stderr
     data = png.read_bytes()
     assert data.startswith(b"\x89PNG\r\n\x1a\n") and len(data) > 20_000
     assert [p.name for p in tmp_path.iterdir() if "partial" in p.name] == []
-    assert main(["monitor", str(eskf_recording), "--screenshot", str(tmp_path / "no" / "x.png")]) == 2
-    assert capsys.readouterr().err.endswith("imulink: error: cannot write " + str(tmp_path / "no" / "x.png")
-                                            + ": its directory does not exist\n")
+    missing = tmp_path / "no" / "x.png"
+    refused = subprocess.run(cli + ["monitor", str(eskf_recording), "--screenshot", str(missing)], env=env,
+                             capture_output=True, text=True, timeout=120)
+    assert refused.returncode == 2
+    assert refused.stderr.endswith(f"imulink: error: cannot write {missing}: its directory does not exist\n")
 
 
 # ---------------------------------------------------------------------------- the 3D board
