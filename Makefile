@@ -35,12 +35,15 @@ demo: setup
 ## test: the test suite but its sanitizer campaigns, in parallel on every core (pytest-xdist);
 ## a test that hangs fails after 10 min with its name (pytest-timeout); the 15 slowest are
 ## listed at the end
+# --max-worker-restart=0: a worker that crashes (a segfault) ends the run with the test it ran;
+# xdist 3.8 replaces it otherwise, and under --dist loadgroup the session can then wait forever
+# for work units already done (pytest-xdist issue 1378).
 test: setup
-	$(BIN)/python -m pytest -q -n auto --dist loadgroup --timeout=600 --durations=15 -m "not long"
+	$(BIN)/python -m pytest -q -n auto --dist loadgroup --max-worker-restart=0 --timeout=600 --durations=15 -m "not long"
 
 ## test-long: the sanitizer campaigns and the virtual board's long runs (tests marked long); CI runs them after `make test`
 test-long: setup
-	$(BIN)/python -m pytest -q -n auto --timeout=1200 --durations=15 -m long
+	$(BIN)/python -m pytest -q -n auto --max-worker-restart=0 --timeout=1200 --durations=15 -m long
 
 # The lab's virtualenv: the package with its lab extra (labgrid, whose coordinator and exporter
 # the farm tests start), apart from .venv so that the main suite keeps testing pyserial itself.
