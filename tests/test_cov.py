@@ -193,6 +193,17 @@ def _rotation(rng, angle):
     return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
 
 
+def assert_time_updates_match(drivers, p0, steps, expected):
+    """Both builds' P after every step against the reference (in the reference's standard
+    deviations: 2e-5 fixed, 1e-11 float), and exactly symmetric."""
+    for build, tol in (("float", 1e-12), ("fixed", 2e-6)):
+        got = run_driver(drivers[build], p0, steps)
+        assert len(got) == len(steps)
+        for (dx, p), (dx_ref, p_ref) in zip(got, expected):
+            assert_covariance_close(p, p_ref, tol * 10, build)
+            np.testing.assert_array_equal(p, p.T)
+
+
 @pytest.mark.parametrize("seed", [4, 5])
 def test_time_update_moves_only_the_given_rows(drivers, seed):
     """Nine states over eight decades. The ESKF's transition (attitude rows: a rotation and
@@ -212,12 +223,7 @@ def test_time_update_moves_only_the_given_rows(drivers, seed):
              (rng.uniform(-1, 1, 9), 2e-4, 0.01, 1.0, None),
              Predict([1, 4], dense, list(rng.uniform(1e-9, 1e-6, 9)))]
     expected = reference(p0, steps)
-    for build, tol in (("float", 1e-12), ("fixed", 2e-6)):
-        got = run_driver(drivers[build], p0, steps)
-        assert len(got) == len(steps)
-        for (dx, p), (dx_ref, p_ref) in zip(got, expected):
-            assert_covariance_close(p, p_ref, tol * 10, build)
-            np.testing.assert_array_equal(p, p.T)
+    assert_time_updates_match(drivers, p0, steps, expected)
 
 
 @pytest.mark.parametrize("seed", [8, 9])
@@ -241,12 +247,7 @@ def test_time_update_with_a_full_attitude_block_of_process_noise(drivers, seed):
     expected = reference(p0, steps)
     without = reference(p0, [s._replace(block=np.zeros((3, 3))) if isinstance(s, Predict) else s for s in steps])
     assert np.max(np.abs(expected[-1][1] - without[-1][1])) > 1e-7  # the block matters here
-    for build, tol in (("float", 1e-12), ("fixed", 2e-6)):
-        got = run_driver(drivers[build], p0, steps)
-        assert len(got) == len(steps)
-        for (dx, p), (dx_ref, p_ref) in zip(got, expected):
-            assert_covariance_close(p, p_ref, tol * 10, build)
-            np.testing.assert_array_equal(p, p.T)
+    assert_time_updates_match(drivers, p0, steps, expected)
 
 
 @pytest.mark.parametrize("seed", [6, 7])

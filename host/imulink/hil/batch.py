@@ -10,10 +10,11 @@ from __future__ import annotations
 import glob
 import os
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from imulink.errors import ImulinkError
+from imulink.hil.common import rows_in_order, verdict_mark
 from imulink.hil.comparison import MIN_VERIFIED, compare
 from imulink.io.recording import load_recording
 
@@ -85,24 +86,8 @@ def compare_many(paths: Sequence[Path], min_verified: float = MIN_VERIFIED, jobs
             if progress:
                 progress(k + 1, rows[k])  # type: ignore[arg-type]
         return rows  # type: ignore[return-value]
-    pool = ProcessPoolExecutor(max_workers=min(jobs, len(paths)))
-    try:
-        futures = {pool.submit(compare_one, path, min_verified): k for k, path in enumerate(paths)}
-        for done, future in enumerate(as_completed(futures), 1):
-            rows[futures[future]] = future.result()
-            if progress:
-                progress(done, rows[futures[future]])  # type: ignore[arg-type]
-    finally:
-        # on Ctrl-C or an error, the files not yet begun are not compared: only the workers'
-        # current recordings finish (waiting for every queued one would take as long as the run)
-        pool.shutdown(wait=True, cancel_futures=True)
-    return rows  # type: ignore[return-value]
-
-
-def _mark(row: dict) -> str:
-    if row["error"] is not None:
-        return "ERROR"
-    return "yes" if row["passed"] else "NO"
+    return rows_in_order(ProcessPoolExecutor(max_workers=min(jobs, len(paths))), compare_one, paths, progress,
+                         min_verified=min_verified)
 
 
 def format_table(rows: Sequence[dict]) -> str:
@@ -114,7 +99,7 @@ def format_table(rows: Sequence[dict]) -> str:
     for r in rows:
         detail = r["error"] or r["first_difference"] or ("" if r["passed"] else r["verdict"])
         lines.append(f"{r['recording']:{width}s}  {str(r['board'] or '-'):14s} {r['samples']:8d} {r['recorded']:8d} "
-                     f"{r['verified']:8d} {r['identical']:9d}  {_mark(r):9s}  {detail}".rstrip())
+                     f"{r['verified']:8d} {r['identical']:9d}  {verdict_mark(r):9s}  {detail}".rstrip())
     passed = sum(r["passed"] for r in rows)
     errors = sum(r["error"] is not None for r in rows)
     lines.append(f"{len(rows)} recordings: {passed} bit-exact, {len(rows) - passed - errors} not, "

@@ -22,12 +22,13 @@ import fnmatch
 import multiprocessing
 import signal
 from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 from imulink.board import lab
 from imulink.board.link import Link
 from imulink.errors import ImulinkError
+from imulink.hil.common import rows_in_order, verdict_mark
 from imulink.hil.comparison import MIN_VERIFIED
 from imulink.hil.injection import inject, load_injection_input
 from imulink.io.firmware_image import Identification, ImageError, load_image
@@ -84,6 +85,13 @@ def _check_image(hello: dict, ident: Identification) -> None:
                         "(imulink flash IMAGE lg://PLACE)")
 
 
+def _unverified_row(place: str) -> dict:
+    """A place's row before anything is known of its board (verify_place's keys)."""
+    return {"place": place, "port": None, "board": None, "firmware": None, "image": None, "samples": 0,
+            "answered": 0, "identical": 0, "bit_exact": False, "passed": False, "verdict": None,
+            "accuracy": None, "first_difference": None, "error": None}
+
+
 def verify_place(place: str, *, input_spec: str = DEFAULT_INPUT, image: str | None = None,
                  filter_name: str | None = None, min_verified: float = MIN_VERIFIED,
                  coordinator: str | None = None, wait_s: float = 0.0, timeout_s: float = lab.TIMEOUT_S) -> dict:
@@ -91,9 +99,7 @@ def verify_place(place: str, *, input_spec: str = DEFAULT_INPUT, image: str | No
     "samples", "answered", "identical", "bit_exact", "passed", "verdict", "accuracy" (RMS deg
     after the settling time, or None), "first_difference", "error" (None, or the one line that
     says why the place could not be verified: it then fails)}."""
-    row: dict = {"place": place, "port": None, "board": None, "firmware": None, "image": None, "samples": 0,
-                 "answered": 0, "identical": 0, "bit_exact": False, "passed": False, "verdict": None,
-                 "accuracy": None, "first_difference": None, "error": None}
+    row = _unverified_row(place)
     try:
         source = load_injection_input(input_spec)
         ident = image_identity(image) if image is not None else None
@@ -133,31 +139,14 @@ def verify_places(places: Sequence[str], jobs: int, progress: Callable[[int, dic
                   **options) -> list[dict]:
     """verify_place for every place, `jobs` worker processes at a time; rows in the order of
     `places`; `progress(done, row)` as each place finishes. `options`: verify_place's."""
-    rows: list[dict | None] = [None] * len(places)
     pool = ProcessPoolExecutor(max_workers=max(1, min(jobs, len(places))),
                                mp_context=multiprocessing.get_context("spawn"), initializer=_worker_start)
-    try:
-        futures = {pool.submit(verify_place, place, **options): k for k, place in enumerate(places)}
-        for done, future in enumerate(as_completed(futures), 1):
-            k = futures[future]
-            try:
-                rows[k] = future.result()
-            except Exception as exc:  # a worker that died (killed, out of memory): that place's row
-                rows[k] = {"place": places[k], "port": None, "board": None, "firmware": None, "image": None,
-                           "samples": 0, "answered": 0, "identical": 0, "bit_exact": False, "passed": False,
-                           "verdict": None, "accuracy": None, "first_difference": None,
-                           "error": f"the worker verifying it failed: {exc or type(exc).__name__}"}
-            if progress:
-                progress(done, rows[k])  # type: ignore[arg-type]
-    finally:
-        pool.shutdown(wait=True, cancel_futures=True)
-    return rows  # type: ignore[return-value]
+    return rows_in_order(pool, verify_place, places, progress, failed=_failed_row, **options)
 
 
-def _mark(row: dict) -> str:
-    if row["error"] is not None:
-        return "ERROR"
-    return "yes" if row["passed"] else "NO"
+def _failed_row(place, exc: BaseException) -> dict:
+    """The row of a place whose worker died (killed, out of memory)."""
+    return {**_unverified_row(place), "error": f"the worker verifying it failed: {exc or type(exc).__name__}"}
 
 
 def format_table(rows: Sequence[dict]) -> str:
@@ -173,7 +162,7 @@ def format_table(rows: Sequence[dict]) -> str:
             detail = f"first difference: sample {d['sample_index']}: {d['field']}"
         elif not detail and not r["passed"]:
             detail = r["verdict"] or ""
-        lines.append((r["place"], r["board"] or "-", r["firmware"] or "-", str(r["samples"]), _mark(r), accuracy,
+        lines.append((r["place"], r["board"] or "-", r["firmware"] or "-", str(r["samples"]), verdict_mark(r), accuracy,
                       detail))
     widths = [max(len(line[k]) for line in lines) for k in range(len(header))]
     text = ["  ".join(cell.ljust(w) for cell, w in zip(line, widths)).rstrip() for line in lines]
