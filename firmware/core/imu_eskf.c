@@ -392,10 +392,12 @@ static void predict_covariance(imu_eskf_t *f, const imu_q30_t dq[4], const imu_w
     imu_q30_t m[3][IMU_COV_MAX];
     imu_q30_t row[3];
     imu_wide_t block[IMU_COV_BLOCK_CELLS];
+    const imu_wide_t *scale_block = NULL; /* none without a scale uncertainty */
     const int n = imu_eskf_state_count(f);
     int i, j;
     if (f->settings.gyro_scale_std != 0) {
         scale_noise(f, phi, block);
+        scale_block = block;
     }
     for (i = 0; i < 3; ++i) {
         for (j = 0; j < n; ++j) {
@@ -409,8 +411,7 @@ static void predict_covariance(imu_eskf_t *f, const imu_q30_t dq[4], const imu_w
         }
         m[i][GYRO_BIAS + i] = -f->period;
     }
-    imu_cov_predict(&f->cov, m, attitude_rows, 3, f->process_var, f->settings.gyro_scale_std != 0 ? block : NULL,
-                    64, &f->saturations);
+    imu_cov_predict(&f->cov, m, attitude_rows, 3, f->process_var, scale_block, 64, &f->saturations);
     for (i = 0; i < 3; ++i) {
         imu_cov_cap_unit_variance(&f->cov, ATT + i);
     }
