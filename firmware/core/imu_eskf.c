@@ -23,7 +23,7 @@ const imu_eskf_settings_t imu_eskf_default_settings = {
     IMU_QCONST(1.0, 16),      /* mag_noise, uT */
     IMU_QCONST(0.1, 28),      /* init_attitude_std, rad */
     IMU_QCONST(0.01, 30),     /* init_gyro_bias_std, rad/s */
-    IMU_QCONST(0.1, 24),      /* init_acc_bias_std, m/s^2 */
+    IMU_QCONST(0.02, 24),     /* init_acc_bias_std, m/s^2: what `imulink calibrate accel` leaves */
     IMU_QCONST(0.0, 0),       /* estimate_acc_bias */
     IMU_QCONST(9.80665, 24),  /* gravity, m/s^2 */
     IMU_QCONST(0.25, 30),     /* acc_tolerance, fraction of g */
@@ -142,6 +142,7 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
     for (k = 0; k < 3; ++k) {
         f->acc_earth[k] = 0;
         f->gyr_sum[k] = 0;
+        f->lowpass_rotation[k][0] = f->lowpass_rotation[k][1] = f->lowpass_rotation[k][2] = 0;
     }
     imu_rest_init(&f->rest, &imu_rest_default_config, f->period, &f->saturations);
     /* arw^2 / T = arw (Q32) * (sample_rate / 3) (Q16): Q48 wide (below 2^62) -> Q24 (below 2^37),
@@ -492,24 +493,74 @@ static int norm_second_order(imu_eskf_t *f, const imu_q30_t up[3], imu_q30_t *me
     return vertical > IMU_WMUL(across, across);
 }
 
+/** Component k of the low-passed specific force, m/s^2, Q16. */
+static imu_q16_t acc_earth_q16(const imu_eskf_t *f, int k)
+{
+    return IMU_NARROW(IMU_WSHR(f->acc_earth[k], 30)); /* kept within +-INPUT_LIMIT */
+}
+
+/** Element (r, k) of the low-passed rotation, Q30 (about 1 at most: a mean of rotations). */
+static imu_q30_t lowpass_rotation_q30(const imu_eskf_t *f, int r, int k)
+{
+    return IMU_NARROW(IMU_WSHR(f->lowpass_rotation[r][k], 29));
+}
+
 /**
- * Gravity measurement: c = a / g - ba = v + [v x] dtheta + (ba - ba_est), v the estimated
- * up in the sensor frame, taken apart along the estimated earth axes:
- * - east and north (two rows, e . c with H = [e x v, 0, e]): the tilt and the horizontal
- *   accelerometer bias;
- * - up (9 states only): the norm, |c| - 1 = v . (ba - ba_est), which does not depend on the
- *   attitude. The linear row v . c - 1 would read the tilt error's second-order term
- *   (1 - cos e, e the tilt that the horizontal bias makes unobservable at rest) as
- *   vertical bias, and the filter became overconfident in it (docs/accuracy.md). Its H
- *   is taken along v, not along c: a direction that moved with the noise would make the
- *   tilt / horizontal-bias trade look observable.
+ * The accelerometer bias ba as the low-passed specific force holds it (g, Q30; 9 states):
+ * the low-pass ran in the earth frame, so it holds lowpass(R) ba, in the sensor frame
+ * R^T lowpass(R) ba. At rest that is ba; just after a turn it is still partly the bias of
+ * the former orientation, and taken for ba it made the turn look like information about
+ * the bias (tests/test_eskf.py, two positions).
+ */
+static void lowpassed_bias(imu_eskf_t *f, const imu_rotation_t *rot, imu_q30_t bias[3])
+{
+    imu_q30_t earth[3]; /* lowpass(R) ba, g, Q30 */
+    int r, k;
+    for (r = 0; r < 3; ++r) {
+        /* Q30 * Q30 -> Q60; |ba| below 2 g */
+        earth[r] = IMU_WIDE_SAT(IMU_WSHR(IMU_WMUL(lowpass_rotation_q30(f, r, 0), f->acc_bias[0]) +
+                                             IMU_WMUL(lowpass_rotation_q30(f, r, 1), f->acc_bias[1]) +
+                                             IMU_WMUL(lowpass_rotation_q30(f, r, 2), f->acc_bias[2]),
+                                         30),
+                                &f->saturations);
+    }
+    for (k = 0; k < 3; ++k) {
+        bias[k] = IMU_WIDE_SAT(IMU_WSHR(IMU_WMUL(rot->row[0][k], earth[0]) + IMU_WMUL(rot->row[1][k], earth[1]) +
+                                            IMU_WMUL(rot->row[2][k], earth[2]),
+                                        30),
+                               &f->saturations);
+    }
+}
+
+/**
+ * Gravity measurement: c = a / g - B ba_est = v + [v x] dtheta + B (ba - ba_est), a the
+ * low-passed specific force, v the estimated up in the sensor frame, B = R^T lowpass(R)
+ * (lowpassed_bias; I at rest), taken apart along the estimated earth axes:
+ * - east and north (two rows, e . c with H = [e x v, 0, e^T B], e^T B a row of
+ *   lowpass(R)): the tilt and the horizontal accelerometer bias;
+ * - up (9 states only, at rest): the norm, |c| - 1 = v . (ba - ba_est), which does not
+ *   depend on the attitude. The linear row v . c - 1 would read the tilt error's
+ *   second-order term (1 - cos e, e the tilt that the horizontal bias makes unobservable
+ *   at rest) as vertical bias, and the filter became overconfident in it
+ *   (docs/accuracy.md). Its H is taken along v, not along c: a direction that moved with
+ *   the noise would make the tilt / horizontal-bias trade look observable.
  * The acceleration noise is isotropic, so the rows keep independent noise.
+ *
+ * The accelerometer bias is corrected at rest only. In motion a also holds what the
+ * low-pass left of the linear acceleration, an error correlated over the low-pass's time
+ * constant (seconds); counted as white noise step after step, it made a translation look
+ * like a well-known bias (BROAD trial 16: 0.65 m/s^2). In motion the update leaves the bias
+ * alone (a Schmidt update: P keeps its uncertainty and correlations), and a rest in a new
+ * orientation, where a is gravity and the bias, tells tilt and bias apart.
  */
 static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_rotation_t *rot, imu_q30_t dx[9])
 {
     const imu_eskf_settings_t *st = &f->settings;
     const imu_q30_t *up = rot->row[2];
     imu_q30_t c[3];         /* a / g - ba, g, Q30 */
+    imu_q30_t lowpassed[3]; /* the accelerometer bias in the low-passed a, g, Q30 (9 states) */
+    const imu_q30_t *bias = f->acc_bias; /* (zero with six states) */
+    const int nine = imu_eskf_state_count(f) == 9;
     imu_real_t norm;        /* |a|, m/s^2, Q16 */
     imu_q30_t h[9];
     imu_real_t noise_g; /* specific-force noise in g, Q26 (up to 100 m/s^2 over 9 m/s^2: 11 g) */
@@ -536,12 +587,18 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_rota
     if (f->at_rest) {
         set_gain_map(&gain_map, 1, 0, 1, NULL); /* the gyro bias is the rest measurement's */
         map = &gain_map;
+    } else if (nine) {
+        set_gain_map(&gain_map, 1, 1, 0, NULL); /* the accelerometer bias is learnt at rest */
+        map = &gain_map;
+    }
+    if (nine) {
+        lowpassed_bias(f, rot, lowpassed);
+        bias = lowpassed;
     }
     for (k = 0; k < 3; ++k) {
         /* Q16 * Q30 >> 16 -> Q30 (g): below 16 acc_tolerance of 1 g, at most 17 g, saturated
          * beyond 2 g where the weight makes the update negligible. */
-        c[k] = IMU_SUB_SAT(IMU_MUL_SAT(acc[k], f->inv_gravity, 16, &f->saturations), f->acc_bias[k],
-                           &f->saturations);
+        c[k] = IMU_SUB_SAT(IMU_MUL_SAT(acc[k], f->inv_gravity, 16, &f->saturations), bias[k], &f->saturations);
     }
     for (k = 0; k < 2; ++k) {
         const imu_q30_t *e = rot->row[k]; /* east, north */
@@ -551,11 +608,11 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_rota
         imu_vec3_cross(e, up, &h[ATT]);
         for (i = 0; i < 3; ++i) {
             h[GYRO_BIAS + i] = 0;
-            h[ACC_BIAS + i] = e[i];
+            h[ACC_BIAS + i] = nine ? lowpass_rotation_q30(f, k, i) : e[i];
         }
         scalar_update(f, h, z, r, 52, f->acc_weight, map, dx);
     }
-    if (imu_eskf_state_count(f) == 9) {
+    if (nine && f->at_rest) { /* (in motion it would correct nothing) */
         imu_real_t c_norm; /* |c|, g, Q30 */
         imu_q30_t second_order;
         if (imu_vec3_normalize(c, NULL, &c_norm) && norm_second_order(f, up, &second_order)) {
@@ -565,7 +622,7 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_rota
                 h[i] = 0;
             }
             for (i = 0; i < 3; ++i) {
-                h[ACC_BIAS + i] = up[i];
+                h[ACC_BIAS + i] = lowpass_rotation_q30(f, 2, i);
             }
             scalar_update(f, h, z, r, 52, f->acc_weight, map, dx);
         }
@@ -709,12 +766,6 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_rota
     scalar_update(f, h, z, IMU_WMUL(sigma, sigma), 48, f->mag_weight, &gain_map, dx);
 }
 
-/** Component k of the low-passed specific force, m/s^2, Q16. */
-static imu_q16_t acc_earth_q16(const imu_eskf_t *f, int k)
-{
-    return IMU_NARROW(IMU_WSHR(f->acc_earth[k], 30)); /* kept within +-INPUT_LIMIT */
-}
-
 /**
  * Low-pass the specific force in the estimated earth frame, where rotations do
  * not change gravity but a back-and-forth translation averages out (time
@@ -732,6 +783,19 @@ static void lowpass_specific_force(imu_eskf_t *f, const imu_rotation_t *rot, imu
                               ? f->acc_earth[r] + IMU_WMUL(f->acc_alpha, IMU_SUB(earth[r], acc_earth_q16(f, r)))
                               : IMU_WMUL(earth[r], IMU_ONE_Q30);
         smooth[r] = acc_earth_q16(f, r);
+    }
+    if (imu_eskf_state_count(f) == 9) {
+        /* The same low-pass of R: Q30 * Q29 -> Q59 (halved: a difference of rotations reaches 2). */
+        for (r = 0; r < 3; ++r) {
+            for (k = 0; k < 3; ++k) {
+                f->lowpass_rotation[r][k] =
+                    f->acc_earth_valid
+                        ? f->lowpass_rotation[r][k] +
+                              IMU_WMUL(f->acc_alpha, IMU_SUB(IMU_SHR(rot->row[r][k], 1),
+                                                             IMU_SHR(lowpass_rotation_q30(f, r, k), 1)))
+                        : IMU_WMUL(rot->row[r][k], IMU_QCONST(1.0, 29));
+            }
+        }
     }
     f->acc_earth_valid = 1;
     for (k = 0; k < 3; ++k) {
@@ -765,6 +829,20 @@ static void turn_acc_earth(imu_eskf_t *f, const imu_rotation_t *rot, const imu_q
     f->acc_earth[2] += IMU_WMUL(u[0], v[1]) - IMU_WMUL(u[1], v[0]);
     for (k = 0; k < 3; ++k) {
         f->acc_earth[k] = f->acc_earth[k] > limit ? limit : (f->acc_earth[k] < -limit ? -limit : f->acc_earth[k]);
+    }
+    if (imu_eskf_state_count(f) != 9) {
+        return;
+    }
+    for (k = 0; k < 3; ++k) {
+        /* column k of the low-passed rotation, an earth vector, turns alike: Q30 * Q30 -> Q60 >> 1 -> Q59 */
+        imu_q30_t m[3];
+        int r;
+        for (r = 0; r < 3; ++r) {
+            m[r] = lowpass_rotation_q30(f, r, k);
+        }
+        f->lowpass_rotation[0][k] += IMU_WSHR(IMU_WMUL(u[1], m[2]) - IMU_WMUL(u[2], m[1]), 1);
+        f->lowpass_rotation[1][k] += IMU_WSHR(IMU_WMUL(u[2], m[0]) - IMU_WMUL(u[0], m[2]), 1);
+        f->lowpass_rotation[2][k] += IMU_WSHR(IMU_WMUL(u[0], m[1]) - IMU_WMUL(u[1], m[0]), 1);
     }
 }
 

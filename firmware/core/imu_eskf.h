@@ -103,6 +103,8 @@ typedef struct {
     imu_wide_t acc_earth[3];      /**< low-passed specific force in the estimated earth frame, m/s^2, Q46:
                                        a step of the low-pass or of a correction's turn is a fraction of a
                                        Q16 LSB at high rates, and such rounding errors repeat step after step */
+    imu_wide_t lowpass_rotation[3][3]; /**< the same low-pass of R (earth from sensor), Q59, 9 states only:
+                                       acc_earth holds lowpass(R) ba of the accelerometer bias ba, not R ba */
     int acc_earth_valid;          /**< 0 until the low-pass has its first value */
     imu_q30_t acc_weight;         /**< weight of the last gravity update, Q30 */
     imu_q30_t mag_weight;         /**< weight of the last heading update, Q30 */
