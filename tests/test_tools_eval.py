@@ -355,3 +355,34 @@ def test_rough_usage_errors_are_one_line(argv, word, capsys):
     assert eval_rough.main(argv) == eval_rough.EXIT_USAGE
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and word in err
+
+
+# --- eval_acc_bias ---------------------------------------------------------------------
+
+eval_acc_bias = _load("eval_acc_bias")
+
+
+def test_acc_bias_tool_measures_the_estimate_against_the_truth(capsys):
+    """With a prior that expects an uncalibrated MPU6050's bias the 9-state filter brings
+    it to a small part of itself within the 300 s of handheld motion; the tool's columns
+    are the truth's and the estimate's (an estimate left at zero would score |b|)."""
+    assert eval_acc_bias.main(["--seeds", "1", "--settings", '{"init_acc_bias_std": 0.3}', "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    for scenario in eval_acc_bias.SCENARIOS:
+        run = report[scenario]["seeds"]["1"]
+        assert 0.3 < run["initial"] < 0.7
+        assert run["end"] < 0.25 * run["initial"]
+        assert 0.0 < run["sigma_end"] < 0.05
+    assert eval_acc_bias.main(["--seeds", "1", "--markdown"]) == 0
+    table = capsys.readouterr().out
+    assert "| acc-bias | " in table and "| acc-bias-drift | " in table and "settings the defaults" in table
+
+
+@pytest.mark.parametrize("argv, word", [(["--settings", '{"acc_noise": -1}'], "acc_noise=-1.0"),
+                                        (["--settings", "[1]"], "JSON object"), (["--seeds", "x"], "'x'")])
+def test_acc_bias_tool_usage_errors_name_the_input(argv, word, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        eval_acc_bias.main(argv)
+    assert exit_info.value.code == 2
+    last = capsys.readouterr().err.strip().splitlines()[-1]  # after argparse's usage
+    assert "error:" in last and word in last
