@@ -542,8 +542,9 @@ static void lowpassed_bias(imu_eskf_t *f, const imu_rotation_t *rot, imu_q30_t b
  *   depend on the attitude. The linear row v . c - 1 would read the tilt error's
  *   second-order term (1 - cos e, e the tilt that the horizontal bias makes unobservable
  *   at rest) as vertical bias, and the filter became overconfident in it
- *   (docs/accuracy.md). Its H is taken along v, not along c: a direction that moved with
- *   the noise would make the tilt / horizontal-bias trade look observable.
+ *   (docs/accuracy.md). Its H is taken along v (the up row of lowpass(R), v at rest), not
+ *   along c: a direction that moved with the noise would make the tilt / horizontal-bias
+ *   trade look observable.
  * The acceleration noise is isotropic, so the rows keep independent noise.
  *
  * The accelerometer bias is corrected at rest only. In motion a also holds what the
@@ -557,7 +558,7 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_rota
 {
     const imu_eskf_settings_t *st = &f->settings;
     const imu_q30_t *up = rot->row[2];
-    imu_q30_t c[3];         /* a / g - ba, g, Q30 */
+    imu_q30_t c[3];         /* a / g - B ba, g, Q30 */
     imu_q30_t lowpassed[3]; /* the accelerometer bias in the low-passed a, g, Q30 (9 states) */
     const imu_q30_t *bias = f->acc_bias; /* (zero with six states) */
     const int nine = imu_eskf_state_count(f) == 9;
@@ -608,7 +609,7 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_rota
         imu_vec3_cross(e, up, &h[ATT]);
         for (i = 0; i < 3; ++i) {
             h[GYRO_BIAS + i] = 0;
-            h[ACC_BIAS + i] = nine ? lowpass_rotation_q30(f, k, i) : e[i];
+            h[ACC_BIAS + i] = nine ? lowpass_rotation_q30(f, k, i) : e[i]; /* (not read with six states) */
         }
         scalar_update(f, h, z, r, 52, f->acc_weight, map, dx);
     }
