@@ -66,6 +66,14 @@ def test_when_the_commander_leaves_the_oldest_listener_commands(board):
             second.connect(timeout=0.5, attempts=1)
 
 
+def _wait_for_sample(link: Link, index: int, timeout_s: float = 30.0) -> None:
+    """Until `link` receives the SAMPLE of `index` or a later one (on a loaded machine a
+    board may take seconds to stream its first)."""
+    deadline = time.monotonic() + timeout_s
+    while not any(m.fields["index"] >= index for m in _samples(link, 0.1)):
+        assert time.monotonic() < deadline, f"no SAMPLE {index} within {timeout_s} s"
+
+
 def _wait_until_recording(path, timeout_s: float = 30.0) -> None:
     """Until the recording at `path` holds some frames (about 20 samples' bytes)."""
     deadline = time.monotonic() + timeout_s
@@ -81,6 +89,7 @@ def test_one_commander_and_two_readers_a_listening_recorder_verifies_after_a_res
     path = tmp_path / "listener.imulog"
     with Link(board.address) as commander:
         _start_streaming(commander)
+        _wait_for_sample(commander, 50)  # the run is under way before the recorder joins: mid-run for it
         outcome = {}
         recorder = threading.Thread(target=lambda: outcome.update(
             result=hil.record(board.address, path, duration_s=4.0, listen=True)))
