@@ -836,6 +836,7 @@ static void turn_acc_earth(imu_eskf_t *f, const imu_rotation_t *rot, const imu_q
     }
     for (k = 0; k < 3; ++k) {
         /* column k of the low-passed rotation, an earth vector, turns alike: Q30 * Q30 -> Q60 >> 1 -> Q59 */
+        const imu_wide_t one = IMU_WMUL(IMU_ONE_Q30, IMU_QCONST(1.0, 29)); /* 1 in Q59 */
         imu_q30_t m[3];
         int r;
         for (r = 0; r < 3; ++r) {
@@ -844,6 +845,10 @@ static void turn_acc_earth(imu_eskf_t *f, const imu_rotation_t *rot, const imu_q
         f->lowpass_rotation[0][k] += IMU_WSHR(IMU_WMUL(u[1], m[2]) - IMU_WMUL(u[2], m[1]), 1);
         f->lowpass_rotation[1][k] += IMU_WSHR(IMU_WMUL(u[2], m[0]) - IMU_WMUL(u[0], m[2]), 1);
         f->lowpass_rotation[2][k] += IMU_WSHR(IMU_WMUL(u[0], m[1]) - IMU_WMUL(u[1], m[0]), 1);
+        for (r = 0; r < 3; ++r) { /* a mean of rotations' elements is within +-1; the first-order turn is not */
+            imu_wide_t *const e = &f->lowpass_rotation[r][k];
+            *e = *e > one ? one : (*e < -one ? -one : *e);
+        }
     }
 }
 
