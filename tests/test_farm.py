@@ -1,6 +1,7 @@
 """A labgrid farm on this machine: a coordinator and exporters started here, emulated boards
-(native processes, and the ARM image in QEMU) exported as network serial ports, places
-created and tagged with labgrid-client, and imulink using them by lg://PLACE.
+(native processes, the ARM image in QEMU, and the reference image on the virtual STM32F407)
+exported as network serial ports, places created and tagged with labgrid-client, and imulink
+using them by lg://PLACE.
 
 Needs labgrid (imulink[lab]): `make test-farm` runs this module in .venv-lab, where
 IMULINK_REQUIRE_LABGRID=1 turns a missing labgrid into a failure instead of a skip.
@@ -130,16 +131,20 @@ def imulink(*args: str, env: dict | None = None, timeout: float = COMMAND_TIMEOU
 
 
 def _board(target: str = "native") -> EmulatedBoard:
-    return EmulatedBoard(target, front="tcp", duration_s=5.0, filter_name="eskf").start()
+    # the virtual reference board in real time, as a real board is: run flat out, it would take a
+    # core for the whole module while it waits for its host
+    return EmulatedBoard(target, front="tcp", duration_s=5.0, filter_name="eskf",
+                         realtime=target == "stm32f407").start()
 
 
 @pytest.fixture(scope="module")
 def farm(tmp_path_factory):
-    """A coordinator and exporter `rack1` with two native boards and (where QEMU is) one QEMU
-    board as places imu-native-1, imu-native-2, imu-qemu-1, tagged by board; a place
-    spare-empty with no resource at all."""
+    """A coordinator and exporter `rack1` with two native boards, the virtual reference board
+    (the image that gets flashed, on the register-level STM32F407 + GY-86) and (where QEMU is)
+    one QEMU board as places imu-native-1, imu-native-2, imu-stm32f407-1, imu-qemu-1, tagged by
+    board; a place spare-empty with no resource at all."""
     directory = tmp_path_factory.mktemp("farm")
-    boards = {"native-1": _board(), "native-2": _board()}
+    boards = {"native-1": _board(), "native-2": _board(), "stm32f407-1": _board("stm32f407")}
     if shutil.which("qemu-system-arm"):
         boards["qemu-1"] = _board("qemu")
     the_lab = Lab(directory)
@@ -203,6 +208,9 @@ def test_a_farm_board_on_a_local_port(farm):
 
 
 def test_farm_verify_proves_every_board(farm):
+    """Every place at once, the virtual reference board among them (about 150 injected samples/s
+    in real time, the natives thousands: 12 s of rests keep the run short and still give the
+    accuracy after the 10 s it takes to settle)."""
     done = imulink("farm", "verify", "--places", "imu-*", "--input", "sim:rests:12", "--json", env=farm.env)
     assert done.returncode == 0, done.stderr + done.stdout
     report = json.loads(done.stdout)
@@ -213,6 +221,7 @@ def test_farm_verify_proves_every_board(farm):
         assert row["samples"] == row["answered"] == row["identical"] == 1200
         assert row["accuracy"] is not None and row["accuracy"]["rms_total_deg"] < 5.0
     assert rows["imu-native-1"]["board"] == "native"
+    assert rows["imu-stm32f407-1"]["board"] == "stm32f407-gy86"
     if "imu-qemu-1" in rows:
         assert rows["imu-qemu-1"]["board"] == "qemu-stm32f405"
     with lab.Coordinator(farm.address) as session:
@@ -220,19 +229,21 @@ def test_farm_verify_proves_every_board(farm):
 
 
 def test_farm_verify_checks_the_image_a_board_runs(farm):
-    """--image: a board runs it (the QEMU board, its own image) or its place is not proven."""
-    if "qemu-1" not in farm.boards:
-        pytest.skip("no qemu-system-arm")
-    image = str(farm.boards["qemu-1"].image)
+    """--image: a board runs it (the virtual reference board: the image that gets flashed; the
+    QEMU board, its own image) or its place is not proven."""
+    image = str(farm.boards["stm32f407-1"].image)
     done = imulink("farm", "verify", "--places", "imu-*", "--image", image, "--input", "sim:rests:2", env=farm.env)
     assert done.returncode == 1, done.stderr
     lines = {line.split()[0]: line for line in done.stdout.splitlines()[1:-1]}
-    assert " yes " in lines["imu-qemu-1"]
-    assert "ERROR" in lines["imu-native-1"] and "the image is qemu-stm32f405" in lines["imu-native-1"]
-    tagged = imulink("farm", "verify", "--tag", "board=qemu", "--image", image, "--input", "sim:rests:2",
-                     env=farm.env)
-    assert tagged.returncode == 0, tagged.stderr + tagged.stdout
-    assert "1 places: 1 proven bit-exact" in tagged.stdout
+    assert " yes " in lines["imu-stm32f407-1"] and "stm32f407-gy86" in lines["imu-stm32f407-1"]
+    assert "ERROR" in lines["imu-native-1"] and "the image is stm32f407-gy86" in lines["imu-native-1"]
+    if "qemu-1" in farm.boards:
+        assert "ERROR" in lines["imu-qemu-1"] and "the board runs qemu-stm32f405" in lines["imu-qemu-1"]
+        qemu_image = str(farm.boards["qemu-1"].image)
+        tagged = imulink("farm", "verify", "--tag", "board=qemu", "--image", qemu_image, "--input", "sim:rests:2",
+                         env=farm.env)
+        assert tagged.returncode == 0, tagged.stderr + tagged.stdout
+        assert "1 places: 1 proven bit-exact" in tagged.stdout
 
 
 def test_a_second_job_on_a_held_place_is_refused_then_waits(farm):
