@@ -271,6 +271,44 @@ def test_a_second_job_on_a_held_place_is_refused_then_waits(farm):
     assert waiting.returncode == 0, waiting.stderr
 
 
+@pytest.mark.parametrize("option", ["--place-wait", "--wait"])
+def test_farm_verify_waits_for_a_held_place(farm, option):
+    """farm verify names the wait --place-wait, as every command does; --wait, its old name, still
+    works (with a warning). Without it, a held place is its row's error, naming the holder."""
+    farm.client("-p", "imu-native-1", "acquire")
+    held = True
+    job = None
+    said: list[str] = []
+    try:
+        refused = imulink("farm", "verify", "--places", "imu-native-1", "--input", "sim:rests:1", "--json",
+                          env=farm.env)
+        assert refused.returncode == 1, refused.stderr
+        row = json.loads(refused.stdout)["places"][0]
+        assert "place imu-native-1 is acquired by" in row["error"] and "--place-wait SECONDS" in row["error"], row
+        job = subprocess.Popen([*IMULINK, "farm", "verify", "--places", "imu-native-1", "--input", "sim:rests:1",
+                                option, "90", "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                               env=farm.env)
+        assert job.stderr is not None
+        for line in job.stderr:  # the worker says that it waits, then waits: the place is released
+            said.append(line)
+            if "waiting up to 90 s for it" in line:
+                break
+        assert said and "place imu-native-1 is acquired by" in said[-1], "".join(said)
+        farm.client("-p", "imu-native-1", "release")
+        held = False
+        out, err = job.communicate(timeout=COMMAND_TIMEOUT_S)
+    finally:
+        if held:
+            farm.client("-p", "imu-native-1", "release")
+        if job is not None and job.poll() is None:
+            job.kill()
+    assert job.returncode == 0, "".join(said) + err
+    report = json.loads(out)
+    assert report["passed"] == 1 and report["places"][0]["identical"] == 100
+    deprecated = [line for line in said if "--wait is deprecated" in line]
+    assert len(deprecated) == (option == "--wait"), said
+
+
 def test_ctrl_c_releases_the_place(farm):
     """A job stopped with Ctrl-C (SIGINT) in the middle of its run gives the place back."""
     job = subprocess.Popen([*IMULINK, "inject", "lg://imu-native-1", "--input", "sim:rests:300"],

@@ -258,9 +258,14 @@ class Coordinator:
         it and it is not released within `wait_s` s; LabError as check_serial."""
         client = _labgrid()
         deadline = time.monotonic() + wait_s
+        said_waiting = False
         while True:
             self.check_serial(name, resource)
             holder = self._place(name).acquired
+            if holder and wait_s > 0 and not said_waiting:  # a job that waits says for what
+                print(f"imulink: place {name} is acquired by {holder}: waiting up to {wait_s:g} s for it",
+                      file=sys.stderr, flush=True)
+                said_waiting = True
             if not holder:
                 self.session.args = _Args(place=name)
                 said = io.StringIO()  # labgrid-client's own messages: why a refusal was
@@ -282,7 +287,7 @@ class Coordinator:
             if time.monotonic() >= deadline:
                 waited = f" (waited {wait_s:g} s)" if wait_s > 0 else ""
                 raise LabBusy(f"place {name} is acquired by {holder}: another job holds the board{waited}; try "
-                              "later, or wait for it (--place-wait SECONDS, farm verify --wait SECONDS)")
+                              "later, or wait for it (--place-wait SECONDS)")
             self._loop.run_until_complete(asyncio.sleep(_WAIT_POLL_S))  # the session takes the place's updates
             self.sync()
 

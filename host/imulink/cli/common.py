@@ -247,15 +247,24 @@ PORT_HELP = ("serial device (/dev/ttyACM0, COM3), pyserial URL (socket://HOST:PO
              "or labgrid place (lg://PLACE[/RESOURCE], acquired for the command: docs/farm.md)")
 
 
+def coordinator_argument(p, answers: str = f"within {lab.TIMEOUT_S:g} s") -> None:
+    """--coordinator: the labgrid coordinator of the places, as labgrid's own tools find it."""
+    p.add_argument("--coordinator", metavar="HOST:PORT",
+                   help=f"the labgrid coordinator (default: $LG_COORDINATOR, else {lab.DEFAULT_COORDINATOR}); it must "
+                        f"answer {answers}")
+
+
+def place_wait_argument(p, refused: str = "refuse at once with who holds it") -> None:
+    """--place-wait S: how long to wait for a place another job holds."""
+    p.add_argument("--place-wait", type=non_negative_float, default=0.0, metavar="S",
+                   help=f"wait up to S seconds for a place another job holds (default: 0, {refused})")
+
+
 def place_arguments(p):
     """--coordinator and --place-wait: where a PORT lg://PLACE is looked up, how long to wait for it."""
     group = p.add_argument_group("labgrid places (a PORT lg://PLACE; needs imulink[lab])")
-    group.add_argument("--coordinator", metavar="HOST:PORT",
-                       help=f"the labgrid coordinator (default: $LG_COORDINATOR, else {lab.DEFAULT_COORDINATOR}); it "
-                            f"must answer within {lab.TIMEOUT_S:g} s")
-    group.add_argument("--place-wait", type=non_negative_float, default=0.0, metavar="S",
-                       help="wait up to S seconds for a place another job holds (default: 0, refuse at once with who "
-                            "holds it)")
+    coordinator_argument(group)
+    place_wait_argument(group)
 
 
 def port_arguments(p):

@@ -9,10 +9,12 @@ from imulink.board import lab
 from imulink.cli.common import (
     EXIT_MISMATCH,
     UsageError,
+    coordinator_argument,
     json_argument,
     min_verified_argument,
     non_negative_float,
     one_line_errors,
+    place_wait_argument,
     positive_float,
     print_json,
     text_columns,
@@ -50,7 +52,7 @@ def run_verify(args) -> int:
 
     rows = farm.verify_places([p.name for p in places], jobs, progress, input_spec=args.input, image=args.image,
                               filter_name=args.filter, min_verified=args.min_verified,
-                              coordinator=args.coordinator, wait_s=args.wait, timeout_s=args.timeout)
+                              coordinator=args.coordinator, wait_s=args.place_wait, timeout_s=args.timeout)
     if args.json:
         print_json(farm.farm_json(rows, args.input, args.image))
     else:
@@ -72,13 +74,21 @@ def run_places(args) -> int:
     return 0
 
 
+class _DeprecatedWait(argparse.Action):
+    """`farm verify --wait S`: --place-wait's old name, kept working, with a one-line warning."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print("imulink: warning: farm verify --wait is deprecated: it is --place-wait, as in every other command",
+              file=sys.stderr)
+        setattr(namespace, self.dest, values)
+
+
 def _common(p, default_places: str) -> None:
     p.add_argument("--places", default=default_places, metavar="GLOB",
                    help=f"the places whose name matches this glob pattern (quoted; default: {default_places!r})")
     p.add_argument("--tag", action="append", default=[], metavar="KEY=VALUE",
                    help="only places with this tag (repeatable: all of them)")
-    p.add_argument("--coordinator", metavar="HOST:PORT",
-                   help=f"the labgrid coordinator (default: $LG_COORDINATOR, else {lab.DEFAULT_COORDINATOR})")
+    coordinator_argument(p, "each request within --timeout S")
     p.add_argument("--timeout", type=positive_float, default=lab.TIMEOUT_S, metavar="S",
                    help=f"seconds the coordinator has to answer each request (default: {lab.TIMEOUT_S:g})")
 
@@ -114,9 +124,9 @@ def add_parser(sub) -> None:
     v.add_argument("--jobs", type=worker_count, default=0, metavar="N",
                    help=f"places verified at once, each in a worker process (default: all of them, up to "
                         f"{DEFAULT_JOBS})")
-    v.add_argument("--wait", type=non_negative_float, default=0.0, metavar="S",
-                   help="wait up to S seconds for a place another job holds (default: 0: that place fails at once, "
-                        "naming who holds it)")
+    place_wait_argument(v, "that place fails at once, naming who holds it")
+    v.add_argument("--wait", type=non_negative_float, dest="place_wait", action=_DeprecatedWait, metavar="S",
+                   help=argparse.SUPPRESS)  # its name until every command's --place-wait said the same
     min_verified_argument(v, "the injected samples (answered and compared)")
     json_argument(v, "the table")
     v.set_defaults(func=run_verify)
