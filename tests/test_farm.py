@@ -8,6 +8,7 @@ IMULINK_REQUIRE_LABGRID=1 turns a missing labgrid into a failure instead of a sk
 """
 from __future__ import annotations
 
+import http.server
 import json
 import os
 import shutil
@@ -15,6 +16,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -100,10 +102,12 @@ class Lab:
         return subprocess.run([str(BIN / "labgrid-client"), "-x", self.address, *args], env=self.env,
                               capture_output=True, text=True, timeout=COMMAND_TIMEOUT_S, check=True)
 
-    def places(self, places: dict[str, tuple[str | None, dict[str, str]]]) -> None:
-        """Create places {name: (match or None, tags)}, each step for all of them at once."""
+    def places(self, places: dict[str, tuple[str | list[str] | None, dict[str, str]]]) -> None:
+        """Create places {name: (match, matches or None, tags)}, each step for all of them at once."""
+        def matches(match: str | list[str] | None) -> list[str]:
+            return [match] if isinstance(match, str) else list(match or [])
         steps = [[("-p", name, "create") for name in places],
-                 [("-p", name, "add-match", match) for name, (match, _) in places.items() if match],
+                 [("-p", name, "add-match", *matches(match)) for name, (match, _) in places.items() if match],
                  [("-p", name, "set-tags", *(f"{k}={v}" for k, v in tags.items()))
                   for name, (_, tags) in places.items() if tags]]
         for step in steps:
@@ -367,10 +371,7 @@ def test_a_usb_serial_board_through_ser2net(farm):
     """A lab's usual board: a serial device (here the native board's pty; a USB serial adapter in
     a lab) exported as a RawSerialPort, which the exporter shares through ser2net (RFC 2217)
     while the place is acquired. The board is reached as rfc2217:// and proven bit-exact."""
-    if not (shutil.which("ser2net") or Path("/usr/sbin/ser2net").exists()):
-        if os.environ.get("IMULINK_REQUIRE_LABGRID"):
-            pytest.fail("ser2net is missing: tools/install-system-packages.sh installs it")
-        pytest.skip("ser2net is not installed")
+    _needs_ser2net()
     board = EmulatedBoard("native", front="pty", duration_s=5.0, filter_name="eskf").start()
     try:
         config = farm.dir / "usb.yaml"
@@ -391,6 +392,118 @@ def test_a_usb_serial_board_through_ser2net(farm):
         assert report["samples"] == report["answered"] == 100 and report["verdict"]["passed"]
     finally:
         farm.stop("exporter-usb")
+        board.stop()
+
+
+def _needs_ser2net() -> None:
+    if not (shutil.which("ser2net") or Path("/usr/sbin/ser2net").exists()):
+        if os.environ.get("IMULINK_REQUIRE_LABGRID"):
+            pytest.fail("ser2net is missing: tools/install-system-packages.sh installs it")
+        pytest.skip("ser2net is not installed")
+
+
+class GpioBox:
+    """A lab's GPIO box as labgrid's HttpDigitalOutput speaks to one: PUT /LINE with the body 1
+    or 0 sets a line, GET /LINE reads it. Its lines `boot0` and `reset` are wired to a virtual
+    board's BOOT0 pin and NRST (reset asserted: NRST held low); every change is recorded."""
+
+    def __init__(self, board: EmulatedBoard):
+        assert board.virtual is not None
+        pins = board.virtual
+        self.levels = {"boot0": False, "reset": False}
+        self.changes: list[tuple[str, bool]] = []
+        box = self
+
+        class Handler(http.server.BaseHTTPRequestHandler):
+            def do_PUT(self):
+                line = self.path.strip("/")
+                body = self.rfile.read(int(self.headers.get("Content-Length") or 0))
+                if line not in box.levels or body not in (b"0", b"1"):
+                    self.send_error(404)
+                    return
+                level = body == b"1"
+                box.levels[line] = level
+                box.changes.append((line, level))
+                pins.set_pins(**{"boot0" if line == "boot0" else "reset": level})
+                self.send_response(204)
+                self.end_headers()
+
+            def do_GET(self):
+                line = self.path.strip("/")
+                if line not in box.levels:
+                    self.send_error(404)
+                    return
+                body = b"1" if box.levels[line] else b"0"
+                self.send_response(200)
+                self.send_header("Content-Length", str(len(body)))
+                self.end_headers()
+                self.wfile.write(body)
+
+            def log_message(self, *args):
+                pass
+
+        self.server = http.server.ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.url = f"http://127.0.0.1:{self.server.server_address[1]}"
+        self._thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        self.server.shutdown()
+        self.server.server_close()
+
+
+def test_flash_drives_the_place_s_boot0_and_reset_lines(farm):
+    """`imulink flash IMAGE lg://PLACE` on a place with BOOT0 and reset lines (labgrid
+    HttpDigitalOutput resources of a GPIO box wired to the virtual reference board) and its serial
+    device through ser2net: by default it drives the lines (BOOT0 high, a reset pulse), flashes
+    over the chip's UART bootloader, then BOOT0 low and a reset start the flashed image, whose
+    HELLO it checks; the board then answers as the application. A place without the lines, or
+    with BOOT0 alone, is one line with --enter lines, exit 2."""
+    _needs_ser2net()
+    board = EmulatedBoard("stm32f407", front="pty", duration_s=5.0, filter_name="eskf", realtime=True).start()
+    box = GpioBox(board)
+    try:
+        config = farm.dir / "lines.yaml"
+        outputs = "".join(f"  {line}:\n    cls: HttpDigitalOutput\n    url: {box.url}/{line}\n"
+                          f"    body_asserted: '1'\n    body_deasserted: '0'\n" for line in ("boot0", "reset"))
+        config.write_text(f"board-1:\n  RawSerialPort:\n    port: {board.address}\n    speed: 921600\n{outputs}")
+        farm._start("exporter-lines", [str(BIN / "labgrid-exporter"), "-c", farm.address, "-n", "lines-rack",
+                                       "--hostname", "127.0.0.1", str(config)])
+
+        def published() -> bool:
+            with lab.Coordinator(farm.address) as session:
+                return set(session.session.resources.get("lines-rack", {}).get("board-1", {})) == {
+                    "RawSerialPort", "boot0", "reset"}
+        _wait_for(published, 30, "the exporter did not publish the board and its lines")
+        serial_match = "lines-rack/board-1/NetworkSerialPort"
+        farm.places({"ref-1": ([serial_match, "lines-rack/board-1/HttpDigitalOutput/boot0",
+                                "lines-rack/board-1/HttpDigitalOutput/reset"], {"board": "stm32f407"}),
+                     "ref-boot0-only": ([serial_match, "lines-rack/board-1/HttpDigitalOutput/boot0"], {})})
+        image = str(board.image)
+        done = imulink("flash", image, "lg://ref-1", env=farm.env)
+        assert done.returncode == 0, done.stderr
+        assert "boot0 (HttpDigitalOutput), reset (HttpDigitalOutput): BOOT0 high and a reset" in done.stderr
+        assert "; running: stm32f407-gy86 firmware" in done.stdout and "as built" in done.stdout, done.stdout
+        assert box.changes == [("boot0", True), ("reset", True), ("reset", False),
+                               ("boot0", False), ("reset", True), ("reset", False)]
+        virtual = board.virtual
+        assert virtual is not None and virtual.error is None
+        assert virtual.board.booted == ["flash", "system memory", "flash"]
+        bootloader = virtual.board.last_bootloader
+        assert bootloader is not None and bootloader.erased_sectors > 0  # written, not only read
+        answered = imulink("settings", "lg://ref-1", "--json", env=farm.env)  # the application answers
+        assert answered.returncode == 0 and json.loads(answered.stdout)["filter"] == "eskf", answered.stderr
+
+        _one_error_line(imulink("flash", image, "lg://ref-boot0-only", "--enter", "lines", env=farm.env),
+                        "place ref-boot0-only has boot0 (HttpDigitalOutput)", "a digital output named 'reset'")
+        _one_error_line(imulink("flash", image, "lg://imu-native-1", "--enter", "lines", env=farm.env),
+                        "place imu-native-1 has no BOOT0, reset or power line", "'boot0'")
+        assert box.changes[6:] == []  # neither touched a line
+        with lab.Coordinator(farm.address) as session:
+            assert all(p.acquired is None for p in session.places())
+    finally:
+        farm.stop("exporter-lines")
+        box.close()
         board.stop()
 
 

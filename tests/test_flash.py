@@ -245,7 +245,9 @@ def test_cli_flash_and_its_one_line_errors(image, capsys, tmp_path):
     assert "chip: STM32F405/STM32F407/STM32F415/STM32F417 (device id 0x413), 1024 KiB flash" in err
     for argv, fragment in ((["flash", str(ROOT / "README.md"), "/dev/null"], "not a firmware image"),
                            (["flash", str(STM32F407_ELF), "/dev/imulink-no-such-port"], "cannot open"),
-                           (["flash", str(STM32F407_ELF)], "give the serial port")):
+                           (["flash", str(STM32F407_ELF)], "give the serial port"),
+                           (["flash", str(STM32F407_ELF), "/dev/imulink-no-such-port", "--enter", "lines"],
+                            "--enter lines drives a labgrid place's BOOT0 and reset lines")):
         assert main(argv) == 2
         err = capsys.readouterr().err
         assert err.splitlines()[-1].startswith("imulink: error: ") and fragment in err and "Traceback" not in err

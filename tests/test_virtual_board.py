@@ -441,6 +441,57 @@ def test_enter_bootloader_then_flash_over_the_same_line(image):
     assert found and found[0].name == "HELLO" and found[0].seq == 0
 
 
+def test_boot0_and_a_reset_start_the_bootloader_and_boot0_low_the_flash(image):
+    """The BOOT0 pin read as NRST is released: high, the system memory's bootloader answers
+    AN3155; low, the flash's image starts (its HELLO). Held in reset, the chip is silent and
+    what the host sends is lost."""
+    board = start(image)
+    board.run_for(0.4)
+    assert any(m.name == "HELLO" for m in messages(board))
+    board.set_boot0(True)
+    board.hold_reset(True)
+    board.put(b"\x7f")
+    board.run_for(0.1)
+    assert board.take() == b"" and board.bootloader is None  # held in reset: nothing runs
+    board.hold_reset(False)
+    assert board.bootloader is not None and board.booted == ["flash", "system memory"]
+    board.put(b"\x7f")
+    assert board.take() == b"\x79"  # AN3155: ACK to the sync byte
+    board.set_boot0(False)
+    board.hold_reset(True)
+    board.hold_reset(False)
+    assert board.bootloader is None and board.booted == ["flash", "system memory", "flash"]
+    board.run_for(0.4)
+    found = messages(board)
+    assert found and found[0].name == "HELLO" and found[0].seq == 0
+
+
+def test_the_board_server_drives_the_pins_from_another_thread(image):
+    """BoardServer.set_pins: BOOT0 and NRST driven from another thread (a lab's GPIO box), applied
+    by the board's own thread in order before its next step, the host line (a socket) connected
+    throughout: pins set before the board runs its first step start it in its bootloader."""
+    ours, theirs = socket.socketpair()
+    server = stm32f407.BoardServer(start(image), realtime=False, sock=ours)
+    server.set_pins(boot0=True, reset=True)
+    server.set_pins(reset=False)
+    server.start()
+    try:
+        theirs.settimeout(10.0)
+        theirs.sendall(b"\x7f")
+        assert theirs.recv(16) == b"\x79"  # AN3155: the bootloader's ACK, and nothing the application sent
+        assert server.board.booted == ["flash", "system memory"] and server.error is None
+        server.set_pins(boot0=False, reset=True)
+        server.set_pins(reset=False)
+        decoder = protocol.FrameDecoder()
+        found: list[protocol.Message] = []
+        while not found:  # the flash's image starts: its HELLO
+            found = [m for m in decoder.feed(theirs.recv(4096)) if isinstance(m, protocol.Message)]
+        assert found[0].name == "HELLO" and server.board.booted[-1] == "flash"
+    finally:
+        server.stop()
+        theirs.close()
+
+
 def test_demo_on_the_virtual_board_is_bit_exact(image):
     """`imulink demo --target stm32f407`: in real time (as far as the machine keeps up), for the
     run's length; every estimate verified."""
@@ -477,6 +528,81 @@ def test_imulink_flash_enters_the_bootloader_of_the_emulated_board(image):
         result = flashing.flash_uart(load_image(image), board.address, enter="command", log=lambda *_: None)
         assert board.virtual is not None and board.virtual.board.boots == 2 and board.error is None
     assert result.verified and result.started and result.hello["board"] == "stm32f407-gy86"
+
+
+class PinLines:
+    """BOOT0 and reset lines wired to the emulated board's pins (what a lab's GPIO box does for a
+    labgrid place: imulink.board.lab.PlaceLines), every step recorded; `wired=False`: lines that
+    lead nowhere."""
+
+    def __init__(self, board: EmulatedBoard, wired: bool = True):
+        assert board.virtual is not None
+        self.pins = board.virtual
+        self.wired = wired
+        self.steps: list[str] = []
+
+    def describe(self) -> str:
+        return "boot0, reset (test)"
+
+    def set_boot0(self, high: bool) -> None:
+        self.steps.append(f"boot0 {'high' if high else 'low'}")
+        if self.wired:
+            self.pins.set_pins(boot0=high)
+
+    def _reset(self) -> None:
+        self.steps.append("reset")
+        if self.wired:
+            self.pins.set_pins(reset=True)
+            self.pins.set_pins(reset=False)
+
+    def enter_bootloader(self) -> None:
+        self.set_boot0(True)
+        self._reset()
+
+    def start_application(self) -> None:
+        self.set_boot0(False)
+        self._reset()
+
+
+def test_flash_with_lines_boots_the_bootloader_then_the_image(image):
+    """--enter lines: BOOT0 high and a reset into the bootloader, the flash, then BOOT0 low and a
+    reset (no Go) start the image, whose HELLO is checked."""
+    with EmulatedBoard("stm32f407", duration_s=5.0) as board:
+        lines = PinLines(board)
+        result = flashing.flash_uart(load_image(image), board.address, enter="lines", lines=lines, log=lambda *_: None)
+        assert board.virtual is not None and board.error is None
+        assert board.virtual.board.booted == ["flash", "system memory", "flash"]
+        bootloader = board.virtual.board.last_bootloader
+        assert bootloader is not None and bootloader.go_address is None  # started by the reset, not by Go
+    assert lines.steps == ["boot0 high", "reset", "boot0 low", "reset"]
+    assert result.verified and result.started and result.started_at == FLASH_BASE
+    assert result.hello["board"] == "stm32f407-gy86"
+
+
+def test_flash_with_lines_dry_run_and_no_start(image):
+    """A dry run through the lines resets the board back into its firmware; --no-start leaves it in
+    its bootloader with BOOT0 high, as asked."""
+    with EmulatedBoard("stm32f407", duration_s=5.0) as board:
+        lines = PinLines(board)
+        dry = flashing.flash_uart(load_image(image), board.address, enter="lines", lines=lines, dry_run=True,
+                                  log=lambda *_: None)
+        assert dry.dry_run and lines.steps == ["boot0 high", "reset", "boot0 low", "reset"]
+        with Link(board.address) as link:
+            assert link.connect()["board"] == "stm32f407-gy86"  # its firmware again
+        lines.steps.clear()
+        kept = flashing.flash_uart(load_image(image), board.address, enter="lines", lines=lines, start=False,
+                                   log=lambda *_: None)
+        assert not kept.started and lines.steps == ["boot0 high", "reset"]
+        assert board.virtual is not None and board.virtual.board.bootloader is not None
+
+
+def test_flash_with_lines_that_do_not_reach_the_board(image):
+    """Lines wired to nothing: no bootloader answers, one error, and BOOT0 is driven low again."""
+    with EmulatedBoard("stm32f407", duration_s=5.0) as board:
+        lines = PinLines(board, wired=False)
+        with pytest.raises(flashing.FlashError, match="no STM32 bootloader answered"):
+            flashing.flash_uart(load_image(image), board.address, enter="lines", lines=lines, log=lambda *_: None)
+    assert lines.steps == ["boot0 high", "reset", "boot0 low"]
 
 
 def test_emulate_refuses_what_the_reference_image_cannot_do(image):

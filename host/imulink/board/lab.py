@@ -18,6 +18,9 @@ and releases it. This module is the only one that speaks to labgrid:
 - Every failure is a :class:`LabError` in one line: labgrid missing (the extra to install),
   a coordinator that does not answer within ``timeout_s``, an unknown place, a place
   without a serial port, an exporter that is gone.
+- ``held_place(..., lines=True)`` also binds labgrid's own drivers to the place's BOOT0 and
+  reset lines and its power switch (:class:`PlaceLines`: digital outputs named ``boot0`` and
+  ``reset``, a power port), which `imulink flash --enter lines` drives.
 """
 from __future__ import annotations
 
@@ -32,6 +35,7 @@ import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from typing import Any
 
 from imulink.errors import ImulinkError
 
@@ -78,6 +82,8 @@ class HeldPlace:
     speed: int
     tags: dict[str, str]
     coordinator: str
+    #: its BOOT0 and reset lines and power switch, when asked for (held_place's `lines`)
+    lines: "PlaceLines | None" = None
 
 
 def is_place(address: str | None) -> bool:
@@ -325,6 +331,170 @@ class Coordinator:
         return port_name, f"{scheme}://{host}:{port}{options}", int(params.get("speed") or 115200)
 
 
+    def lines(self, name: str) -> "PlaceLines":
+        """The BOOT0 and reset lines and the power switch of acquired place `name`, each bound to
+        labgrid's own driver for its resource class (as `labgrid-client io` and `power` bind
+        them); parts the place does not have are None."""
+        from labgrid import Target
+        from labgrid.resource.remote import RemotePlace, RemotePlaceManager
+
+        manager = RemotePlaceManager.get()  # the place's resources from this session, as labgrid-client does
+        manager.session = self.session
+        manager.loop = self._loop
+        target = Target(name)
+        lines = PlaceLines(name, target)
+        try:
+            with contextlib.redirect_stdout(io.StringIO()):
+                RemotePlace(target, name=name)
+            resources = [r for r in target.resources if not isinstance(r, RemotePlace)]
+            for line in (BOOT0_LINE, RESET_LINE):
+                found = [r for r in resources if r.name is not None and r.name.lower() == line
+                         and type(r).__name__ in OUTPUT_DRIVERS]
+                if found:
+                    setattr(lines, line, lines.bind(found[0], OUTPUT_DRIVERS[type(found[0]).__name__]))
+            power = [r for r in resources if type(r).__name__ in POWER_DRIVERS]
+            if len(power) > 1:
+                power = [r for r in power if r.name == POWER_NAME]
+                if len(power) != 1:
+                    raise LabError(f"place {name} has several power ports: name the board's {POWER_NAME!r} (add-match "
+                                   f"... {POWER_NAME})")
+            if power:
+                lines.power = lines.bind(power[0], POWER_DRIVERS[type(power[0]).__name__])
+        except LabError:
+            lines.close()
+            raise
+        except Exception as exc:  # labgrid's own errors (a resource it cannot make, a driver it cannot activate)
+            lines.close()
+            raise LabError(f"place {name}: its lines cannot be used through labgrid: {_one_line(exc)}") from None
+        return lines
+
+
+#: A place's digital outputs that imulink drives, by resource name (or the match's rename):
+#: BOOT0 (asserted: high, the chip boots its system-memory bootloader) and reset (asserted:
+#: the board held in reset, NRST low). Polarity is the resource's own (`invert` where labgrid
+#: has it).
+BOOT0_LINE = "boot0"
+RESET_LINE = "reset"
+#: The power port's name when a place has several.
+POWER_NAME = "power"
+#: labgrid's digital-output resources (as a place holds them) and their drivers: the pairs
+#: labgrid-client's `io` command binds.
+OUTPUT_DRIVERS = {
+    "HttpDigitalOutput": "HttpDigitalOutputDriver",
+    "ModbusTCPCoil": "ModbusCoilDriver",
+    "WaveshareModbusTCPCoil": "WaveShareModbusCoilDriver",
+    "Eth008DigitalOutput": "Eth008DigitalOutputDriver",
+    "OneWirePIO": "OneWirePIODriver",
+    "NetworkDeditecRelais8": "DeditecRelaisDriver",
+    "NetworkSysfsGPIO": "GpioDigitalOutputDriver",
+    "NetworkLXAIOBusPIO": "LXAIOBusPIODriver",
+    "NetworkHIDRelay": "HIDRelayDriver",
+}
+#: labgrid's power resources and their drivers: the pairs labgrid-client's `power` command binds.
+POWER_DRIVERS = {
+    "NetworkPowerPort": "NetworkPowerDriver",
+    "NetworkUSBPowerPort": "USBPowerDriver",
+    "NetworkSiSPMPowerPort": "SiSPMPowerDriver",
+    "PDUDaemonPort": "PDUDaemonDriver",
+    "TasmotaPowerPort": "TasmotaPowerDriver",
+    "NetworkYKUSHPowerPort": "YKUSHPowerDriver",
+}
+#: Seconds reset is held (NRST needs microseconds; a relay or a slow GPIO box more).
+RESET_PULSE_S = 0.1
+#: Seconds from the end of a reset or a power cycle to the bootloader listening (AN2606: well
+#: under 100 ms on the F4).
+START_S = 0.1
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+class PlaceLines:
+    """A held place's BOOT0 and reset lines and its power switch, through labgrid's drivers:
+    what brings its board into the STM32 system bootloader and back into its firmware, with
+    nobody at the bench. Each step is one line on failure (LabError)."""
+
+    def __init__(self, place: str, target):
+        self.place = place
+        self.target = target
+        self.boot0: Any = None
+        self.reset: Any = None
+        self.power: Any = None
+        self._kinds: dict[str, str] = {}
+
+    def bind(self, resource, driver_name: str):
+        """labgrid's `driver_name` bound to `resource` of the place and activated."""
+        from labgrid.factory import target_factory
+
+        cls = target_factory.class_from_string(driver_name)
+        [binding] = cls.bindings  # a digital output's and a power port's drivers bind one resource
+        self.target.set_binding_map({binding: resource.name})
+        driver = cls(self.target, name=resource.name)
+        self.target.activate(driver)
+        self._kinds[resource.name] = type(resource).__name__
+        return driver
+
+    @property
+    def usable(self) -> bool:
+        """A BOOT0 line and a way to restart the board (a reset line or a power switch)."""
+        return self.boot0 is not None and (self.reset is not None or self.power is not None)
+
+    def describe(self) -> str:
+        """What the place has, e.g. `boot0 (HttpDigitalOutput), reset (HttpDigitalOutput)`."""
+        parts = [f"{driver.name} ({self._kinds.get(driver.name, type(driver).__name__)})"
+                 for driver in (self.boot0, self.reset, self.power) if driver is not None]
+        return ", ".join(parts) or "no BOOT0, reset or power line"
+
+    def missing(self) -> str:
+        """Why the lines cannot flash the board ("" when they can)."""
+        if self.usable:
+            return ""
+        lacking = (f"a digital output named {BOOT0_LINE!r}" if self.boot0 is None
+                   else f"a digital output named {RESET_LINE!r} or a power port")
+        return (f"place {self.place} has {self.describe()}: --enter lines needs {lacking} (docs/farm.md: a place's "
+                "BOOT0 and reset lines)")
+
+    def _do(self, what: str, step) -> None:
+        try:
+            step()
+        except Exception as exc:  # requests', pymodbus', labgrid's own errors
+            raise LabError(f"place {self.place}: {what} failed: {_one_line(exc)}") from None
+
+    def set_boot0(self, high: bool) -> None:
+        boot0 = self.boot0
+        assert boot0 is not None
+        self._do(f"setting {boot0.name} {'high' if high else 'low'}", lambda: boot0.set(high))
+
+    def restart(self) -> None:
+        """A reset pulse on the reset line, else a power cycle; then the time the chip takes to start."""
+        if self.reset is not None:
+            reset = self.reset
+            self._do(f"asserting {reset.name}", lambda: reset.set(True))
+            time.sleep(RESET_PULSE_S)
+            self._do(f"releasing {reset.name}", lambda: reset.set(False))
+        elif self.power is not None:
+            self._do(f"power-cycling {self.power.name}", self.power.cycle)
+        time.sleep(START_S)
+
+    def enter_bootloader(self) -> None:
+        """BOOT0 high, then a reset (or a power cycle): the chip starts its system bootloader."""
+        if not self.usable:
+            raise LabError(self.missing())
+        self.set_boot0(True)
+        self.restart()
+
+    def start_application(self) -> None:
+        """BOOT0 low, then a reset (or a power cycle): the chip starts what its flash holds."""
+        self.set_boot0(False)
+        self.restart()
+
+    def close(self) -> None:
+        """Deactivate the drivers (idempotent); never raises."""
+        with contextlib.suppress(Exception):
+            self.target.cleanup()
+
+
 @dataclass
 class _Args:
     """The arguments labgrid-client's place commands read (its argparse namespace)."""
@@ -352,23 +522,30 @@ def _host_and_port(params: dict, extra: dict) -> tuple[str, int]:
 
 @contextlib.contextmanager
 def held_place(address: str, coordinator: str | None = None, timeout_s: float = TIMEOUT_S,
-               wait_s: float = 0.0) -> Iterator[HeldPlace]:
+               wait_s: float = 0.0, lines: bool = False) -> Iterator[HeldPlace]:
     """Acquire the place of `address` (lg://PLACE[/NAME]) for the body of the with statement
     and release it after, whatever ends the body (an error, Ctrl-C). The coordinator
-    session is closed while the body runs: an acquired place stays acquired until released."""
+    session is closed while the body runs: an acquired place stays acquired until released.
+    With `lines`, the held place's `lines` are its BOOT0 and reset lines and power switch
+    (:class:`PlaceLines`, bound while the session is open)."""
     name, resource = parse_place(address)
+    place_lines = None
     with Coordinator(coordinator, timeout_s) as lab:
         lab.acquire(name, resource, wait_s)
         try:
             port_name, url, speed = lab.serial_port(name, resource)
             tags = dict(lab._place(name).tags)
+            if lines:
+                place_lines = lab.lines(name)
         except BaseException:
             _release(lab.address, name, timeout_s, lab)
             raise
         address_used = lab.address
     try:
-        yield HeldPlace(name, url, port_name, speed, tags, address_used)
+        yield HeldPlace(name, url, port_name, speed, tags, address_used, place_lines)
     finally:
+        if place_lines is not None:
+            place_lines.close()
         _release(address_used, name, timeout_s)
 
 

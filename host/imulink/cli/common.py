@@ -78,15 +78,22 @@ def held_port(args):
     if not lab.is_place(address):
         yield
         return
-    with lab.held_place(address, getattr(args, "coordinator", None), wait_s=getattr(args, "place_wait", 0.0)) \
-            as place:
+    wants_lines = getattr(args, "place_lines", None)  # flash: whether it drives the place's BOOT0 and reset
+    lines = bool(wants_lines(args)) if callable(wants_lines) else False
+    with lab.held_place(address, getattr(args, "coordinator", None), wait_s=getattr(args, "place_wait", 0.0),
+                        lines=lines) as place:
+        check = getattr(args, "place_check", None)  # what the command needs of the place, before it says it has it
+        if check is not None:
+            check(args, place)
         print(f"imulink: place {place.name} acquired from {place.coordinator}: {place.resource} at {place.url}",
               file=sys.stderr)
         setattr(args, attribute, place.url)
+        args.held_place = place
         try:
             yield
         finally:
             setattr(args, attribute, address)
+            args.held_place = None
 
 
 def json_value(value):

@@ -33,6 +33,34 @@ def _flash_method(args) -> str:
     return name if name in SWD_PORTS else "uart"
 
 
+def _wants_place_lines(args) -> bool:
+    """Whether a place's BOOT0 and reset lines are looked for: --enter lines, or no --enter (then
+    they are the way in where the place has them)."""
+    return args.enter in (None, "lines")
+
+
+def _check_place_lines(args, place) -> None:
+    """--enter lines on a place without the lines: one line, before anything else is done."""
+    if args.enter == "lines" and args.method in (None, "uart") and (place.lines is None or not place.lines.usable):
+        missing = place.lines.missing() if place.lines is not None else f"place {place.name} has no lines"
+        raise flash.FlashError(f"{missing}; or choose another --enter (command: the board runs imulink firmware)")
+
+
+def _entry(args) -> tuple[str, object]:
+    """(--enter, the place's lines or None): --enter as given, else `lines` for a place that has
+    a BOOT0 line and a reset line or power switch, else `manual`."""
+    place = getattr(args, "held_place", None)
+    lines = place.lines if place is not None else None
+    if args.enter is None:
+        return ("lines", lines) if lines is not None and lines.usable else ("manual", None)
+    if args.enter != "lines":
+        return args.enter, None
+    if lines is None:
+        raise flash.FlashError("--enter lines drives a labgrid place's BOOT0 and reset lines: give the board as "
+                               "lg://PLACE (docs/farm.md), or choose another --enter")
+    return "lines", lines
+
+
 @one_line_errors
 def run(args) -> int:
     try:
@@ -40,6 +68,7 @@ def run(args) -> int:
     except ImageError as exc:
         raise flash.FlashError(str(exc)) from None
     method = _flash_method(args) if args.port is not None or args.method or not args.dry_run else None
+    enter, lines = _entry(args) if method == "uart" else (args.enter or "manual", None)
     ident = flash.check_identification(image, args.force)
     what = (f"{ident.board} firmware {ident.version_text} for {ident.chip}" if ident is not None
             else "an image without identification")
@@ -54,10 +83,10 @@ def run(args) -> int:
         return 0
     progress = Bars()
     if method == "uart":
-        result = flash.flash_uart(image, args.port, enter=args.enter, baud=args.baud, link_baud=args.link_baud,
+        result = flash.flash_uart(image, args.port, enter=enter, baud=args.baud, link_baud=args.link_baud,
                                   verify=not args.no_verify, start=not args.no_start, dry_run=args.dry_run,
                                   force=args.force, unprotect=args.unprotect, progress=progress,
-                                  log=lambda line: print(line, file=sys.stderr))
+                                  log=lambda line: print(line, file=sys.stderr), lines=lines)  # type: ignore[arg-type]
         hello = result.hello
     else:
         started = time.monotonic()
@@ -113,7 +142,10 @@ def add_parser(sub) -> None:
                     "  pyocd[:PROBE] | openocd   that SWD tool (PROBE: the probe's serial number)\n\n"
                     "Into the bootloader (--enter): manual = BOOT0 high and a reset by hand; command = the board\n"
                     "runs imulink firmware, which gets ENTER_BOOTLOADER; dtr-rts = the adapter's DTR drives NRST\n"
-                    "and RTS drives BOOT0. docs/flashing.md has the wiring and troubleshooting.\n"
+                    "and RTS drives BOOT0; lines = a labgrid place's digital outputs named boot0 and reset (or its\n"
+                    "power switch) drive them: BOOT0 high and a reset, the flash, BOOT0 low and a reset into the\n"
+                    "image. The default is lines for a place that has them, else manual. docs/flashing.md has the\n"
+                    "wiring and troubleshooting, docs/farm.md the place's lines.\n"
                     "Without PORT, --dry-run checks the image alone.")
     p.add_argument("image", metavar="IMAGE", help="firmware image: .elf, .hex or .bin")
     p.add_argument("port", metavar="PORT", nargs="?",
@@ -121,8 +153,9 @@ def add_parser(sub) -> None:
                         "lg://PLACE[/RESOURCE]: its serial port), or swd / pyocd / openocd")
     p.add_argument("--method", choices=("uart", "pyocd", "openocd"), help="how to flash (default: from PORT)")
     p.add_argument("--address", type=u32_number, help="load address of a raw .bin image (e.g. 0x08000000)")
-    p.add_argument("--enter", choices=("manual", "command", "dtr-rts"), default="manual",
-                   help="how the board gets into its bootloader (default: manual)")
+    p.add_argument("--enter", choices=flash.ENTRIES, default=None,
+                   help="how the board gets into its bootloader (default: lines for a labgrid place with BOOT0 and "
+                        "reset lines or a power switch, else manual)")
     p.add_argument("--baud", type=baud_rate, default=115200,
                    help="bootloader baud rate (default: 115200, AN3155's highest)")
     p.add_argument("--link-baud", type=baud_rate, default=DEFAULT_BAUD,
@@ -142,5 +175,5 @@ def add_parser(sub) -> None:
     p.add_argument("--unprotect", action="store_true",
                    help="clear readout protection if it is on: the chip ERASES ITS WHOLE FLASH first")
     place_arguments(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, place_lines=_wants_place_lines, place_check=_check_place_lines)
 

@@ -6,14 +6,16 @@ Over the chip's system-memory bootloader on USART1 (:mod:`imulink.board.flash.st
 1. the image (ELF, Intel HEX or .bin, :mod:`imulink.io.firmware_image`) must carry the
    identification block of a board on this chip family, and fit the chip's flash;
 2. the board enters its bootloader: by hand (BOOT0 high and a reset), by the imulink
-   firmware's ENTER_BOOTLOADER command, or through the adapter's DTR and RTS lines wired
-   to NRST and BOOT0;
+   firmware's ENTER_BOOTLOADER command, through the adapter's DTR and RTS lines wired
+   to NRST and BOOT0, or through a lab's BOOT0 and reset lines (or power switch) that the
+   caller drives (`lines`: a labgrid place's, imulink.board.lab.PlaceLines);
 3. synchronisation, Get, Get ID: the chip must be the one the image was built for; its
    flash size (the chip's own flash size register) must hold the image; a refused read
    there means readout protection is on;
 4. only the sectors the image touches are erased (the F405/407's sectors are 16, 64 and
    128 KiB), then written in 256-byte blocks, then read back and compared;
-5. Go at the image's own vector table (where it was flashed), and the firmware's HELLO on
+5. Go at the image's own vector table (where it was flashed; with `lines`, BOOT0 low and a
+   reset instead, which boots the flash as a power-on does), and the firmware's HELLO on
    the same port (the link's own rate) must report the image's board, firmware version and
    schema hash; an image flashed with --force that is not imulink's (or speaks another
    schema) is started and not asked for a HELLO.
@@ -23,8 +25,10 @@ Progress goes to a `progress(phase, done, total)` callback (:class:`imulink.prog
 """
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass
+from typing import Protocol
 
 import serial
 
@@ -37,12 +41,34 @@ from imulink.io.firmware_image import FirmwareImage, Identification, identificat
 #: Rate for the bootloader (AN3155: up to 115200 baud; the bootloader measures it).
 BOOTLOADER_BAUD = 115200
 #: Ways into the bootloader (see ENTRY_HELP).
-ENTRIES = ("manual", "command", "dtr-rts")
+ENTRIES = ("manual", "command", "dtr-rts", "lines")
 ENTRY_HELP = {
     "manual": "the board is already in its bootloader: BOOT0 held high (a jumper to 3.3 V) and a reset",
     "command": "the board runs imulink firmware: ENTER_BOOTLOADER over the link",
     "dtr-rts": "the adapter's DTR drives NRST and RTS drives BOOT0 (each line low while asserted)",
+    "lines": "a lab's BOOT0 and reset lines (or power switch): BOOT0 high and a reset, the flash, then BOOT0 low "
+             "and a reset",
 }
+
+
+class BootLines(Protocol):
+    """A board's BOOT0 and reset lines that the host drives (imulink.board.lab.PlaceLines)."""
+
+    def describe(self) -> str:
+        """What drives them, for the log."""
+        ...
+
+    def enter_bootloader(self) -> None:
+        """BOOT0 high and a reset: the system bootloader starts."""
+        ...
+
+    def start_application(self) -> None:
+        """BOOT0 low and a reset: what the flash holds starts."""
+        ...
+
+    def set_boot0(self, high: bool) -> None:
+        ...
+
 #: Board names of images for emulated boards, not for hardware (firmware/boards/qemu).
 EMULATED_BOARD_PREFIX = "qemu-"
 #: Bytes at the start of flash read to find the identification block of what the chip holds.
@@ -215,14 +241,60 @@ def _pulse_reset(port, boot0_high: bool) -> None:
 
 def flash_uart(image: FirmwareImage, url: str, *, enter: str = "manual", baud: int = BOOTLOADER_BAUD,
                link_baud: int = DEFAULT_BAUD, verify: bool = True, start: bool = True, dry_run: bool = False,
-               force: bool = False, unprotect: bool = False, progress=None, log=print) -> FlashResult:
-    """Flash `image` through the bootloader on `url` (see the module docstring)."""
+               force: bool = False, unprotect: bool = False, progress=None, log=print,
+               lines: BootLines | None = None) -> FlashResult:
+    """Flash `image` through the bootloader on `url` (see the module docstring). With
+    enter="lines", `lines` drive the board's BOOT0 and reset: into the bootloader first, and
+    after the flash (unless `start` is off) BOOT0 low and a reset start the flash's image; a
+    dry run starts what the board held, and a failure leaves BOOT0 low (no reset)."""
     begun = time.monotonic()
     ident = check_identification(image, force)
     if enter not in ENTRIES:
         raise FlashError(f"unknown way into the bootloader {enter!r}; choose one of {', '.join(ENTRIES)}")
+    if enter == "lines" and lines is None:
+        raise FlashError("--enter lines needs the board's BOOT0 and reset lines: a labgrid place (lg://PLACE) "
+                         "that has them (docs/farm.md)")
+    if enter != "lines":
+        lines = None
     if enter == "command":
         _enter_by_command(url, link_baud)
+    if lines is not None:
+        log(f"{lines.describe()}: BOOT0 high and a reset, into the bootloader")
+        lines.enter_bootloader()
+    finished = False
+    try:
+        result, started_at = _flash_through(image, url, enter, baud, ident, verify, start, dry_run, force, unprotect,
+                                            progress, log, lines)
+        finished = True
+    finally:
+        if lines is not None and not finished:  # the board stays in its bootloader until a reset; a power-on
+            with contextlib.suppress(Exception):  # or reset later boots its flash
+                lines.set_boot0(False)
+    if lines is not None and (start or dry_run):  # --no-start: the board stays in its bootloader, BOOT0 high
+        log(f"{lines.describe()}: BOOT0 low and a reset, " + ("back into its firmware" if dry_run else
+                                                               "into the flash's image"))
+        lines.start_application()
+    note = ""
+    if start and not dry_run and started_at is None and lines is not None and vector_table_start(image) is not None:
+        note = (f"not started: the image starts at 0x{image.start:08X}, not at the flash's start, where a reset "
+                "boots; the board was reset with BOOT0 low and runs what the flash's start holds")
+    elif start and not dry_run and started_at is None:
+        then = ("the board was reset with BOOT0 low and runs what it boots" if lines is not None
+                else "reset the board with BOOT0 low to run what it boots")
+        note = (f"not started: no vector table at the image's start 0x{image.start:08X} (a stack pointer in RAM, "
+                f"a reset handler in the image); {then}")
+    elif started_at is not None:
+        note = unasked_hello(ident)
+    hello = check_hello(url, link_baud, ident) if started_at is not None and not note else None
+    return FlashResult(image, "uart", "/".join(CHIPS[result.device_id].names), result.bootloader_version,
+                       result.sectors, 0 if dry_run else image.size, verify and not dry_run, started_at is not None,
+                       hello, time.monotonic() - begun, dry_run, started_at, note)
+
+
+def _flash_through(image: FirmwareImage, url: str, enter: str, baud: int, ident, verify: bool, start: bool,
+                   dry_run: bool, force: bool, unprotect: bool, progress, log,
+                   lines: BootLines | None) -> tuple[_Programmed, int | None]:
+    """The bootloader's part: (what was programmed, where the image was started or None)."""
     port = _open(url, baud, serial.PARITY_EVEN, rts=False if enter == "dtr-rts" else None,
                  dtr=False if enter == "dtr-rts" else None)
     try:
@@ -232,7 +304,10 @@ def flash_uart(image: FirmwareImage, url: str, *, enter: str = "manual", baud: i
         try:
             result = _program(boot, image, ident, verify, dry_run, unprotect, force, progress, log)
             started_at = vector_table_start(image) if start and not dry_run else None
-            if started_at is not None:
+            if started_at is not None and lines is not None:
+                # a reset with BOOT0 low boots the flash from its start, as a power-on does
+                started_at = CHIPS[result.device_id].flash_base if started_at == image.start else None
+            elif started_at is not None:
                 boot.go(started_at)
             if start and not dry_run and enter == "dtr-rts":
                 port.rts = True  # BOOT0 low again: the next reset starts the firmware too
@@ -248,16 +323,7 @@ def flash_uart(image: FirmwareImage, url: str, *, enter: str = "manual", baud: i
             raise FlashError(str(exc)) from None
     finally:
         port.close()
-    note = ""
-    if start and not dry_run and started_at is None:
-        note = (f"not started: no vector table at the image's start 0x{image.start:08X} (a stack pointer in RAM, "
-                "a reset handler in the image); reset the board with BOOT0 low to run what it boots")
-    elif started_at is not None:
-        note = unasked_hello(ident)
-    hello = check_hello(url, link_baud, ident) if started_at is not None and not note else None
-    return FlashResult(image, "uart", "/".join(CHIPS[result.device_id].names), result.bootloader_version,
-                       result.sectors, 0 if dry_run else image.size, verify and not dry_run, started_at is not None,
-                       hello, time.monotonic() - begun, dry_run, started_at, note)
+    return result, started_at
 
 
 @dataclass

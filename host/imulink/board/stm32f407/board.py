@@ -15,6 +15,10 @@ from a simulated run.
 - When the core reaches the system memory (ENTER_BOOTLOADER), the AN3155 bootloader model
   (imulink.board.chips.stm32_bootloader) answers on USART1's line; its Go starts the flashed
   bytes from power-on.
+- The BOOT0 pin and NRST (:meth:`ReferenceBoard.set_boot0`, :meth:`ReferenceBoard.hold_reset`):
+  held in reset the chip stops and its line is silent; released, it starts again and boots
+  what BOOT0 selects then (RM0090 2.4: BOOT0 high, BOOT1 low: the system memory, i.e. the
+  bootloader; low: the flash), as a lab's GPIO lines drive a real board's.
 - Faults (:class:`ChipFaults`): a chip that NACKs, answers a wrong identity, stops answering
   after N transfers, SDA held low, a receiver that is absent, at another baud or sends damaged
   frames.
@@ -192,6 +196,14 @@ class ReferenceBoard:
         self.seed = seed
         self.bootloader: Stm32Bootloader | None = None
         self.boots = 0
+        #: what each start booted, in order: "flash" or "system memory" (the bootloader)
+        self.booted: list[str] = []
+        #: the BOOT0 pin's level (BOOT1, PB2, is low on the reference board)
+        self.boot0 = False
+        #: NRST held low: nothing runs
+        self.in_reset = False
+        #: the bootloader model of the last session in system memory (its erase counts, its log)
+        self.last_bootloader: Stm32Bootloader | None = None
         #: told every problem the models report, as a line (the chip's, also after a Go rebuilt it)
         self.on_problem: Callable[[str], None] | None = None
         self._build()
@@ -237,6 +249,7 @@ class ReferenceBoard:
             self.usart2.peer = self.receiver_line = ReceiverLine(self.receiver, self.usart2)
         soc.core.system_hooks.append(self._watch_pc)
         self._start_feeds()
+        self.booted.append("flash")
 
     def _start_feeds(self) -> None:
         """The chips' own timelines (they run from power-on, whatever the core does)."""
@@ -281,7 +294,34 @@ class ReferenceBoard:
 
     def _watch_pc(self, pc: int) -> None:
         if pc == BOOTLOADER_PARK and self.bootloader is None:
-            self.bootloader = Stm32Bootloader(flash=self.flash.ljust(FLASH_SIZE, b"\xff"))
+            self._enter_bootloader()
+
+    def _enter_bootloader(self) -> None:
+        self.bootloader = self.last_bootloader = Stm32Bootloader(flash=self.flash.ljust(FLASH_SIZE, b"\xff"))
+
+    # ------------------------------------------------------------------ BOOT0 and NRST
+
+    def set_boot0(self, high: bool) -> None:
+        """The BOOT0 pin: read when the chip leaves reset."""
+        self.boot0 = bool(high)
+
+    def hold_reset(self, held: bool) -> None:
+        """NRST: held low, the chip stops (nothing runs, nothing is sent, bytes from the host are
+        lost); released, it starts from reset: the system memory's bootloader with BOOT0 high,
+        else the flash (what the bootloader wrote included)."""
+        if held:
+            self.in_reset = True
+            return
+        if not self.in_reset:
+            return
+        self.in_reset = False
+        if self.bootloader is not None:
+            self.flash = bytes(self.bootloader.flash)
+            self.bootloader = None
+        self._build()
+        if self.boot0:
+            self.booted[-1] = "system memory"
+            self._enter_bootloader()
 
     def _bootloader_input(self, data: bytes) -> None:
         assert self.bootloader is not None
@@ -304,6 +344,8 @@ class ReferenceBoard:
 
     def put(self, data: bytes) -> None:
         """Bytes from the host, arriving on the line from now on."""
+        if self.in_reset:
+            return
         if self.bootloader is not None:
             self._bootloader_input(data)
         else:
@@ -324,7 +366,7 @@ class ReferenceBoard:
             return target < until
 
         while sched.now < until:
-            if self.bootloader is not None:
+            if self.bootloader is not None or self.in_reset:
                 sched.advance(until)
                 break
             self.soc.core.run(until, sleep=sleep)
@@ -354,7 +396,13 @@ class BoardServer:
         if sock is None and pty is None:
             self._server = socket.create_server(("127.0.0.1", 0))
             self.port = self._server.getsockname()[1]
+        self._pins: deque[tuple[bool | None, bool | None]] = deque()
         self._thread = threading.Thread(target=self._run, name="imulink-stm32f407", daemon=True)
+
+    def set_pins(self, *, boot0: bool | None = None, reset: bool | None = None) -> None:
+        """Drive the board's BOOT0 pin and NRST (`reset`: held or released) from any thread: the
+        board's own thread applies them, in order, before its next step (None: unchanged)."""
+        self._pins.append((boot0, reset))
 
     def start(self) -> "BoardServer":
         self._thread.start()
@@ -405,15 +453,23 @@ class BoardServer:
         nothing came, None when the host has gone; `send` says how many bytes it took)."""
         board = self.board
         start_wall = time.monotonic()
-        start_virtual = board.now_s
+        elapsed = 0.0  # virtual seconds run (the board's own clock starts again at each reset and Go)
         pending: deque[bytes] = deque()
         while not self._stop.is_set():
+            while self._pins:
+                boot0, reset = self._pins.popleft()
+                if boot0 is not None:
+                    board.set_boot0(boot0)
+                if reset is not None:
+                    board.hold_reset(reset)
             data = receive()
             if data is None:
                 return  # the host closed the line
             if data:
                 board.put(data)
+            before = board.now_s
             board.run_for(self.CHUNK_S)
+            elapsed += board.now_s - before
             out = board.take()
             if out:
                 pending.append(out)
@@ -424,7 +480,7 @@ class BoardServer:
                     break
                 pending.popleft()
             if self.realtime:
-                ahead = (board.now_s - start_virtual) - (time.monotonic() - start_wall)
+                ahead = elapsed - (time.monotonic() - start_wall)
                 if ahead > 0:
                     time.sleep(ahead)
 
