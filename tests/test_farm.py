@@ -507,6 +507,102 @@ def test_flash_drives_the_place_s_boot0_and_reset_lines(farm):
         board.stop()
 
 
+#: Seconds a job may take to end after the exporter of its place is lost (docs/farm.md): the
+#: link's silence limit and the command's last attempts, with room for a loaded machine.
+LOST_EXPORTER_S = 30
+
+
+def _children(pid: int) -> list[int]:
+    """The processes `pid` started (Linux)."""
+    try:
+        return [int(c) for c in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]
+    except OSError:
+        return []
+
+
+def _ended_on_one_error_line(job: subprocess.Popen, *words: str) -> tuple[str, float]:
+    """(stderr, seconds) of a job that must end within LOST_EXPORTER_S with exit status 2 and
+    one error line, its last, naming `words`."""
+    started = time.monotonic()
+    _, err = job.communicate(timeout=LOST_EXPORTER_S)
+    took = time.monotonic() - started
+    lines = [line for line in err.replace("\r", "\n").splitlines() if line.strip()]
+    errors = [line for line in lines if line.startswith(("imulink: error: ", "imulink: warning: "))]
+    assert job.returncode == 2 and errors == lines[-1:] and errors[0].startswith("imulink: error: "), err
+    for word in words:
+        assert word in errors[0], errors[0]
+    return err, took
+
+
+def test_an_exporter_lost_while_a_job_holds_its_place(farm):
+    """The exporter of a held place's board goes away in the middle of a job: frozen (its machine
+    hangs, its network drops everything: SIGSTOP of the exporter and its ser2net), a recording
+    ends as silent, and the release waits for the coordinator, which gives up on the frozen
+    exporter after its own 10 s; killed (SIGKILL of both), an injection ends as disconnected.
+    Each job ends within LOST_EXPORTER_S with one error line (no warning), exit 2, and the
+    place is free when it has ended."""
+    _needs_ser2net()
+    board = EmulatedBoard("native", front="pty", duration_s=600.0, filter_name="eskf", realtime=True).start()
+    config = farm.dir / "far.yaml"
+    config.write_text(f"far-1:\n  RawSerialPort:\n    port: {board.address}\n    speed: 921600\n")
+    exporter = farm._start("exporter-far", [str(BIN / "labgrid-exporter"), "-c", farm.address, "-n", "far-rack",
+                                            "--hostname", "127.0.0.1", str(config)])
+    stopped: list[int] = []
+    try:
+        def published() -> bool:
+            with lab.Coordinator(farm.address) as session:
+                return "far-1" in session.session.resources.get("far-rack", {})
+        _wait_for(published, 30, "the exporter did not publish the serial device")
+        farm.places({"far-1": ("far-rack/far-1/NetworkSerialPort", {})})
+
+        def lose(job: subprocess.Popen, started_line: str, signum: int) -> None:
+            """Once the job's link runs (its `started_line` on stderr), the exporter and its ser2net get `signum`."""
+            assert job.stderr is not None
+            for line in job.stderr:
+                if line.startswith(started_line):
+                    break
+            else:
+                raise AssertionError(f"the job ended before its link ran: {job.wait()}")
+            processes = [exporter.pid, *_children(exporter.pid)]
+            assert len(processes) == 2, processes  # the exporter and the ser2net it started for the place
+            for pid in processes:
+                os.kill(pid, signum)
+            if signum == signal.SIGSTOP:
+                stopped.extend(processes)
+
+        recording = farm.dir / "far.imulog"
+        job = subprocess.Popen([*IMULINK, "record", "lg://far-1", "-o", str(recording), "--duration", "600"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=farm.env)
+        try:
+            lose(job, "recording", signal.SIGSTOP)
+            err, took = _ended_on_one_error_line(job, "sent nothing for", "keeps the")
+        finally:
+            if job.poll() is None:
+                job.kill()
+        assert recording.exists()  # what came before is kept
+        with lab.Coordinator(farm.address) as session:
+            assert session.places("far-1")[0].acquired is None, (err, took)
+        for pid in stopped:
+            os.kill(pid, signal.SIGCONT)
+        stopped.clear()
+
+        job = subprocess.Popen([*IMULINK, "inject", "lg://far-1", "--input", "sim:rests:600"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=farm.env)
+        try:
+            lose(job, "injecting", signal.SIGKILL)
+            _ended_on_one_error_line(job, "disconnected")
+        finally:
+            if job.poll() is None:
+                job.kill()
+        with lab.Coordinator(farm.address) as session:
+            assert session.places("far-1")[0].acquired is None
+    finally:
+        for pid in stopped:
+            os.kill(pid, signal.SIGCONT)
+        farm.stop("exporter-far")
+        board.stop()
+
+
 def _one_error_line(done: subprocess.CompletedProcess, *words: str) -> None:
     assert done.returncode == 2, done.stderr
     lines = done.stderr.strip().splitlines()

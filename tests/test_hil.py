@@ -31,7 +31,7 @@ from imulink import core, hil, protocol, sim
 from imulink.analysis.attitude import attitude_errors, rmse
 from imulink.board.chips import ms5611
 from imulink.board.emulator import EmulatedBoard
-from imulink.board.link import Disconnected, Link
+from imulink.board.link import Disconnected, Link, LinkError
 from imulink.board.proxy import FaultConfig
 from imulink.cli import main
 from imulink.core.counts import BROAD_PROFILE, DEFAULT_PROFILE, counts_to_si
@@ -881,6 +881,32 @@ def test_inject_counts_unanswered_samples_and_measures_accuracy_over_the_answere
     answered, unanswered = (int(x) for x in re.search(r": (\d+) answered, (\d+) unanswered \(", out).groups())
     assert unanswered > 0 and answered + unanswered == 200
     assert code == 1 and f"bit-exact: not proven: only {answered} of 200 injected samples verified" in out
+
+
+def test_inject_into_a_board_that_stops_answering_says_so(tmp_path):
+    """The board hangs in the middle of an injection (its process stopped, as a frozen exporter
+    or a hung board looks): the error names the sample it stopped at, not the clean-up command
+    that then gets no answer either, and no clean-up is tried on a board that does not answer."""
+    with EmulatedBoard(duration_s=1.0, front="tcp") as board:
+        process = board._process
+        assert process is not None
+
+        class StopAt(StatusLine):
+            def __init__(self):
+                super().__init__(stream=io.StringIO())
+                self.updates = 0
+
+            def update(self, text: str) -> None:
+                self.updates += 1
+                if self.updates == 50:
+                    process.send_signal(signal.SIGSTOP)
+
+        try:
+            with pytest.raises(LinkError, match="the board stopped answering at sample 51 of 1500") as caught:
+                hil.inject(board.address, hil.load_injection_input("sim:rests:15"), progress=StopAt())
+        finally:
+            process.send_signal(signal.SIGCONT)
+    assert "enabled=0" not in str(caught.value)
 
 
 def test_inject_bad_inputs(capsys, tmp_path):

@@ -45,6 +45,9 @@ SCHEME = "lg://"
 DEFAULT_COORDINATOR = "127.0.0.1:20408"
 #: Seconds a coordinator has to answer before it counts as down.
 TIMEOUT_S = 10.0
+#: Seconds labgrid's coordinator waits for an exporter to answer a command (its
+#: ExporterCommand.wait), e.g. to give back a released resource: then it goes on without it.
+EXPORTER_ANSWER_S = 10.0
 #: Seconds between two looks at a busy place while waiting for it.
 _WAIT_POLL_S = 0.25
 #: The resource class a place's serial port has on the coordinator: what an exporter
@@ -164,17 +167,18 @@ class Coordinator:
             self.close()
             raise
 
-    def _run(self, coroutine, doing: str):
+    def _run(self, coroutine, doing: str, timeout_s: float | None = None):
         client = _labgrid()
+        limit = self.timeout_s if timeout_s is None else timeout_s
         try:
-            return self._loop.run_until_complete(asyncio.wait_for(coroutine, self.timeout_s))
+            return self._loop.run_until_complete(asyncio.wait_for(coroutine, limit))
         except (asyncio.TimeoutError, client.ServerError) as exc:
             if isinstance(exc, asyncio.TimeoutError):
-                detail = f"no answer within {self.timeout_s:g} s"
+                detail = f"no answer within {limit:g} s"
             else:  # labgrid's "Error: Could not connect to coordinator": refused, unreachable
                 detail = str(exc).strip().removeprefix("Error: ").lower() or "no answer"
             raise LabError(f"the labgrid coordinator at {self.address} does not answer ({detail}, trying to "
-                           f"{doing}; the limit is {self.timeout_s:g} s): is labgrid-coordinator running there? "
+                           f"{doing}; the limit is {limit:g} s): is labgrid-coordinator running there? "
                            "(set LG_COORDINATOR or --coordinator)") from None
 
     def __enter__(self) -> "Coordinator":
@@ -298,10 +302,14 @@ class Coordinator:
             self.sync()
 
     def release(self, name: str) -> None:
-        """Release place `name` (acquired by this job)."""
+        """Release place `name` (acquired by this job). The coordinator answers once each of the
+        place's exporters has given its resources back, or has not answered within labgrid's own
+        limit (a frozen exporter): the wait allows for that, resource by resource."""
         self.session.args = _Args(place=name)
+        place = self.session.places.get(name)
+        resources = len(place.acquired_resources) if place is not None else 0
         with contextlib.redirect_stdout(io.StringIO()):
-            self._run(self.session.release(), f"release {name}")
+            self._run(self.session.release(), f"release {name}", self.timeout_s + EXPORTER_ANSWER_S * resources)
 
     def serial_port(self, name: str, resource: str | None = None) -> tuple[str, str, int]:
         """(resource name, pyserial URL, speed) of the serial port of acquired place `name`."""

@@ -1,6 +1,7 @@
 """Stream samples into a board in injection mode and compare every answer on the fly."""
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -9,7 +10,7 @@ import numpy as np
 
 from imulink import core, protocol, sim
 from imulink.analysis.attitude import attitude_errors, rmse
-from imulink.board.link import COMMAND_TIMEOUT_MAX_S, DEFAULT_BAUD, CommandTimeout, Link
+from imulink.board.link import COMMAND_TIMEOUT_MAX_S, DEFAULT_BAUD, CommandTimeout, Link, LinkError
 from imulink.core.counts import BROAD_PROFILE, SensorDataError, SensorProfile, si_to_counts
 from imulink.hil.board_setup import check_profile, leave_injection_mode, read_calibration, read_settings
 from imulink.hil.common import ESTIMATE_FRAC_BITS, SETTLE_S, HilError
@@ -228,15 +229,24 @@ def inject(url: str, source: InjectionInput, *, baud: int = DEFAULT_BAUD, filter
         name, raw_settings, changed = _configure_for_injection(link, source, filter_name, settings)
         calibration = read_calibration(link)
         link.command("SET_INJECTION_MODE", enabled=1)
-        try:
-            result = _inject_samples(link, source, name, raw_settings, profile, calibration, progress)
-            result.min_verified = min_verified
-        finally:  # leave the board as it was found
+
+        def restore() -> None:  # leave the board as it was found
             link.command("SET_INJECTION_MODE", enabled=0)
             for index, value in changed.items():
                 link.command("SET_SETTING", index=index, value=value)
             if original_filter != core.BOARD_FILTERS[name][0]:
                 link.command("SELECT_FILTER", filter_id=original_filter)
+
+        try:
+            result = _inject_samples(link, source, name, raw_settings, profile, calibration, progress)
+            result.min_verified = min_verified
+        except LinkError:
+            raise  # the link failed or the board stopped answering: nothing to restore, and that is the error
+        except BaseException:  # Ctrl-C, a bad input: restored if the board answers; the first error is the one said
+            with contextlib.suppress(LinkError):
+                restore()
+            raise
+        restore()
     return result
 
 
@@ -257,7 +267,11 @@ def _inject_samples(link: Link, source: InjectionInput, name: str, raw_settings:
                                  timestamp_us=round(k * 1e6 / source.rate_hz) & 0xFFFFFFFF,
                                  index=k, gyr=gyr[k], acc=acc[k], mag=mag[k], temperature=0)
         except CommandTimeout:  # did the sample run on the board? Unknown: restart the filter on both sides
-            link.command("SET_INJECTION_MODE", enabled=1)
+            try:
+                link.command("SET_INJECTION_MODE", enabled=1)
+            except CommandTimeout as exc:
+                raise CommandTimeout(f"the board stopped answering at sample {k + 1} of {n}: no answer to it, nor to "
+                                     f"the filter's restart ({exc})") from None
             reference = FirmwareFilter(name, raw_settings, profile, calibration)
             restarts += 1
             continue
