@@ -37,6 +37,8 @@ from imulink.board.emulator import EmulatedBoard
 pytestmark = pytest.mark.xdist_group("takes-a-core")
 
 BIN = Path(sys.executable).parent
+#: The ser2net wrapper a lab puts on its exporters' PATH (docs/farm.md): TCP_NODELAY on.
+SER2NET_NODELAY = Path(__file__).resolve().parents[1] / "tools" / "ser2net-nodelay"
 IMULINK = [sys.executable, "-m", "imulink.cli"]
 #: Seconds any one imulink or labgrid-client command of these tests may take.
 COMMAND_TIMEOUT_S = 120
@@ -73,11 +75,36 @@ class Lab:
                 return s.connect_ex((host, int(port))) == 0
         _wait_for(listening, 20, "the coordinator did not listen")
 
-    def _start(self, name: str, command: list[str]) -> subprocess.Popen:
+    def _start(self, name: str, command: list[str], env: dict | None = None) -> subprocess.Popen:
         log = open(self.dir / f"{name}.log", "wb")
         process = subprocess.Popen(command, cwd=self.dir, stdout=log, stderr=subprocess.STDOUT,
-                                   stdin=subprocess.DEVNULL, env=self.env)
+                                   stdin=subprocess.DEVNULL, env=env or self.env)
         self.processes[name] = process
+        return process
+
+    def nodelay_env(self) -> dict:
+        """The environment of an exporter whose ser2net is tools/ser2net-nodelay, as a lab
+        installs it: `ser2net` ahead of the real one on its PATH."""
+        real = shutil.which("ser2net") or "/usr/sbin/ser2net"
+        wrapped = self.dir / "nodelay-bin"
+        wrapped.mkdir(exist_ok=True)
+        if not (wrapped / "ser2net").exists():
+            (wrapped / "ser2net").symlink_to(SER2NET_NODELAY)
+        return {**self.env, "PATH": f"{wrapped}{os.pathsep}{self.env.get('PATH', '')}", "SER2NET": real}
+
+    def serial_device_exporter(self, name: str, group: str, device: str, nodelay: bool = False) -> subprocess.Popen:
+        """An exporter `name` of a serial device as a RawSerialPort in `group` (shared through
+        ser2net while its place is acquired), once the coordinator has it."""
+        config = self.dir / f"{name}.yaml"
+        config.write_text(f"{group}:\n  RawSerialPort:\n    port: {device}\n    speed: 921600\n")
+        process = self._start(f"exporter-{name}", [str(BIN / "labgrid-exporter"), "-c", self.address, "-n", name,
+                                                   "--hostname", "127.0.0.1", str(config)],
+                              env=self.nodelay_env() if nodelay else None)
+
+        def published() -> bool:
+            with lab.Coordinator(self.address) as session:
+                return group in session.session.resources.get(name, {})
+        _wait_for(published, 30, f"exporter {name} did not publish its serial device")
         return process
 
     def exporter(self, name: str, ports: dict[str, str]) -> subprocess.Popen:
@@ -367,31 +394,39 @@ def test_a_board_lost_mid_run_is_its_place_only(farm):
             board.stop()
 
 
-def test_a_usb_serial_board_through_ser2net(farm):
+@pytest.mark.parametrize("nodelay", [False, True], ids=["ser2net", "ser2net-nodelay"])
+def test_a_usb_serial_board_through_ser2net(farm, nodelay):
     """A lab's usual board: a serial device (here the native board's pty; a USB serial adapter in
     a lab) exported as a RawSerialPort, which the exporter shares through ser2net (RFC 2217)
-    while the place is acquired. The board is reached as rfc2217:// and proven bit-exact."""
+    while the place is acquired. The board is reached as rfc2217:// and proven bit-exact: by
+    labgrid's own ser2net command, and with tools/ser2net-nodelay as the exporter's ser2net,
+    whose accepter then has TCP_NODELAY."""
     _needs_ser2net()
     board = EmulatedBoard("native", front="pty", duration_s=5.0, filter_name="eskf").start()
+    name = "usb-nd" if nodelay else "usb"
     try:
-        config = farm.dir / "usb.yaml"
-        config.write_text(f"usb-1:\n  RawSerialPort:\n    port: {board.address}\n    speed: 921600\n")
-        farm._start("exporter-usb", [str(BIN / "labgrid-exporter"), "-c", farm.address, "-n", "usb-rack",
-                                     "--hostname", "127.0.0.1", str(config)])
-
-        def published() -> bool:
-            with lab.Coordinator(farm.address) as session:
-                return "usb-1" in session.session.resources.get("usb-rack", {})
-        _wait_for(published, 30, "the exporter did not publish the serial device")
-        farm.places({"usb-1": ("usb-rack/usb-1/NetworkSerialPort", {"board": "native", "link": "usb"})})
-        # each injected sample waits for its answer: through ser2net that is tens of ms, so a short run
-        done = imulink("inject", "lg://usb-1", "--input", "sim:rests:1", "--json", env=farm.env)
-        assert done.returncode == 0, done.stderr
-        assert "RawSerialPort at rfc2217://127.0.0.1:" in done.stderr
-        report = json.loads(done.stdout)
+        exporter = farm.serial_device_exporter(f"{name}-rack", f"{name}-1", str(board.address), nodelay)
+        farm.places({f"{name}-1": (f"{name}-rack/{name}-1/NetworkSerialPort", {"board": "native", "link": "usb"})})
+        # each injected sample waits for its answer: without nodelay that is tens of ms, so a short run
+        job = subprocess.Popen([*IMULINK, "inject", f"lg://{name}-1", "--input", "sim:rests:1", "--json"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=farm.env)
+        try:
+            assert job.stderr is not None
+            said = [job.stderr.readline(), job.stderr.readline()]  # the place acquired, the first sample answered
+            assert "RawSerialPort at rfc2217://127.0.0.1:" in said[0] and said[1].startswith("injecting"), said
+            ser2net = [Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0") for pid in _children(exporter.pid)]
+            assert len(ser2net) == 1 and Path(ser2net[0][0].decode()).name == "ser2net", ser2net
+            accepters = [arg for arg in ser2net[0] if b"accepter:" in arg]
+            assert len(accepters) == 1 and (b",tcp(nodelay)," in accepters[0]) == nodelay, accepters
+            out, err = job.communicate(timeout=COMMAND_TIMEOUT_S)
+        finally:
+            if job.poll() is None:
+                job.kill()
+        assert job.returncode == 0, err
+        report = json.loads(out)
         assert report["samples"] == report["answered"] == 100 and report["verdict"]["passed"]
     finally:
-        farm.stop("exporter-usb")
+        farm.stop(f"exporter-{name}-rack")
         board.stop()
 
 
@@ -455,7 +490,7 @@ class GpioBox:
 def test_flash_drives_the_place_s_boot0_and_reset_lines(farm):
     """`imulink flash IMAGE lg://PLACE` on a place with BOOT0 and reset lines (labgrid
     HttpDigitalOutput resources of a GPIO box wired to the virtual reference board) and its serial
-    device through ser2net: by default it drives the lines (BOOT0 high, a reset pulse), flashes
+    device through ser2net (tools/ser2net-nodelay): by default it drives the lines (BOOT0 high, a reset pulse), flashes
     over the chip's UART bootloader, then BOOT0 low and a reset start the flashed image, whose
     HELLO it checks; the board then answers as the application. A place without the lines, or
     with BOOT0 alone, is one line with --enter lines, exit 2."""
@@ -468,7 +503,8 @@ def test_flash_drives_the_place_s_boot0_and_reset_lines(farm):
                           f"    body_asserted: '1'\n    body_deasserted: '0'\n" for line in ("boot0", "reset"))
         config.write_text(f"board-1:\n  RawSerialPort:\n    port: {board.address}\n    speed: 921600\n{outputs}")
         farm._start("exporter-lines", [str(BIN / "labgrid-exporter"), "-c", farm.address, "-n", "lines-rack",
-                                       "--hostname", "127.0.0.1", str(config)])
+                                       "--hostname", "127.0.0.1", str(config)],
+                    env=farm.nodelay_env())  # as a lab's exporter: each bootloader read waits for its answer
 
         def published() -> bool:
             with lab.Coordinator(farm.address) as session:
