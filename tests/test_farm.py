@@ -438,16 +438,26 @@ def _needs_ser2net() -> None:
 
 
 class GpioBox:
-    """A lab's GPIO box as labgrid's HttpDigitalOutput speaks to one: PUT /LINE with the body 1
-    or 0 sets a line, GET /LINE reads it. Its lines `boot0` and `reset` are wired to a virtual
-    board's BOOT0 pin and NRST (reset asserted: NRST held low); every change is recorded."""
+    """A lab's GPIO box and relay as labgrid's HttpDigitalOutput and its `rest` power backend
+    speak to one: PUT /LINE with the body 1 or 0 sets a line, GET /LINE reads it. Its lines are
+    wired to a virtual board: `boot0` to its BOOT0 pin, `reset` to NRST (asserted: NRST held
+    low), and the relay `power1` to its supply (off: the chip does nothing, as held in reset;
+    on: it starts, as from a reset). Every change is recorded."""
 
     def __init__(self, board: EmulatedBoard):
         assert board.virtual is not None
-        pins = board.virtual
-        self.levels = {"boot0": False, "reset": False}
+        virtual = board.virtual
+        self.levels = {"boot0": False, "reset": False, "power1": True}
         self.changes: list[tuple[str, bool]] = []
         box = self
+
+        def drive(line: str, level: bool) -> None:
+            if line == "boot0":
+                virtual.set_pins(boot0=level)
+            elif line == "reset":
+                virtual.set_pins(reset=level)
+            else:
+                virtual.set_pins(reset=not level)
 
         class Handler(http.server.BaseHTTPRequestHandler):
             def do_PUT(self):
@@ -459,7 +469,7 @@ class GpioBox:
                 level = body == b"1"
                 box.levels[line] = level
                 box.changes.append((line, level))
-                pins.set_pins(**{"boot0" if line == "boot0" else "reset": level})
+                drive(line, level)
                 self.send_response(204)
                 self.end_headers()
 
@@ -492,8 +502,10 @@ def test_flash_drives_the_place_s_boot0_and_reset_lines(farm):
     HttpDigitalOutput resources of a GPIO box wired to the virtual reference board) and its serial
     device through ser2net (tools/ser2net-nodelay): by default it drives the lines (BOOT0 high, a reset pulse), flashes
     over the chip's UART bootloader, then BOOT0 low and a reset start the flashed image, whose
-    HELLO it checks; the board then answers as the application. A place without the lines, or
-    with BOOT0 alone, is one line with --enter lines, exit 2."""
+    HELLO it checks; the board then answers as the application. A place with BOOT0 and a power
+    switch (labgrid's NetworkPowerPort, `rest` model, a relay of the same box) power-cycles
+    instead. A place without the lines, or with BOOT0 alone, is one line with --enter lines,
+    exit 2."""
     _needs_ser2net()
     board = EmulatedBoard("stm32f407", front="pty", duration_s=5.0, filter_name="eskf", realtime=True).start()
     box = GpioBox(board)
@@ -501,7 +513,9 @@ def test_flash_drives_the_place_s_boot0_and_reset_lines(farm):
         config = farm.dir / "lines.yaml"
         outputs = "".join(f"  {line}:\n    cls: HttpDigitalOutput\n    url: {box.url}/{line}\n"
                           f"    body_asserted: '1'\n    body_deasserted: '0'\n" for line in ("boot0", "reset"))
-        config.write_text(f"board-1:\n  RawSerialPort:\n    port: {board.address}\n    speed: 921600\n{outputs}")
+        power = (f"  power:\n    cls: NetworkPowerPort\n    model: rest\n    host: '{box.url}/power{{index}}'\n"
+                 "    index: 1\n")
+        config.write_text(f"board-1:\n  RawSerialPort:\n    port: {board.address}\n    speed: 921600\n{outputs}{power}")
         farm._start("exporter-lines", [str(BIN / "labgrid-exporter"), "-c", farm.address, "-n", "lines-rack",
                                        "--hostname", "127.0.0.1", str(config)],
                     env=farm.nodelay_env())  # as a lab's exporter: each bootloader read waits for its answer
@@ -509,12 +523,14 @@ def test_flash_drives_the_place_s_boot0_and_reset_lines(farm):
         def published() -> bool:
             with lab.Coordinator(farm.address) as session:
                 return set(session.session.resources.get("lines-rack", {}).get("board-1", {})) == {
-                    "RawSerialPort", "boot0", "reset"}
+                    "RawSerialPort", "boot0", "reset", "power"}
         _wait_for(published, 30, "the exporter did not publish the board and its lines")
         serial_match = "lines-rack/board-1/NetworkSerialPort"
         farm.places({"ref-1": ([serial_match, "lines-rack/board-1/HttpDigitalOutput/boot0",
                                 "lines-rack/board-1/HttpDigitalOutput/reset"], {"board": "stm32f407"}),
-                     "ref-boot0-only": ([serial_match, "lines-rack/board-1/HttpDigitalOutput/boot0"], {})})
+                     "ref-boot0-only": ([serial_match, "lines-rack/board-1/HttpDigitalOutput/boot0"], {}),
+                     "ref-power": ([serial_match, "lines-rack/board-1/HttpDigitalOutput/boot0",
+                                    "lines-rack/board-1/NetworkPowerPort/power"], {})})
         image = str(board.image)
         done = imulink("flash", image, "lg://ref-1", env=farm.env)
         assert done.returncode == 0, done.stderr
@@ -535,6 +551,17 @@ def test_flash_drives_the_place_s_boot0_and_reset_lines(farm):
         _one_error_line(imulink("flash", image, "lg://imu-native-1", "--enter", "lines", env=farm.env),
                         "place imu-native-1 has no BOOT0, reset or power line", "'boot0'")
         assert box.changes[6:] == []  # neither touched a line
+
+        # BOOT0 and a power switch, no reset line: power cycles instead (a dry run: into the
+        # bootloader, the chip checked, and back into the firmware)
+        dry = imulink("flash", image, "lg://ref-power", "--dry-run", env=farm.env)
+        assert dry.returncode == 0 and "dry run: nothing written" in dry.stdout, dry.stderr
+        assert "boot0 (HttpDigitalOutput), power (NetworkPowerPort): BOOT0 high" in dry.stderr
+        assert box.changes[6:] == [("boot0", True), ("power1", False), ("power1", True),
+                                   ("boot0", False), ("power1", False), ("power1", True)]
+        assert virtual.board.booted[3:] == ["system memory", "flash"]
+        answered = imulink("settings", "lg://ref-power", "--json", env=farm.env)
+        assert answered.returncode == 0 and json.loads(answered.stdout)["filter"] == "eskf", answered.stderr
         with lab.Coordinator(farm.address) as session:
             assert all(p.acquired is None for p in session.places())
     finally:

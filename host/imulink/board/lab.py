@@ -338,7 +338,6 @@ class Coordinator:
         options = "?ign_set_control" if scheme == "rfc2217" else ""
         return port_name, f"{scheme}://{host}:{port}{options}", int(params.get("speed") or 115200)
 
-
     def lines(self, name: str) -> "PlaceLines":
         """The BOOT0 and reset lines and the power switch of acquired place `name`, each bound to
         labgrid's own driver for its resource class (as `labgrid-client io` and `power` bind
@@ -364,8 +363,8 @@ class Coordinator:
             if len(power) > 1:
                 power = [r for r in power if r.name == POWER_NAME]
                 if len(power) != 1:
-                    raise LabError(f"place {name} has several power ports: name the board's {POWER_NAME!r} (add-match "
-                                   f"... {POWER_NAME})")
+                    raise LabError(f"place {name} has several power ports: name the board's {POWER_NAME!r} "
+                                   f"(labgrid-client -p {name} add-named-match PATTERN {POWER_NAME})")
             if power:
                 lines.power = lines.bind(power[0], POWER_DRIVERS[type(power[0]).__name__])
         except LabError:
@@ -373,7 +372,8 @@ class Coordinator:
             raise
         except Exception as exc:  # labgrid's own errors (a resource it cannot make, a driver it cannot activate)
             lines.close()
-            raise LabError(f"place {name}: its lines cannot be used through labgrid: {_one_line(exc)}") from None
+            raise LabError(f"place {name}: its BOOT0, reset or power lines cannot be used through labgrid: "
+                           f"{_one_line(exc)} (imulink flash --enter command or manual does without them)") from None
         return lines
 
 

@@ -46,7 +46,7 @@ def _check_place_lines(args, place) -> None:
         raise flash.FlashError(f"{missing}; or choose another --enter (command: the board runs imulink firmware)")
 
 
-def _entry(args) -> tuple[str, object]:
+def _entry(args) -> tuple[str, flash.BootLines | None]:
     """(--enter, the place's lines or None): --enter as given, else `lines` for a place that has
     a BOOT0 line and a reset line or power switch, else `manual`."""
     place = getattr(args, "held_place", None)
@@ -86,7 +86,7 @@ def run(args) -> int:
         result = flash.flash_uart(image, args.port, enter=enter, baud=args.baud, link_baud=args.link_baud,
                                   verify=not args.no_verify, start=not args.no_start, dry_run=args.dry_run,
                                   force=args.force, unprotect=args.unprotect, progress=progress,
-                                  log=lambda line: print(line, file=sys.stderr), lines=lines)  # type: ignore[arg-type]
+                                  log=lambda line: print(line, file=sys.stderr), lines=lines)
         hello = result.hello
     else:
         started = time.monotonic()
