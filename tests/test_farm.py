@@ -497,19 +497,15 @@ class GpioBox:
         self.server.server_close()
 
 
-def test_flash_drives_the_place_s_boot0_and_reset_lines(farm):
-    """`imulink flash IMAGE lg://PLACE` on a place with BOOT0 and reset lines (labgrid
-    HttpDigitalOutput resources of a GPIO box wired to the virtual reference board) and its serial
-    device through ser2net (tools/ser2net-nodelay): by default it drives the lines (BOOT0 high, a reset pulse), flashes
-    over the chip's UART bootloader, then BOOT0 low and a reset start the flashed image, whose
-    HELLO it checks; the board then answers as the application. A place with BOOT0 and a power
-    switch (labgrid's NetworkPowerPort, `rest` model, a relay of the same box) power-cycles
-    instead. A place without the lines, or with BOOT0 alone, is one line with --enter lines,
-    exit 2."""
-    _needs_ser2net()
-    board = EmulatedBoard("stm32f407", front="pty", duration_s=5.0, filter_name="eskf", realtime=True).start()
-    box = GpioBox(board)
-    try:
+class LinesLab:
+    """The virtual reference board's pty exported through ser2net (tools/ser2net-nodelay),
+    with `boot0` and `reset` HttpDigitalOutput resources and a NetworkPowerPort (`rest`
+    model) of a GpioBox wired to it; places ref-1 (serial port, boot0, reset), ref-boot0-only
+    and ref-power (serial port, boot0, power)."""
+
+    def __init__(self, farm: Lab, board: EmulatedBoard, box: GpioBox):
+        self.farm, self.board, self.box = farm, board, box
+        self.image = str(board.image)
         config = farm.dir / "lines.yaml"
         outputs = "".join(f"  {line}:\n    cls: HttpDigitalOutput\n    url: {box.url}/{line}\n"
                           f"    body_asserted: '1'\n    body_deasserted: '0'\n" for line in ("boot0", "reset"))
@@ -531,43 +527,126 @@ def test_flash_drives_the_place_s_boot0_and_reset_lines(farm):
                      "ref-boot0-only": ([serial_match, "lines-rack/board-1/HttpDigitalOutput/boot0"], {}),
                      "ref-power": ([serial_match, "lines-rack/board-1/HttpDigitalOutput/boot0",
                                     "lines-rack/board-1/NetworkPowerPort/power"], {})})
-        image = str(board.image)
+
+
+#: The line changes of one flash through ref-1's lines: BOOT0 high and a reset pulse into the
+#: bootloader, BOOT0 low and a reset pulse into the flash's image.
+FLASH_LINE_CHANGES = [("boot0", True), ("reset", True), ("reset", False),
+                      ("boot0", False), ("reset", True), ("reset", False)]
+
+
+@pytest.fixture(scope="class")
+def lines_lab(farm):
+    """A LinesLab for the tests of one class: its real-time board is stopped after them."""
+    _needs_ser2net()
+    board = EmulatedBoard("stm32f407", front="pty", duration_s=5.0, filter_name="eskf", realtime=True).start()
+    box = GpioBox(board)
+    try:
+        yield LinesLab(farm, board, box)
+    finally:
+        if "exporter-lines" in farm.processes:
+            farm.stop("exporter-lines")
+        box.close()
+        board.stop()
+
+
+class TestAPlaceWithBoot0AndResetLines:
+    """Flashing through a place's lines: `imulink flash` and `imulink farm verify --flash`
+    (one board and its lines for both tests, stopped after them)."""
+
+    def test_flash_drives_the_place_s_boot0_and_reset_lines(self, lines_lab):
+        """`imulink flash IMAGE lg://PLACE` on a place with BOOT0 and reset lines (labgrid
+        HttpDigitalOutput resources of a GPIO box wired to the virtual reference board) and its
+        serial device through ser2net (tools/ser2net-nodelay): by default it drives the lines
+        (BOOT0 high, a reset pulse), flashes over the chip's UART bootloader, then BOOT0 low and a
+        reset start the flashed image, whose HELLO it checks; the board then answers as the
+        application. A place with BOOT0 and a power switch (labgrid's NetworkPowerPort, `rest`
+        model, a relay of the same box) power-cycles instead. A place without the lines, or with
+        BOOT0 alone, is one line with --enter lines, exit 2."""
+        farm, box, image = lines_lab.farm, lines_lab.box, lines_lab.image
+        virtual = lines_lab.board.virtual
+        assert virtual is not None
+        changes, boots = len(box.changes), len(virtual.board.booted)
         done = imulink("flash", image, "lg://ref-1", env=farm.env)
         assert done.returncode == 0, done.stderr
         assert "boot0 (HttpDigitalOutput), reset (HttpDigitalOutput): BOOT0 high and a reset" in done.stderr
         assert "; running: stm32f407-gy86 firmware" in done.stdout and "as built" in done.stdout, done.stdout
-        assert box.changes == [("boot0", True), ("reset", True), ("reset", False),
-                               ("boot0", False), ("reset", True), ("reset", False)]
-        virtual = board.virtual
-        assert virtual is not None and virtual.error is None
-        assert virtual.board.booted == ["flash", "system memory", "flash"]
+        assert box.changes[changes:] == FLASH_LINE_CHANGES
+        assert virtual.error is None
+        assert virtual.board.booted[max(0, boots - 1):] == ["flash", "system memory", "flash"]
         bootloader = virtual.board.last_bootloader
         assert bootloader is not None and bootloader.erased_sectors > 0  # written, not only read
         answered = imulink("settings", "lg://ref-1", "--json", env=farm.env)  # the application answers
         assert answered.returncode == 0 and json.loads(answered.stdout)["filter"] == "eskf", answered.stderr
 
+        changes = len(box.changes)
         _one_error_line(imulink("flash", image, "lg://ref-boot0-only", "--enter", "lines", env=farm.env),
                         "place ref-boot0-only has boot0 (HttpDigitalOutput)", "a digital output named 'reset'")
         _one_error_line(imulink("flash", image, "lg://imu-native-1", "--enter", "lines", env=farm.env),
                         "place imu-native-1 has no BOOT0, reset or power line", "'boot0'")
-        assert box.changes[6:] == []  # neither touched a line
+        assert box.changes[changes:] == []  # neither touched a line
 
         # BOOT0 and a power switch, no reset line: power cycles instead (a dry run: into the
         # bootloader, the chip checked, and back into the firmware)
+        boots = len(virtual.board.booted)
         dry = imulink("flash", image, "lg://ref-power", "--dry-run", env=farm.env)
         assert dry.returncode == 0 and "dry run: nothing written" in dry.stdout, dry.stderr
         assert "boot0 (HttpDigitalOutput), power (NetworkPowerPort): BOOT0 high" in dry.stderr
-        assert box.changes[6:] == [("boot0", True), ("power1", False), ("power1", True),
-                                   ("boot0", False), ("power1", False), ("power1", True)]
-        assert virtual.board.booted[3:] == ["system memory", "flash"]
+        assert box.changes[changes:] == [("boot0", True), ("power1", False), ("power1", True),
+                                         ("boot0", False), ("power1", False), ("power1", True)]
+        assert virtual.board.booted[boots:] == ["system memory", "flash"]
         answered = imulink("settings", "lg://ref-power", "--json", env=farm.env)
         assert answered.returncode == 0 and json.loads(answered.stdout)["filter"] == "eskf", answered.stderr
         with lab.Coordinator(farm.address) as session:
             assert all(p.acquired is None for p in session.places())
-    finally:
-        farm.stop("exporter-lines")
-        box.close()
-        board.stop()
+
+    def test_farm_verify_flashes_then_proves_the_board(self, lines_lab):
+        """`imulink farm verify --flash --image IMAGE`: the worker flashes the image into its held
+        place through the place's lines (the same line changes as `imulink flash`, the chip's
+        bootloader erasing and writing), then proves the board bit-exact; the row says flashed."""
+        farm, box = lines_lab.farm, lines_lab.box
+        virtual = lines_lab.board.virtual
+        assert virtual is not None
+        changes, boots = len(box.changes), len(virtual.board.booted)
+        erased_before = virtual.board.last_bootloader
+        done = imulink("farm", "verify", "--flash", "--image", lines_lab.image, "--places", "ref-1",
+                       "--input", "sim:rests:2", "--json", env=farm.env)
+        assert done.returncode == 0, done.stderr + done.stdout
+        [row] = json.loads(done.stdout)["places"]
+        assert row["flashed"] == "yes" and row["image"] == "matches" and row["error"] is None, row
+        assert row["board"] == "stm32f407-gy86" and row["bit_exact"] and row["passed"], row
+        assert row["samples"] == row["answered"] == row["identical"] == 200
+        assert box.changes[changes:] == FLASH_LINE_CHANGES
+        assert virtual.error is None and virtual.board.booted[boots:] == ["system memory", "flash"]
+        bootloader = virtual.board.last_bootloader
+        assert bootloader is not None and bootloader is not erased_before and bootloader.erased_sectors > 0
+        assert "ref-1: boot0 (HttpDigitalOutput), reset (HttpDigitalOutput): BOOT0 high" in done.stderr
+        with lab.Coordinator(farm.address) as session:
+            assert session.places("ref-1")[0].acquired is None
+
+
+def test_farm_verify_flash_on_boards_that_cannot_be_flashed(farm):
+    """`farm verify --flash` on emulated boards (native, QEMU: no bootloader, they run the image
+    they were started with): each place's row is ERROR with the one line that says so, at once
+    (no flash attempted, nothing hangs), exit 1; every place released."""
+    image = str(farm.boards["stm32f407-1"].image)
+    started = time.monotonic()
+    done = imulink("farm", "verify", "--flash", "--image", image, "--places", "imu-[nq]*-1", env=farm.env)
+    took = time.monotonic() - started
+    assert done.returncode == 1, done.stderr + done.stdout
+    assert done.stdout.splitlines()[0].split()[:5] == ["place", "board", "firmware", "flashed", "samples"]
+    lines = {line.split()[0]: line for line in done.stdout.splitlines()[1:-1]}
+    expected = {"imu-native-1": "native", **({"imu-qemu-1": "qemu-stm32f405"} if "qemu-1" in farm.boards else {})}
+    assert set(lines) == set(expected)
+    for place, board in expected.items():
+        assert " no " in lines[place] and "ERROR" in lines[place], lines[place]
+        assert f"cannot flash: the board is the emulated {board} board" in lines[place], lines[place]
+    assert f"{len(expected)} places: 0 proven bit-exact, 0 not, {len(expected)} could not be verified" in done.stdout
+    assert took < 60, took
+    with lab.Coordinator(farm.address) as session:
+        assert all(p.acquired is None for p in session.places("imu-*"))
+    usage = imulink("farm", "verify", "--flash", "--places", "imu-native-1", env=farm.env)
+    _one_error_line(usage, "--flash flashes --image ELF")
 
 
 #: Seconds a job may take to end after the exporter of its place is lost (docs/farm.md): the

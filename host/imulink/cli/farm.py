@@ -39,19 +39,22 @@ def _tags(texts: list[str]) -> dict[str, str]:
 
 @one_line_errors
 def run_verify(args) -> int:
+    if args.flash and args.image is None:
+        raise UsageError("--flash flashes --image ELF into every place's board: give the image")
     if args.image is not None:
         farm.image_identity(args.image)  # an image without identification is a usage error, before any place
     places = farm.select_places(args.places, _tags(args.tag), args.coordinator, args.timeout)
     jobs = args.jobs or min(len(places), DEFAULT_JOBS)
-    print(f"verifying {len(places)} places ({', '.join(p.name for p in places)}), {min(jobs, len(places))} at a "
-          f"time, with {args.input}", file=sys.stderr)
+    names = ", ".join(p.name for p in places)
+    print(f"{'flashing and ' if args.flash else ''}verifying {len(places)} places ({names}), "
+          f"{min(jobs, len(places))} at a time, with {args.input}", file=sys.stderr)
 
     def progress(done: int, row: dict) -> None:
         outcome = row["error"] or row["verdict"]
         print(f"[{done}/{len(places)}] {row['place']}: {outcome}", file=sys.stderr, flush=True)
 
     rows = farm.verify_places([p.name for p in places], jobs, progress, input_spec=args.input, image=args.image,
-                              filter_name=args.filter, min_verified=args.min_verified,
+                              flash=args.flash, filter_name=args.filter, min_verified=args.min_verified,
                               coordinator=args.coordinator, wait_s=args.place_wait, timeout_s=args.timeout)
     if args.json:
         print_json(farm.farm_json(rows, args.input, args.image))
@@ -103,19 +106,25 @@ def add_parser(sub) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
         description="For every place that matches --places (and --tag), in parallel, each in a worker process:\n"
                     "acquire the place (locked against every other job; released at the end, also on errors\n"
-                    "and Ctrl-C), read its board's HELLO, check it runs --image's firmware (board, version,\n"
-                    "protocol schema; nothing is flashed: `imulink flash IMAGE lg://PLACE` does that), then\n"
+                    "and Ctrl-C), with --flash flash --image into its board (through the place's BOOT0 and\n"
+                    "reset lines when it has them, else the imulink firmware's ENTER_BOOTLOADER), read its\n"
+                    "board's HELLO, check it runs --image's firmware (board, version, protocol schema), then\n"
                     "inject --input's samples and compare every estimate with the host build bit for bit\n"
                     "(imulink inject) and the attitude with the simulated truth. One table: place, board,\n"
-                    "firmware, samples, bit-exact, accuracy (RMS attitude error after the settling time),\n"
-                    "errors. A place that fails (held by another job, board gone mid-run, no serial port)\n"
-                    "is its own row; the others finish.\n\n"
+                    "firmware, flashed (with --flash), samples, bit-exact, accuracy (RMS attitude error\n"
+                    "after the settling time), errors. A place that fails (held by another job, board gone\n"
+                    "mid-run, no serial port, a failed flash, an emulated board that cannot be flashed) is\n"
+                    "its own row; the others finish.\n\n"
                     "exit status: 0 every board proven bit-exact; 1 any not proven (a difference, too few\n"
                     "verified, or an error on its place); 2 no place to verify, coordinator down, bad\n"
                     "arguments; 130 interrupted (every acquired place is released).")
     _common(v, "*")
     v.add_argument("--image", metavar="ELF", help="firmware image (.elf, .hex, .bin with an imulink identification "
                                                   "block) every board must run")
+    v.add_argument("--flash", action="store_true",
+                   help="flash --image into each place's board first, within the same acquisition: through the "
+                        "place's BOOT0 and reset lines (or power switch) when it has them, else the imulink "
+                        "firmware's ENTER_BOOTLOADER (imulink flash --enter lines / command)")
     v.add_argument("--input", "-i", default=farm.DEFAULT_INPUT,
                    help=f"what to inject into each board, as `imulink inject --input` takes it (default: "
                         f"{farm.DEFAULT_INPUT}: 30 s of rests at 100 Hz)")

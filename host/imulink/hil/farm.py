@@ -5,11 +5,16 @@ hangs up or is held by another job is that place's row and never stops the other
 
 1. the place is acquired (imulink.board.lab.held_place: locked against every other client
    of the coordinator, released at the end whatever happens);
-2. the board's HELLO is read; with an image, the board must run that image's firmware
-   (board, version, protocol schema). Nothing is flashed here: a board is flashed with
-   `imulink flash IMAGE lg://PLACE` (its serial port's UART bootloader) before, and an
-   emulated board runs the image it was started with;
-3. the injection test (imulink.hil.injection.inject): every sample of a simulated run is
+2. with `flash`, the image is flashed into the held place's board first (no second
+   acquisition): through the chip's UART bootloader on the place's serial port, entered by
+   the place's BOOT0 and reset lines (or power switch) when it has them, else by the
+   imulink firmware's ENTER_BOOTLOADER (imulink.board.flash.flash_uart); an emulated board
+   (native, QEMU) cannot be flashed and is its place's error;
+3. the board's HELLO is read; with an image, the board must run that image's firmware
+   (board, version, protocol schema). Without `flash`, a board is flashed with
+   `imulink flash IMAGE lg://PLACE` before, and an emulated board runs the image it was
+   started with;
+4. the injection test (imulink.hil.injection.inject): every sample of a simulated run is
    injected and every estimate compared bit for bit with the host build, and the attitude
    compared with the simulated truth.
 
@@ -21,17 +26,19 @@ from __future__ import annotations
 import fnmatch
 import multiprocessing
 import signal
+import sys
 from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+from imulink.board import flash as flashing
 from imulink.board import lab
-from imulink.board.link import Link
+from imulink.board.link import Link, LinkError
 from imulink.errors import ImulinkError
 from imulink.hil.common import rows_in_order, verdict_mark
 from imulink.hil.comparison import MIN_VERIFIED
 from imulink.hil.injection import inject, load_injection_input
-from imulink.io.firmware_image import Identification, ImageError, load_image
+from imulink.io.firmware_image import FirmwareImage, Identification, ImageError, load_image
 
 #: What each board gets when nothing else is asked: 30 s of rests (10 s to settle, 20 s of
 #: attitude to compare with the truth), 3000 samples at 100 Hz.
@@ -85,26 +92,66 @@ def _check_image(hello: dict, ident: Identification) -> None:
                         "(imulink flash IMAGE lg://PLACE)")
 
 
-def _unverified_row(place: str) -> dict:
+def _unverified_row(place: str, flash: bool = False) -> dict:
     """A place's row before anything is known of its board (verify_place's keys)."""
-    return {"place": place, "port": None, "board": None, "firmware": None, "image": None, "samples": 0,
-            "answered": 0, "identical": 0, "bit_exact": False, "passed": False, "verdict": None,
-            "accuracy": None, "first_difference": None, "error": None}
+    return {"place": place, "port": None, "board": None, "firmware": None, "image": None,
+            "flashed": "no" if flash else None, "samples": 0, "answered": 0, "identical": 0, "bit_exact": False,
+            "passed": False, "verdict": None, "accuracy": None, "first_difference": None, "error": None}
 
 
-def verify_place(place: str, *, input_spec: str = DEFAULT_INPUT, image: str | None = None,
+#: Board names (HELLO) of emulated boards: they run the image they were started with and
+#: have no bootloader to flash through.
+EMULATED_BOARDS = ("native",)
+
+
+def _is_emulated(board: str) -> bool:
+    return board in EMULATED_BOARDS or board.startswith(flashing.EMULATED_BOARD_PREFIX)
+
+
+def flash_place(held: lab.HeldPlace, image: FirmwareImage, log: Callable[[str], None]) -> flashing.FlashResult:
+    """Flash `image` into the board of held place `held` (acquired with its lines): through its
+    BOOT0 and reset lines (or power switch) when it has them, else by the imulink firmware's
+    ENTER_BOOTLOADER. FarmError for an emulated board (checked by its HELLO first: it has no
+    bootloader) or a board that does not answer; FlashError as flash_uart."""
+    lines = held.lines if held.lines is not None and held.lines.usable else None
+    if lines is None:  # the firmware must take the board into its bootloader: is it one that can?
+        try:
+            with Link(held.url, held.speed) as link:
+                hello = link.connect(timeout=1.0, attempts=2)
+        except LinkError as exc:
+            raise FarmError(f"cannot flash: the place has no BOOT0 and reset lines, and no imulink firmware answers "
+                            f"to take the board into its bootloader ({exc})") from None
+        if _is_emulated(hello["board"]):
+            raise FarmError(f"cannot flash: the board is the emulated {hello['board']} board, which runs the image "
+                            "it was started with (no bootloader to flash through)")
+    try:
+        return flashing.flash_uart(image, held.url, enter="lines" if lines is not None else "command",
+                                   link_baud=held.speed, lines=lines, log=log)
+    except (ImulinkError, OSError) as exc:
+        raise FarmError(f"not flashed: {exc}") from None
+
+
+def verify_place(place: str, *, input_spec: str = DEFAULT_INPUT, image: str | None = None, flash: bool = False,
                  filter_name: str | None = None, min_verified: float = MIN_VERIFIED,
                  coordinator: str | None = None, wait_s: float = 0.0, timeout_s: float = lab.TIMEOUT_S) -> dict:
     """One place's row: {"place", "port", "board", "firmware", "image" (None, or "matches"),
-    "samples", "answered", "identical", "bit_exact", "passed", "verdict", "accuracy" (RMS deg
-    after the settling time, or None), "first_difference", "error" (None, or the one line that
-    says why the place could not be verified: it then fails)}."""
-    row = _unverified_row(place)
+    "flashed" ("yes", "no", or None without `flash`), "samples", "answered", "identical",
+    "bit_exact", "passed", "verdict", "accuracy" (RMS deg after the settling time, or None),
+    "first_difference", "error" (None, or the one line that says why the place could not be
+    verified: it then fails)}. With `flash`, `image` is flashed into the place's board first
+    (flash_place), within the same acquisition."""
+    row = _unverified_row(place, flash)
     try:
         source = load_injection_input(input_spec)
         ident = image_identity(image) if image is not None else None
-        with lab.held_place(f"{lab.SCHEME}{place}", coordinator, timeout_s, wait_s) as held:
+        if flash and image is None:
+            raise FarmError("flashing needs an image (--image ELF)")
+        firmware = _flash_image(image) if flash else None
+        with lab.held_place(f"{lab.SCHEME}{place}", coordinator, timeout_s, wait_s, lines=flash) as held:
             row["port"] = held.url
+            if firmware is not None:
+                flash_place(held, firmware, log=lambda line: print(f"{place}: {line}", file=sys.stderr, flush=True))
+                row["flashed"] = "yes"
             with Link(held.url, held.speed) as link:
                 hello = link.connect()
             row.update(board=hello["board"], firmware=_hello_firmware(hello))
@@ -126,6 +173,13 @@ def verify_place(place: str, *, input_spec: str = DEFAULT_INPUT, image: str | No
     return row
 
 
+def _flash_image(path: str | None) -> FirmwareImage:
+    try:
+        return load_image(path)
+    except ImageError as exc:
+        raise FarmError(str(exc)) from None
+
+
 def _worker_start() -> None:
     """A worker's SIGTERM is a KeyboardInterrupt, as in the command: its place is released."""
     signal.signal(signal.SIGTERM, _interrupt)
@@ -141,18 +195,23 @@ def verify_places(places: Sequence[str], jobs: int, progress: Callable[[int, dic
     `places`; `progress(done, row)` as each place finishes. `options`: verify_place's."""
     pool = ProcessPoolExecutor(max_workers=max(1, min(jobs, len(places))),
                                mp_context=multiprocessing.get_context("spawn"), initializer=_worker_start)
-    return rows_in_order(pool, verify_place, places, progress, failed=_failed_row, **options)
+    flash = bool(options.get("flash"))
+    return rows_in_order(pool, verify_place, places, progress,
+                         failed=lambda place, exc: _failed_row(place, exc, flash), **options)
 
 
-def _failed_row(place, exc: BaseException) -> dict:
+def _failed_row(place, exc: BaseException, flash: bool = False) -> dict:
     """The row of a place whose worker died (killed, out of memory)."""
-    return {**_unverified_row(place), "error": f"the worker verifying it failed: {exc or type(exc).__name__}"}
+    return {**_unverified_row(place, flash), "error": f"the worker verifying it failed: {exc or type(exc).__name__}"}
 
 
 def format_table(rows: Sequence[dict]) -> str:
-    """One line per place and a summary: place, board, firmware, samples, bit-exact, accuracy
-    (RMS total, deg), and the error or what was not identical."""
-    header = ("place", "board", "firmware", "samples", "bit-exact", "accuracy", "errors")
+    """One line per place and a summary: place, board, firmware, (flashed, when any place was
+    to be flashed), samples, bit-exact, accuracy (RMS total, deg), and the error or what was not
+    identical."""
+    flashing_rows = any(r.get("flashed") is not None for r in rows)
+    header = ("place", "board", "firmware", *(("flashed",) if flashing_rows else ()), "samples", "bit-exact",
+              "accuracy", "errors")
     lines = [header]
     for r in rows:
         accuracy = f"{r['accuracy']['rms_total_deg']:.3f} deg" if r["accuracy"] else "-"
@@ -162,8 +221,9 @@ def format_table(rows: Sequence[dict]) -> str:
             detail = f"first difference: sample {d['sample_index']}: {d['field']}"
         elif not detail and not r["passed"]:
             detail = r["verdict"] or ""
-        lines.append((r["place"], r["board"] or "-", r["firmware"] or "-", str(r["samples"]), verdict_mark(r), accuracy,
-                      detail))
+        flashed = (r.get("flashed") or "-",) if flashing_rows else ()
+        lines.append((r["place"], r["board"] or "-", r["firmware"] or "-", *flashed, str(r["samples"]), verdict_mark(r),
+                      accuracy, detail))
     widths = [max(len(line[k]) for line in lines) for k in range(len(header))]
     text = ["  ".join(cell.ljust(w) for cell, w in zip(line, widths)).rstrip() for line in lines]
     passed = sum(r["passed"] for r in rows)
