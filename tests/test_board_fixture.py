@@ -38,3 +38,18 @@ def test_a_port_given_is_used_as_it_is(tmp_path):
     done = run_project_tests(tmp_path, "--imulink-board", "socket://127.0.0.1:1", env=env)
     assert done.returncode == 1
     assert "connection refused" in done.stdout
+
+
+def test_an_emulated_board_is_started_with_the_image_given(tmp_path):
+    """--imulink-image: an emulated board runs it (here the native board's own build, named);
+    an image of another board fails the session's tests in one line, nothing started."""
+    from imulink.board.emulator import find_image
+
+    env = {k: v for k, v in os.environ.items() if k not in ("LG_PLACE", "IMULINK_BOARD", "IMULINK_IMAGE")}
+    native = str(find_image("native"))
+    done = run_project_tests(tmp_path, "--imulink-board", "native", "--imulink-image", native, env=env)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "BOARD place=None target=native" in done.stdout
+    wrong = run_project_tests(tmp_path, "--imulink-board", "native", env={**env, "IMULINK_IMAGE": str(tmp_path)})
+    assert wrong.returncode == 1, wrong.stdout + wrong.stderr
+    assert "the board native: " in wrong.stdout and "Traceback" not in wrong.stdout, wrong.stdout

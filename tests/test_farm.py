@@ -624,6 +624,20 @@ class TestAPlaceWithBoot0AndResetLines:
         with lab.Coordinator(farm.address) as session:
             assert session.places("ref-1")[0].acquired is None
 
+    def test_the_board_fixture_flashes_the_image_first(self, lines_lab, tmp_path):
+        """The `board` fixture with --imulink-image on a place with lines: the place is held, the
+        image flashed through its lines (as farm verify --flash), then the project's test runs."""
+        from test_board_fixture import run_project_tests
+
+        farm, box = lines_lab.farm, lines_lab.box
+        changes = len(box.changes)
+        done = run_project_tests(tmp_path, "--imulink-image", lines_lab.image, env={**farm.env, "LG_PLACE": "ref-1"})
+        assert done.returncode == 0, done.stdout + done.stderr
+        assert "BOARD place=ref-1 target=None" in done.stdout
+        assert box.changes[changes:] == FLASH_LINE_CHANGES
+        with lab.Coordinator(farm.address) as session:
+            assert session.places("ref-1")[0].acquired is None
+
 
 def test_farm_verify_flash_on_boards_that_cannot_be_flashed(farm):
     """`farm verify --flash` on emulated boards (native, QEMU: no bootloader, they run the image

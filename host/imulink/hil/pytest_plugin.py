@@ -16,6 +16,12 @@ Which board, in this order: ``--imulink-board BOARD``, ``$IMULINK_BOARD``, ``lg:
 an emulated target (native, qemu, stm32f407: started for the session, on a TCP port) or any
 PORT the commands take (a device, socket://, rfc2217://: used as it is).
 
+With ``--imulink-image IMAGE`` (or ``$IMULINK_IMAGE``) the session's board runs IMAGE before
+any test: a place's board is flashed with it once acquired, as ``imulink farm verify --flash``
+does (through the place's BOOT0 and reset lines when it has them, else the firmware's
+ENTER_BOOTLOADER); a PORT's board is flashed by ENTER_BOOTLOADER; an emulated board is started
+with it. A flash that fails fails the tests that use the board, in one line.
+
 labgrid's own pytest plugin (``--lg-env``) hands a test drivers of a place acquired beforehand
 with labgrid-client; this fixture acquires and releases the place itself and hands the one
 thing imulink needs, the board's serial port, so a CI job needs no labgrid-client step.
@@ -24,14 +30,17 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 
 import pytest
 
-from imulink.board import lab
-from imulink.board.emulator import TARGETS, EmulatedBoard
+from imulink.board import flash, lab
+from imulink.board.emulator import TARGETS, EmulatedBoard, EmulatorError
 from imulink.board.link import DEFAULT_BAUD, Link
+from imulink.errors import ImulinkError
+from imulink.io.firmware_image import ImageError, load_image
 
 #: The board when nothing names one: the firmware as a native process.
 DEFAULT_BOARD = "native"
@@ -61,6 +70,9 @@ def pytest_addoption(parser) -> None:
     group.addoption("--imulink-board", metavar="BOARD", default=None,
                     help="the `board` fixture's board: lg://PLACE (a labgrid place), native / qemu / stm32f407 (an "
                          "emulated board) or a PORT (default: $IMULINK_BOARD, else lg://$LG_PLACE, else native)")
+    group.addoption("--imulink-image", metavar="IMAGE", default=None,
+                    help="flash IMAGE into the `board` fixture's board before the tests (an emulated board is "
+                         "started with it; default: $IMULINK_IMAGE, else the board runs what it has)")
 
 
 def board_address(config) -> str:
@@ -73,21 +85,51 @@ def board_address(config) -> str:
     return DEFAULT_BOARD
 
 
+def board_image(config) -> str | None:
+    """The IMAGE a session flashes first: --imulink-image, else $IMULINK_IMAGE, else None."""
+    return config.getoption("imulink_image", default=None) or os.environ.get("IMULINK_IMAGE") or None
+
+
+def _log(line: str) -> None:
+    print(f"imulink: {line}", file=sys.stderr, flush=True)
+
+
 @pytest.fixture(scope="session")
 def board(request) -> Iterator[Board]:
     """The session's board: a labgrid place held for the session, an emulated board started for
-    it, or a port as given. A place that cannot be had fails the tests that use it, in one line."""
+    it, or a port as given; with an image (board_image), flashed with it first. A place that
+    cannot be had, or a flash that fails, fails the tests that use it, in one line."""
+    from imulink.hil import farm  # its worker machinery is not needed otherwise
+
     address = board_address(request.config)
+    image_path = board_image(request.config)
     if address in TARGETS:
-        with EmulatedBoard(address, front="tcp", duration_s=EMULATED_RUN_S) as emulated:
-            assert emulated.address is not None  # set by start()
-            yield Board(emulated.address, target=address)
-    elif lab.is_place(address):
         with contextlib.ExitStack() as stack:
             try:
-                place = stack.enter_context(lab.held_place(address))
-            except lab.LabError as exc:
+                emulated = stack.enter_context(EmulatedBoard(address, front="tcp", duration_s=EMULATED_RUN_S,
+                                                             image=image_path))
+            except EmulatorError as exc:
+                pytest.fail(f"the board {address}: {exc}", pytrace=False)
+            assert emulated.address is not None  # set by start()
+            yield Board(emulated.address, target=address)
+        return
+    try:
+        image = load_image(image_path) if image_path is not None else None
+    except ImageError as exc:
+        pytest.fail(f"the board {address}: {exc}", pytrace=False)
+    if lab.is_place(address):
+        with contextlib.ExitStack() as stack:
+            try:
+                place = stack.enter_context(lab.held_place(address, lines=image is not None))
+                if image is not None:
+                    farm.flash_place(place, image, log=_log)
+            except ImulinkError as exc:
                 pytest.fail(f"the board {address}: {exc}", pytrace=False)
             yield Board(place.url, place=place.name, baud=place.speed)
     else:
+        if image is not None:
+            try:
+                flash.flash_uart(image, address, enter="command", log=_log)
+            except (ImulinkError, OSError) as exc:
+                pytest.fail(f"the board {address}: not flashed: {exc}", pytrace=False)
         yield Board(address)
