@@ -342,19 +342,21 @@ def test_farm_verify_waits_for_a_held_place(farm, option):
 
 def test_ctrl_c_releases_the_place(farm):
     """A job stopped with Ctrl-C (SIGINT) in the middle of its run gives the place back."""
-    job = subprocess.Popen([*IMULINK, "inject", "lg://imu-native-1", "--input", "sim:rests:300"],
-                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=farm.env)
+    # 300000 samples: minutes of injection even at full speed, stopped once it is under way
+    job = subprocess.Popen([*IMULINK, "inject", "lg://imu-native-1", "--input", "sim:rests:3000"],
+                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=farm.env)
+    lines: list[str] = []
+    reader = threading.Thread(target=lambda: lines.extend(job.stderr), daemon=True)
+    reader.start()
     try:
-        def held() -> bool:
-            with lab.Coordinator(farm.address) as session:
-                return session.places("imu-native-1")[0].acquired is not None
-        _wait_for(held, 60, "the job did not acquire the place")
-        time.sleep(1.0)  # 30000 samples: tens of seconds of injection, stopped in its first seconds
+        _wait_for(lambda: any("injecting:" in line for line in lines), 60, "the job did not start injecting")
         job.send_signal(signal.SIGINT)
-        _, err = job.communicate(timeout=COMMAND_TIMEOUT_S)
+        job.wait(timeout=COMMAND_TIMEOUT_S)
+        reader.join(timeout=COMMAND_TIMEOUT_S)
     finally:
         if job.poll() is None:
             job.kill()
+    err = "".join(lines)
     assert job.returncode == 130, err
     assert "imulink: interrupted" in err
     with lab.Coordinator(farm.address) as session:
