@@ -40,6 +40,10 @@ BIN = Path(sys.executable).parent
 #: The ser2net wrapper a lab puts on its exporters' PATH (docs/farm.md): TCP_NODELAY on.
 SER2NET_NODELAY = Path(__file__).resolve().parents[1] / "tools" / "ser2net-nodelay"
 IMULINK = [sys.executable, "-m", "imulink.cli"]
+#: The same, taking SIGINT as Ctrl-C even when the suite runs as a background job of a
+#: non-interactive shell (which starts it with SIGINT ignored, and Python keeps that).
+IMULINK_CTRL_C = [sys.executable, "-c", "import signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+                  "from imulink.cli import main; sys.exit(main())"]
 #: Seconds any one imulink or labgrid-client command of these tests may take.
 COMMAND_TIMEOUT_S = 120
 
@@ -343,7 +347,7 @@ def test_farm_verify_waits_for_a_held_place(farm, option):
 def test_ctrl_c_releases_the_place(farm):
     """A job stopped with Ctrl-C (SIGINT) in the middle of its run gives the place back."""
     # 300000 samples: minutes of injection even at full speed, stopped once it is under way
-    job = subprocess.Popen([*IMULINK, "inject", "lg://imu-native-1", "--input", "sim:rests:3000"],
+    job = subprocess.Popen([*IMULINK_CTRL_C, "inject", "lg://imu-native-1", "--input", "sim:rests:3000"],
                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=farm.env)
     lines: list[str] = []
     reader = threading.Thread(target=lambda: lines.extend(job.stderr), daemon=True)
