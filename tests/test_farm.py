@@ -8,6 +8,7 @@ IMULINK_REQUIRE_LABGRID=1 turns a missing labgrid into a failure instead of a sk
 """
 from __future__ import annotations
 
+import contextlib
 import http.server
 import json
 import os
@@ -18,6 +19,7 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -165,6 +167,17 @@ def imulink(*args: str, env: dict | None = None, timeout: float = COMMAND_TIMEOU
                           stdin=subprocess.DEVNULL)
 
 
+@contextlib.contextmanager
+def running(*args: str, env: dict, command: list[str] = IMULINK, stdout=subprocess.PIPE) -> Iterator[subprocess.Popen]:
+    """An imulink job running in the background while the body runs; killed after it unless it ended."""
+    job = subprocess.Popen([*command, *args], stdout=stdout, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        yield job
+    finally:
+        if job.poll() is None:
+            job.kill()
+
+
 def _board(target: str = "native") -> EmulatedBoard:
     # the virtual reference board in real time, as a real board is: run flat out, it would take a
     # core for the whole module while it waits for its host
@@ -284,9 +297,7 @@ def test_farm_verify_checks_the_image_a_board_runs(farm):
 def test_a_second_job_on_a_held_place_is_refused_then_waits(farm):
     """Two jobs on one place: the second is refused at once (naming the holder), or with
     --place-wait gets the board once the first is done; the first's run is untouched."""
-    first = subprocess.Popen([*IMULINK, "inject", "lg://imu-native-2", "--input", "sim:rests:80", "--json"],
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=farm.env)
-    try:
+    with running("inject", "lg://imu-native-2", "--input", "sim:rests:80", "--json", env=farm.env) as first:
         def held() -> bool:
             with lab.Coordinator(farm.address) as session:
                 return any(p.acquired for p in session.places("imu-native-2"))
@@ -297,9 +308,6 @@ def test_a_second_job_on_a_held_place_is_refused_then_waits(farm):
         assert not (farm.dir / "second.imulog").exists()
         waiting = imulink("settings", "lg://imu-native-2", "--place-wait", "90", "--json", env=farm.env)
         out, err = first.communicate(timeout=COMMAND_TIMEOUT_S)
-    finally:
-        if first.poll() is None:
-            first.kill()
     assert first.returncode == 0, err
     report = json.loads(out)
     assert report["answered"] == report["samples"] == 8000 and report["verdict"]["passed"]
@@ -347,19 +355,15 @@ def test_farm_verify_waits_for_a_held_place(farm, option):
 def test_ctrl_c_releases_the_place(farm):
     """A job stopped with Ctrl-C (SIGINT) in the middle of its run gives the place back."""
     # 300000 samples: minutes of injection even at full speed, stopped once it is under way
-    job = subprocess.Popen([*IMULINK_CTRL_C, "inject", "lg://imu-native-1", "--input", "sim:rests:3000"],
-                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=farm.env)
     lines: list[str] = []
-    reader = threading.Thread(target=lambda: lines.extend(job.stderr), daemon=True)
-    reader.start()
-    try:
+    with running("inject", "lg://imu-native-1", "--input", "sim:rests:3000", env=farm.env, command=IMULINK_CTRL_C,
+                 stdout=subprocess.DEVNULL) as job:
+        reader = threading.Thread(target=lambda: lines.extend(job.stderr), daemon=True)
+        reader.start()
         _wait_for(lambda: any("injecting:" in line for line in lines), 60, "the job did not start injecting")
         job.send_signal(signal.SIGINT)
         job.wait(timeout=COMMAND_TIMEOUT_S)
         reader.join(timeout=COMMAND_TIMEOUT_S)
-    finally:
-        if job.poll() is None:
-            job.kill()
     err = "".join(lines)
     assert job.returncode == 130, err
     assert "imulink: interrupted" in err
@@ -374,10 +378,8 @@ def test_a_board_lost_mid_run_is_its_place_only(farm):
     try:
         farm.exporter("rack2", {name: board.address for name, board in boards.items()})
         farm.places({f"lost-{name}": (f"rack2/{name}/NetworkSerialPort", {}) for name in boards})
-        run = subprocess.Popen([*IMULINK, "farm", "verify", "--places", "lost-*", "--input", "sim:rests:60",
-                                "--json"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               env=farm.env)
-        try:
+        with running("farm", "verify", "--places", "lost-*", "--input", "sim:rests:60", "--json",
+                     env=farm.env) as run:
             def answering() -> bool:  # the board has been injected into for a while: it has sent estimates
                 with lab.Coordinator(farm.address) as session:
                     return any(p.acquired for p in session.places("lost-b"))
@@ -385,9 +387,6 @@ def test_a_board_lost_mid_run_is_its_place_only(farm):
             time.sleep(1.5)
             boards["b"].stop()
             out, err = run.communicate(timeout=COMMAND_TIMEOUT_S)
-        finally:
-            if run.poll() is None:
-                run.kill()
         assert run.returncode == 1, err
         rows = {row["place"]: row for row in json.loads(out)["places"]}
         assert rows["lost-a"]["passed"] and rows["lost-a"]["identical"] == 6000
@@ -414,9 +413,7 @@ def test_a_usb_serial_board_through_ser2net(farm, nodelay):
         exporter = farm.serial_device_exporter(f"{name}-rack", f"{name}-1", str(board.address), nodelay)
         farm.places({f"{name}-1": (f"{name}-rack/{name}-1/NetworkSerialPort", {"board": "native", "link": "usb"})})
         # each injected sample waits for its answer: without nodelay that is tens of ms, so a short run
-        job = subprocess.Popen([*IMULINK, "inject", f"lg://{name}-1", "--input", "sim:rests:1", "--json"],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=farm.env)
-        try:
+        with running("inject", f"lg://{name}-1", "--input", "sim:rests:1", "--json", env=farm.env) as job:
             assert job.stderr is not None
             said = [job.stderr.readline(), job.stderr.readline()]  # the place acquired, the first sample answered
             assert "RawSerialPort at rfc2217://127.0.0.1:" in said[0] and said[1].startswith("injecting"), said
@@ -425,9 +422,6 @@ def test_a_usb_serial_board_through_ser2net(farm, nodelay):
             accepters = [arg for arg in ser2net[0] if b"accepter:" in arg]
             assert len(accepters) == 1 and (b",tcp(nodelay)," in accepters[0]) == nodelay, accepters
             out, err = job.communicate(timeout=COMMAND_TIMEOUT_S)
-        finally:
-            if job.poll() is None:
-                job.kill()
         assert job.returncode == 0, err
         report = json.loads(out)
         assert report["samples"] == report["answered"] == 100 and report["verdict"]["passed"]
@@ -733,14 +727,9 @@ def test_an_exporter_lost_while_a_job_holds_its_place(farm):
                 stopped.extend(processes)
 
         recording = farm.dir / "far.imulog"
-        job = subprocess.Popen([*IMULINK, "record", "lg://far-1", "-o", str(recording), "--duration", "600"],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=farm.env)
-        try:
+        with running("record", "lg://far-1", "-o", str(recording), "--duration", "600", env=farm.env) as job:
             lose(job, "recording", signal.SIGSTOP)
             err, took = _ended_on_one_error_line(job, "sent nothing for", "keeps the")
-        finally:
-            if job.poll() is None:
-                job.kill()
         assert recording.exists()  # what came before is kept
         with lab.Coordinator(farm.address) as session:
             assert session.places("far-1")[0].acquired is None, (err, took)
@@ -748,14 +737,9 @@ def test_an_exporter_lost_while_a_job_holds_its_place(farm):
             os.kill(pid, signal.SIGCONT)
         stopped.clear()
 
-        job = subprocess.Popen([*IMULINK, "inject", "lg://far-1", "--input", "sim:rests:600"],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=farm.env)
-        try:
+        with running("inject", "lg://far-1", "--input", "sim:rests:600", env=farm.env) as job:
             lose(job, "injecting", signal.SIGKILL)
             _ended_on_one_error_line(job, "disconnected")
-        finally:
-            if job.poll() is None:
-                job.kill()
         with lab.Coordinator(farm.address) as session:
             assert session.places("far-1")[0].acquired is None
     finally:
