@@ -152,6 +152,46 @@ def test_motion_with_rests():
     np.testing.assert_array_equal(traj.quat, again.quat)
 
 
+def _displacement(traj) -> tuple[float, float]:
+    """Largest speed (m/s) and distance from the start (m), the linear acceleration
+    integrated from rest."""
+    velocity = np.cumsum(traj.acc_lin, axis=0) * traj.dt
+    position = np.cumsum(velocity, axis=0) * traj.dt
+    return float(np.abs(velocity).max()), float(np.abs(position).max())
+
+
+def test_a_bounded_translation_stays_within_reach_and_comes_back():
+    """translation="bounded": the acceleration of a position within reach (a hand's), back
+    at the rest spot after each move; the sustained model's velocity wanders without bound."""
+    bounded = sim.motion_with_rests(300.0, 100.0, seed=0, translation="bounded")
+    sustained = sim.motion_with_rests(300.0, 100.0, seed=0)
+    speed, distance = _displacement(bounded)
+    assert speed < 1.0 and distance < 0.3
+    assert min(_displacement(sustained)) > 5.0
+    assert not bounded.acc_lin[bounded.rest].any()
+    moving = ~bounded.rest
+    np.testing.assert_allclose(bounded.acc_lin[moving].std(axis=0), 1.0, rtol=0.2)
+    # Same rotation stream: only the translation differs.
+    np.testing.assert_array_equal(bounded.quat, sustained.quat)
+
+
+def test_a_bounded_translation_has_almost_nothing_a_low_pass_keeps():
+    """Below 0.15 Hz (what a 3 s low-pass keeps) the bounded model holds a few mm/s^2 where
+    the sustained one holds a third of its total (tools/eval_translation.py)."""
+    def low_share(traj):
+        spectrum = np.abs(np.fft.rfft(traj.acc_lin[:, :2], axis=0)) ** 2
+        freq = np.fft.rfftfreq(len(traj.t), traj.dt)
+        return np.sqrt(spectrum[freq < 0.15].sum() / spectrum.sum())
+    bounded = sim.random_motion(300.0, 100.0, seed=1, accel_std=3.0, translation="bounded")
+    sustained = sim.random_motion(300.0, 100.0, seed=1, accel_std=3.0)
+    assert low_share(bounded) < 0.02 < 0.2 < low_share(sustained)
+
+
+def test_an_unknown_translation_is_refused():
+    with pytest.raises(ValueError, match="translation"):
+        sim.random_motion(1.0, 100.0, translation="wobbly")
+
+
 # --------------------------------------------------------------------------- sensors
 
 

@@ -9,6 +9,9 @@ and +-8 g, HMC5883L at +-1.3 Ga), plus the scenario's condition:
   handheld         moves of 5-20 s (about 200 deg/s) between rests of 2-10 s, linear
                    acceleration 1 m/s^2 per axis (std) while moving.
   fast             continuous random motion, 400 deg/s, linear acceleration 3 m/s^2 per axis.
+  sustained        handheld with a sustained linear acceleration: flat down to 0 Hz (a
+                   vehicle's), where every other case has a hand's (the second derivative of
+                   a position within reach, which averages out within seconds).
   vibration        slow random motion (100 deg/s, 0.5 m/s^2) on a shaking mount: 3 m/s^2 and
                    0.1 rad/s (5.7 deg/s) RMS of vibration at 20-45 Hz and its 2nd order,
                    sampled without an anti-alias filter (the Vibration class's default, a

@@ -11,34 +11,40 @@ the streams of the trajectory and the sensors, so that several seeds measure sev
 placements. Times and lengths of events are given for the default 300 s and scale with
 ``duration_s`` (a short run for the tests keeps the same shape).
 
+Linear acceleration is that of a position within reach (``translation="bounded"`` of
+:func:`imulink.sim.random_motion`: it averages out within seconds, as in BROAD's
+recordings) everywhere but in ``sustained``.
+
 1. ``handheld``: :func:`motion_with_rests` (moves of 5-20 s up to about 200 deg/s, rests of
    2-10 s) with a linear acceleration of 1 m/s^2 per axis (std).
 2. ``fast``: :func:`random_motion` without rests, rate soft-limited to 400 deg/s, linear
    acceleration 3 m/s^2 per axis.
-3. ``vibration``: slow :func:`random_motion` (100 deg/s, 0.5 m/s^2) on a shaking mount:
+3. ``sustained``: ``handheld`` with a sustained linear acceleration (flat down to 0 Hz:
+   a vehicle's, which no low-pass averages out).
+4. ``vibration``: slow :func:`random_motion` (100 deg/s, 0.5 m/s^2) on a shaking mount:
    a :class:`Vibration` of 3 m/s^2 and 0.1 rad/s (5.7 deg/s) RMS at 20-45 Hz and its 2nd
    order (the class's default is a car's engine, 0.7 m/s^2 and 2 deg/s: this is some four
    and three times that, a drone's frame or a power tool), read at 100 Hz without an
    anti-alias filter, so its 2nd order aliases.
-4. ``acc-bias``: ``handheld`` with a constant accelerometer bias of MPU6050 size: each axis
+5. ``acc-bias``: ``handheld`` with a constant accelerometer bias of MPU6050 size: each axis
    0.2-0.4 m/s^2 with a random sign (the data sheet's +-50 mg zero-g offset on x and y).
-5. ``acc-bias-drift``: ``acc-bias`` plus a temperature drift: 8 equal steps from 10 % to
+6. ``acc-bias-drift``: ``acc-bias`` plus a temperature drift: 8 equal steps from 10 % to
    90 % of the run that add up to 0.2 m/s^2 along a random direction (AccModel.bias_steps).
-6. ``gyro-bias-step``: ``handheld`` with a gyro bias step of 0.5 deg/s (random sign) on a
+7. ``gyro-bias-step``: ``handheld`` with a gyro bias step of 0.5 deg/s (random sign) on a
    random axis halfway through (GyroModel.bias_steps): a knock, a mount that shifts.
-7. ``gyro-scale``: continuous rotation up to 300 deg/s with 1 m/s^2 of linear acceleration,
+8. ``gyro-scale``: continuous rotation up to 300 deg/s with 1 m/s^2 of linear acceleration,
    read by an uncalibrated gyroscope (GyroModel.scale_error): scale-factor errors of 1-2 %
    and cross-axis sensitivities up to 1 %, random signs (the MPU6050 allows 3 % and 2 %).
-8. ``magnet-room``: ``handheld`` with an extra field of 25 uT fixed in the room, in a random
+9. ``magnet-room``: ``handheld`` with an extra field of 25 uT fixed in the room, in a random
    direction, for 30 s (a tenth of the run) starting at 30-60 % of the run
    (MagModel.disturbances, with 0.5 s ramps).
-9. ``attached-magnet``: ``handheld`` with a magnet on the board: a hard-iron offset of 15 uT
+10. ``attached-magnet``: ``handheld`` with a magnet on the board: a hard-iron offset of 15 uT
    in a random body direction for the WHOLE run (MagModel has only a constant hard_iron,
    so it cannot be switched on for a while; no filter is told about it).
-10. ``shocks``: ``handheld`` with knocks: a :class:`Shock` every 2-5 s (a Ricker pulse of
+11. ``shocks``: ``handheld`` with knocks: a :class:`Shock` every 2-5 s (a Ricker pulse of
    200 m/s^2, 15 ms main lobe, random body direction), clipped at the accelerometer's
    +-8 g (78 m/s^2).
-11. ``outage``: ``handheld`` with the magnetometer reading zeros (counts 0: no field, which
+12. ``outage``: ``handheld`` with the magnetometer reading zeros (counts 0: no field, which
     the filters and VQF take as "no magnetometer sample") for 60 s (a fifth of the run)
     starting at 30-60 % of the run.
 
@@ -107,8 +113,8 @@ def _unit(rng: np.random.Generator) -> np.ndarray:
     return v / np.linalg.norm(v)
 
 
-def _handheld_traj(seed: int, duration_s: float) -> sim.Trajectory:
-    return sim.motion_with_rests(duration_s, RATE_HZ, seed=seed, accel_std=1.0)
+def _handheld_traj(seed: int, duration_s: float, translation: str = "bounded") -> sim.Trajectory:
+    return sim.motion_with_rests(duration_s, RATE_HZ, seed=seed, accel_std=1.0, translation=translation)
 
 
 def _acc_bias(rng: np.random.Generator) -> np.ndarray:
@@ -123,7 +129,16 @@ def handheld(seed: int, duration_s: float = DURATION_S) -> Case:
 
 def fast(seed: int, duration_s: float = DURATION_S) -> Case:
     """Continuous motion up to 400 deg/s, linear acceleration 3 m/s^2 per axis, no rests."""
-    traj = sim.random_motion(duration_s, RATE_HZ, seed=seed, max_rate_dps=400.0, accel_std=3.0)
+    traj = sim.random_motion(duration_s, RATE_HZ, seed=seed, max_rate_dps=400.0, accel_std=3.0,
+                             translation="bounded")
+    data = sim.simulate(traj, sim.SensorSuite.default(), seed=seed)
+    return data, _mask(data)
+
+
+def sustained(seed: int, duration_s: float = DURATION_S) -> Case:
+    """``handheld`` whose linear acceleration (1 m/s^2 per axis) is sustained: flat down to
+    0 Hz, as in a vehicle, not a hand's, which averages out within seconds."""
+    traj = _handheld_traj(seed, duration_s, translation="sustained")
     data = sim.simulate(traj, sim.SensorSuite.default(), seed=seed)
     return data, _mask(data)
 
@@ -134,7 +149,8 @@ VIBRATION = Vibration(acc_rms_m_s2=3.0, gyro_rms_rad_s=0.1)
 
 def vibration(seed: int, duration_s: float = DURATION_S) -> Case:
     """Slow motion (100 deg/s, 0.5 m/s^2) with 3 m/s^2 and 0.1 rad/s RMS of vibration."""
-    traj = sim.random_motion(duration_s, RATE_HZ, seed=seed, max_rate_dps=100.0, accel_std=0.5)
+    traj = sim.random_motion(duration_s, RATE_HZ, seed=seed, max_rate_dps=100.0, accel_std=0.5,
+                             translation="bounded")
     data = sim.simulate(traj, sim.SensorSuite.default(), seed=seed, vibration=VIBRATION)
     return data, _mask(data)
 
@@ -181,7 +197,8 @@ def gyro_scale(seed: int, duration_s: float = DURATION_S) -> Case:
     np.fill_diagonal(error, rng.uniform(0.01, 0.02, 3) * rng.choice([-1.0, 1.0], 3))
     suite = sim.SensorSuite.default()
     suite.gyro.scale_error = error
-    traj = sim.random_motion(duration_s, RATE_HZ, seed=seed, max_rate_dps=300.0, accel_std=1.0)
+    traj = sim.random_motion(duration_s, RATE_HZ, seed=seed, max_rate_dps=300.0, accel_std=1.0,
+                             translation="bounded")
     data = sim.simulate(traj, suite, seed=seed)
     return data, _mask(data)
 
@@ -234,6 +251,7 @@ def outage(seed: int, duration_s: float = DURATION_S) -> Case:
 SCENARIOS: dict[str, Callable[..., Case]] = {
     "handheld": handheld,
     "fast": fast,
+    "sustained": sustained,
     "vibration": vibration,
     "acc-bias": acc_bias,
     "acc-bias-drift": acc_bias_drift,

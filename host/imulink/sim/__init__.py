@@ -19,6 +19,7 @@ from imulink.sim.sensors import AccModel, GyroModel, MagModel, SensorSuite, SimR
 from imulink.sim.trajectories import (
     DEFAULT_INITIAL,
     MAX_SAMPLES,
+    TRANSLATIONS,
     ScenarioError,
     Trajectory,
     integrate_gyro,
@@ -39,6 +40,7 @@ __all__ = [
     "turntable",
     "random_motion",
     "motion_with_rests",
+    "TRANSLATIONS",
     "GyroModel",
     "AccModel",
     "MagModel",

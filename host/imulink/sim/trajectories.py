@@ -34,6 +34,7 @@ __all__ = [
     "turntable",
     "random_motion",
     "motion_with_rests",
+    "TRANSLATIONS",
 ]
 
 #: Default initial attitude: roll 3 deg, pitch -2 deg, yaw 30 deg (see :func:`quat.from_zyx`).
@@ -140,8 +141,40 @@ def _lowpass_noise(rng: np.random.Generator, n: int, dt: float, bandwidth_hz: fl
     return y * (std / np.sqrt(np.mean(gain**2)))
 
 
-def _random_rates_and_acc(rng, n, dt, max_rate_dps, bandwidth_hz, accel_std):
-    """Band-limited body rate (rad/s, soft-limited) and earth-frame acceleration (m/s^2)."""
+#: How the linear acceleration is made (:func:`random_motion`, :func:`motion_with_rests`).
+TRANSLATIONS = ("sustained", "bounded")
+
+
+def _bounded_acceleration(white: np.ndarray, dt: float, bandwidth_hz: float, accel_std: float,
+                          envelope: np.ndarray | None = None) -> np.ndarray:
+    """(n,3) linear acceleration of a position that stays within reach: the second derivative
+    of band-limited position noise (4th-order shape as :func:`_lowpass_noise`), times
+    ``envelope`` when given (the board leaves its rest spot and comes back to it). The
+    position is scaled so that its acceleration has the per-axis std ``accel_std``
+    (before the envelope). Its spectrum vanishes at 0 Hz as f^4: a hand, an arm, a shaken
+    board cannot accelerate one way for long."""
+    n = len(white)
+    freq = np.abs(np.fft.fftfreq(n, dt))
+    gain = 1.0 / np.sqrt(1.0 + (freq / bandwidth_hz) ** 8)
+    to_acceleration = (2.0 * np.pi * freq) ** 2 * gain
+    position = np.fft.irfft(np.fft.rfft(white, axis=0) * gain[: n // 2 + 1, None], n=n, axis=0)
+    # Circular filtering of unit white noise: var of the acceleration = mean(|H_acc|^2).
+    position *= accel_std / np.sqrt(np.mean(to_acceleration**2))
+    if envelope is None:  # (the position is periodic over the record)
+        return (np.roll(position, -1, axis=0) - 2.0 * position + np.roll(position, 1, axis=0)) / dt**2
+    # Second differences, so that the acceleration sums back to the position exactly: a move
+    # starts and ends with a finite acceleration (the envelope's ramps), one sample into its rests.
+    acceleration = np.zeros_like(position)
+    acceleration[1:-1] = np.diff(position * envelope[:, None], n=2, axis=0) / dt**2
+    return acceleration
+
+
+def _random_rates_and_acc(rng, n, dt, max_rate_dps, bandwidth_hz, accel_std, translation="sustained",
+                          envelope=None):
+    """Band-limited body rate (rad/s, soft-limited) and earth-frame acceleration (m/s^2),
+    both times ``envelope`` when given; the translation as :func:`random_motion` says."""
+    if translation not in TRANSLATIONS:
+        raise ValueError(f"unknown translation {translation!r}; expected one of {TRANSLATIONS}")
     w_max = np.deg2rad(max_rate_dps)
     w = _lowpass_noise(rng, n, dt, bandwidth_hz, w_max / 3.0)
     # Soft limit on the rate magnitude: |w| -> w_max tanh(|w| / w_max).
@@ -149,7 +182,14 @@ def _random_rates_and_acc(rng, n, dt, max_rate_dps, bandwidth_hz, accel_std):
     with np.errstate(invalid="ignore", divide="ignore"):
         scale = np.where(mag > 0, w_max * np.tanh(mag / w_max) / mag, 1.0)
     w = w * scale
-    a = _lowpass_noise(rng, n, dt, bandwidth_hz, accel_std)
+    if translation == "bounded":
+        a = _bounded_acceleration(rng.standard_normal((n, 3)), dt, bandwidth_hz, accel_std, envelope)
+    else:
+        a = _lowpass_noise(rng, n, dt, bandwidth_hz, accel_std)
+        if envelope is not None:
+            a = a * envelope[:, None]
+    if envelope is not None:
+        w = w * envelope[:, None]
     return w, a
 
 
@@ -205,7 +245,8 @@ def turntable(duration_s: float, rate_hz: float, rate_dps: float = 10.0, initial
 
 
 def random_motion(duration_s: float, rate_hz: float, seed: int = 0, max_rate_dps: float = 200.0,
-                  bandwidth_hz: float = 1.0, accel_std: float = 1.0, initial=None) -> Trajectory:
+                  bandwidth_hz: float = 1.0, accel_std: float = 1.0, initial=None,
+                  translation: str = "sustained") -> Trajectory:
     """Smooth random rotation and linear acceleration.
 
     Args:
@@ -220,11 +261,18 @@ def random_motion(duration_s: float, rate_hz: float, seed: int = 0, max_rate_dps
         accel_std: per-axis standard deviation in m/s^2 of the zero-mean, band-limited
             linear acceleration (earth frame).
         initial: (4,) initial attitude; default :data:`DEFAULT_INITIAL`.
+        translation: ``"sustained"``: the acceleration itself is band-limited noise, flat
+            down to 0 Hz, so the velocity wanders without bound (a vehicle that speeds up,
+            brakes and turns for seconds); ``"bounded"``: it is the second derivative of a
+            band-limited position, so it averages out within seconds (a hand, a shaken or
+            carried board: BROAD's recordings hold 0.005-0.1 m/s^2 of horizontal linear
+            acceleration below 0.15 Hz however hard they move, the sustained model some
+            30 % of its total, docs/accuracy.md).
     """
     n = _n_samples(duration_s, rate_hz)
     dt = 1.0 / rate_hz
     rng = np.random.default_rng(seed)
-    gyr, acc = _random_rates_and_acc(rng, n, dt, max_rate_dps, bandwidth_hz, accel_std)
+    gyr, acc = _random_rates_and_acc(rng, n, dt, max_rate_dps, bandwidth_hz, accel_std, translation)
     q0 = _initial(initial)
     return Trajectory(
         rate_hz=float(rate_hz),
@@ -247,18 +295,21 @@ def motion_with_rests(duration_s: float, rate_hz: float, seed: int = 0, move_s=(
         move_s: (min, max) length in s of a motion segment (uniformly drawn).
         rest_s: (min, max) length in s of a rest segment (uniformly drawn).
         **random_motion_kwargs: ``max_rate_dps``, ``bandwidth_hz``, ``accel_std``,
-            ``initial`` as in :func:`random_motion`.
+            ``initial``, ``translation`` as in :func:`random_motion` (bounded: the board
+            comes back to its rest spot after each move).
 
     The random rate and acceleration are multiplied by an envelope that rises and
     falls with 0.5 s raised-cosine ramps inside each motion segment, so both are
-    exactly zero during rests (``rest`` is True where the envelope is 0).  Only
-    acceleration is simulated (no velocity/position), so rests need no braking.
+    exactly zero during rests (``rest`` is True where the envelope and the acceleration
+    are 0: a bounded move's acceleration reaches one sample beyond its envelope).  With the
+    sustained translation only the acceleration is simulated (no velocity or position),
+    so a rest needs no braking; with the bounded one the envelope multiplies the position.
     """
     n = _n_samples(duration_s, rate_hz)
     dt = 1.0 / rate_hz
     t = np.arange(n) * dt
     rng = np.random.default_rng(seed)
-    kw = dict(max_rate_dps=200.0, bandwidth_hz=1.0, accel_std=1.0, initial=None)
+    kw = dict(max_rate_dps=200.0, bandwidth_hz=1.0, accel_std=1.0, initial=None, translation="sustained")
     unknown = set(random_motion_kwargs) - set(kw)
     if unknown:
         raise TypeError(f"unexpected arguments: {sorted(unknown)}")
@@ -276,10 +327,8 @@ def motion_with_rests(duration_s: float, rate_hz: float, seed: int = 0, move_s=(
         envelope[sel] = 0.5 - 0.5 * np.cos(np.pi * x)
         start = end + rng.uniform(*rest_s)
 
-    gyr, acc = _random_rates_and_acc(rng, n, dt, kw["max_rate_dps"], kw["bandwidth_hz"],
-                                     kw["accel_std"])
-    gyr *= envelope[:, None]
-    acc *= envelope[:, None]
+    gyr, acc = _random_rates_and_acc(rng, n, dt, kw["max_rate_dps"], kw["bandwidth_hz"], kw["accel_std"],
+                                     kw["translation"], envelope)
     q0 = _initial(kw["initial"])
     return Trajectory(
         rate_hz=float(rate_hz),
@@ -287,5 +336,5 @@ def motion_with_rests(duration_s: float, rate_hz: float, seed: int = 0, move_s=(
         quat=integrate_gyro(q0, gyr, dt),
         gyr=gyr,
         acc_lin=acc,
-        rest=envelope == 0.0,
+        rest=(envelope == 0.0) & ~acc.any(axis=1),
     )
