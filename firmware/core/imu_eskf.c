@@ -85,6 +85,8 @@ const int imu_eskf_setting_count = (int)(sizeof imu_eskf_setting_descs / sizeof 
  *  carries no gravity information, and |a| / g stays within Q24 below it. */
 #define MAX_GRAVITY_NORM IMU_QCONST(512.0, 16)
 /** Three-sample coning coefficients of eq. 15, Q30. */
+/** lowpass_settled this close to 1 (within 2^-16) is taken as 1: the gravity updates' full weight. */
+#define SETTLED IMU_QCONST(1.0 - 1.0 / 65536.0, 30)
 #define CONING_13 IMU_QCONST(0.4125, 30) /* 33/80 */
 #define CONING_2 IMU_QCONST(0.7125, 30)  /* 57/80 */
 
@@ -138,7 +140,7 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
     f->acc_alpha = IMU_DIV_SAT(f->period,
                                IMU_ADD(IMU_SHL_SAT(s->acc_lowpass, 8, &f->saturations), IMU_SHR(f->period, 6)), 24,
                                &f->saturations);
-    f->acc_earth_valid = 0;
+    f->lowpass_settled = 0;
     for (k = 0; k < 3; ++k) {
         f->acc_earth[k] = 0;
         f->gyr_sum[k] = 0;
@@ -533,6 +535,18 @@ static void lowpassed_bias(imu_eskf_t *f, const imu_rotation_t *rot, imu_q30_t b
 }
 
 /**
+ * Weight (Q30) of a gravity update from the low-passed force: `weight` times
+ * lowpass_settled, the low-pass's steady noise variance (what acc_noise describes) over its
+ * present one. At the start it holds few values and their linear acceleration almost
+ * whole; counted with acc_noise they made the attitude look known to a degree while it
+ * was tens of degrees off.
+ */
+static imu_q30_t start_weight(const imu_eskf_t *f, imu_q30_t weight)
+{
+    return f->lowpass_settled >= IMU_ONE_Q30 ? weight : IMU_MUL(weight, f->lowpass_settled, 30);
+}
+
+/**
  * Gravity measurement: c = a / g - B ba_est = v + [v x] dtheta + B (ba - ba_est), a the
  * low-passed specific force, v the estimated up in the sensor frame, B = R^T lowpass(R)
  * (lowpassed_bias; I at rest), taken apart along the estimated earth axes:
@@ -583,6 +597,7 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_rota
     if (f->acc_weight == 0) {
         return; /* far from 1 g (taps, free fall): no gravity information */
     }
+    f->acc_weight = start_weight(f, f->acc_weight);
     noise_g = IMU_MUL(st->acc_noise, f->inv_gravity, 28); /* Q24 * Q30 >> 28 -> Q26 (g) */
     r = IMU_WMUL(noise_g, noise_g);
     if (f->at_rest) {
@@ -638,7 +653,7 @@ static void restart_attitude_uncertainty(imu_eskf_t *f)
     for (k = 0; k < 3; ++k) {
         imu_cov_reset_state(&f->cov, ATT + k, var, 56, &f->saturations);
     }
-    f->acc_earth_valid = 0; /* its earth frame was the lost one */
+    f->lowpass_settled = 0; /* its earth frame was the lost one */
 }
 
 /**
@@ -767,22 +782,71 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_rota
     scalar_update(f, h, z, IMU_WMUL(sigma, sigma), 48, f->mag_weight, &gain_map, dx);
 }
 
+/** Steady noise variance of the exponential low-pass over one value's, alpha / (2 - alpha), Q30. */
+static imu_q30_t lowpass_steady(imu_eskf_t *f)
+{
+    const imu_q30_t half_alpha = IMU_HALF(f->acc_alpha); /* (alpha / 2) / (1 - alpha / 2): 2 is beyond Q30 */
+    return IMU_DIV_SAT(half_alpha, IMU_SUB(IMU_ONE_Q30, half_alpha), 30, &f->saturations);
+}
+
+/**
+ * Weight of the newest value in the earth-frame low-pass (Q30), and lowpass_settled moved
+ * on past it. While the mean of the values so far weighs the newest one more than the
+ * exponential low-pass's alpha, the low-pass is that mean: started from one value it
+ * would keep e^(-t/acc_lowpass) of it, and a start in motion kept its first linear
+ * acceleration as a tilt for seconds (72 % of it after 1 s at 3 s), long enough for the
+ * gravity updates to teach it to the gyro bias (tests/test_eskf.py, start in motion).
+ * With s = alpha / (2 - alpha) and u = lowpass_settled: the mean of n values has noise
+ * 1 / n (u = n s) and weighs the next s / (u + s) = 1 / (n + 1); then u <- u + s. The
+ * exponential low-pass's noise v <- (1 - alpha)^2 v + alpha^2 makes u <- u / (q + (1 - q) u),
+ * q = (1 - alpha)^2, which rises to 1 (kept in this form: u near 1 has all its bits).
+ */
+static imu_q30_t lowpass_weight(imu_eskf_t *f)
+{
+    const imu_q30_t u = f->lowpass_settled;
+    imu_q30_t steady, mean_weight;
+    if (u >= IMU_ONE_Q30) {
+        return f->acc_alpha; /* settled: the usual case, no division */
+    }
+    if (f->acc_alpha >= IMU_ONE_Q30) {
+        f->lowpass_settled = IMU_ONE_Q30; /* no low-pass (acc_lowpass 0): each value is whole */
+        return f->acc_alpha;
+    }
+    steady = lowpass_steady(f);
+    mean_weight = IMU_DIV_SAT(steady, IMU_ADD_SAT(u, steady, &f->saturations), 30, &f->saturations);
+    if (mean_weight > f->acc_alpha) {
+        f->lowpass_settled = IMU_ADD_SAT(u, steady, &f->saturations);
+        return mean_weight;
+    }
+    {
+        const imu_q30_t keep = IMU_SUB(IMU_ONE_Q30, f->acc_alpha);
+        const imu_q30_t q = IMU_MUL(keep, keep, 30);
+        const imu_q30_t den = IMU_ADD(q, IMU_MUL(IMU_SUB(IMU_ONE_Q30, q), u, 30)); /* in [u, 1] */
+        const imu_q30_t next = IMU_DIV_SAT(u, den, 30, &f->saturations);
+        /* u approaches 1 only asymptotically: within 2^-16 it is 1 */
+        f->lowpass_settled = next >= SETTLED ? IMU_ONE_Q30 : next;
+    }
+    return f->acc_alpha;
+}
+
 /**
  * Low-pass the specific force in the estimated earth frame, where rotations do
  * not change gravity but a back-and-forth translation averages out (time
- * constant acc_lowpass), and return it in the sensor frame: acc <- R^T lp(R acc), R = rot.
+ * constant acc_lowpass; at its start the mean: lowpass_weight), and return it in the
+ * sensor frame: acc <- R^T lp(R acc), R = rot.
  */
 static void lowpass_specific_force(imu_eskf_t *f, const imu_rotation_t *rot, imu_q16_t acc[3])
 {
+    const int first = f->lowpass_settled == 0;
+    const imu_q30_t weight = lowpass_weight(f);
     imu_q16_t earth[3];
     imu_q16_t smooth[3];
     int r, k;
     imu_rotation_apply(rot, acc, earth); /* Q30 * Q16 >> 30 -> Q16; |R a| = |a| */
     for (r = 0; r < 3; ++r) {
-        /* alpha (Q30) * (earth - smooth) (Q16, both within 1774 m/s^2) -> Q46. */
-        f->acc_earth[r] = f->acc_earth_valid
-                              ? f->acc_earth[r] + IMU_WMUL(f->acc_alpha, IMU_SUB(earth[r], acc_earth_q16(f, r)))
-                              : IMU_WMUL(earth[r], IMU_ONE_Q30);
+        /* weight (Q30) * (earth - smooth) (Q16, both within 1774 m/s^2) -> Q46. */
+        f->acc_earth[r] = first ? IMU_WMUL(earth[r], IMU_ONE_Q30)
+                                : f->acc_earth[r] + IMU_WMUL(weight, IMU_SUB(earth[r], acc_earth_q16(f, r)));
         smooth[r] = acc_earth_q16(f, r);
     }
     if (imu_eskf_state_count(f) == 9) {
@@ -790,15 +854,12 @@ static void lowpass_specific_force(imu_eskf_t *f, const imu_rotation_t *rot, imu
         for (r = 0; r < 3; ++r) {
             for (k = 0; k < 3; ++k) {
                 f->lowpass_rotation[r][k] =
-                    f->acc_earth_valid
-                        ? f->lowpass_rotation[r][k] +
-                              IMU_WMUL(f->acc_alpha, IMU_SUB(IMU_SHR(rot->row[r][k], 1),
-                                                             IMU_SHR(lowpass_rotation_q30(f, r, k), 1)))
-                        : IMU_WMUL(rot->row[r][k], IMU_QCONST(1.0, 29));
+                    first ? IMU_WMUL(rot->row[r][k], IMU_QCONST(1.0, 29))
+                          : f->lowpass_rotation[r][k] + IMU_WMUL(weight, IMU_SUB(IMU_SHR(rot->row[r][k], 1),
+                                                                                 IMU_SHR(lowpass_rotation_q30(f, r, k), 1)));
             }
         }
     }
-    f->acc_earth_valid = 1;
     for (k = 0; k < 3; ++k) {
         acc[k] = IMU_ADD(IMU_ADD(IMU_MUL(rot->row[0][k], smooth[0], 30), IMU_MUL(rot->row[1][k], smooth[1], 30)),
                          IMU_MUL(rot->row[2][k], smooth[2], 30));
@@ -817,7 +878,7 @@ static void turn_acc_earth(imu_eskf_t *f, const imu_rotation_t *rot, const imu_q
     imu_q30_t u[3];
     imu_q16_t v[3];
     int k;
-    if (!f->acc_earth_valid) {
+    if (f->lowpass_settled == 0) {
         return; /* nothing to turn: the next low-pass starts afresh (and rot may be of an older attitude) */
     }
     imu_rotation_apply(rot, dtheta, u);

@@ -105,7 +105,9 @@ typedef struct {
                                        Q16 LSB at high rates, and such rounding errors repeat step after step */
     imu_wide_t lowpass_rotation[3][3]; /**< the same low-pass of R (earth from sensor), Q59, 9 states only:
                                        acc_earth holds lowpass(R) ba of the accelerometer bias ba, not R ba */
-    int acc_earth_valid;          /**< 0 until the low-pass has its first value */
+    imu_q30_t lowpass_settled;    /**< the low-pass's steady noise variance over its present one, Q30 in (0, 1]:
+                                       n alpha / (2 - alpha) while it is the mean of n values, then up to
+                                       1 (lowpass_weight); 0: it holds nothing yet */
     imu_q30_t acc_weight;         /**< weight of the last gravity update, Q30 */
     imu_q30_t mag_weight;         /**< weight of the last heading update, Q30 */
     imu_cov_t cov;                /**< error-state covariance */
