@@ -61,10 +61,10 @@ $(LAB_BIN)/imulink: pyproject.toml setup.py host/imulink/core/_build.py host/imu
 		"pyserial-labgrid==$$($(LAB_BIN)/python -c 'from importlib.metadata import version; print(version("pyserial-labgrid"))')"
 	@touch $@
 
-## test-farm: the labgrid farm tests (tests/test_farm.py) in .venv-lab, with a coordinator and an
+## test-farm: the labgrid farm tests (tests/test_farm.py, test_farm_swd.py) in .venv-lab, with a coordinator and an
 ## exporter of emulated boards started on this machine; CI runs them after `make test-long`
 test-farm: setup $(LAB_BIN)/imulink
-	IMULINK_REQUIRE_LABGRID=1 $(LAB_BIN)/python -m pytest -q --timeout=300 --durations=10 tests/test_farm.py tests/test_lab_address.py
+	IMULINK_REQUIRE_LABGRID=1 $(LAB_BIN)/python -m pytest -q --timeout=300 --durations=10 tests/test_farm.py tests/test_farm_swd.py tests/test_lab_address.py
 
 ## check: lint (ruff), types (mypy) and generated files up to date (tools/gen_protocol.py --check)
 check: setup

@@ -21,6 +21,10 @@ and releases it. This module is the only one that speaks to labgrid:
 - ``held_place(..., lines=True)`` also binds labgrid's own drivers to the place's BOOT0 and
   reset lines and its power switch (:class:`PlaceLines`: digital outputs named ``boot0`` and
   ``reset``, a power port), which `imulink flash --enter lines` drives.
+- ``held_probe("lg://PLACE")`` acquires a place for its SWD debug probe instead (a
+  NetworkUSBDebugger: an exporter's USBDebugger) and hands back :class:`HeldProbe`, which
+  runs a tool for the probe as labgrid's own drivers do: on the exporter's host, through
+  labgrid's SSH connection to it, the files the tool reads copied there by labgrid.
 """
 from __future__ import annotations
 
@@ -30,14 +34,17 @@ import fnmatch
 import io
 import logging
 import os
+import re
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 from imulink.errors import ImulinkError
+
+T = TypeVar("T")
 
 #: The scheme of a place address.
 SCHEME = "lg://"
@@ -54,6 +61,10 @@ _WAIT_POLL_S = 0.25
 #: publishes for a RawSerialPort or USBSerialPort (through ser2net) and for a network
 #: serial port given as such.
 SERIAL_CLASS = "NetworkSerialPort"
+#: The resource class a place's SWD/JTAG debug probe has on the coordinator: what an exporter
+#: publishes for a USBDebugger (an ST-Link, a CMSIS-DAP, a J-Link ... on its USB), by the
+#: probe's USB bus path on the exporter's host.
+PROBE_CLASS = "NetworkUSBDebugger"
 
 
 class LabError(ImulinkError):
@@ -231,9 +242,8 @@ class Coordinator:
             exporter, group, cls, resource_name = path
             if cls != SERIAL_CLASS:
                 continue
-            match = place.getmatch(path)
             entry = self.session.resources.get(exporter, {}).get(group, {}).get(resource_name)
-            found.append(((match.rename if match is not None and match.rename else resource_name), entry))
+            found.append((_name_in_place(place, path), entry))
         return found
 
     def _matched_paths(self, place) -> list[tuple[str, str, str, str]]:
@@ -263,14 +273,32 @@ class Coordinator:
                        f"NetworkSerialPort); add one with `labgrid-client -p {name} add-match EXPORTER/GROUP/"
                        f"{SERIAL_CLASS}/NAME`")
 
-    def acquire(self, name: str, resource: str | None = None, wait_s: float = 0.0) -> None:
+    def check_probe(self, name: str, resource: str | None = None) -> None:
+        """LabError unless place `name` exists and one of its matches is a connected debug probe
+        (named `resource` if given); the error names the resources the place has instead."""
+        place = self._place(name)
+        paths = self._matched_paths(place)
+        if any(path[2] == PROBE_CLASS and resource in (None, _name_in_place(place, path)) for path in paths):
+            return
+        missing = place.unmatched(paths)
+        if missing is not None:
+            raise LabError(f"place {name}: nothing on the coordinator matches {missing}: its exporter is not "
+                           "connected (exporter down or lost?)")
+        has = ", ".join(sorted(f"{path[2]}/{_name_in_place(place, path)}" for path in paths)) or "none"
+        what = f"debug probe named {resource!r}" if resource else "debug probe"
+        raise LabError(f"place {name} has no {what} ({PROBE_CLASS}: an exported USBDebugger; its resources: "
+                       f"{has}); add one with `labgrid-client -p {name} add-match EXPORTER/GROUP/{PROBE_CLASS}/NAME`")
+
+    def acquire(self, name: str, resource: str | None = None, wait_s: float = 0.0, probe: bool = False) -> None:
         """Acquire place `name` for this job. LabBusy (with who holds it) when another job has
-        it and it is not released within `wait_s` s; LabError as check_serial."""
+        it and it is not released within `wait_s` s; LabError as check_serial (check_probe
+        with `probe`: the place is wanted for its debug probe, `resource` names that)."""
         client = _labgrid()
         deadline = time.monotonic() + wait_s
         said_waiting = False
+        check = self.check_probe if probe else self.check_serial
         while True:
-            self.check_serial(name, resource)
+            check(name, resource)
             holder = self._place(name).acquired
             if holder and wait_s > 0 and not said_waiting:  # a job that waits says for what
                 print(f"imulink: place {name} is acquired by {holder}: waiting up to {wait_s:g} s for it",
@@ -338,22 +366,58 @@ class Coordinator:
         options = "?ign_set_control" if scheme == "rfc2217" else ""
         return port_name, f"{scheme}://{host}:{port}{options}", int(params.get("speed") or 115200)
 
+    def board_link(self, name: str) -> str | None:
+        """The pyserial URL of acquired place `name`'s serial port when it has exactly one and it is
+        available, else None: the board's link beside its debug probe."""
+        place = self._place(name)
+        ports = self._serial_resources(place, [tuple(p) for p in place.acquired_resources])
+        if len(ports) != 1 or not getattr(ports[0][1], "avail", False):
+            return None
+        return self.serial_port(name)[1]
+
+    def _place_resources(self, target) -> list:
+        """The resources of the acquired place named as labgrid Target `target`, as labgrid's
+        own objects, added to the target: what labgrid-client makes of a place, from this session."""
+        from labgrid.resource.remote import RemotePlace, RemotePlaceManager
+
+        manager = RemotePlaceManager.get()
+        manager.session = self.session
+        manager.loop = self._loop
+        with contextlib.redirect_stdout(io.StringIO()):
+            RemotePlace(target, name=target.name)
+        return [r for r in target.resources if not isinstance(r, RemotePlace)]
+
+    def probe(self, name: str, resource: str | None = None) -> "HeldProbe":
+        """The debug probe of acquired place `name` (the one named `resource`, if given)."""
+        from labgrid import Target
+
+        try:
+            resources = self._place_resources(Target(name))
+        except Exception as exc:  # labgrid's own errors (an orphaned resource, a class it cannot make)
+            raise LabError(f"place {name}: its debug probe cannot be used through labgrid: {_one_line(exc)}") from None
+        probes = [r for r in resources if type(r).__name__ == PROBE_CLASS and resource in (None, r.name)]
+        if not probes:
+            self.check_probe(name, resource)  # says why
+            raise LabError(f"place {name}: its debug probe was not acquired with it")
+        if len(probes) > 1:
+            raise LabError(f"place {name} has several debug probes ({', '.join(sorted(r.name for r in probes))}): "
+                           f"name one, lg://{name}/NAME")
+        [found] = probes
+        if not found.avail:
+            raise LabError(f"place {name}: its debug probe {found.name} is not available (its exporter is gone, or "
+                           "the probe is unplugged)")
+        return HeldProbe(name, self.address, found)
+
     def lines(self, name: str) -> "PlaceLines":
         """The BOOT0 and reset lines and the power switch of acquired place `name`, each bound to
         labgrid's own driver for its resource class (as `labgrid-client io` and `power` bind
         them); parts the place does not have are None."""
         from labgrid import Target
-        from labgrid.resource.remote import RemotePlace, RemotePlaceManager
 
-        manager = RemotePlaceManager.get()  # the place's resources from this session, as labgrid-client does
-        manager.session = self.session
-        manager.loop = self._loop
         target = Target(name)
         lines = PlaceLines(name, target)
         try:
-            with contextlib.redirect_stdout(io.StringIO()):
-                RemotePlace(target, name=name)
-            resources = [r for r in target.resources if not isinstance(r, RemotePlace)]
+            resources = self._place_resources(target)
             for line in (BOOT0_LINE, RESET_LINE):
                 found = [r for r in resources if r.name is not None and r.name.lower() == line
                          and type(r).__name__ in OUTPUT_DRIVERS]
@@ -416,6 +480,12 @@ START_S = 0.1
 
 def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _name_in_place(place, path) -> str:
+    """A resource's name in a place: its match's rename, else its own name."""
+    match = place.getmatch(path)
+    return match.rename if match is not None and match.rename else path[3]
 
 
 class PlaceLines:
@@ -503,6 +573,67 @@ class PlaceLines:
             self.target.cleanup()
 
 
+class HeldProbe:
+    """A held place's debug probe (a NetworkUSBDebugger), used as labgrid's own OpenOCDDriver
+    uses one: a tool for the probe runs on the exporter's host, through labgrid's SSH connection
+    to that host (the resource's command prefix: through the exporter's proxy where it asks for
+    one), and the files the tool reads are copied there first by labgrid (ManagedFile: into
+    /var/cache/labgrid/USER/, or left where they are when that host shares the file). The USB
+    path tells the tool which probe of that host is the place's. Each step is one line on
+    failure (LabError)."""
+
+    def __init__(self, place: str, coordinator: str, resource: Any):
+        self.place = place
+        self.coordinator = coordinator
+        self.name: str = resource.name
+        self.host: str = resource.host
+        self.usb_path: str | None = resource.path
+        #: the place's serial port (pyserial URL), or None when it has none or several
+        self.link_url: str | None = None
+        self._resource = resource
+
+    def describe(self) -> str:
+        """E.g. `debug probe USBDebugger on rack1 (USB 1-3.2)`."""
+        usb = f" (USB {self.usb_path})" if self.usb_path else ""
+        return f"debug probe {self.name} on {self.host}{usb}"
+
+    def _reach(self) -> None:
+        """labgrid's SSH connection to the probe's host, opened once and kept for the process
+        (labgrid closes its connections when the process ends)."""
+        try:
+            _ = self._resource.command_prefix  # the property opens the connection
+        except Exception as exc:  # labgrid's ExecutionError of ssh, or an OS error (no ssh client)
+            raise LabError(f"place {self.place}: its {self.describe()} cannot be reached: {_ssh_words(exc)}; "
+                           f"a probe's tools run on its exporter's host, through ssh, as labgrid runs them: "
+                           f"`ssh {self.host} true` must log in without a password (docs/farm.md)") from None
+
+    def command(self, argv: list[str]) -> list[str]:
+        """`argv` as a command line that runs it on the probe's host."""
+        self._reach()
+        return list(self._resource.wrap_command(argv))
+
+    def stage(self, path: str) -> str:
+        """The path on the probe's host of the local file `path`, copied there if need be."""
+        from labgrid.util.managedfile import ManagedFile
+
+        self._reach()
+        managed = ManagedFile(path, self._resource)
+        try:
+            managed.sync_to_resource()
+        except Exception as exc:  # ssh's or rsync's failure, as labgrid's ExecutionError or an OS error
+            raise LabError(f"place {self.place}: {os.path.basename(path)} could not be copied to {self.host} for "
+                           f"its {self.describe()} ({_ssh_words(exc)}): labgrid copies it into "
+                           "/var/cache/labgrid/ there with rsync over ssh") from None
+        return str(managed.get_remote_path())
+
+
+def _ssh_words(exc: BaseException) -> str:
+    """What ssh (or rsync) said in a labgrid error about it, in one line; else the error itself."""
+    text = str(exc)
+    said = re.findall(r"(?:ssh|rsync|scp): [^'\\\n]+", text)
+    return said[-1].strip() if said else _one_line(exc)
+
+
 @dataclass
 class _Args:
     """The arguments labgrid-client's place commands read (its argparse namespace)."""
@@ -529,6 +660,28 @@ def _host_and_port(params: dict, extra: dict) -> tuple[str, int]:
 
 
 @contextlib.contextmanager
+def _holding(name: str, resource: str | None, coordinator: str | None, timeout_s: float, wait_s: float,
+             probe: bool, take: Callable[[Coordinator], T]) -> Iterator[T]:
+    """Place `name` acquired (for its serial port, or with `probe` for its debug probe; `resource`
+    names the one) and what `take` makes of it while the coordinator session is open, for the body
+    of the with statement; released after, whatever ends the body (an error, Ctrl-C), or at once
+    when `take` fails. The session is closed while the body runs: an acquired place stays
+    acquired until released."""
+    with Coordinator(coordinator, timeout_s) as lab:
+        lab.acquire(name, resource, wait_s, probe=probe)
+        try:
+            taken = take(lab)
+        except BaseException:
+            _release(lab.address, name, timeout_s, lab)
+            raise
+        address_used = lab.address
+    try:
+        yield taken
+    finally:
+        _release(address_used, name, timeout_s)
+
+
+@contextlib.contextmanager
 def held_place(address: str, coordinator: str | None = None, timeout_s: float = TIMEOUT_S,
                wait_s: float = 0.0, lines: bool = False) -> Iterator[HeldPlace]:
     """Acquire the place of `address` (lg://PLACE[/NAME]) for the body of the with statement
@@ -537,24 +690,36 @@ def held_place(address: str, coordinator: str | None = None, timeout_s: float = 
     With `lines`, the held place's `lines` are its BOOT0 and reset lines and power switch
     (:class:`PlaceLines`, bound while the session is open)."""
     name, resource = parse_place(address)
-    place_lines = None
-    with Coordinator(coordinator, timeout_s) as lab:
-        lab.acquire(name, resource, wait_s)
+
+    def take(lab: Coordinator) -> HeldPlace:
+        port_name, url, speed = lab.serial_port(name, resource)
+        tags = dict(lab._place(name).tags)
+        return HeldPlace(name, url, port_name, speed, tags, lab.address, lab.lines(name) if lines else None)
+
+    with _holding(name, resource, coordinator, timeout_s, wait_s, False, take) as held:
         try:
-            port_name, url, speed = lab.serial_port(name, resource)
-            tags = dict(lab._place(name).tags)
-            if lines:
-                place_lines = lab.lines(name)
-        except BaseException:
-            _release(lab.address, name, timeout_s, lab)
-            raise
-        address_used = lab.address
-    try:
-        yield HeldPlace(name, url, port_name, speed, tags, address_used, place_lines)
-    finally:
-        if place_lines is not None:
-            place_lines.close()
-        _release(address_used, name, timeout_s)
+            yield held
+        finally:
+            if held.lines is not None:
+                held.lines.close()
+
+
+@contextlib.contextmanager
+def held_probe(address: str, coordinator: str | None = None, timeout_s: float = TIMEOUT_S,
+               wait_s: float = 0.0) -> Iterator[HeldProbe]:
+    """Acquire the place of `address` (lg://PLACE[/NAME], NAME the name of its debug probe) for
+    its debug probe, as held_place does for a serial port: released after the body, whatever
+    ends it. The probe's `link_url` is the place's serial port when it has exactly one (the
+    board's link, where a flashed image says HELLO), else None."""
+    name, resource = parse_place(address)
+
+    def take(lab: Coordinator) -> HeldProbe:
+        probe = lab.probe(name, resource)
+        probe.link_url = lab.board_link(name)
+        return probe
+
+    with _holding(name, resource, coordinator, timeout_s, wait_s, True, take) as held:
+        yield held
 
 
 def _release(address: str, name: str, timeout_s: float, lab: Coordinator | None = None) -> None:

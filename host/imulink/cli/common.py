@@ -71,17 +71,33 @@ def interrupt(signum, frame):
 def held_port(args):
     """A command's PORT that is a labgrid place (lg://PLACE[/NAME]): the place is acquired
     for the whole command, `args.port` becomes its serial port's URL, and the place is
-    released when the command ends, however it ends (imulink.board.lab.held_place). Any
-    other PORT is left as it is."""
+    released when the command ends, however it ends (imulink.board.lab.held_place). A command
+    that wants the place's debug probe instead (flash --method openocd) gets it as
+    `args.held_probe` and `args.port` None (imulink.board.lab.held_probe). Any other PORT is
+    left as it is."""
     attribute = getattr(args, "place_attribute", "port")  # calibrate mag: its INPUT may be a PORT
     address = getattr(args, attribute, None)
     if not lab.is_place(address):
         yield
         return
+    coordinator, wait_s = getattr(args, "coordinator", None), getattr(args, "place_wait", 0.0)
+    wants_probe = getattr(args, "place_probe", None)  # flash: whether it flashes through the place's probe
+    if callable(wants_probe) and wants_probe(args):
+        with lab.held_probe(address, coordinator, wait_s=wait_s) as probe:
+            link = f"; the board's link {probe.link_url}" if probe.link_url else ""
+            print(f"imulink: place {probe.place} acquired from {probe.coordinator}: its {probe.describe()}{link}",
+                  file=sys.stderr)
+            setattr(args, attribute, None)
+            args.held_probe = probe
+            try:
+                yield
+            finally:
+                setattr(args, attribute, address)
+                args.held_probe = None
+        return
     wants_lines = getattr(args, "place_lines", None)  # flash: whether it drives the place's BOOT0 and reset
     lines = bool(wants_lines(args)) if callable(wants_lines) else False
-    with lab.held_place(address, getattr(args, "coordinator", None), wait_s=getattr(args, "place_wait", 0.0),
-                        lines=lines) as place:
+    with lab.held_place(address, coordinator, wait_s=wait_s, lines=lines) as place:
         check = getattr(args, "place_check", None)  # what the command needs of the place, before it says it has it
         if check is not None:
             check(args, place)

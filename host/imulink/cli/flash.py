@@ -39,6 +39,14 @@ def _wants_place_lines(args) -> bool:
     return args.enter in (None, "lines")
 
 
+def _wants_place_probe(args) -> bool:
+    """Whether a place is acquired for its debug probe (--method openocd) rather than its serial
+    port. pyOCD cannot use a place's probe: said before the place is acquired."""
+    if args.method == "pyocd":
+        raise FlashError(swd.PYOCD_REMOTE)
+    return args.method == "openocd"
+
+
 def _check_place_lines(args, place) -> None:
     """--enter lines on a place without the lines: one line, before anything else is done."""
     if args.enter == "lines" and args.method in (None, "uart") and (place.lines is None or not place.lines.usable):
@@ -91,15 +99,18 @@ def run(args) -> int:
     else:
         started = time.monotonic()
         probe = args.port.split(":", 1)[1] if args.port and ":" in args.port else None
+        place_probe = getattr(args, "held_probe", None)  # a labgrid place's probe: openocd runs on its machine
+        link = args.link or (place_probe.link_url if place_probe is not None else None)
         try:
             summary = swd.flash_swd(image, method, target=args.target, probe=probe, verify=not args.no_verify,
-                                    dry_run=args.dry_run, progress=progress, interface=args.interface)
+                                    dry_run=args.dry_run, progress=progress, interface=args.interface,
+                                    remote=place_probe)
         except swd.SwdError as exc:
             raise flash.FlashError(str(exc)) from None
         print(summary, file=sys.stderr)
         note = flash.unasked_hello(ident)
-        hello = (flash.check_hello(args.link, args.link_baud, ident)
-                 if args.link and not args.dry_run and not note else None)
+        hello = (flash.check_hello(link, args.link_baud, ident)
+                 if link and not args.dry_run and not note else None)
         result = flash.FlashResult(image, method, args.target, "", [], 0 if args.dry_run else image.size,
                                    not args.no_verify and not args.dry_run, not args.dry_run, hello,
                                    time.monotonic() - started, args.dry_run, note=note)
@@ -139,7 +150,14 @@ def add_parser(sub) -> None:
                     "                            bootloader (AN3155), at --baud; the same port carries the\n"
                     "                            firmware's HELLO afterwards\n"
                     "  swd                       over SWD with pyOCD (pip install 'imulink[swd]') or openocd\n"
-                    "  pyocd[:PROBE] | openocd   that SWD tool (PROBE: the probe's serial number)\n\n"
+                    "  pyocd[:PROBE] | openocd   that SWD tool (PROBE: the probe's serial number)\n"
+                    "  lg://PLACE[/NAME]         a labgrid place, acquired for the flash and released after:\n"
+                    "                            its serial port for the UART bootloader (and its lines, below);\n"
+                    "                            with --method openocd its debug probe (a USBDebugger its exporter\n"
+                    "                            shares; NAME: the probe's name), openocd run on the exporter's host\n"
+                    "                            through ssh as labgrid runs it, the board's HELLO then checked on\n"
+                    "                            the place's serial port if it has one; pyOCD cannot use a place's\n"
+                    "                            probe\n\n"
                     "Into the bootloader (--enter): manual = BOOT0 high and a reset by hand; command = the board\n"
                     "runs imulink firmware, which gets ENTER_BOOTLOADER; dtr-rts = the adapter's DTR drives NRST\n"
                     "and RTS drives BOOT0; lines = a labgrid place's digital outputs named boot0 and reset (or its\n"
@@ -150,7 +168,8 @@ def add_parser(sub) -> None:
     p.add_argument("image", metavar="IMAGE", help="firmware image: .elf, .hex or .bin")
     p.add_argument("port", metavar="PORT", nargs="?",
                    help="serial port of the UART bootloader (a device, a pyserial URL or a labgrid place "
-                        "lg://PLACE[/RESOURCE]: its serial port), or swd / pyocd / openocd")
+                        "lg://PLACE[/RESOURCE]: its serial port; with --method openocd its debug probe), or swd / "
+                        "pyocd / openocd")
     p.add_argument("--method", choices=("uart", "pyocd", "openocd"), help="how to flash (default: from PORT)")
     p.add_argument("--address", type=u32_number, help="load address of a raw .bin image (e.g. 0x08000000)")
     p.add_argument("--enter", choices=flash.ENTRIES, default=None,
@@ -160,7 +179,8 @@ def add_parser(sub) -> None:
                    help="bootloader baud rate (default: 115200, AN3155's highest)")
     p.add_argument("--link-baud", type=baud_rate, default=DEFAULT_BAUD,
                    help=f"the firmware's link rate, for its HELLO after the start (default: {DEFAULT_BAUD})")
-    p.add_argument("--link", metavar="PORT", help="SWD: the board's serial port, to check its HELLO after the start")
+    p.add_argument("--link", metavar="PORT", help="SWD: the board's serial port, to check its HELLO after the start "
+                                                  "(default for a place: its serial port, if it has one)")
     p.add_argument("--target", default="stm32f407vg",
                    help="SWD target: pyOCD's target name (needs its pack: `pyocd pack install stm32f407vg`); for "
                         "openocd a chip name (its family's target/stm32f4x.cfg) or a .cfg file (default: stm32f407vg)")
@@ -175,5 +195,6 @@ def add_parser(sub) -> None:
     p.add_argument("--unprotect", action="store_true",
                    help="clear readout protection if it is on: the chip ERASES ITS WHOLE FLASH first")
     place_arguments(p)
-    p.set_defaults(func=run, place_lines=_wants_place_lines, place_check=_check_place_lines)
+    p.set_defaults(func=run, place_lines=_wants_place_lines, place_check=_check_place_lines,
+                   place_probe=_wants_place_probe)
 

@@ -17,6 +17,10 @@ Two backends behind one call, :func:`flash_swd`:
   ``program <file> verify reset exit``. Its output is read as it comes: its phase
   banners become progress, its error texts become one SwdError line.
 
+A probe on another machine (a labgrid place's, :class:`RemoteProbe`) is used as labgrid
+uses one: OpenOCD runs on that machine, told the probe's USB path there (``adapter usb
+location``), the HEX file copied there first. pyOCD cannot use such a probe (PYOCD_REMOTE).
+
 Progress, used across the flashing code: ``progress(phase, done, total)`` with phase
 "erase", "write" or "verify" and byte counts; each phase that runs ends with a call
 with ``done == total``. pyOCD reports erase and write separately (0.44 and later);
@@ -32,7 +36,7 @@ import subprocess
 import tempfile
 import threading
 from pathlib import Path
-from typing import Optional
+from typing import Optional, Protocol
 
 from imulink.errors import ImulinkError
 from imulink.io.firmware_image import FirmwareImage
@@ -58,8 +62,35 @@ _NO_ACCESS = ("the debug probe is there but may not be opened: permission denied
               "udev rules, e.g. openocd's 60-openocd.rules, and plug it in again)")
 
 
+#: Why pyOCD cannot flash through a labgrid place's probe.
+PYOCD_REMOTE = ("pyOCD cannot flash through a labgrid place's debug probe: labgrid names the probe by its USB path "
+                "on the exporter's host and runs a probe's tools there, while pyOCD runs here and reaches another "
+                "machine's probe only through a pyOCD probe server, which labgrid neither exports nor starts; flash "
+                "the place with --method openocd (docs/farm.md)")
+
+
 class SwdError(ImulinkError):
     """Flashing over SWD failed; the message is one line, fit to print, saying what to do."""
+
+
+class RemoteProbe(Protocol):
+    """A debug probe on another machine, as a labgrid place has one
+    (imulink.board.lab.HeldProbe): a tool for it runs on that machine."""
+
+    host: str
+    usb_path: str | None
+
+    def describe(self) -> str:
+        """The probe and its machine, for messages."""
+        ...
+
+    def command(self, argv: list[str]) -> list[str]:
+        """`argv` as a command line that runs it on the probe's machine."""
+        ...
+
+    def stage(self, path: str) -> str:
+        """The path on the probe's machine of local file `path`, copied there if need be."""
+        ...
 
 
 def available_methods() -> dict[str, Optional[str]]:
@@ -75,7 +106,7 @@ def available_methods() -> dict[str, Optional[str]]:
 
 def flash_swd(image: FirmwareImage, method: str, *, target: str = DEFAULT_TARGET, probe: Optional[str] = None,
               verify: bool = True, dry_run: bool = False, progress: Optional[PhaseProgress] = None,
-              interface: str = DEFAULT_INTERFACE) -> str:
+              interface: str = DEFAULT_INTERFACE, remote: Optional[RemoteProbe] = None) -> str:
     """Write `image` to the target's flash over SWD, verify it, reset the target so it runs.
 
     Args:
@@ -91,6 +122,8 @@ def flash_swd(image: FirmwareImage, method: str, *, target: str = DEFAULT_TARGET
         progress: ``progress(phase, done, total)`` (see the module's docstring), or None.
         interface: OpenOCD only: the interface config (a name like "cmsis-dap" means
             interface/cmsis-dap.cfg).
+        remote: a probe on another machine (a labgrid place's): OpenOCD runs there, on the
+            probe at its USB path; the configs are that machine's. pyOCD cannot (PYOCD_REMOTE).
 
     Returns one line saying what was done (or, for a dry run, what would be).
     Raises SwdError.
@@ -99,10 +132,12 @@ def flash_swd(image: FirmwareImage, method: str, *, target: str = DEFAULT_TARGET
         raise SwdError(f"unknown flashing method {method!r}; choose one of {', '.join(METHODS)}")
     if probe is not None and not re.fullmatch(r"[A-Za-z0-9_.:-]+", probe):
         raise SwdError(f"{probe!r} is not a debug probe id (letters, digits and _.:- only)")
+    if remote is not None and method == "pyocd":
+        raise SwdError(PYOCD_REMOTE)
     phases = _Phases(progress, image.size)
     if method == "pyocd":
         return _flash_pyocd(image, target, probe, verify, dry_run, phases)
-    return _flash_openocd(image, target, probe, verify, dry_run, phases, interface)
+    return _flash_openocd(image, target, probe, verify, dry_run, phases, interface, remote)
 
 
 def describe_segments(image: FirmwareImage) -> str:
@@ -298,37 +333,52 @@ def intel_hex(segments) -> str:
 
 
 def _flash_openocd(image: FirmwareImage, target: str, probe: Optional[str], verify: bool, dry_run: bool,
-                   phases: _Phases, interface: str) -> str:
-    executable = shutil.which("openocd")
-    if executable is None:
-        raise SwdError("openocd is not on the PATH: install it (Debian/Ubuntu: apt install openocd) "
-                       f"or flash with --method pyocd ({_INSTALL_PYOCD})")
+                   phases: _Phases, interface: str, remote: Optional[RemoteProbe] = None) -> str:
+    if remote is None:
+        executable = shutil.which("openocd")
+        if executable is None:
+            raise SwdError("openocd is not on the PATH: install it (Debian/Ubuntu: apt install openocd) "
+                           f"or flash with --method pyocd ({_INSTALL_PYOCD})")
+    else:
+        executable = "openocd"  # the probe's machine finds it on its own PATH
     interface_cfg, target_cfg = openocd_config(interface, "interface"), openocd_config(target, "target")
     command = [executable, "-f", interface_cfg]
     if probe is not None:
         command += ["-c", f"adapter serial {probe}"]
+    if remote is not None and remote.usb_path:
+        if not re.fullmatch(r"[0-9]+-[0-9.]+", remote.usb_path):
+            raise SwdError(f"{remote.describe()}: {remote.usb_path!r} is not a USB path (BUS-PORT[.PORT...])")
+        # the probe among those of its machine, by where it is plugged in: labgrid's own selection
+        command += ["-c", f"adapter usb location {remote.usb_path}"]
     command += ["-f", target_cfg]
     through = f"{target} with openocd ({interface_cfg}, {target_cfg})"
+    if remote is not None:
+        through += f" through the {remote.describe()}"
+
+    def run(argv: list[str]) -> tuple[int, list[str]]:
+        return _run_openocd(argv if remote is None else remote.command(argv), phases)
+
     if dry_run:
-        code, lines = _run_openocd(command + ["-c", "shutdown"], phases)
+        code, lines = run(command + ["-c", "shutdown"])
         if code != 0:
-            raise SwdError(_describe_openocd_failure(lines, code, probe))
+            raise SwdError(_describe_openocd_failure(lines, code, probe, remote))
         return f"dry run: would write {describe_segments(image)} to {through}; nothing written, no probe contacted"
     with tempfile.TemporaryDirectory(prefix="imulink-flash-") as folder:
         hex_file = Path(folder) / "image.hex"
         hex_file.write_text(intel_hex(image.segments), encoding="ascii")
+        programmed = str(hex_file) if remote is None else remote.stage(str(hex_file))
         steps = "verify reset exit" if verify else "reset exit"
-        code, lines = _run_openocd(command + ["-c", f"program {_tcl_word(hex_file)} {steps}"], phases)
+        code, lines = run(command + ["-c", f"program {_tcl_word(programmed)} {steps}"])
     missing = [banner for banner, wanted in (("** Programming Finished **", True), ("** Verified OK **", verify))
                if wanted and banner not in lines]
     if code != 0 or missing:
-        raise SwdError(_describe_openocd_failure(lines, code, probe))
+        raise SwdError(_describe_openocd_failure(lines, code, probe, remote))
     return f"wrote {describe_segments(image)} to {through}{', verified' if verify else ''}; reset, running"
 
 
-def _tcl_word(path: Path) -> str:
+def _tcl_word(path: str) -> str:
     """A path as one word of an OpenOCD (Tcl) command line."""
-    text = str(path).replace("\\", "/")  # OpenOCD on Windows takes forward slashes too
+    text = path.replace("\\", "/")  # OpenOCD on Windows takes forward slashes too
     if any(c in text for c in "{}"):
         raise SwdError(f"the temporary folder {text} has braces in its name: set TMPDIR to another folder")
     return "{" + text + "}"
@@ -386,9 +436,16 @@ def _last_words(lines: list[str]) -> str:
     return re.sub(r"^Error:\s*", "", chosen)
 
 
-def _describe_openocd_failure(lines: list[str], code: int, probe: Optional[str]) -> str:
-    """One line for what went wrong, from OpenOCD's own messages."""
+def _describe_openocd_failure(lines: list[str], code: int, probe: Optional[str],
+                              remote: Optional[RemoteProbe] = None) -> str:
+    """One line for what went wrong, from OpenOCD's own messages (and, for a probe on another
+    machine, the shell's and ssh's there)."""
     text = "\n".join(lines)
+    if remote is not None and code == 127:  # the shell of the probe's machine found no openocd
+        return (f"openocd is not installed on {remote.host}, where it runs for the place's debug probe: install it "
+                f"there (Debian/Ubuntu: apt install openocd) [{_last_words(lines)}]")
+    if remote is not None and code == 255:  # ssh's own status: the connection failed, not openocd
+        return f"the connection to {remote.host} failed while openocd ran there: {_last_words(lines)}"
     missing = re.search(r"Can't find (\S+)", text)
     if missing:
         return (f"openocd has no config file {missing.group(1)}: check the name (its scripts folder, "
@@ -400,6 +457,9 @@ def _describe_openocd_failure(lines: list[str], code: int, probe: Optional[str])
         return f"no debug probe with serial {probe} found: check the id, or plug that probe in"
     if any(s in text for s in ("open failed", "unable to find a matching CMSIS-DAP device", "No J-Link device found",
                                "Can't find a KitProg device", "unable to open ftdi device")):
+        if remote is not None:
+            return (f"openocd on {remote.host} found no probe at USB {remote.usb_path}, where the place's debug "
+                    "probe was: is it plugged in there, and is --interface its kind of probe?")
         return f"no debug probe found: {_NO_PROBE_HINT.format(tool='lsusb')}"
     if "target voltage may be too low" in text:
         volts = re.search(r"Target voltage: ([0-9.]+)", text)
