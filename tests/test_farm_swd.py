@@ -104,48 +104,41 @@ except FileNotFoundError:
 '''
 
 
-def _probe(host: str, path: str) -> str:
-    """A NetworkUSBDebugger as an exporter publishes a USBDebugger (an ST-Link V2-1 here)."""
-    return (f"  NetworkUSBDebugger:\n    host: {host}\n    busnum: 1\n    devnum: 7\n    path: '{path}'\n"
+def _probe(host: str, path: str, name: str | None = None) -> str:
+    """A NetworkUSBDebugger as an exporter publishes a USBDebugger (an ST-Link V2-1 here), named
+    `name` or by its class."""
+    head = f"  {name}:\n    cls: NetworkUSBDebugger\n" if name else "  NetworkUSBDebugger:\n"
+    return (f"{head}    host: {host}\n    busnum: 1\n    devnum: 7\n    path: '{path}'\n"
             "    vendor_id: 0x0483\n    model_id: 0x374b\n")
 
 
 class ProbeLab:
     """A coordinator and exporter `swd-rack` with places swd-1 (a probe), swd-linked (a probe and
     the serial port of `board`, the virtual reference board running the reference image),
-    swd-far (a probe whose host ssh cannot reach) and swd-serial-only (a serial port, no probe);
-    the stand-in ssh and the probe host's PATH (`host_bin`: the fake openocd; `tools`: what
-    labgrid runs there)."""
+    swd-pair (two probes, probe-a and probe-b), swd-far (a probe whose host ssh cannot reach)
+    and swd-serial-only (a serial port, no probe); the stand-in ssh and the probe host's PATH
+    (`host_bin`: the fake openocd; `tools`: what labgrid runs there)."""
 
     def __init__(self, directory: Path, board: EmulatedBoard):
         self.dir = directory
         self.farm = Lab(directory)
-        host, port = str(board.address).removeprefix("socket://").split(":")
-        config = directory / "swd-rack.yaml"
-        config.write_text(f"probe-1:\n{_probe(PROBE_HOST, USB_PATH)}far-probe:\n{_probe(UNREACHABLE_HOST, '2-1')}"
-                          f"linked:\n{_probe(PROBE_HOST, '1-4')}"
-                          f"  NetworkSerialPort: {{host: {host}, port: {port}, speed: 921600, protocol: raw}}\n"
-                          "serial-only:\n  NetworkSerialPort: {host: 127.0.0.1, port: 9, speed: 921600, "
-                          "protocol: raw}\n")
-        self.farm._start("exporter-swd", [str(BIN / "labgrid-exporter"), "-c", self.farm.address, "-n", "swd-rack",
-                                          "--hostname", "127.0.0.1", str(config)])
+        try:
+            self._export(board)
+            self._stand_ins()
+        except BaseException:  # the coordinator and the exporter would outlive the tests
+            self.farm.stop()
+            raise
 
-        def published() -> bool:
-            with lab.Coordinator(self.farm.address) as session:
-                return set(session.session.resources.get("swd-rack", {})) == {"probe-1", "far-probe", "linked",
-                                                                             "serial-only"}
-        _wait_for(published, 30, "the exporter did not publish its probes")
-        self.farm.places({"swd-1": ("swd-rack/probe-1/NetworkUSBDebugger", {}),
-                          "swd-far": ("swd-rack/far-probe/NetworkUSBDebugger", {}),
-                          "swd-linked": (["swd-rack/linked/NetworkUSBDebugger", "swd-rack/linked/NetworkSerialPort"],
-                                         {}),
-                          "swd-serial-only": ("swd-rack/serial-only/NetworkSerialPort", {})})
+    def _stand_ins(self) -> None:
+        """The stand-in ssh, and the probe host's PATH: the fake openocd and the tools labgrid uses."""
+        directory = self.dir
         self.client_bin, self.host_bin, self.tools = (directory / name for name in ("client-bin", "host-bin", "tools"))
         for folder in (self.client_bin, self.host_bin, self.tools):
             folder.mkdir()
-        for name, text in (("ssh", FAKE_SSH), ("openocd", FAKE_OPENOCD.format(python=sys.executable))):
-            script = (self.client_bin if name == "ssh" else self.host_bin) / name
-            script.write_text(text if name == "openocd" else f"#!{sys.executable}\n{text}")
+        ssh, openocd = self.client_bin / "ssh", self.host_bin / "openocd"
+        ssh.write_text(f"#!{sys.executable}\n{FAKE_SSH}")
+        openocd.write_text(FAKE_OPENOCD.format(python=sys.executable))
+        for script in (ssh, openocd):
             script.chmod(0o755)
         for tool in ("cat", "stat"):  # labgrid's keepalive and its look for a shared file
             found = shutil.which(tool)
@@ -153,6 +146,36 @@ class ProbeLab:
             (self.tools / tool).symlink_to(found)
         self.ssh_log, self.openocd_log = directory / "ssh.jsonl", directory / "openocd.jsonl"
         self.programmed = directory / "programmed.hex"
+
+    def _export(self, board: EmulatedBoard) -> None:
+        """The exporter of the probes and serial ports, and the places."""
+        directory = self.dir
+        host, port = str(board.address).removeprefix("socket://").split(":")
+        config = directory / "swd-rack.yaml"
+        config.write_text(f"probe-1:\n{_probe(PROBE_HOST, USB_PATH)}far-probe:\n{_probe(UNREACHABLE_HOST, '2-1')}"
+                          f"linked:\n{_probe(PROBE_HOST, '1-4')}"
+                          f"  NetworkSerialPort: {{host: {host}, port: {port}, speed: 921600, protocol: raw}}\n"
+                          f"pair:\n{_probe(PROBE_HOST, '1-5', 'probe-a')}{_probe(PROBE_HOST, '1-6', 'probe-b')}"
+                          "serial-only:\n  NetworkSerialPort: {host: 127.0.0.1, port: 9, speed: 921600, "
+                          "protocol: raw}\n")
+        self.farm._start("exporter-swd", [str(BIN / "labgrid-exporter"), "-c", self.farm.address, "-n", "swd-rack",
+                                          "--hostname", "127.0.0.1", str(config)])
+
+        exported = {"probe-1": {"NetworkUSBDebugger"}, "far-probe": {"NetworkUSBDebugger"},
+                    "linked": {"NetworkUSBDebugger", "NetworkSerialPort"}, "pair": {"probe-a", "probe-b"},
+                    "serial-only": {"NetworkSerialPort"}}
+
+        def published() -> bool:  # every resource: a group is there as soon as its first one is
+            with lab.Coordinator(self.farm.address) as session:
+                groups = session.session.resources.get("swd-rack", {})
+                return {group: set(resources) for group, resources in groups.items()} == exported
+        _wait_for(published, 30, "the exporter did not publish its probes")
+        self.farm.places({"swd-1": ("swd-rack/probe-1/NetworkUSBDebugger", {}),
+                          "swd-far": ("swd-rack/far-probe/NetworkUSBDebugger", {}),
+                          "swd-linked": (["swd-rack/linked/NetworkUSBDebugger", "swd-rack/linked/NetworkSerialPort"],
+                                         {}),
+                          "swd-pair": ("swd-rack/pair/NetworkUSBDebugger", {}),
+                          "swd-serial-only": ("swd-rack/serial-only/NetworkSerialPort", {})})
 
     def env(self, openocd_mode: str = "ok", openocd_installed: bool = True) -> dict[str, str]:
         """imulink's environment: the stand-in ssh first on its PATH, the probe host's PATH with or
@@ -264,6 +287,19 @@ def test_the_board_s_hello_on_the_place_s_serial_port(probe_lab):
     probe_lab.assert_released()
 
 
+def test_a_place_with_two_probes_names_one(probe_lab):
+    """lg://PLACE/NAME picks the probe of that name (its USB path given to openocd); without
+    NAME, a place with two probes is one line that lists them."""
+    _one_error_line(imulink("flash", str(ELF), "lg://swd-pair", "--method", "openocd", env=probe_lab.env()),
+                    "place swd-pair has several debug probes (probe-a, probe-b): name one, lg://swd-pair/NAME")
+    assert probe_lab.openocd_calls() == []
+    done = imulink("flash", str(ELF), "lg://swd-pair/probe-b", "--method", "openocd", env=probe_lab.env())
+    assert done.returncode == 0, done.stderr
+    [args] = probe_lab.openocd_calls()
+    assert args[2:4] == ["-c", "adapter usb location 1-6"]
+    probe_lab.assert_released()
+
+
 @pytest.mark.parametrize("mode, expected", [
     ("verify-fail", "verify failed at address 0x08000004: the flash holds 0x00 where the image has 0xc1"),
     ("no-probe", f"openocd on {PROBE_HOST} found no probe at USB {USB_PATH}"),
@@ -313,7 +349,7 @@ def test_ctrl_c_during_the_flash_releases_the_place(probe_lab):
                  command=IMULINK_CTRL_C, stdout=subprocess.DEVNULL) as job:
         reader = threading.Thread(target=lambda: lines.extend(job.stderr), daemon=True)
         reader.start()
-        _wait_for(lambda: probe_lab.programmed.exists(), 60, "openocd did not start programming")
+        _wait_for(probe_lab.programmed.exists, 60, "openocd did not start programming")
         job.send_signal(signal.SIGINT)
         job.wait(timeout=COMMAND_TIMEOUT_S)
         reader.join(timeout=COMMAND_TIMEOUT_S)
