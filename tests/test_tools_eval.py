@@ -386,3 +386,61 @@ def test_acc_bias_tool_usage_errors_name_the_input(argv, word, capsys):
     assert exit_info.value.code == 2
     last = capsys.readouterr().err.strip().splitlines()[-1]  # after argparse's usage
     assert "error:" in last and word in last
+
+
+# --- eval_translation ------------------------------------------------------------------
+
+eval_translation = _load("eval_translation")
+
+
+def test_translation_tool_tells_a_hand_from_a_vehicle():
+    """The share of the horizontal linear acceleration a 3 s low-pass keeps: a few percent
+    for the bounded (a hand's) model, a quarter for the sustained one."""
+    rows = dict(eval_translation.sim_rows())
+    for name in ("handheld", "fast"):
+        bounded, sustained = rows[f"simulator {name}, bounded"], rows[f"simulator {name}, sustained"]
+        assert bounded["lowpassed"] / bounded["rms"] < 0.1 < 0.2 < sustained["lowpassed"] / sustained["rms"]
+        assert bounded["bands"][0] < 0.05 < sustained["bands"][0] + sustained["bands"][1]
+
+
+def test_translation_tool_measures_a_known_signal():
+    """A 1 Hz sine of amplitude 1 along east: RMS 1/sqrt(2), all of it in the 0.5-1.5 Hz band,
+    about 1/(2 pi 3) of it after the 3 s low-pass."""
+    dt = 0.01
+    t = np.arange(0, 600, dt)
+    horizontal = np.column_stack([np.sin(2 * np.pi * t), np.zeros_like(t)])
+    m = eval_translation.measure(horizontal, dt)
+    assert m["rms"] == pytest.approx(2**-0.5, rel=1e-3)
+    assert m["bands"][3] == pytest.approx(2**-0.5, rel=0.02)
+    assert max(m["bands"][:3]) < 0.01
+    assert m["lowpassed"] == pytest.approx(2**-0.5 / np.hypot(1, 2 * np.pi * 3.0), rel=0.05)
+
+
+def test_translation_tool_without_broad_data_is_one_line(tmp_path, capsys):
+    assert eval_translation.main(["--data", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "no BROAD" in err
+
+
+# --- eval_tilt_sources -----------------------------------------------------------------
+
+eval_tilt_sources = _load("eval_tilt_sources")
+
+
+def test_tilt_sources_tool_takes_the_sources_apart():
+    """One seed: without gyroscope errors the ESKF's inclination is a small part of what it is
+    with them, and taking the translation away changes it little (the gyroscope's noise is
+    what the ESKF lets through, docs/accuracy.md)."""
+    results = eval_tilt_sources.evaluate([1], {})
+    assert set(results) == set(eval_tilt_sources.CONDITIONS)
+    eskf = {condition: rows["eskf"][0] for condition, rows in results.items()}
+    assert eskf["ideal gyroscope"] < 0.3 * eskf["all"]
+    assert abs(eskf["no translation"] - eskf["all"]) < 0.1 * eskf["all"]
+    assert all(0.0 < rows["vqf"][0] < 1.0 for rows in results.values())
+
+
+@pytest.mark.parametrize("argv", [["--settings", '{"bogus": 1}'], ["--settings", "[1]"], ["--seeds", "x"]])
+def test_tilt_sources_tool_usage_errors_are_one_line(argv, capsys):
+    assert eval_tilt_sources.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith("eval_tilt_sources:")
