@@ -84,9 +84,9 @@ const int imu_eskf_setting_count = (int)(sizeof imu_eskf_setting_descs / sizeof 
 /** A specific force above this (m/s^2, Q16; 52 g, beyond 16 of the largest acc_tolerance)
  *  carries no gravity information, and |a| / g stays within Q24 below it. */
 #define MAX_GRAVITY_NORM IMU_QCONST(512.0, 16)
-/** Three-sample coning coefficients of eq. 15, Q30. */
 /** lowpass_settled this close to 1 (within 2^-16) is taken as 1: the gravity updates' full weight. */
 #define SETTLED IMU_QCONST(1.0 - 1.0 / 65536.0, 30)
+/** Three-sample coning coefficients of eq. 15, Q30. */
 #define CONING_13 IMU_QCONST(0.4125, 30) /* 33/80 */
 #define CONING_2 IMU_QCONST(0.7125, 30)  /* 57/80 */
 
