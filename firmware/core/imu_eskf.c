@@ -539,7 +539,8 @@ static void lowpassed_bias(imu_eskf_t *f, const imu_rotation_t *rot, imu_q30_t b
  * lowpass_settled, the low-pass's steady noise variance (what acc_noise describes) over its
  * present one. At the start it holds few values and their linear acceleration almost
  * whole; counted with acc_noise they made the attitude look known to a degree while it
- * was tens of degrees off.
+ * was tens of degrees off. The heading update, which reads the field through that tilt,
+ * takes the same weight.
  */
 static imu_q30_t start_weight(const imu_eskf_t *f, imu_q30_t weight)
 {
@@ -779,7 +780,11 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_rota
         psi = psi > one_rad ? one_rad : (psi < -one_rad ? -one_rad : psi);
         z = IMU_MUL(horizontal, psi, 29); /* Q30 * Q29 >> 29 -> Q30, at most 1 */
     }
-    scalar_update(f, h, z, IMU_WMUL(sigma, sigma), 48, f->mag_weight, &gain_map, dx);
+    /* The innovation is the field seen through the estimated tilt, and while the earth-frame
+     * low-pass is starting the tilt is known no better than its start noise, which P does
+     * not hold (a start while shaken: the first sample's tilt error times tan(dip) as
+     * heading): the heading update takes the gravity updates' start weight too. */
+    scalar_update(f, h, z, IMU_WMUL(sigma, sigma), 48, start_weight(f, f->mag_weight), &gain_map, dx);
 }
 
 /** Steady noise variance of the exponential low-pass over one value's, alpha / (2 - alpha), Q30. */
