@@ -265,9 +265,9 @@ def random_motion(duration_s: float, rate_hz: float, seed: int = 0, max_rate_dps
             down to 0 Hz, so the velocity wanders without bound (a vehicle that speeds up,
             brakes and turns for seconds); ``"bounded"``: it is the second derivative of a
             band-limited position, so it averages out within seconds (a hand, a shaken or
-            carried board: BROAD's recordings hold 0.005-0.1 m/s^2 of horizontal linear
-            acceleration below 0.15 Hz however hard they move, the sustained model some
-            30 % of its total, docs/accuracy.md).
+            carried board: a 3 s low-pass keeps 1-10 % of BROAD's horizontal linear
+            acceleration however hard a trial moves, 5-8 % of this model's and a quarter
+            of the sustained one's; tools/eval_translation.py, docs/accuracy.md).
     """
     n = _n_samples(duration_s, rate_hz)
     dt = 1.0 / rate_hz
