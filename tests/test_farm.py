@@ -221,6 +221,25 @@ def test_a_place_is_a_port_for_every_command(farm):
         assert {p.name: p.acquired for p in session.places("imu-*")}["imu-native-1"] is None  # released
 
 
+def test_an_environment_s_remote_place_is_that_place(farm):
+    """`imulink settings lg-env:FILE`: a labgrid environment whose target has a RemotePlace, on
+    the coordinator its options name (no $LG_COORDINATOR), is that place: acquired for the
+    command, released after; a place the coordinator lacks is lg://PLACE's one line."""
+    env_file = farm.dir / "lg-env.yaml"
+    env_file.write_text("targets:\n  main:\n    resources:\n      RemotePlace:\n        name: imu-native-1\n"
+                        "  gone:\n    resources:\n      RemotePlace:\n        name: imu-nowhere\n"
+                        f"options:\n  coordinator_address: {farm.address}\n")
+    env = {k: v for k, v in farm.env.items() if k != "LG_COORDINATOR"}
+    done = imulink("settings", f"lg-env:{env_file}", "--json", env=env)
+    assert done.returncode == 0, done.stderr
+    assert json.loads(done.stdout)["filter"] == "eskf"
+    said = done.stderr.splitlines()
+    assert len(said) == 1 and said[0].startswith(f"imulink: place imu-native-1 acquired from {farm.address}: "), said
+    with lab.Coordinator(farm.address) as session:
+        assert session.places("imu-native-1")[0].acquired is None  # released
+    _one_error_line(imulink("settings", f"lg-env:{env_file}#gone", env=env), "no place 'imu-nowhere'", farm.address)
+
+
 def test_the_board_fixture_takes_the_lab_s_place(farm, tmp_path):
     """A project's HIL test (tests/test_board_fixture.py) with LG_PLACE set gets the farm's board:
     the place is held for the test session and released after."""

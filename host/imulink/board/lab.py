@@ -21,6 +21,10 @@ and releases it. This module is the only one that speaks to labgrid:
 - ``held_place(..., lines=True)`` also binds labgrid's own drivers to the place's BOOT0 and
   reset lines and its power switch (:class:`PlaceLines`: digital outputs named ``boot0`` and
   ``reset``, a power port), which `imulink flash --enter lines` drives.
+- ``lg-env:PATH[#TARGET]`` is a labgrid environment file (what labgrid's own tools take as
+  ``--lg-env`` or ``$LG_ENV``) and the target in it (default ``main``): :func:`environment_board`
+  says what it names, the place of its ``RemotePlace`` (and its coordinator) or a serial port
+  of this machine (``RawSerialPort``, ``NetworkSerialPort``, ``USBSerialPort``).
 - ``held_probe("lg://PLACE")`` acquires a place for its SWD debug probe instead (a
   NetworkUSBDebugger: an exporter's USBDebugger) and hands back :class:`HeldProbe`, which
   runs a tool for the probe as labgrid's own drivers do: on the exporter's host, through
@@ -48,6 +52,13 @@ T = TypeVar("T")
 
 #: The scheme of a place address.
 SCHEME = "lg://"
+#: The prefix of a labgrid environment address, lg-env:PATH[#TARGET].
+ENV_SCHEME = "lg-env:"
+#: The environment's target when the address names none: labgrid's own default role.
+DEFAULT_TARGET = "main"
+#: labgrid's resources of a serial port on this machine (or reached directly over the
+#: network), which an environment's target may have instead of a RemotePlace.
+LOCAL_SERIAL_CLASSES = ("RawSerialPort", "NetworkSerialPort", "USBSerialPort")
 #: labgrid's coordinator port when an address names none (labgrid-coordinator's default).
 DEFAULT_COORDINATOR = "127.0.0.1:20408"
 #: Seconds a coordinator has to answer before it counts as down.
@@ -114,19 +125,124 @@ def parse_place(address: str) -> tuple[str, str | None]:
     return name, resource or None
 
 
+def is_environment(address: str | None) -> bool:
+    """Whether a PORT argument is a labgrid environment address (lg-env:...)."""
+    return isinstance(address, str) and address.startswith(ENV_SCHEME)
+
+
+def parse_environment(address: str) -> tuple[str, str]:
+    """(file, target) of `lg-env:PATH[#TARGET]`; LabError when malformed."""
+    rest = address[len(ENV_SCHEME):] if address.startswith(ENV_SCHEME) else ""
+    path, sep, target = rest.rpartition("#") if "#" in rest else (rest, "", DEFAULT_TARGET)
+    if not path or (sep and not target):
+        raise LabError(f"{address!r} is not a labgrid environment address: use lg-env:FILE or lg-env:FILE#TARGET")
+    return path, target
+
+
 def coordinator_address(given: str | None = None) -> str:
     """The coordinator: `given`, else $LG_COORDINATOR (labgrid's convention), else DEFAULT_COORDINATOR."""
     return given or os.environ.get("LG_COORDINATOR") or DEFAULT_COORDINATOR
 
 
-def _labgrid():
+def _labgrid(what: str = "lg:// places"):
     """labgrid's client module; LabError naming the extra when labgrid is not installed."""
     try:
         from labgrid.remote import client
     except ImportError as exc:
-        raise LabError(f"lg:// places need labgrid, which is not installed ({exc}): pip install 'imulink[lab]' "
+        raise LabError(f"{what} need labgrid, which is not installed ({exc}): pip install 'imulink[lab]' "
                        "(docs/farm.md)") from None
     return client
+
+
+@dataclass
+class EnvironmentBoard:
+    """The board a target of a labgrid environment names: its RemotePlace (`place`, on the
+    environment's `coordinator` if it names one), or a serial port of this machine (`url`)."""
+
+    path: str
+    target: str
+    #: the place address lg://NAME of the target's RemotePlace, or None
+    place: str | None = None
+    #: the environment's `options: coordinator_address`, or None (the usual default then)
+    coordinator: str | None = None
+    #: the serial port's pyserial URL (a device path, socket:// or rfc2217://), or None for a place
+    url: str | None = None
+    #: the serial port's resource class and speed, as the environment gives them
+    resource: str = ""
+    speed: int | None = None
+
+    def describe(self) -> str:
+        """E.g. `labgrid environment env.yaml, target main: RawSerialPort at /dev/ttyUSB0`."""
+        board = f"place {self.place[len(SCHEME):]}" if self.place else f"{self.resource} at {self.url}"
+        return f"labgrid environment {self.path}, target {self.target}: {board}"
+
+
+def environment_board(address: str) -> EnvironmentBoard:
+    """What `lg-env:PATH[#TARGET]` names, read with labgrid's own Environment: the target's
+    RemotePlace (found without instantiating it, as labgrid-client does: instantiating one
+    connects to the coordinator, which the place's own acquisition does later), else its
+    one serial port. LabError in one line for a file that is missing or not a labgrid
+    environment, a target it lacks, or a target with neither."""
+    path, role = parse_environment(address)
+    _labgrid("lg-env: environments")
+    from labgrid import Environment
+    from labgrid.exceptions import InvalidConfigError, NoConfigFoundError
+    from labgrid.factory import target_factory
+    from yaml import YAMLError  # labgrid's own YAML library
+
+    where = f"labgrid environment {path}"
+    try:
+        env = Environment(config_file=path)
+        targets = env.config.get_targets()
+    except NoConfigFoundError:
+        raise LabError(f"{where}: no such file") from None
+    except InvalidConfigError as exc:
+        if isinstance(exc.__context__, YAMLError):  # labgrid's own words add nothing to YAML's
+            raise LabError(f"{where} is not valid YAML: {_one_line(exc.__context__)}") from None
+        raise LabError(f"{where} cannot be read: {_one_line(exc)}") from None
+    except Exception as exc:  # an OS error (a directory, no permission), an error of a file its `imports` run
+        raise LabError(f"{where} cannot be read: {_one_line(exc)}") from None
+    if not isinstance(targets, dict) or not isinstance(targets.get(role), dict):
+        names = ", ".join(map(str, targets)) if isinstance(targets, dict) and targets else "none"
+        raise LabError(f"{where} has no target {role!r} (its targets: {names}); name one, lg-env:{path}#TARGET")
+    try:
+        resources, _ = target_factory.normalize_config(targets[role])
+    except Exception as exc:  # labgrid's InvalidConfigError: resources that are neither a dict nor a list of them
+        raise LabError(f"{where}, target {role}: {_one_line(exc)}") from None
+    places = list(resources.get("RemotePlace", {}))
+    if places:
+        if len(places) > 1 or not places[0]:
+            raise LabError(f"{where}, target {role}: its RemotePlace must be one, with a name (it has "
+                           f"{', '.join(map(str, places))})")
+        # labgrid-client's precedence: its --coordinator, then the environment's option, then $LG_COORDINATOR
+        coordinator = env.config.get_option("coordinator_address", "")
+        return EnvironmentBoard(path, role, place=f"{SCHEME}{places[0]}",
+                                coordinator=str(coordinator) if coordinator else None)
+    try:
+        target = env.get_target(role)
+    except Exception as exc:  # labgrid's own errors: an unknown resource class, arguments it refuses
+        raise LabError(f"{where}, target {role}: {_one_line(exc)}") from None
+    assert target is not None  # the role is in the environment
+    ports = [r for r in target.resources if type(r).__name__ in LOCAL_SERIAL_CLASSES]
+    if len(ports) != 1:
+        has = ", ".join(sorted(f"{type(r).__name__}/{r.name}" if r.name else type(r).__name__
+                               for r in target.resources)) or "no resources"
+        wanted = "one serial port" if ports else f"a RemotePlace or a serial port ({', '.join(LOCAL_SERIAL_CLASSES)})"
+        raise LabError(f"{where}, target {role}: imulink needs {wanted}; it has {has}")
+    [port] = ports
+    kind = type(port).__name__
+    if kind == "NetworkSerialPort":
+        params = {"host": port.host, "port": port.port, "speed": port.speed, "protocol": port.protocol}
+        url = _serial_url(params, getattr(port, "extra", None) or {}, f"{where}, target {role}")
+    else:
+        if kind == "USBSerialPort":  # found through udev: wait for it as labgrid's serial driver would
+            try:
+                target.await_resources([port])
+            except Exception:  # labgrid's NoResourceFoundError
+                raise LabError(f"{where}, target {role}: no serial device matches its USBSerialPort "
+                               f"{dict(port.match)} (unplugged?)") from None
+        url = str(port.port)
+    return EnvironmentBoard(path, role, url=url, resource=kind, speed=int(port.speed))
 
 
 class _QuietLabgrid(logging.Filter):
@@ -356,15 +472,8 @@ class Coordinator:
             raise LabError(f"place {name}: its serial port {port_name} is not available (its exporter is gone, or "
                            "the adapter is unplugged)")
         params = entry.args  # type: ignore[attr-defined]
-        protocol = params.get("protocol", "rfc2217")
-        scheme = {"raw": "socket", "rfc2217": "rfc2217"}.get(protocol)
-        if scheme is None:
-            raise LabError(f"place {name}: its serial port speaks {protocol!r}, neither raw nor rfc2217")
-        host, port = _host_and_port(params, entry.extra)  # type: ignore[attr-defined]
-        # ser2net answers no SET_CONTROL (modem lines) of RFC 2217: labgrid's own serial driver
-        # tells pyserial not to wait for it, and so does imulink
-        options = "?ign_set_control" if scheme == "rfc2217" else ""
-        return port_name, f"{scheme}://{host}:{port}{options}", int(params.get("speed") or 115200)
+        url = _serial_url(params, entry.extra, f"place {name}")  # type: ignore[attr-defined]
+        return port_name, url, int(params.get("speed") or 115200)
 
     def board_link(self, name: str) -> str | None:
         """The pyserial URL of acquired place `name`'s serial port when it has exactly one and it is
@@ -657,6 +766,19 @@ def _host_and_port(params: dict, extra: dict) -> tuple[str, int]:
     except Exception as exc:  # labgrid's ExecutionError of an SSH forward, or an OS error
         raise LabError(f"cannot reach {params['host']}:{params['port']} through labgrid's proxy: {exc}") from None
     return host, int(port)
+
+
+def _serial_url(params: dict, extra: dict, where: str) -> str:
+    """The pyserial URL of a NetworkSerialPort's `params` (host, port, protocol)."""
+    protocol = params.get("protocol", "rfc2217")
+    scheme = {"raw": "socket", "rfc2217": "rfc2217"}.get(protocol)
+    if scheme is None:
+        raise LabError(f"{where}: its serial port speaks {protocol!r}, neither raw nor rfc2217")
+    host, port = _host_and_port(params, extra)
+    # ser2net answers no SET_CONTROL (modem lines) of RFC 2217: labgrid's own serial driver
+    # tells pyserial not to wait for it, and so does imulink
+    options = "?ign_set_control" if scheme == "rfc2217" else ""
+    return f"{scheme}://{host}:{port}{options}"
 
 
 @contextlib.contextmanager

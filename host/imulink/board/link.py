@@ -204,9 +204,10 @@ class Link:
 
     @staticmethod
     def _open(url: str, baud: int):
-        if url.startswith("lg://"):
-            raise PortError(f"cannot open {url}: a labgrid place is acquired first and opened by its serial port's "
-                            "URL (imulink.board.lab.held_place; every imulink command that takes a PORT does it)")
+        if url.startswith(("lg://", "lg-env:")):
+            raise PortError(f"cannot open {url}: a labgrid place is acquired first (an environment read first) and "
+                            "opened by its serial port's URL (imulink.board.lab.held_place, environment_board; every "
+                            "imulink command that takes a PORT does it)")
         try:
             port = serial.serial_for_url(url, baudrate=baud, do_not_open=True)
         except (ValueError, serial.SerialException) as exc:

@@ -73,14 +73,28 @@ def held_port(args):
     for the whole command, `args.port` becomes its serial port's URL, and the place is
     released when the command ends, however it ends (imulink.board.lab.held_place). A command
     that wants the place's debug probe instead (flash --method openocd) gets it as
-    `args.held_probe` and `args.port` None (imulink.board.lab.held_probe). Any other PORT is
-    left as it is."""
+    `args.held_probe` and `args.port` None (imulink.board.lab.held_probe). A PORT that is a
+    labgrid environment (lg-env:FILE[#TARGET]) is the place of its RemotePlace, held as
+    above, or its serial port on this machine, used as that PORT. Any other PORT is left as
+    it is."""
     attribute = getattr(args, "place_attribute", "port")  # calibrate mag: its INPUT may be a PORT
-    address = getattr(args, attribute, None)
+    given = address = getattr(args, attribute, None)
+    coordinator, wait_s = getattr(args, "coordinator", None), getattr(args, "place_wait", 0.0)
+    if lab.is_environment(address):
+        board = lab.environment_board(address)
+        if board.place is None:  # a serial port of this machine: no coordinator, nothing to hold
+            print(f"imulink: {board.describe()}", file=sys.stderr)  # which port, as a place's line says
+            setattr(args, attribute, board.url)
+            try:
+                yield
+            finally:
+                setattr(args, attribute, given)
+            return
+        # then the place as lg://PLACE; --coordinator still comes before the environment's, as in labgrid-client
+        address, coordinator = board.place, coordinator or board.coordinator
     if not lab.is_place(address):
         yield
         return
-    coordinator, wait_s = getattr(args, "coordinator", None), getattr(args, "place_wait", 0.0)
     wants_probe = getattr(args, "place_probe", None)  # flash: whether it flashes through the place's probe
     if callable(wants_probe) and wants_probe(args):
         with lab.held_probe(address, coordinator, wait_s=wait_s) as probe:
@@ -92,7 +106,7 @@ def held_port(args):
             try:
                 yield
             finally:
-                setattr(args, attribute, address)
+                setattr(args, attribute, given)
                 args.held_probe = None
         return
     wants_lines = getattr(args, "place_lines", None)  # flash: whether it drives the place's BOOT0 and reset
@@ -108,7 +122,7 @@ def held_port(args):
         try:
             yield
         finally:
-            setattr(args, attribute, address)
+            setattr(args, attribute, given)
             args.held_place = None
 
 
@@ -266,15 +280,18 @@ def settings_argument(p, what: str):
 
 
 #: What a PORT argument may be, for the commands' help.
-PORT_HELP = ("serial device (/dev/ttyACM0, COM3), pyserial URL (socket://HOST:PORT, rfc2217://HOST:PORT, loop://) "
-             "or labgrid place (lg://PLACE[/RESOURCE], acquired for the command: docs/farm.md)")
+PORT_HELP = ("serial device (/dev/ttyACM0, COM3), pyserial URL (socket://HOST:PORT, rfc2217://HOST:PORT, loop://), "
+             "labgrid place (lg://PLACE[/RESOURCE], acquired for the command) or labgrid environment "
+             "(lg-env:FILE[#TARGET]: its RemotePlace, or its serial port; docs/farm.md)")
 
 
-def coordinator_argument(p, answers: str = f"within {lab.TIMEOUT_S:g} s") -> None:
-    """--coordinator: the labgrid coordinator of the places, as labgrid's own tools find it."""
+def coordinator_argument(p, answers: str = f"within {lab.TIMEOUT_S:g} s", environment: bool = False) -> None:
+    """--coordinator: the labgrid coordinator of the places, as labgrid's own tools find it
+    (`environment`: a PORT lg-env:FILE may name one too, as labgrid-client takes it)."""
+    option = "an lg-env: FILE's coordinator_address option, else " if environment else ""
     p.add_argument("--coordinator", metavar="HOST:PORT",
-                   help=f"the labgrid coordinator (default: $LG_COORDINATOR, else {lab.DEFAULT_COORDINATOR}); it must "
-                        f"answer {answers}")
+                   help=f"the labgrid coordinator (default: {option}$LG_COORDINATOR, else {lab.DEFAULT_COORDINATOR}); "
+                        f"it must answer {answers}")
 
 
 def place_wait_argument(p, refused: str = "refuse at once with who holds it") -> None:
@@ -285,8 +302,8 @@ def place_wait_argument(p, refused: str = "refuse at once with who holds it") ->
 
 def place_arguments(p):
     """--coordinator and --place-wait: where a PORT lg://PLACE is looked up, how long to wait for it."""
-    group = p.add_argument_group("labgrid places (a PORT lg://PLACE; needs imulink[lab])")
-    coordinator_argument(group)
+    group = p.add_argument_group("labgrid places (a PORT lg://PLACE or lg-env:FILE; needs imulink[lab])")
+    coordinator_argument(group, environment=True)
     place_wait_argument(group)
 
 

@@ -157,7 +157,9 @@ def add_parser(sub) -> None:
                     "                            shares; NAME: the probe's name), openocd run on the exporter's host\n"
                     "                            through ssh as labgrid runs it, the board's HELLO then checked on\n"
                     "                            the place's serial port if it has one; pyOCD cannot use a place's\n"
-                    "                            probe\n\n"
+                    "                            probe\n"
+                    "  lg-env:FILE[#TARGET]      a labgrid environment (labgrid's --lg-env file; TARGET: main):\n"
+                    "                            its RemotePlace as lg://PLACE, or its serial port as that PORT\n\n"
                     "Into the bootloader (--enter): manual = BOOT0 high and a reset by hand; command = the board\n"
                     "runs imulink firmware, which gets ENTER_BOOTLOADER; dtr-rts = the adapter's DTR drives NRST\n"
                     "and RTS drives BOOT0; lines = a labgrid place's digital outputs named boot0 and reset (or its\n"
@@ -168,7 +170,8 @@ def add_parser(sub) -> None:
     p.add_argument("image", metavar="IMAGE", help="firmware image: .elf, .hex or .bin")
     p.add_argument("port", metavar="PORT", nargs="?",
                    help="serial port of the UART bootloader (a device, a pyserial URL or a labgrid place "
-                        "lg://PLACE[/RESOURCE]: its serial port; with --method openocd its debug probe), or swd / "
+                        "lg://PLACE[/RESOURCE]: its serial port; with --method openocd its debug probe; or a labgrid "
+                        "environment lg-env:FILE[#TARGET]: its RemotePlace or serial port), or swd / "
                         "pyocd / openocd")
     p.add_argument("--method", choices=("uart", "pyocd", "openocd"), help="how to flash (default: from PORT)")
     p.add_argument("--address", type=u32_number, help="load address of a raw .bin image (e.g. 0x08000000)")

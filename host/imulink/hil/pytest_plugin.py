@@ -11,10 +11,12 @@ board of the lab's labgrid farm where there is one and an emulated board where t
         assert result.verdict.passed
 
 Which board, in this order: ``--imulink-board BOARD``, ``$IMULINK_BOARD``, ``lg://$LG_PLACE``
-(labgrid's variable for the place a developer works with), else ``native``. BOARD is a place
-(lg://PLACE[/RESOURCE]: acquired for the test session, released after; needs imulink[lab]),
-an emulated target (native, qemu, stm32f407: started for the session, on a TCP port) or any
-PORT the commands take (a device, socket://, rfc2217://: used as it is).
+(labgrid's variable for the place a developer works with), ``lg-env:$LG_ENV`` (labgrid's
+variable for its environment file), else ``native``. BOARD is a place (lg://PLACE[/RESOURCE]:
+acquired for the test session, released after; needs imulink[lab]), a labgrid environment
+(lg-env:FILE[#TARGET]: its RemotePlace, as that place, or its serial port), an emulated
+target (native, qemu, stm32f407: started for the session, on a TCP port) or any PORT the
+commands take (a device, socket://, rfc2217://: used as it is).
 
 With ``--imulink-image IMAGE`` (or ``$IMULINK_IMAGE``) the session's board runs IMAGE before
 any test: a place's board is flashed with it once acquired, as ``imulink farm verify --flash``
@@ -68,8 +70,9 @@ class Board:
 def pytest_addoption(parser) -> None:
     group = parser.getgroup("imulink", "imulink's board fixture")
     group.addoption("--imulink-board", metavar="BOARD", default=None,
-                    help="the `board` fixture's board: lg://PLACE (a labgrid place), native / qemu / stm32f407 (an "
-                         "emulated board) or a PORT (default: $IMULINK_BOARD, else lg://$LG_PLACE, else native)")
+                    help="the `board` fixture's board: lg://PLACE (a labgrid place), lg-env:FILE[#TARGET] (a labgrid "
+                         "environment: its RemotePlace or serial port), native / qemu / stm32f407 (an emulated board) "
+                         "or a PORT (default: $IMULINK_BOARD, else lg://$LG_PLACE, else lg-env:$LG_ENV, else native)")
     group.addoption("--imulink-image", metavar="IMAGE", default=None,
                     help="flash IMAGE into the `board` fixture's board before the tests (an emulated board is "
                          "started with it; default: $IMULINK_IMAGE, else the board runs what it has)")
@@ -82,6 +85,8 @@ def board_address(config) -> str:
         return given
     if os.environ.get("LG_PLACE"):
         return f"{lab.SCHEME}{os.environ['LG_PLACE']}"
+    if os.environ.get("LG_ENV"):  # labgrid's own pytest plugin takes the same file (--lg-env)
+        return f"{lab.ENV_SCHEME}{os.environ['LG_ENV']}"
     return DEFAULT_BOARD
 
 
@@ -117,19 +122,28 @@ def board(request) -> Iterator[Board]:
         image = load_image(image_path) if image_path is not None else None
     except ImageError as exc:
         pytest.fail(f"the board {address}: {exc}", pytrace=False)
+    given, coordinator, baud = address, None, DEFAULT_BAUD
+    if lab.is_environment(address):  # its place or its serial port, then as lg://PLACE or a PORT
+        try:
+            named = lab.environment_board(address)
+        except ImulinkError as exc:
+            pytest.fail(f"the board {address}: {exc}", pytrace=False)
+        _log(named.describe())
+        address = named.place or named.url or address
+        coordinator, baud = named.coordinator, named.speed or DEFAULT_BAUD
     if lab.is_place(address):
         with contextlib.ExitStack() as stack:
             try:
-                place = stack.enter_context(lab.held_place(address, lines=image is not None))
+                place = stack.enter_context(lab.held_place(address, coordinator, lines=image is not None))
                 if image is not None:
                     farm.flash_place(place, image, log=_log)
             except ImulinkError as exc:
-                pytest.fail(f"the board {address}: {exc}", pytrace=False)
+                pytest.fail(f"the board {given}: {exc}", pytrace=False)
             yield Board(place.url, place=place.name, baud=place.speed)
     else:
         if image is not None:
             try:
-                flash.flash_uart(image, address, enter="command", log=_log)
+                flash.flash_uart(image, address, enter="command", link_baud=baud, log=_log)
             except (ImulinkError, OSError) as exc:
-                pytest.fail(f"the board {address}: not flashed: {exc}", pytrace=False)
-        yield Board(address)
+                pytest.fail(f"the board {given}: not flashed: {exc}", pytrace=False)
+        yield Board(address, baud=baud)
