@@ -461,16 +461,7 @@ class Coordinator:
         ports = self._serial_resources(place, [tuple(p) for p in place.acquired_resources])
         if resource is not None:
             ports = [(n, entry) for n, entry in ports if n == resource]
-        if not ports:
-            self.check_serial(name, resource)  # says why
-            raise LabError(f"place {name}: its serial port was not acquired with it")
-        if len(ports) > 1:
-            raise LabError(f"place {name} has several serial ports ({', '.join(n for n, _ in ports)}): name one, "
-                           f"lg://{name}/NAME")
-        port_name, entry = ports[0]
-        if entry is None or not getattr(entry, "avail", False):
-            raise LabError(f"place {name}: its serial port {port_name} is not available (its exporter is gone, or "
-                           "the adapter is unplugged)")
+        port_name, entry = self._the_one(name, "serial port", "adapter", ports, self.check_serial, resource)
         params = entry.args  # type: ignore[attr-defined]
         url = _serial_url(params, entry.extra, f"place {name}")  # type: ignore[attr-defined]
         return port_name, url, int(params.get("speed") or 115200)
@@ -504,18 +495,28 @@ class Coordinator:
             resources = self._place_resources(Target(name))
         except Exception as exc:  # labgrid's own errors (an orphaned resource, a class it cannot make)
             raise LabError(f"place {name}: its debug probe cannot be used through labgrid: {_one_line(exc)}") from None
-        probes = [r for r in resources if type(r).__name__ == PROBE_CLASS and resource in (None, r.name)]
-        if not probes:
-            self.check_probe(name, resource)  # says why
-            raise LabError(f"place {name}: its debug probe was not acquired with it")
-        if len(probes) > 1:
-            raise LabError(f"place {name} has several debug probes ({', '.join(sorted(r.name for r in probes))}): "
-                           f"name one, lg://{name}/NAME")
-        [found] = probes
-        if not found.avail:
-            raise LabError(f"place {name}: its debug probe {found.name} is not available (its exporter is gone, or "
-                           "the probe is unplugged)")
+        wanted = [r for r in resources if type(r).__name__ == PROBE_CLASS and resource in (None, r.name)]
+        probes = sorted(((r.name, r) for r in wanted), key=lambda named: named[0])
+        _, found = self._the_one(name, "debug probe", "probe", probes, self.check_probe, resource)
         return HeldProbe(name, self.address, found)
+
+    @staticmethod
+    def _the_one(name: str, kind: str, device: str, found: list, check: Callable[[str, str | None], None],
+                 resource: str | None) -> tuple[str, Any]:
+        """The one (resource name, entry) of `found`, place `name`'s acquired resources of a
+        `kind` (the `resource` named, if given); LabError when there is none (`check` says
+        why), several, or the one is not available (its exporter gone, its `device` unplugged)."""
+        if not found:
+            check(name, resource)  # says why
+            raise LabError(f"place {name}: its {kind} was not acquired with it")
+        if len(found) > 1:
+            raise LabError(f"place {name} has several {kind}s ({', '.join(n for n, _ in found)}): name one, "
+                           f"lg://{name}/NAME")
+        found_name, entry = found[0]
+        if entry is None or not getattr(entry, "avail", False):
+            raise LabError(f"place {name}: its {kind} {found_name} is not available (its exporter is gone, or the "
+                           f"{device} is unplugged)")
+        return found_name, entry
 
     def lines(self, name: str) -> "PlaceLines":
         """The BOOT0 and reset lines and the power switch of acquired place `name`, each bound to
