@@ -29,19 +29,13 @@ from pathlib import Path
 
 import pytest
 
-try:
-    import labgrid  # noqa: F401
-except ImportError:
-    if os.environ.get("IMULINK_REQUIRE_LABGRID"):
-        raise
-    pytest.skip("labgrid is not installed (pip install 'imulink[lab]'; `make test-farm` runs these tests)",
-                allow_module_level=True)
+# test_farm first: without labgrid it skips (or, in `make test-farm`, fails) this module too
+from test_farm import BIN, COMMAND_TIMEOUT_S, IMULINK_CTRL_C, Lab, _wait_for, imulink, running  # isort: skip
 
 from imulink.board import lab
 from imulink.board.emulator import EmulatedBoard
 from imulink.board.flash import swd
 from imulink.io.firmware_image import load_image
-from test_farm import BIN, COMMAND_TIMEOUT_S, IMULINK_CTRL_C, Lab, _wait_for, imulink, running
 from test_swd import FAKE_OPENOCD
 
 pytestmark = [pytest.mark.xdist_group("takes-a-core"),
