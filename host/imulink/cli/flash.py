@@ -51,7 +51,7 @@ def _check_place_lines(args, place) -> None:
     """--enter lines on a place without the lines: one line, before anything else is done."""
     if args.enter == "lines" and args.method in (None, "uart") and (place.lines is None or not place.lines.usable):
         missing = place.lines.missing() if place.lines is not None else f"place {place.name} has no lines"
-        raise flash.FlashError(f"{missing}; or choose another --enter (command: the board runs imulink firmware)")
+        raise FlashError(f"{missing}; or choose another --enter (command: the board runs imulink firmware)")
 
 
 def _entry(args) -> tuple[str, flash.BootLines | None]:
@@ -64,7 +64,7 @@ def _entry(args) -> tuple[str, flash.BootLines | None]:
     if args.enter != "lines":
         return args.enter, None
     if lines is None:
-        raise flash.FlashError("--enter lines drives a labgrid place's BOOT0 and reset lines: give the board as "
+        raise FlashError("--enter lines drives a labgrid place's BOOT0 and reset lines: give the board as "
                                "lg://PLACE (docs/farm.md), or choose another --enter")
     return "lines", lines
 
@@ -74,7 +74,7 @@ def run(args) -> int:
     try:
         image = load_image(args.image, args.address)
     except ImageError as exc:
-        raise flash.FlashError(str(exc)) from None
+        raise FlashError(str(exc)) from None
     method = _flash_method(args) if args.port is not None or args.method or not args.dry_run else None
     enter, lines = _entry(args) if method == "uart" else (args.enter or "manual", None)
     ident = flash.check_identification(image, args.force)
@@ -106,7 +106,7 @@ def run(args) -> int:
                                     dry_run=args.dry_run, progress=progress, interface=args.interface,
                                     remote=place_probe)
         except swd.SwdError as exc:
-            raise flash.FlashError(str(exc)) from None
+            raise FlashError(str(exc)) from None
         print(summary, file=sys.stderr)
         note = flash.unasked_hello(ident)
         hello = (flash.check_hello(link, args.link_baud, ident)
