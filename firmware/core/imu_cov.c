@@ -879,9 +879,21 @@ void imu_cov_scale_up(imu_cov_t *c, const int k[])
 #endif
 }
 
+
+imu_wide_t imu_cov_element_wide(const imu_cov_t *c, int i, int j, int q, uint32_t *sat)
+{
+#ifdef IMU_FIXED
+    return real_ldexp(c->p[cell(i, j)], c->e[i] + c->e[j] + q - 30, sat);
+#else
+    (void)q;
+    (void)sat;
+    return c->p[cell(i, j)];
+#endif
+}
+
 imu_real_t imu_cov_element_q30(const imu_cov_t *c, int i, int j, uint32_t *sat)
 {
-    return IMU_WIDE_SAT(real_ldexp(c->p[cell(i, j)], c->e[i] + c->e[j], sat), sat);
+    return IMU_WIDE_SAT(imu_cov_element_wide(c, i, j, 30, sat), sat);
 }
 
 void imu_cov_get(const imu_cov_t *c, int i, int j, imu_real_t *mant, int32_t *exp)

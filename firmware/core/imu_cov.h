@@ -130,4 +130,8 @@ void imu_cov_get(const imu_cov_t *c, int i, int j, imu_real_t *mant, int32_t *ex
 /** @brief Element (i, j) in Q30 of the states' units (saturated to int32 in the fixed build). */
 imu_real_t imu_cov_element_q30(const imu_cov_t *c, int i, int j, uint32_t *sat);
 
+/** @brief Element (i, j) as a wide value in Q`q` of the states' units, q in [0, 62] (saturated
+ *         to int64 in the fixed build): for variances too small for Q30. */
+imu_wide_t imu_cov_element_wide(const imu_cov_t *c, int i, int j, int q, uint32_t *sat);
+
 #endif /* IMU_COV_H */

@@ -19,5 +19,6 @@
 #define imu_cov_scale_up imu_navcov_scale_up
 #define imu_cov_get imu_navcov_get
 #define imu_cov_element_q30 imu_navcov_element_q30
+#define imu_cov_element_wide imu_navcov_element_wide
 
 #include "imu_cov.c"

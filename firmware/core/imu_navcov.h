@@ -40,5 +40,6 @@ void imu_navcov_cap_unit_variance(imu_navcov_t *c, int i);
 void imu_navcov_scale_up(imu_navcov_t *c, const int k[]);
 void imu_navcov_get(const imu_navcov_t *c, int i, int j, imu_real_t *mant, int32_t *exp);
 imu_real_t imu_navcov_element_q30(const imu_navcov_t *c, int i, int j, uint32_t *sat);
+imu_wide_t imu_navcov_element_wide(const imu_navcov_t *c, int i, int j, int q, uint32_t *sat);
 
 #endif /* IMU_NAVCOV_H */
