@@ -294,6 +294,10 @@ def test_rough_scenarios_make_their_conditions():
     assert 0.15 < silent.mean() < 0.25  # a fifth of the run
     drift = rough.acc_bias_drift(1, seconds)[0].acc_bias_true
     assert 0.15 < np.linalg.norm(drift[-1] - drift[0]) < 0.25
+    turning = rough.slow_turn(1, seconds)[0]
+    rate_dps = np.degrees(np.linalg.norm(turning.gyr_true, axis=1))
+    steady = (rate_dps > 0.45) & (rate_dps < 1.85) & ~turning.rest
+    assert 0.35 < steady.mean() < 0.45  # three windows of 40 s in 300 s, with their rates
 
 
 @pytest.mark.skipif(not _has_vqf(), reason="vqf not installed (pip install 'imulink[bench]')")

@@ -34,6 +34,9 @@ and +-8 g, HMC5883L at +-1.3 Ga), plus the scenario's condition:
                    lobe, random direction), clipped at +-8 g (78 m/s^2).
   outage           handheld with the magnetometer reading zeros (no sample) for 60 s
                    starting at 90-180 s.
+  slow-turn        handheld with three 40 s steady rotations at 0.5-1.8 deg/s about random
+                   axes (at 45, 135 and 225 s), no linear acceleration: slower than a rest
+                   detector's 2 deg/s rate threshold.
 
 Event placements (directions, axes, times) are drawn from the seed; every scenario is
 scored from 10 s on (disturbances included: they are the point).

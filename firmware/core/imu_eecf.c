@@ -23,7 +23,7 @@ const imu_eecf_settings_t imu_eecf_default_settings = {
     IMU_QCONST(0.5, 16),      /* rest_tau, s (VQF's rest low-pass): mean gyro noise 0.05 deg/s */
     IMU_QCONST(0.05236, 24),  /* rest_gyro, rad/s: 3 deg/s, 6 sigma of the gyro noise per sample at 100 Hz */
     IMU_QCONST(0.5, 16),      /* rest_acc, m/s^2 (VQF's): 25 sigma of the accelerometer noise, no motion */
-    IMU_QCONST(0.008727, 30), /* rest_turn, rad: 0.5 deg, 10 sigma of the field mean's direction */
+    IMU_REST_TURN,            /* rest_turn, rad: 0.5 deg, 10 sigma of the field mean's direction */
     IMU_QCONST(4.0, 16),      /* rest_kp, 1/s: gyro ARW / accelerometer noise density (8.6e-4 / 2.0e-4) */
     IMU_QCONST(0.8, 16),      /* rest_kp_mag, 1/s: gyro ARW / heading noise density (8.6e-4 / 1.05e-3) */
     IMU_QCONST(0.2, 24),      /* acc_tolerance, m/s^2: 10 sigma of the accelerometer noise */

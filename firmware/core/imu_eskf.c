@@ -86,6 +86,11 @@ const int imu_eskf_setting_count = (int)(sizeof imu_eskf_setting_descs / sizeof 
 #define MAX_GRAVITY_NORM IMU_QCONST(512.0, 16)
 /** lowpass_settled this close to 1 (within 2^-16) is taken as 1: the gravity updates' full weight. */
 #define SETTLED IMU_QCONST(1.0 - 1.0 / 65536.0, 30)
+/** A rest measurement of the gyro bias this many standard deviations from the prediction is
+ *  a jump of the bias (check_bias_jump). With 5, Gaussian noise alone makes one in about
+ *  580 000 rest steps (5 h of rest at 100 Hz), which then widens the variance to a few
+ *  times the noise's: harmless. */
+#define JUMP_SIGMAS 5
 /** Three-sample coning coefficients of eq. 15, Q30. */
 #define CONING_13 IMU_QCONST(0.4125, 30) /* 33/80 */
 #define CONING_2 IMU_QCONST(0.7125, 30)  /* 57/80 */
@@ -787,13 +792,6 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_rota
     scalar_update(f, h, z, IMU_WMUL(sigma, sigma), 48, start_weight(f, f->mag_weight), &gain_map, dx);
 }
 
-/** Steady noise variance of the exponential low-pass over one value's, alpha / (2 - alpha), Q30. */
-static imu_q30_t lowpass_steady(imu_eskf_t *f)
-{
-    const imu_q30_t half_alpha = IMU_HALF(f->acc_alpha); /* (alpha / 2) / (1 - alpha / 2): 2 is beyond Q30 */
-    return IMU_DIV_SAT(half_alpha, IMU_SUB(IMU_ONE_Q30, half_alpha), 30, &f->saturations);
-}
-
 /**
  * Weight of the newest value in the earth-frame low-pass (Q30), and lowpass_settled moved
  * on past it. While the mean of the values so far weighs the newest one more than the
@@ -817,7 +815,7 @@ static imu_q30_t lowpass_weight(imu_eskf_t *f)
         f->lowpass_settled = IMU_ONE_Q30; /* no low-pass (acc_lowpass 0): each value is whole */
         return f->acc_alpha;
     }
-    steady = lowpass_steady(f);
+    steady = imu_lowpass_noise_share(f->acc_alpha, &f->saturations);
     mean_weight = IMU_DIV_SAT(steady, IMU_ADD_SAT(u, steady, &f->saturations), 30, &f->saturations);
     if (mean_weight > f->acc_alpha) {
         f->lowpass_settled = IMU_ADD_SAT(u, steady, &f->saturations);
@@ -919,10 +917,47 @@ static void turn_acc_earth(imu_eskf_t *f, const imu_rotation_t *rot, const imu_q
 }
 
 /**
+ * At rest, a bias that jumped (a knock, a mount that shifted, a temperature step): a
+ * random walk, the bias model, makes no jumps, and the bias variance it leaves (0.005 deg/s
+ * after a minute of rest with the default gyro_rrw) made the rest measurement learn a
+ * 0.5 deg/s jump with a time constant of 90 s while the tilt drifted (tools/eval_rough.py,
+ * `gyro-bias-step`). A rest measurement z of bias component k beyond JUMP_SIGMAS standard
+ * deviations of what the model predicts (P_kk plus the noise of the low-passed rate,
+ * imu_rest_rate_noise_share) is such a jump: that component's standard deviation is doubled
+ * (its correlations kept, imu_cov_scale_up) until it reaches |z| / 2, and the rest update
+ * that follows learns it within a few steps. A slow steady rotation would pass for a jump,
+ * but the rest detector's turn tests keep it from being taken for rest (imu_rest.h).
+ */
+static void check_bias_jump(imu_eskf_t *f, const imu_q30_t z[3])
+{
+    /* rest_var (Q48) in Q30 times the share (Q30) -> Q60; saturated beyond 2 (rad/s)^2, a
+     * noise no gyroscope setting reaches at rest */
+    const imu_wide_t noise = IMU_WMUL(IMU_WIDE_SAT(IMU_WSHR(f->rest_var, 18), &f->saturations),
+                                      imu_rest_rate_noise_share(&f->rest, &f->saturations));
+    int doublings[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+    int k, jumped = 0;
+    for (k = 0; k < 3; ++k) {
+        const imu_wide_t zz = IMU_WMUL(z[k], z[k]); /* Q60, below 2^62 */
+        imu_wide_t var = imu_cov_element_wide(&f->cov, GYRO_BIAS + k, GYRO_BIAS + k, 60, &f->saturations);
+        if (zz / (JUMP_SIGMAS * JUMP_SIGMAS) - noise > var) { /* (no sum to overflow) */
+            jumped = 1;
+            while (doublings[GYRO_BIAS + k] < 16 && var < zz / 4) {
+                var *= 4;
+                ++doublings[GYRO_BIAS + k];
+            }
+        }
+    }
+    if (jumped) {
+        imu_cov_scale_up(&f->cov, doublings);
+    }
+}
+
+/**
  * At rest the gyroscope reads its bias: z = low-passed rate - bias estimate, H = I on the
  * gyro-bias states, variance arw^2 / T: the noise of one filter period's mean rate (the
  * low-passed rate has less, arw^2 / (2 tau), but consecutive steps share it: counted once
- * per step it would make the bias look known far better than it is).
+ * per step it would make the bias look known far better than it is). A jump of the bias
+ * first widens its variance (check_bias_jump).
  *
  * The same gyroscope noise also drives the propagated attitude, which gravity and the
  * field observe: were both measurements let correct the bias, its noise would count
@@ -933,19 +968,22 @@ static void turn_acc_earth(imu_eskf_t *f, const imu_rotation_t *rot, const imu_q
 static void rest_update(imu_eskf_t *f, imu_q30_t dx[9])
 {
     const imu_rate_t *rate = imu_rest_rate(&f->rest);
+    imu_q30_t z[3];
     imu_q30_t h[9];
     imu_cov_map_t gain_map;
     int k, i;
-    set_gain_map(&gain_map, 0, 1, 0, NULL);
     for (k = 0; k < 3; ++k) {
         /* Q24 -> Q30 (below 2 rad/s: at rest) minus the bias, Q30. */
-        const imu_q30_t z =
-            IMU_SUB_SAT(IMU_SHL_SAT(rate[k], 6, &f->saturations), f->gyro_bias[k], &f->saturations);
+        z[k] = IMU_SUB_SAT(IMU_SHL_SAT(rate[k], 6, &f->saturations), f->gyro_bias[k], &f->saturations);
+    }
+    check_bias_jump(f, z);
+    set_gain_map(&gain_map, 0, 1, 0, NULL);
+    for (k = 0; k < 3; ++k) {
         for (i = 0; i < 9; ++i) {
             h[i] = 0;
         }
         h[GYRO_BIAS + k] = IMU_ONE_Q30;
-        scalar_update(f, h, z, f->rest_var, 48, IMU_ONE_Q30, &gain_map, dx);
+        scalar_update(f, h, z[k], f->rest_var, 48, IMU_ONE_Q30, &gain_map, dx);
     }
 }
 
@@ -1017,7 +1055,7 @@ static void filter_step(imu_eskf_t *f)
             bias[k] = IMU_SHR(f->gyro_bias[k], 6);
         }
         /* Rest: still, and the specific force is gravity (not free fall). */
-        f->at_rest = imu_rest_update(&f->rest, gyr, bias, acc, NULL, &f->saturations) &&
+        f->at_rest = imu_rest_update(&f->rest, gyr, bias, acc, mag, &f->saturations) &&
                      (f->clipped & (IMU_CLIPPED_GYR | IMU_CLIPPED_ACC)) == 0 && near_gravity(f, acc);
     }
     if ((f->clipped & IMU_CLIPPED_GYR) != 0) {

@@ -814,6 +814,14 @@ imu_angle_t imu_heading_from_mag_tilt(const imu_real_t mag[3], imu_q30_t sr, imu
     return imu_atan2(-hx, hy);
 }
 
+imu_q30_t imu_lowpass_noise_share(imu_q30_t alpha, uint32_t *sat)
+{
+    /* v <- (1 - alpha)^2 v + alpha^2 settles at alpha^2 / (1 - (1 - alpha)^2), written
+     * (alpha / 2) / (1 - alpha / 2): 2 is beyond Q30. */
+    const imu_q30_t half_alpha = IMU_HALF(alpha);
+    return IMU_DIV_SAT(half_alpha, IMU_SUB(IMU_ONE_Q30, half_alpha), 30, sat);
+}
+
 imu_q30_t imu_deviation_weight(imu_real_t deviation, imu_real_t tolerance, uint32_t *sat)
 {
     imu_q30_t inv; /* 1 / (1 + (deviation / tolerance)^2) = t^2 / (t^2 + d^2), Q30, <= 1 */

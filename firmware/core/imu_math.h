@@ -162,6 +162,12 @@ imu_angle_t imu_heading_from_mag_tilt(const imu_real_t mag[3], imu_q30_t sr, imu
 imu_q30_t imu_deviation_weight(imu_real_t deviation, imu_real_t tolerance, uint32_t *sat);
 
 /**
+ * @brief Steady noise variance of the exponential low-pass y <- y + alpha (x - y) over one
+ *        white input's: alpha / (2 - alpha), Q30 (alpha Q30 in (0, 1]).
+ */
+imu_q30_t imu_lowpass_noise_share(imu_q30_t alpha, uint32_t *sat);
+
+/**
  * @brief Dip of a unit field in the earth frame (ENU; positive below the horizon) and its
  *        horizontal length. @param earth unit field, Q30 @param horizontal out, Q30
  * @return rad, Q29

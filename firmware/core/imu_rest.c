@@ -12,7 +12,7 @@ const imu_rest_config_t imu_rest_default_config = {
     IMU_REST_GYRO,     /* gyro, rad/s */
     IMU_REST_ACC,      /* acc, m/s^2 */
     IMU_REST_GYRO,     /* rate, rad/s: the rate test */
-    0,                 /* turn: none */
+    IMU_REST_TURN,     /* turn, rad: the turn tests */
     IMU_REST_MIN_TIME, /* min_time, s */
     IMU_REST_TAU_Q24,  /* tau, s */
 };
@@ -199,6 +199,11 @@ int imu_rest_update(imu_rest_t *r, const imu_rate_t gyr[3], const imu_rate_t bia
 const imu_rate_t *imu_rest_rate(const imu_rest_t *r)
 {
     return r->gyr_lp;
+}
+
+imu_q30_t imu_rest_rate_noise_share(const imu_rest_t *r, uint32_t *sat)
+{
+    return imu_lowpass_noise_share(r->alpha, sat);
 }
 
 const imu_q16_t *imu_rest_acc(const imu_rest_t *r)

@@ -47,6 +47,11 @@ recordings) everywhere but in ``sustained``.
 12. ``outage``: ``handheld`` with the magnetometer reading zeros (counts 0: no field, which
     the filters and VQF take as "no magnetometer sample") for 60 s (a fifth of the run)
     starting at 30-60 % of the run.
+13. ``slow-turn``: ``handheld`` with three steady rotations of 40 s (starting at 15, 45 and
+    75 % of the run), each at 0.5-1.8 deg/s about a random body axis, with no linear
+    acceleration: a turntable, a boat's slow swing. Slower than a rest detector's rate
+    threshold (2 deg/s in VQF and the ESKF), so a filter that takes it for rest learns it
+    as a gyro bias.
 
 Estimators (:func:`evaluate_case`): the fixed-point builds of ``eecf``, ``eskf`` (6 states)
 and ``eskf9`` (the eskf with ``estimate_acc_bias``), with their DEFAULT settings; the
@@ -247,6 +252,26 @@ def outage(seed: int, duration_s: float = DURATION_S) -> Case:
     return replace(data, mag=mag, mag_counts=mag_counts), _mask(data)
 
 
+def slow_turn(seed: int, duration_s: float = DURATION_S) -> Case:
+    """``handheld`` with three 40 s steady rotations at 0.5-1.8 deg/s about random axes."""
+    rng = _events_rng(seed, "slow-turn")
+    traj = _handheld_traj(seed, duration_s)
+    gyr = traj.gyr.copy()
+    acc_lin = traj.acc_lin.copy()
+    rest = traj.rest.copy()
+    length = int(round(40.0 / DURATION_S * duration_s * RATE_HZ))
+    for start in (0.15, 0.45, 0.75):
+        first = int(round(start * duration_s * RATE_HZ))
+        window = slice(first, first + length)
+        gyr[window] = math.radians(float(rng.uniform(0.5, 1.8))) * _unit(rng)
+        acc_lin[window] = 0.0
+        rest[window] = False
+    turned = replace(traj, gyr=gyr, acc_lin=acc_lin, rest=rest,
+                     quat=sim.integrate_gyro(traj.quat[0], gyr, 1.0 / RATE_HZ))
+    data = sim.simulate(turned, sim.SensorSuite.default(), seed=seed)
+    return data, _mask(data)
+
+
 #: The scenarios by name, in the report's order.
 SCENARIOS: dict[str, Callable[..., Case]] = {
     "handheld": handheld,
@@ -261,6 +286,7 @@ SCENARIOS: dict[str, Callable[..., Case]] = {
     "attached-magnet": attached_magnet,
     "shocks": shocks,
     "outage": outage,
+    "slow-turn": slow_turn,
 }
 
 
