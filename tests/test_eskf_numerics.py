@@ -36,6 +36,18 @@ def test_large_accelerometer_noise_setting_does_not_wrap(acc_noise):
     assert runs["fixed"][1].saturations == 0
 
 
+def test_the_largest_gyro_noise_setting_does_not_saturate_the_bias_jump_test():
+    """The jump test's noise of the low-passed rate, arw^2 / T times its share: formed in
+    Q30 of (rad/s)^2 it saturated above 2 (rad/s)^2, at the largest gyro_arw (0.49) 2 599
+    times in 80 s of rest."""
+    suite = sim.SensorSuite.default()
+    suite.gyro.bias_steps = [(60.0, np.radians([0.0, 0.5, 0.0]))]
+    data = sim.simulate(sim.static(80.0, RATE), suite, seed=3)
+    runs = _fixed_and_float(data, RATE, {"gyro_arw": 0.49})
+    assert runs["fixed"][1].saturations == 0
+    assert _max_difference_deg(runs) < 0.05
+
+
 @pytest.mark.parametrize("rate", [30.0, 40.0, 52.0])
 def test_fast_spin_at_low_sensor_rates_matches_the_float_twin(rate):
     """Item 2: at 30-52 Hz a near-full-scale spin overflowed the three-sample rotation vector."""

@@ -930,15 +930,14 @@ static void turn_acc_earth(imu_eskf_t *f, const imu_rotation_t *rot, const imu_q
  */
 static void check_bias_jump(imu_eskf_t *f, const imu_q30_t z[3])
 {
-    /* rest_var (Q48) in Q30 times the share (Q30) -> Q60; saturated beyond 2 (rad/s)^2, a
-     * noise no gyroscope setting reaches at rest */
-    const imu_wide_t noise = IMU_WMUL(IMU_WIDE_SAT(IMU_WSHR(f->rest_var, 18), &f->saturations),
-                                      imu_rest_rate_noise_share(&f->rest, &f->saturations));
+    /* rest_var (Q48, below 2^60) in Q33 times the share in Q15 (in (0, 1]) -> Q48 */
+    const imu_wide_t noise =
+        IMU_WSHR(f->rest_var, 15) * IMU_SHR(imu_rest_rate_noise_share(&f->rest, &f->saturations), 15);
     int doublings[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
     int k, jumped = 0;
     for (k = 0; k < 3; ++k) {
-        const imu_wide_t zz = IMU_WMUL(z[k], z[k]); /* Q60, below 2^62 */
-        imu_wide_t var = imu_cov_element_wide(&f->cov, GYRO_BIAS + k, GYRO_BIAS + k, 60, &f->saturations);
+        const imu_wide_t zz = IMU_WSHR(IMU_WMUL(z[k], z[k]), 12); /* Q60 -> Q48, below 2^50 */
+        imu_wide_t var = imu_cov_element_wide(&f->cov, GYRO_BIAS + k, GYRO_BIAS + k, 48, &f->saturations);
         if (zz / (JUMP_SIGMAS * JUMP_SIGMAS) - noise > var) { /* (no sum to overflow) */
             jumped = 1;
             while (doublings[GYRO_BIAS + k] < 16 && var < zz / 4) {
