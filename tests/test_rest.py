@@ -7,9 +7,10 @@ compiled on the host in both builds (fixed point and the float twin), on synthet
 (b) the rate test (the ESKF's, with the turn tests): an offset the filter has not estimated is
     never rest, the same offset once estimated is; a turn slower than the limit passes the
     rate test alone (its known limit), not the ESKF's configuration;
-(c) the turn tests (the EECF's and the ESKF's): a 20 deg/s offset (the MPU6050's limit) is rest, a turn about
-    the vertical turns the field (quiet, not at rest), a turn about a horizontal axis turns
-    gravity (neither), and rest waits for the references (tau) and min_time;
+(c) the turn tests (the EECF's and the ESKF's): a 20 deg/s offset (the MPU6050's limit) is
+    rest, a turn about the vertical turns the field (quiet, not at rest), a turn about a
+    horizontal axis turns gravity (neither), and rest waits for the references (tau) and
+    min_time;
 (d) motion restarts every count, and the calm count says since when the board is still;
 (e) the two builds take the same decisions on noisy readings.
 """
@@ -46,9 +47,10 @@ CDEF = """
 """
 #: Q formats of the config fields (fixed build).
 CONFIG_Q = {"gyro": 24, "acc": 16, "rate": 24, "turn": 30, "min_time": 16, "tau": 24}
-#: The EECF's defaults (imu_eecf.c) and the ESKF's (imu_rest.h), SI.
+#: The EECF's defaults (imu_eecf.c) and the ESKF's (imu_rest.h), SI; the ESKF's turn is
+#: 0.5 deg as IMU_REST_TURN writes it.
 EECF = {"gyro": 3.0 * DEG, "acc": 0.5, "rate": 0.0, "turn": 0.5 * DEG, "min_time": 1.5, "tau": 0.5}
-ESKF = {"gyro": 2.0 * DEG, "acc": 0.5, "rate": 2.0 * DEG, "turn": 0.008727, "min_time": 1.5, "tau": 0.5}  # turn: 0.5 deg as written
+ESKF = {"gyro": 2.0 * DEG, "acc": 0.5, "rate": 2.0 * DEG, "turn": 0.008727, "min_time": 1.5, "tau": 0.5}
 #: The rate test alone.
 RATE_ONLY = {**ESKF, "turn": 0.0}
 
