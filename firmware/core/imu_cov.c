@@ -879,16 +879,9 @@ void imu_cov_scale_up(imu_cov_t *c, const int k[])
 #endif
 }
 
-
 imu_wide_t imu_cov_element_wide(const imu_cov_t *c, int i, int j, int q, uint32_t *sat)
 {
-#ifdef IMU_FIXED
-    return real_ldexp(c->p[cell(i, j)], c->e[i] + c->e[j] + q - 30, sat);
-#else
-    (void)q;
-    (void)sat;
-    return c->p[cell(i, j)];
-#endif
+    return real_ldexp(c->p[cell(i, j)], c->e[i] + c->e[j] + q - 30, sat); /* (the identity in the float build) */
 }
 
 imu_real_t imu_cov_element_q30(const imu_cov_t *c, int i, int j, uint32_t *sat)
