@@ -6,6 +6,7 @@ import pytest
 from imulink import core, sim
 from imulink.analysis import scenarios, soak
 from imulink.analysis.attitude import angle_difference, attitude_errors
+from imulink.sim.sensors import Shock
 
 RATE = scenarios.RATE_HZ
 
@@ -238,6 +239,20 @@ def test_taps_and_free_fall_do_not_tilt_the_estimate():
     out = core.run("eskf", data.gyr, data.acc, data.mag, RATE, "fixed", settings=scenarios.SIM_SETTINGS["eskf"])
     err = scenarios.euler_errors_deg(out.quat, data.quat_true)[int(10 * RATE):]
     assert np.max(np.abs(err[:, :2])) < 0.3
+
+
+@pytest.mark.parametrize("phase_ms", [0.0, 6.6])
+def test_clipped_knocks_do_not_tilt_the_estimate(phase_ms):
+    """A 200 m/s^2 knock every 3 s on a board at rest, clipped at 8 g: its side lobes, beside
+    the clipped peak, entered the low-pass without it, and the unbalanced force tilted the
+    estimate by 2.7 deg (2.1 deg at the other phase) as the knocks went on; VQF, told nothing,
+    2.7 deg. The low-pass now leaves out the groups beside a clipped one."""
+    pulses = [Shock(time_s=10.0 + 3.0 * k + phase_ms / 1000.0, peak_m_s2=200.0, direction=(1.0, 0.0, 0.0))
+              for k in range(15)]
+    data = sim.simulate(sim.static(60.0, RATE), sim.SensorSuite.default(), seed=0, shocks=pulses)
+    run = core.run("eskf", data.gyr, data.acc, data.mag, RATE, "fixed", profile=data.profile)
+    inclination = attitude_errors(run.quat, data.quat_true)["inclination"]  # deg
+    assert np.abs(inclination[data.t >= 10.0]).max() < 1.0
 
 
 def test_soak_minutes_no_overflow_and_positive_definite():

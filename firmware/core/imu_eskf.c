@@ -91,6 +91,10 @@ const int imu_eskf_setting_count = (int)(sizeof imu_eskf_setting_descs / sizeof 
  *  580 000 rest steps (5 h of rest at 100 Hz), which then widens the variance to a few
  *  times the noise's: harmless. */
 #define JUMP_SIGMAS 5
+
+/* The group after one with a clipped accelerometer: a private bit of `clipped`, beside the
+ * IMU_CLIPPED_* bits (see hold_specific_force). */
+#define AFTER_ACC_CLIP 0x100u
 /** Three-sample coning coefficients of eq. 15, Q30. */
 #define CONING_13 IMU_QCONST(0.4125, 30) /* 33/80 */
 #define CONING_2 IMU_QCONST(0.7125, 30)  /* 57/80 */
@@ -146,7 +150,9 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
                                IMU_ADD(IMU_SHL_SAT(s->acc_lowpass, 8, &f->saturations), IMU_SHR(f->period, 6)), 24,
                                &f->saturations);
     f->lowpass_settled = 0;
+    f->acc_held_valid = 0;
     for (k = 0; k < 3; ++k) {
+        f->acc_held[k] = 0;
         f->acc_earth[k] = 0;
         f->gyr_sum[k] = 0;
         f->lowpass_rotation[k][0] = f->lowpass_rotation[k][1] = f->lowpass_rotation[k][2] = 0;
@@ -660,6 +666,7 @@ static void restart_attitude_uncertainty(imu_eskf_t *f)
         imu_cov_reset_state(&f->cov, ATT + k, var, 56, &f->saturations);
     }
     f->lowpass_settled = 0; /* its earth frame was the lost one */
+    f->acc_held_valid = 0;
 }
 
 /**
@@ -833,24 +840,20 @@ static imu_q30_t lowpass_weight(imu_eskf_t *f)
 }
 
 /**
- * Low-pass the specific force in the estimated earth frame, where rotations do
- * not change gravity but a back-and-forth translation averages out (time
- * constant acc_lowpass; at its start the mean: lowpass_weight), and return it in the
- * sensor frame: acc <- R^T lp(R acc), R = rot.
+ * Low-pass a group's specific force in the estimated earth frame (`earth`, m/s^2, Q16), where
+ * rotations do not change gravity but a back-and-forth translation averages out (time
+ * constant acc_lowpass; at its start the mean: lowpass_weight). With 9 states the rotation R
+ * is low-passed alike (lowpassed_bias).
  */
-static void lowpass_specific_force(imu_eskf_t *f, const imu_rotation_t *rot, imu_q16_t acc[3])
+static void lowpass_take(imu_eskf_t *f, const imu_rotation_t *rot, const imu_q16_t earth[3])
 {
     const int first = f->lowpass_settled == 0;
     const imu_q30_t weight = lowpass_weight(f);
-    imu_q16_t earth[3];
-    imu_q16_t smooth[3];
     int r, k;
-    imu_rotation_apply(rot, acc, earth); /* Q30 * Q16 >> 30 -> Q16; |R a| = |a| */
     for (r = 0; r < 3; ++r) {
         /* weight (Q30) * (earth - smooth) (Q16, both within 1774 m/s^2) -> Q46. */
         f->acc_earth[r] = first ? IMU_WMUL(earth[r], IMU_ONE_Q30)
                                 : f->acc_earth[r] + IMU_WMUL(weight, IMU_SUB(earth[r], acc_earth_q16(f, r)));
-        smooth[r] = acc_earth_q16(f, r);
     }
     if (imu_eskf_state_count(f) == 9) {
         /* The same low-pass of R: Q30 * Q29 -> Q59 (halved: a difference of rotations reaches 2). */
@@ -863,6 +866,38 @@ static void lowpass_specific_force(imu_eskf_t *f, const imu_rotation_t *rot, imu
             }
         }
     }
+}
+
+/**
+ * A knock that clips the accelerometer holds no gravity information in its clipped samples,
+ * and none in the rest of it either: its pulse rings on both sides of the clipped samples (side
+ * lobes, the sensor's own low-pass), and with the clipped part missing, what the low-pass took
+ * of it no longer averaged out; an unbalanced force that read as a tilt (tools/eval_rough.py,
+ * `shocks`). So a group enters the low-pass one filter step late, once the next group showed
+ * no clipping, and the group after a clipped one does not enter at all. The group (sensor
+ * frame, m/s^2, Q16) is held in the estimated earth frame of its time, which rot is.
+ */
+static void hold_specific_force(imu_eskf_t *f, const imu_rotation_t *rot, const imu_q16_t acc[3])
+{
+    if ((f->clipped & IMU_CLIPPED_ACC) != 0) {
+        f->acc_held_valid = 0; /* its neighbour clipped: dropped */
+        return;
+    }
+    if (f->acc_held_valid) {
+        lowpass_take(f, rot, f->acc_held);
+    }
+    imu_rotation_apply(rot, acc, f->acc_held); /* Q30 * Q16 >> 30 -> Q16; |R a| = |a| */
+    f->acc_held_valid = (f->clipped & AFTER_ACC_CLIP) == 0;
+}
+
+/** The low-passed specific force in the sensor frame: R^T lp, m/s^2, Q16. */
+static void lowpassed_specific_force(const imu_eskf_t *f, const imu_rotation_t *rot, imu_q16_t acc[3])
+{
+    imu_q16_t smooth[3];
+    int k;
+    for (k = 0; k < 3; ++k) {
+        smooth[k] = acc_earth_q16(f, k);
+    }
     for (k = 0; k < 3; ++k) {
         acc[k] = IMU_ADD(IMU_ADD(IMU_MUL(rot->row[0][k], smooth[0], 30), IMU_MUL(rot->row[1][k], smooth[1], 30)),
                          IMU_MUL(rot->row[2][k], smooth[2], 30));
@@ -870,8 +905,8 @@ static void lowpass_specific_force(imu_eskf_t *f, const imu_rotation_t *rot, imu
 }
 
 /**
- * The low-passed specific force after the estimate turned by dtheta (sensor frame, Q30, at
- * most 1 rad): v <- v + (R dtheta) x v. The first-order turn lengthens v by up to sqrt(2)
+ * The low-passed specific force, and the group held for it, after the estimate turned by
+ * dtheta (sensor frame, Q30, at most 1 rad): v <- v + (R dtheta) x v. The first-order turn lengthens v by up to sqrt(2)
  * per call: kept within the inputs' limit, which a low-passed specific force cannot leave
  * (and so that R^T v fits Q16 in lowpass_specific_force).
  */
@@ -881,10 +916,22 @@ static void turn_acc_earth(imu_eskf_t *f, const imu_rotation_t *rot, const imu_q
     imu_q30_t u[3];
     imu_q16_t v[3];
     int k;
-    if (f->lowpass_settled == 0) {
+    if (f->lowpass_settled == 0 && !f->acc_held_valid) {
         return; /* nothing to turn: the next low-pass starts afresh (and rot may be of an older attitude) */
     }
     imu_rotation_apply(rot, dtheta, u);
+    if (f->acc_held_valid) {
+        /* Q30 * Q16 >> 30 -> Q16: a held group (at most 1774 m/s^2) lengthened by up to sqrt(2) */
+        for (k = 0; k < 3; ++k) {
+            v[k] = f->acc_held[k];
+        }
+        f->acc_held[0] += IMU_SUB(IMU_MUL(u[1], v[2], 30), IMU_MUL(u[2], v[1], 30));
+        f->acc_held[1] += IMU_SUB(IMU_MUL(u[2], v[0], 30), IMU_MUL(u[0], v[2], 30));
+        f->acc_held[2] += IMU_SUB(IMU_MUL(u[0], v[1], 30), IMU_MUL(u[1], v[0], 30));
+    }
+    if (f->lowpass_settled == 0) {
+        return;
+    }
     for (k = 0; k < 3; ++k) {
         v[k] = acc_earth_q16(f, k);
     }
@@ -1068,8 +1115,9 @@ static void filter_step(imu_eskf_t *f)
         f->realign = 0;
     }
     imu_quat_rotation(f->q, &rot);
-    if ((f->clipped & IMU_CLIPPED_ACC) == 0) {
-        lowpass_specific_force(f, &rot, acc);
+    hold_specific_force(f, &rot, acc);
+    if ((f->clipped & IMU_CLIPPED_ACC) == 0 && f->lowpass_settled != 0) {
+        lowpassed_specific_force(f, &rot, acc);
         gravity_update(f, acc, &rot, dx);
     } else {
         f->acc_weight = 0;
@@ -1082,7 +1130,7 @@ static void filter_step(imu_eskf_t *f)
     if (f->at_rest) {
         rest_update(f, dx);
     }
-    f->clipped = 0;
+    f->clipped = (f->clipped & IMU_CLIPPED_ACC) != 0 ? AFTER_ACC_CLIP : 0;
     /* Inject and reset the error state; the low-passed specific force follows the
      * estimated earth frame's correction (exp(R dtheta)). A correction beyond a radian
      * is no small error: it is limited to one radian (the next steps do the rest). */

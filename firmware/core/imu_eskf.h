@@ -76,12 +76,16 @@ typedef struct {
     imu_wide_t process_var[9];    /**< per-step process noise, Q64: rad^2, (rad/s)^2, g^2 */
     int initialised;              /**< 0 until the first sample set the attitude */
     int in_group;                 /**< gyro increments buffered in the current group, 0..2 */
-    unsigned clipped;             /**< IMU_CLIPPED_* bits seen in the current group */
+    unsigned clipped;             /**< IMU_CLIPPED_* bits seen in the current group, and whether the last
+                                       group's accelerometer clipped (a private bit, imu_eskf.c) */
     int realign;                  /**< 1 after a clipped gyroscope, until the next calm step re-aligns */
     int32_t steps;                /**< filter steps so far (counts up to learn_steps) */
     int32_t learn_steps;          /**< filter steps of the magnetic dip learning phase */
     imu_q30_t increments[3][3];   /**< bias-corrected gyro increments of the group, rad, Q30 */
     imu_q16_t acc_sum[3];         /**< sum of the group's specific force, m/s^2, Q16 */
+    imu_q16_t acc_held[3];        /**< the last group's specific force in the estimated earth frame, m/s^2,
+                                       Q16, waiting to enter the low-pass (hold_specific_force) */
+    int acc_held_valid;           /**< 1 when acc_held enters the low-pass unless the next group clips */
     imu_real_t gyr_sum[3];        /**< sum of the group's angular rate, rad/s, Q22 (three times 128 rad/s fit) */
     imu_rest_t rest;              /**< rest detection on the group means */
     int at_rest;                  /**< 1 when the last filter step was at rest */
