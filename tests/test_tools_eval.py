@@ -455,9 +455,10 @@ def test_tilt_sources_tool_usage_errors_are_one_line(argv, capsys):
 eval_tilt_drift_states = _load("eval_tilt_drift_states")
 
 
-def test_drift_states_prototype_without_them_is_the_eskfs_loop_and_with_them_faster():
-    """One seed, the gyroscope's white noise only: without the drift states the prototype's
-    inclination is the ESKF's within a tenth; with them it is smaller."""
+def test_drift_states_prototype_with_them_is_the_eskfs_loop_and_without_them_slower():
+    """One seed, the gyroscope's white noise only: with the drift states and the ESKF's 0.2 m/s^2
+    (the ESKF has them since issue 41: the low-pass's error) the prototype's inclination is the
+    ESKF's within a tenth; without them, at the former 0.3 m/s^2, it is larger."""
     from imulink import core
     from imulink.analysis import rough
 
@@ -466,9 +467,9 @@ def test_drift_states_prototype_without_them_is_the_eskfs_loop_and_with_them_fas
     eskf = eval_tilt_sources.inclination(
         core.run("eskf", data.gyr, data.acc, data.mag, data.rate_hz, "fixed", profile=data.profile).quat, data)
     without = eval_tilt_sources.inclination(eval_tilt_drift_states.run(gyr, acc, data.rate_hz, False, 0.3), data)
-    with_states = eval_tilt_sources.inclination(eval_tilt_drift_states.run(gyr, acc, data.rate_hz, True, 0.1), data)
-    assert abs(without - eskf) < 0.1 * eskf
-    assert with_states < 0.8 * without
+    with_states = eval_tilt_sources.inclination(eval_tilt_drift_states.run(gyr, acc, data.rate_hz, True, 0.2), data)
+    assert abs(with_states - eskf) < 0.1 * eskf
+    assert without > 1.15 * with_states
 
 
 @pytest.mark.parametrize("argv", [["--seeds", "x"], ["--seeds", ","], ["--broad", "/nonexistent/broad"]])

@@ -18,9 +18,10 @@ This prototype models D (three more states, in the error state's sensor frame):
 
 and turns the low-pass by the attitude correction minus D's, which leaves D's estimate at zero.
 It is the tilt loop alone: gyroscope and accelerometer, no field, no rest updates, no
-down-weighting, a plain dense covariance; the variant without D states is the ESKF's loop
-(its inclination matches the ESKF's within 0.03 deg on these cases). For the design of a
-later issue, not a filter of the product.
+down-weighting, a plain dense covariance. The variant without D states is the ESKF's former
+loop (its inclination matched the ESKF's within 0.03 deg on these cases); the 6-state ESKF
+has since taken the states, as the low-pass's error L = theta - D (docs/filters.md). The
+design study behind them, not a filter of the product.
 
     .venv/bin/python tools/eval_tilt_drift_states.py --markdown [--broad ../shared/data/broad]
 """

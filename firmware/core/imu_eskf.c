@@ -7,7 +7,9 @@
 #include "imu_math.h"
 
 
-enum { ATT = 0, GYRO_BIAS = 3, ACC_BIAS = 6 };
+/* Error states. The 6-state filter keeps the low-pass's error (lowpass_error_states) where the
+ * 9-state one keeps the accelerometer bias. */
+enum { ATT = 0, GYRO_BIAS = 3, ACC_BIAS = 6, LOWPASS_ERROR = 6 };
 
 /* Defaults: [seed 000]'s angle random walk (docs/filters.md, Bibliography); the rest
  * chosen on the BROAD trials (one set for all, docs/accuracy.md): a rate random walk below [seed 000]'s (its
@@ -19,7 +21,7 @@ const imu_eskf_settings_t imu_eskf_default_settings = {
     IMU_QCONST(8.7e-4, 32),   /* gyro_arw, rad/sqrt(s) ([seed 000] table 1: 3 deg/sqrt(h)) */
     IMU_QCONST(1e-5, 40),     /* gyro_rrw, rad/s/sqrt(s) (124 deg/h^1.5) */
     IMU_QCONST(1e-4, 32),     /* acc_bias_rw, m/s^2/sqrt(s) */
-    IMU_QCONST(0.3, 24),      /* acc_noise, m/s^2 */
+    IMU_QCONST(0.2, 24),      /* acc_noise, m/s^2 */
     IMU_QCONST(1.0, 16),      /* mag_noise, uT */
     IMU_QCONST(0.1, 28),      /* init_attitude_std, rad */
     IMU_QCONST(0.01, 30),     /* init_gyro_bias_std, rad/s */
@@ -92,6 +94,16 @@ const int imu_eskf_setting_count = (int)(sizeof imu_eskf_setting_descs / sizeof 
  *  times the noise's: harmless. */
 #define JUMP_SIGMAS 5
 
+/* The 9-state filter has no states for the low-pass's error (lowpass_error_states): while the
+ * board turns (faster than NEW_FIELD_MIN_RATE, `turning`) its gravity rows count that error as
+ * white noise of this size besides acc_noise, m/s^2, Q24. With it they count 0.3 m/s^2 in
+ * motion, what that filter was measured best with on BROAD before the 6-state filter took
+ * these states and acc_noise 0.2 (docs/accuracy.md). At rest and in slow turns the error is
+ * small, and counted there it made the tilt and bias look worse known than they are (NEES
+ * 0.65-0.70 per degree of freedom in tools/eval_consistency.py's slow rotation). */
+#define UNMODELLED_LOWPASS_ERROR IMU_QCONST(0.2236068, 24)
+
+
 /* The group after one with a clipped accelerometer: a private bit of `clipped`, beside the
  * IMU_CLIPPED_* bits (see hold_specific_force). */
 #define AFTER_ACC_CLIP 0x100u
@@ -107,6 +119,22 @@ void imu_eskf_init(imu_eskf_t *f)
 int imu_eskf_state_count(const imu_eskf_t *f)
 {
     return f->settings.estimate_acc_bias != 0 ? 9 : 6;
+}
+
+/**
+ * 1 when the covariance holds the low-pass's error L as three states (the 6-state filter).
+ * The gravity rows read the low-passed specific force, whose direction errs by the attitude
+ * error low-passed alike: L <- (1 - w) Phi L + w dtheta at each group the low-pass takes
+ * with weight w, not dtheta itself. Each past group was projected with the attitude of its
+ * time, and the drift of the gyroscope since then moved the estimate but not the group.
+ * Taking L for dtheta, with that drift counted as white noise step after step (acc_noise),
+ * kept the gain small and the tilt behind VQF's (docs/accuracy.md, BROAD inclination 0.820
+ * deg against 0.752 deg). The 9-state filter has no room for them (IMU_COV_MAX): its gravity
+ * rows count the drift as noise (UNMODELLED_LOWPASS_ERROR).
+ */
+static int lowpass_error_states(const imu_eskf_t *f)
+{
+    return f->settings.estimate_acc_bias == 0;
 }
 
 imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
@@ -141,7 +169,8 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
         const imu_real_t rw_g = IMU_MUL(s->acc_bias_rw, f->inv_gravity, 30);
         t = IMU_MUL(rw_g, f->period, 30);
         for (k = 0; k < 3; ++k) {
-            f->process_var[ACC_BIAS + k] = IMU_WMUL(t, rw_g);
+            /* the low-pass's error has no noise of its own: it is the attitude's, low-passed */
+            f->process_var[ACC_BIAS + k] = lowpass_error_states(f) ? 0 : IMU_WMUL(t, rw_g);
         }
     }
     /* Low-pass weight T / (tau + T) in [0, 1]: T Q30 * 2^24 / (tau Q16 -> Q24 (60 s < 2^30) + T Q24)
@@ -292,9 +321,10 @@ static void initialise(imu_eskf_t *f, const imu_sample_t *s)
     for (k = 0; k < 3; ++k) {
         var[ATT + k] = IMU_WMUL(st->init_attitude_std, st->init_attitude_std);
         var[GYRO_BIAS + k] = IMU_WSHR(IMU_WMUL(st->init_gyro_bias_std, st->init_gyro_bias_std), 4);
-        var[ACC_BIAS + k] = IMU_WSHR(IMU_WMUL(acc_std_g, acc_std_g), 4);
+        /* (L becomes dtheta when the low-pass takes its first group: any variance until then) */
+        var[ACC_BIAS + k] = lowpass_error_states(f) ? var[ATT + k] : IMU_WSHR(IMU_WMUL(acc_std_g, acc_std_g), 4);
     }
-    imu_cov_init(&f->cov, imu_eskf_state_count(f), var, 56, &f->saturations);
+    imu_cov_init(&f->cov, 9, var, 56, &f->saturations);
     f->initialised = 1;
 }
 
@@ -407,14 +437,13 @@ static void predict_covariance(imu_eskf_t *f, const imu_q30_t dq[4], const imu_w
     imu_q30_t row[3];
     imu_wide_t block[IMU_COV_BLOCK_CELLS];
     const imu_wide_t *scale_block = NULL; /* none without a scale uncertainty */
-    const int n = imu_eskf_state_count(f);
     int i, j;
     if (f->settings.gyro_scale_std != 0) {
         scale_noise(f, phi, block);
         scale_block = block;
     }
     for (i = 0; i < 3; ++i) {
-        for (j = 0; j < n; ++j) {
+        for (j = 0; j < IMU_COV_MAX; ++j) {
             m[i][j] = 0;
         }
     }
@@ -429,6 +458,36 @@ static void predict_covariance(imu_eskf_t *f, const imu_q30_t dq[4], const imu_w
     for (i = 0; i < 3; ++i) {
         imu_cov_cap_unit_variance(&f->cov, ATT + i);
     }
+}
+
+/**
+ * The low-pass's error (lowpass_error_states) before the attitude's own time update: the
+ * low-pass took a group with weight `taken` (Q30; 0: none) whose error was the attitude's
+ * before this step, and L turns with the frame by dq (predict_covariance):
+ * L <- R(dq)^T ((1 - w) L + w dtheta), with no noise of its own. (One transition with the
+ * attitude's would take six moving rows, and their stack.)
+ */
+static void predict_lowpass_error(imu_eskf_t *f, const imu_q30_t dq[4], imu_q30_t taken)
+{
+    static const int lowpass_rows[3] = {LOWPASS_ERROR, LOWPASS_ERROR + 1, LOWPASS_ERROR + 2};
+    static const imu_wide_t no_noise[IMU_COV_MAX] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+    const imu_q30_t keep = IMU_SUB(IMU_ONE_Q30, taken);
+    imu_q30_t m[3][IMU_COV_MAX];
+    imu_q30_t row[3];
+    int i, j;
+    for (i = 0; i < 3; ++i) {
+        for (j = 0; j < IMU_COV_MAX; ++j) {
+            m[i][j] = 0;
+        }
+    }
+    for (i = 0; i < 3; ++i) {
+        imu_quat_matrix_row(dq, i, row);
+        for (j = 0; j < 3; ++j) { /* transpose */
+            m[j][ATT + i] = IMU_MUL(taken, row[j], 30);
+            m[j][LOWPASS_ERROR + i] = IMU_MUL(keep, row[j], 30);
+        }
+    }
+    imu_cov_predict(&f->cov, m, lowpass_rows, 3, no_noise, NULL, 64, &f->saturations);
 }
 
 /**
@@ -456,7 +515,7 @@ static void set_gain_map(imu_cov_map_t *map, int attitude, int gyro_bias, int ac
 static void scalar_update(imu_eskf_t *f, const imu_q30_t h[9], imu_q30_t z, imu_wide_t r, int r_q, imu_q30_t w,
                           const imu_cov_map_t *gain_map, imu_q30_t dx_total[9])
 {
-    const int n = imu_eskf_state_count(f);
+    const int n = f->cov.n;
     int i;
     for (i = 0; i < n; ++i) {
         if (h[i] != 0 && dx_total[i] != 0) { /* (most of a row is zero) */
@@ -571,6 +630,8 @@ static imu_q30_t start_weight(const imu_eskf_t *f, imu_q30_t weight)
  *   (docs/accuracy.md). Its H is taken along v (the up row of lowpass(R), v at rest), not
  *   along c: a direction that moved with the noise would make the tilt / horizontal-bias
  *   trade look observable.
+ * Without accelerometer bias states the rows read the low-pass's error L instead of dtheta
+ * (H = [0, 0, e x v]; lowpass_error_states).
  * The acceleration noise is isotropic, so the rows keep independent noise.
  *
  * The accelerometer bias is corrected at rest only. In motion a also holds what the
@@ -612,6 +673,10 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_rota
     f->acc_weight = start_weight(f, f->acc_weight);
     noise_g = IMU_MUL(st->acc_noise, f->inv_gravity, 28); /* Q24 * Q30 >> 28 -> Q26 (g) */
     r = IMU_WMUL(noise_g, noise_g);
+    if (!lowpass_error_states(f) && f->turning) {
+        const imu_real_t unmodelled_g = IMU_MUL(UNMODELLED_LOWPASS_ERROR, f->inv_gravity, 28); /* Q26 */
+        r += IMU_WMUL(unmodelled_g, unmodelled_g); /* two squares below 2^62 each: (11 g)^2 in Q52 */
+    }
     if (f->at_rest) {
         set_gain_map(&gain_map, 1, 0, 1, NULL); /* the gyro bias is the rest measurement's */
         map = &gain_map;
@@ -636,7 +701,12 @@ static void gravity_update(imu_eskf_t *f, const imu_q16_t acc[3], const imu_rota
         imu_vec3_cross(e, up, &h[ATT]);
         for (i = 0; i < 3; ++i) {
             h[GYRO_BIAS + i] = 0;
-            h[ACC_BIAS + i] = nine ? lowpass_rotation_q30(f, k, i) : e[i]; /* (not read with six states) */
+            if (nine) {
+                h[ACC_BIAS + i] = lowpass_rotation_q30(f, k, i);
+            } else { /* the rows read the low-pass's error, not the attitude's */
+                h[LOWPASS_ERROR + i] = h[ATT + i];
+                h[ATT + i] = 0;
+            }
         }
         scalar_update(f, h, z, r, 52, f->acc_weight, map, dx);
     }
@@ -843,9 +913,10 @@ static imu_q30_t lowpass_weight(imu_eskf_t *f)
  * Low-pass a group's specific force in the estimated earth frame (`earth`, m/s^2, Q16), where
  * rotations do not change gravity but a back-and-forth translation averages out (time
  * constant acc_lowpass; at its start the mean: lowpass_weight). With 9 states the rotation R
- * is low-passed alike (lowpassed_bias).
+ * is low-passed alike (lowpassed_bias; rot, the estimate of the group's time: NULL with 6 states).
+ * Returns the weight the group took, Q30.
  */
-static void lowpass_take(imu_eskf_t *f, const imu_rotation_t *rot, const imu_q16_t earth[3])
+static imu_q30_t lowpass_take(imu_eskf_t *f, const imu_rotation_t *rot, const imu_q16_t earth[3])
 {
     const int first = f->lowpass_settled == 0;
     const imu_q30_t weight = lowpass_weight(f);
@@ -866,6 +937,7 @@ static void lowpass_take(imu_eskf_t *f, const imu_rotation_t *rot, const imu_q16
             }
         }
     }
+    return first ? IMU_ONE_Q30 : weight;
 }
 
 /**
@@ -873,18 +945,35 @@ static void lowpass_take(imu_eskf_t *f, const imu_rotation_t *rot, const imu_q16
  * and none in the rest of it either: its pulse rings on both sides of the clipped samples (side
  * lobes, the sensor's own low-pass), and with the clipped part missing, what the low-pass took
  * of it no longer averaged out; an unbalanced force that read as a tilt (tools/eval_rough.py,
- * `shocks`). So a group enters the low-pass one filter step late, once the next group showed
- * no clipping, and the group after a clipped one does not enter at all. The group (sensor
- * frame, m/s^2, Q16) is held in the estimated earth frame of its time, which rot is.
+ * `shocks`). So a group is held (hold_specific_force) and enters the low-pass one filter step
+ * late, once the next group showed no clipping; the group after a clipped one does not enter.
+ * At the start of a filter step, before the estimate moves on: the held group enters unless
+ * this step's group clipped. Returns the weight it took (Q30; 0: none).
  */
+static imu_q30_t take_held_specific_force(imu_eskf_t *f)
+{
+    imu_rotation_t rot; /* the estimate of the held group's time (with its correction) */
+    const imu_rotation_t *rotation = NULL; /* only the low-pass of R reads it (9 states) */
+    if ((f->clipped & IMU_CLIPPED_ACC) != 0) {
+        f->acc_held_valid = 0; /* its neighbour clipped: dropped */
+        return 0;
+    }
+    if (!f->acc_held_valid) {
+        return 0;
+    }
+    if (imu_eskf_state_count(f) == 9) {
+        imu_quat_rotation(f->q, &rot);
+        rotation = &rot;
+    }
+    return lowpass_take(f, rotation, f->acc_held);
+}
+
+/** Hold the step's group (sensor frame, m/s^2, Q16) in the estimated earth frame of its time,
+ *  rot (take_held_specific_force). */
 static void hold_specific_force(imu_eskf_t *f, const imu_rotation_t *rot, const imu_q16_t acc[3])
 {
     if ((f->clipped & IMU_CLIPPED_ACC) != 0) {
-        f->acc_held_valid = 0; /* its neighbour clipped: dropped */
         return;
-    }
-    if (f->acc_held_valid) {
-        lowpass_take(f, rot, f->acc_held);
     }
     imu_rotation_apply(rot, acc, f->acc_held); /* Q30 * Q16 >> 30 -> Q16; |R a| = |a| */
     f->acc_held_valid = (f->clipped & AFTER_ACC_CLIP) == 0;
@@ -905,10 +994,35 @@ static void lowpassed_specific_force(const imu_eskf_t *f, const imu_rotation_t *
 }
 
 /**
- * The low-passed specific force, and the group held for it, after the estimate turned by
- * dtheta (sensor frame, Q30, at most 1 rad): v <- v + (R dtheta) x v. The first-order turn lengthens v by up to sqrt(2)
+ * The group held for the low-pass (hold_specific_force) after the estimate turned by dtheta
+ * (sensor frame, Q30, at most 1 rad): it turns with the estimated earth frame, v <- v +
+ * (R dtheta) x v, so that its error stays the attitude's, which the low-pass's error takes
+ * with it (lowpass_error_states). Q30 * Q16 >> 30 -> Q16: a held group (at most 1774 m/s^2)
+ * lengthened by up to sqrt(2), once.
+ */
+static void turn_held(imu_eskf_t *f, const imu_rotation_t *rot, const imu_q30_t dtheta[3])
+{
+    imu_q30_t u[3];
+    imu_q16_t v[3];
+    int k;
+    if (!f->acc_held_valid) {
+        return;
+    }
+    imu_rotation_apply(rot, dtheta, u);
+    for (k = 0; k < 3; ++k) {
+        v[k] = f->acc_held[k];
+    }
+    f->acc_held[0] += IMU_SUB(IMU_MUL(u[1], v[2], 30), IMU_MUL(u[2], v[1], 30));
+    f->acc_held[1] += IMU_SUB(IMU_MUL(u[2], v[0], 30), IMU_MUL(u[0], v[2], 30));
+    f->acc_held[2] += IMU_SUB(IMU_MUL(u[0], v[1], 30), IMU_MUL(u[1], v[0], 30));
+}
+
+/**
+ * The low-passed specific force after a turn by dtheta (sensor frame, Q30, at most 1 rad):
+ * v <- v + (R dtheta) x v; the estimate's correction with 9 states, the low-pass's own error's
+ * correction with 6 (lowpass_error_states). The first-order turn lengthens v by up to sqrt(2)
  * per call: kept within the inputs' limit, which a low-passed specific force cannot leave
- * (and so that R^T v fits Q16 in lowpass_specific_force).
+ * (and so that R^T v fits Q16 in lowpassed_specific_force).
  */
 static void turn_acc_earth(imu_eskf_t *f, const imu_rotation_t *rot, const imu_q30_t dtheta[3])
 {
@@ -916,22 +1030,10 @@ static void turn_acc_earth(imu_eskf_t *f, const imu_rotation_t *rot, const imu_q
     imu_q30_t u[3];
     imu_q16_t v[3];
     int k;
-    if (f->lowpass_settled == 0 && !f->acc_held_valid) {
+    if (f->lowpass_settled == 0) {
         return; /* nothing to turn: the next low-pass starts afresh (and rot may be of an older attitude) */
     }
     imu_rotation_apply(rot, dtheta, u);
-    if (f->acc_held_valid) {
-        /* Q30 * Q16 >> 30 -> Q16: a held group (at most 1774 m/s^2) lengthened by up to sqrt(2) */
-        for (k = 0; k < 3; ++k) {
-            v[k] = f->acc_held[k];
-        }
-        f->acc_held[0] += IMU_SUB(IMU_MUL(u[1], v[2], 30), IMU_MUL(u[2], v[1], 30));
-        f->acc_held[1] += IMU_SUB(IMU_MUL(u[2], v[0], 30), IMU_MUL(u[0], v[2], 30));
-        f->acc_held[2] += IMU_SUB(IMU_MUL(u[0], v[1], 30), IMU_MUL(u[1], v[0], 30));
-    }
-    if (f->lowpass_settled == 0) {
-        return;
-    }
     for (k = 0; k < 3; ++k) {
         v[k] = acc_earth_q16(f, k);
     }
@@ -1068,6 +1170,7 @@ static void filter_step(imu_eskf_t *f)
     imu_rotation_t rot; /* R(q) of the updates: q changes only when they are injected */
     imu_q30_t dx[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
     imu_q16_t acc[3], mag[3];
+    const imu_q30_t taken = take_held_specific_force(f); /* its weight in the low-pass, Q30 */
     int k;
     { /* (block scopes: their arrays share stack with the updates') */
         imu_wide_t phi[3];
@@ -1086,6 +1189,9 @@ static void filter_step(imu_eskf_t *f)
          * they carry no heading information: without a magnetometer the filter becomes
          * overconfident in heading. The first-order reset I - [dtheta/2 x] halves that.) */
         imu_quat_mul(f->injected, dq, turn);
+        if (lowpass_error_states(f)) {
+            predict_lowpass_error(f, turn, taken);
+        }
         predict_covariance(f, turn, phi);
         f->turning = longer_than(phi, IMU_MUL(NEW_FIELD_MIN_RATE, f->period, 30));
     }
@@ -1135,7 +1241,14 @@ static void filter_step(imu_eskf_t *f)
      * estimated earth frame's correction (exp(R dtheta)). A correction beyond a radian
      * is no small error: it is limited to one radian (the next steps do the rest). */
     limit_to_one_radian(&dx[ATT]);
-    turn_acc_earth(f, &rot, &dx[ATT]);
+    turn_held(f, &rot, &dx[ATT]);
+    if (lowpass_error_states(f)) {
+        /* the low-pass itself is corrected by L's correction, which leaves L's error at zero */
+        limit_to_one_radian(&dx[LOWPASS_ERROR]);
+        turn_acc_earth(f, &rot, &dx[LOWPASS_ERROR]);
+    } else {
+        turn_acc_earth(f, &rot, &dx[ATT]);
+    }
     imu_quat_integrate(f->q, &dx[ATT]);
     imu_quat_from_rotation(f->injected, &dx[ATT]);
     for (k = 0; k < 3; ++k) {

@@ -6,7 +6,9 @@
  * Error state x = [dtheta (3), dbg (3), dba (3)]: attitude error angle in the
  * sensor frame (rad; twice the seed's error-quaternion vector part, true =
  * estimate (x) exp(dtheta)), gyro bias error (rad/s), accelerometer bias error (in
- * units of g, so that every measurement coefficient is at most 1). The covariance is
+ * units of g, so that every measurement coefficient is at most 1). Without accelerometer
+ * bias states (estimate_acc_bias 0) the covariance's last three states are the low-passed
+ * specific force's error angle instead (imu_eskf.c, lowpass_error_states). The covariance is
  * stored in block-floating form (imu_cov.h).
  *
  * Gyro samples are consumed three at a time (three-sample rotation vector), so the
@@ -40,7 +42,8 @@ typedef struct {
     imu_real_t gyro_arw;           /**< gyro angle random walk, rad/sqrt(s), Q32, [0, 0.49] */
     imu_real_t gyro_rrw;           /**< gyro rate random walk, rad/s/sqrt(s), Q40, [0, 1.9e-3] */
     imu_real_t acc_bias_rw;        /**< accelerometer bias random walk, m/s^2/sqrt(s), Q32, [0, 0.49] */
-    imu_real_t acc_noise;          /**< specific-force noise per filter step, m/s^2, Q24, [1e-3, 100] */
+    imu_real_t acc_noise;          /**< specific-force noise per filter step, m/s^2, Q24, [1e-3, 100] (9 states, turning:
+                                        0.22 m/s^2 more for the low-pass's error, imu_eskf.c) */
     imu_real_t mag_noise;          /**< horizontal magnetic field noise per filter step, uT, Q16, [1e-3, 1000] */
     imu_real_t init_attitude_std;  /**< initial attitude uncertainty, rad, Q28, [1e-4, 3.2] */
     imu_real_t init_gyro_bias_std; /**< initial gyro bias uncertainty, rad/s, Q30, [1e-5, 1] */
