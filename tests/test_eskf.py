@@ -125,30 +125,51 @@ def _slow_turn(axis_earth, rate_dps: float, rest_s: float, turn_s: float) -> sim
                           gyr=gyr, acc_lin=np.zeros((n, 3)), rest=np.all(gyr == 0.0, axis=1))
 
 
-@pytest.mark.parametrize("axis", [(0.0, 0.0, 1.0), (1.0, 0.0, 0.0)], ids=["vertical", "horizontal"])
+@pytest.mark.parametrize("axis", [(0.0, 0.0, 1.0), (1.0, 0.0, 0.0), (0.6, 0.0, 0.8)],
+                         ids=["vertical", "horizontal", "tilted"])
 def test_a_slow_steady_rotation_is_not_learnt_as_gyro_bias(axis):
     """1 deg/s for a minute (a turntable, a boat's swing) is below the rest detector's 2 deg/s
     rate test. With that test alone it was rest, and the rest updates learnt 0.80-0.82 deg/s
-    of it as gyro bias; the turn tests see gravity or the field turn (imu_rest.h)."""
+    of it as gyro bias; the turn tests see gravity or the field turn (imu_rest.h). At the
+    turn's onset, before they did, the bias-jump test took it for a jump and 0.61-0.72 deg/s
+    were learnt for a while; the jump test now waits for a turn the turn tests would see."""
     data = sim.simulate(_slow_turn(axis, 1.0, 20.0, 60.0), sim.SensorSuite.default(), seed=2)
     run = core.run("eskf", data.gyr, data.acc, data.mag, RATE, "fixed")
     error = np.degrees(np.linalg.norm(run.gyro_bias - data.gyro_bias_true, axis=1))
-    assert error[-1] < 0.1
+    assert error[data.t >= 20.0].max() < 0.1
 
 
 def test_a_gyro_bias_jump_at_rest_is_learnt_within_seconds():
     """A bias that jumps by 0.5 deg/s (a knock, a mount that shifted) while the board rests: a
     random walk makes no such jumps, and the rest updates learnt it with a time constant of
     90 s: 5 s after the jump 0.45 deg/s was unlearnt, and the inclination reached 3.2 deg
-    within 20 s. The jump test widens the bias's variance: under 0.05 deg/s and 0.6 deg."""
+    within 20 s. The jump test widens the bias's variance once the rotation the gyroscope
+    reads would have turned gravity beyond the turn tests' limit (the tilt reaches 1 deg by
+    then), and the attitude takes that rotation back."""
     suite = sim.SensorSuite.default()
     suite.gyro.bias_steps = [(60.0, np.radians([0.0, 0.5, 0.0]))]
     data = sim.simulate(sim.static(80.0, RATE), suite, seed=3)
     run = core.run("eskf", data.gyr, data.acc, data.mag, RATE, "fixed")
     error = np.degrees(np.linalg.norm(run.gyro_bias - data.gyro_bias_true, axis=1))
     assert error[data.t >= 65.0].max() < 0.05
-    inclination = attitude_errors(run.quat, data.quat_true)["inclination"]  # deg
-    assert np.abs(inclination[data.t >= 60.0]).max() < 1.0
+    inclination = np.abs(attitude_errors(run.quat, data.quat_true)["inclination"])  # deg
+    assert inclination[data.t >= 60.0].max() < 1.2
+    assert inclination[data.t >= 63.0].max() < 0.35
+
+
+def test_a_vertical_gyro_bias_jump_at_rest_is_told_by_the_field():
+    """A jump about the vertical turns nothing but the field's direction (0.4 of the rotation
+    at this dip): the field's turn test tells it from a slow turn after about 4 s, and the
+    heading the gyroscope turned meanwhile (1.6-1.9 deg) is taken back."""
+    suite = sim.SensorSuite.default()
+    suite.gyro.bias_steps = [(60.0, np.radians([0.0, 0.0, 0.5]))]
+    data = sim.simulate(sim.static(80.0, RATE), suite, seed=5)
+    run = core.run("eskf", data.gyr, data.acc, data.mag, RATE, "fixed")
+    error = np.degrees(np.linalg.norm(run.gyro_bias - data.gyro_bias_true, axis=1))
+    assert error[data.t >= 68.0].max() < 0.05
+    heading = np.abs(attitude_errors(run.quat, data.quat_true)["heading"])  # deg
+    assert heading[data.t >= 60.0].max() < 2.5
+    assert heading[data.t >= 66.0].max() < 0.3
 
 
 @pytest.mark.parametrize("seed", [0, 2])

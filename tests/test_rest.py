@@ -11,7 +11,8 @@ compiled on the host in both builds (fixed point and the float twin), on synthet
     rest, a turn about the vertical turns the field (quiet, not at rest), a turn about a
     horizontal axis turns gravity (neither), and rest waits for the references (tau) and
     min_time;
-(d) motion restarts every count, and the calm count says since when the board is still;
+(d) motion restarts every count, the calm count says since when the board is still, and
+    the unturned flag since when the turn tests have held their references;
 (e) the two builds take the same decisions on noisy readings.
 """
 from __future__ import annotations
@@ -43,6 +44,7 @@ CDEF = """
                         const imu_q16_t mag[3], uint32_t *sat);
     int imu_rest_quiet(const imu_rest_t *r);
     int32_t imu_rest_calm(const imu_rest_t *r);
+    int imu_rest_unturned(const imu_rest_t *r);
     imu_q16_t imu_rest_gravity(const imu_rest_t *r);
 """
 #: Q formats of the config fields (fixed build).
@@ -224,6 +226,26 @@ def test_a_bump_restarts_the_counts(lib, config):
     # The counts start again: rest no sooner than min_time after the bump.
     again = first(rest[301:]) + 301
     assert again >= 300 + int(1.5 / 0.01) and rest[again:].all()
+
+
+def test_unturned_holds_from_the_references_until_a_test_fails(lib):
+    """The references are taken settle + 1 updates into a steady stretch (tau / period = 50
+    here); unturned holds from the next update until a bump or a turn breaks the stretch."""
+    d = Detector(lib, EECF, 0.01)
+    n = 600
+    gyr = np.zeros((n, 3))
+    gyr[300] = [0.0, 0.5, 0.0]  # one sample at 29 deg/s
+    unturned = np.zeros(n, dtype=int)
+    for i in range(n):
+        d.update(gyr[i])
+        unturned[i] = d.lib.imu_rest_unturned(d.state)
+    assert first(unturned) == 51 and unturned[51:300].all() and not unturned[300]
+    assert first(unturned[301:]) + 301 == 301 + 51 and unturned[352:].all()
+    turn_gyr, acc, mag = turning(3.0, 2, 600, 0.01)
+    for i in range(600):
+        d.update(turn_gyr[i], acc[i], mag[i])
+        unturned[i] = d.lib.imu_rest_unturned(d.state)
+    assert not unturned.all() and unturned.any()  # each new reference of the field restarts it
 
 
 # --------------------------------------------------------------------------- (e) fixed and float alike

@@ -93,6 +93,10 @@ const int imu_eskf_setting_count = (int)(sizeof imu_eskf_setting_descs / sizeof 
  *  580 000 rest steps (5 h of rest at 100 Hz), which then widens the variance to a few
  *  times the noise's: harmless. */
 #define JUMP_SIGMAS 5
+/** Turn (rad, Q30) of gravity or the field beyond which a bias jump is told from a rotation
+ *  (check_bias_jump): 1.25 times the turn tests' limit, so that a real rotation fails those
+ *  tests first (at 1.0 the two raced on equal terms and a 1 deg/s turn now and then won). */
+#define JUMP_TURN (5 * IMU_REST_TURN / 4)
 
 /* The 9-state filter has no states for the low-pass's error (lowpass_error_states): while the
  * board turns (faster than NEW_FIELD_MIN_RATE, `turning`) its gravity rows count that error as
@@ -181,6 +185,7 @@ imu_status_t imu_eskf_set_settings(imu_eskf_t *f, const imu_eskf_settings_t *s)
     f->lowpass_settled = 0;
     f->acc_held_valid = 0;
     for (k = 0; k < 3; ++k) {
+        f->jump_turn[k] = 0;
         f->acc_held[k] = 0;
         f->acc_earth[k] = 0;
         f->gyr_sum[k] = 0;
@@ -1065,38 +1070,115 @@ static void turn_acc_earth(imu_eskf_t *f, const imu_rotation_t *rot, const imu_q
     }
 }
 
+/** A turn (rad, wide Q30) within +-0.5 rad, beyond JUMP_TURN's reach. */
+static imu_q30_t limit_turn(imu_wide_t turn)
+{
+    const imu_wide_t half = IMU_ONE_Q30 / 2;
+    return (imu_q30_t)(turn > half ? half : (turn < -half ? -half : turn));
+}
+
+/**
+ * 1 when the rotation `turn` (rad, Q30) would have turned gravity or the field in the sensor
+ * frame (their low-passes) by more than JUMP_TURN: a rotation the rest detector's turn
+ * tests would have seen. Without a field, a rotation about gravity is seen by nothing, so
+ * its length counts.
+ */
+static int turn_seen_by_rest(const imu_eskf_t *f, const imu_q30_t turn[3])
+{
+    const imu_wide_t limit = IMU_WMUL(JUMP_TURN, JUMP_TURN); /* Q60 */
+    imu_q30_t unit[3], across[3];
+    imu_real_t norm;
+    int pass, k;
+    for (pass = 0; pass < 2; ++pass) {
+        imu_wide_t sum = 0; /* Q60 */
+        if (imu_vec3_normalize(pass == 0 ? imu_rest_acc(&f->rest) : imu_rest_field(&f->rest), unit, &norm)) {
+            imu_vec3_cross(turn, unit, across);
+        } else if (pass == 1) {
+            for (k = 0; k < 3; ++k) {
+                across[k] = turn[k];
+            }
+        } else {
+            continue;
+        }
+        for (k = 0; k < 3; ++k) {
+            sum += IMU_WMUL(across[k], across[k]);
+        }
+        if (sum > limit) {
+            return 1;
+        }
+    }
+    return 0;
+}
+
+/** The low-passed rate's deviation from the bias estimate, rad/s, Q30: at rest, what the
+ *  gyroscope reads of the bias error (the rest detector's rate test keeps it below 2 deg/s). */
+static void rest_rate_deviation(imu_eskf_t *f, imu_q30_t z[3])
+{
+    const imu_rate_t *rate = imu_rest_rate(&f->rest);
+    int k;
+    for (k = 0; k < 3; ++k) { /* Q24 -> Q30 minus the bias, Q30 */
+        z[k] = IMU_SUB_SAT(IMU_SHL_SAT(rate[k], 6, &f->saturations), f->gyro_bias[k], &f->saturations);
+    }
+}
+
 /**
  * At rest, a bias that jumped (a knock, a mount that shifted, a temperature step): a
  * random walk, the bias model, makes no jumps, and the bias variance it leaves (0.005 deg/s
  * after a minute of rest with the default gyro_rrw) made the rest measurement learn a
  * 0.5 deg/s jump with a time constant of 90 s while the tilt drifted (tools/eval_rough.py,
- * `gyro-bias-step`). A rest measurement z of bias component k beyond JUMP_SIGMAS standard
- * deviations of what the model predicts (P_kk plus the noise of the low-passed rate,
- * imu_rest_rate_noise_share) is such a jump: that component's standard deviation is doubled
- * (its correlations kept, imu_cov_scale_up) until it reaches |z| / 2, and the rest update
- * that follows learns it within a few steps. A slow steady rotation would pass for a jump,
- * but the rest detector's turn tests keep it from being taken for rest (imu_rest.h).
+ * `gyro-bias-step`). A deviation z of the low-passed rate from the bias estimate, in
+ * component k beyond JUMP_SIGMAS standard deviations of what the model predicts (P_kk plus
+ * the noise of the low-passed rate, imu_rest_rate_noise_share), is such a jump: each
+ * component's standard deviation is doubled (its correlations kept, imu_cov_scale_up) until
+ * it reaches |z_k| / 2 (a jump's other components may be just short of the limit: the
+ * low-passed rate's noise), and the rest update that follows learns it within a few steps.
+ *
+ * The onset of a slow steady rotation looks the same for the second or so its turn takes
+ * to fail the rest detector's turn tests (a 1 deg/s turn about the vertical turns the
+ * field by 0.4 deg/s): learnt as a jump, it left 0.7 deg/s of bias. A jump turns neither
+ * gravity nor the field, a rotation does. So the rotation z reads from the step it first
+ * shows a jump, while the turn tests hold their references (jump_turn), is a jump only once
+ * it would have turned one of them by more than the tests let pass (turn_seen_by_rest), and
+ * then the attitude takes that rotation back, with the low-pass's lag: the board did not
+ * turn.
  */
-static void check_bias_jump(imu_eskf_t *f, const imu_q30_t z[3])
+static void check_bias_jump(imu_eskf_t *f, imu_q30_t dx[9])
 {
-    /* rest_var (Q48, below 2^60) in Q33 times the share in Q15 (in (0, 1]) -> Q48 */
-    const imu_wide_t noise =
-        IMU_WSHR(f->rest_var, 15) * IMU_SHR(imu_rest_rate_noise_share(&f->rest, &f->saturations), 15);
     int doublings[9] = {0, 0, 0, 0, 0, 0, 0, 0, 0};
+    imu_wide_t noise;
+    imu_q30_t z[3];
     int k, jumped = 0;
+    if (!imu_rest_unturned(&f->rest)) {
+        f->jump_turn[0] = f->jump_turn[1] = f->jump_turn[2] = 0;
+        return;
+    }
+    /* rest_var (Q48, below 2^60) in Q33 times the share in Q15 (in (0, 1]) -> Q48 */
+    noise = IMU_WSHR(f->rest_var, 15) * IMU_SHR(imu_rest_rate_noise_share(&f->rest, &f->saturations), 15);
+    rest_rate_deviation(f, z);
     for (k = 0; k < 3; ++k) {
         const imu_wide_t zz = IMU_WSHR(IMU_WMUL(z[k], z[k]), 12); /* Q60 -> Q48, below 2^50 */
         imu_wide_t var = imu_cov_element_wide(&f->cov, GYRO_BIAS + k, GYRO_BIAS + k, 48, &f->saturations);
         if (zz / (JUMP_SIGMAS * JUMP_SIGMAS) - noise > var) { /* (no sum to overflow) */
             jumped = 1;
-            while (doublings[GYRO_BIAS + k] < 16 && var < zz / 4) {
-                var *= 4;
-                ++doublings[GYRO_BIAS + k];
-            }
+        }
+        while (doublings[GYRO_BIAS + k] < 16 && var < zz / 4) {
+            var *= 4;
+            ++doublings[GYRO_BIAS + k];
         }
     }
-    if (jumped) {
+    for (k = 0; k < 3; ++k) { /* rad/s Q30 * s Q30 >> 30 -> rad Q30 */
+        f->jump_turn[k] = jumped ? limit_turn(f->jump_turn[k] + IMU_WSHR(IMU_WMUL(z[k], f->period), 30)) : 0;
+    }
+    if (f->at_rest && jumped && turn_seen_by_rest(f, f->jump_turn)) {
+        /* The low-pass's time constant plus the period, s, Q24: the rate's integral exceeds its
+         * low-pass's (lp += alpha (rate - lp)) by that times the low-pass's change, here z. */
+        const imu_rate_t lag = IMU_ADD(imu_rest_default_config.tau, IMU_SHR(f->period, 6));
         imu_cov_scale_up(&f->cov, doublings);
+        for (k = 0; k < 3; ++k) { /* the board did not turn: the attitude takes that rotation back */
+            const imu_q30_t turned = IMU_ADD_SAT(f->jump_turn[k], IMU_MUL(z[k], lag, 24), &f->saturations);
+            dx[ATT + k] = IMU_SUB_SAT(dx[ATT + k], turned, &f->saturations);
+            f->jump_turn[k] = 0;
+        }
     }
 }
 
@@ -1115,16 +1197,11 @@ static void check_bias_jump(imu_eskf_t *f, const imu_q30_t z[3])
  */
 static void rest_update(imu_eskf_t *f, imu_q30_t dx[9])
 {
-    const imu_rate_t *rate = imu_rest_rate(&f->rest);
     imu_q30_t z[3];
     imu_q30_t h[9];
     imu_cov_map_t gain_map;
     int k, i;
-    for (k = 0; k < 3; ++k) {
-        /* Q24 -> Q30 (below 2 rad/s: at rest) minus the bias, Q30. */
-        z[k] = IMU_SUB_SAT(IMU_SHL_SAT(rate[k], 6, &f->saturations), f->gyro_bias[k], &f->saturations);
-    }
-    check_bias_jump(f, z);
+    rest_rate_deviation(f, z);
     set_gain_map(&gain_map, 0, 1, 0, NULL);
     for (k = 0; k < 3; ++k) {
         for (i = 0; i < 9; ++i) {
@@ -1233,6 +1310,7 @@ static void filter_step(imu_eskf_t *f)
     } else {
         f->mag_weight = 0;
     }
+    check_bias_jump(f, dx);
     if (f->at_rest) {
         rest_update(f, dx);
     }

@@ -92,6 +92,10 @@ typedef struct {
     imu_real_t gyr_sum[3];        /**< sum of the group's angular rate, rad/s, Q22 (three times 128 rad/s fit) */
     imu_rest_t rest;              /**< rest detection on the group means */
     int at_rest;                  /**< 1 when the last filter step was at rest */
+    imu_q30_t jump_turn[3];       /**< the rotation the low-passed rate (after the bias estimate) read since it
+                                       first showed a bias jump, while the rest's turn tests held, rad, Q30
+                                       (check_bias_jump); zero while none */
+    int32_t padding_jump;         /**< explicit padding (see padding_ref) */
     imu_wide_t rest_var;          /**< variance of the rest measurement of the bias, (rad/s)^2, Q48 */
     imu_q16_t mag_sum[3];         /**< sum of the group's magnetic field, uT, Q16 */
     imu_q30_t q[4];               /**< attitude at the last filter step, Q30 */

@@ -227,6 +227,13 @@ int imu_rest_quiet(const imu_rest_t *r)
     return r->still > 0 && r->still >= r->min_updates && (r->turn == 0 || r->acc_count >= r->min_updates);
 }
 
+int imu_rest_unturned(const imu_rest_t *r)
+{
+    /* calm counts from the update after a failed test (which took a new reference) or
+     * from the steady stretch's start (the references come settle + 1 updates into it) */
+    return r->turn > 0 && r->calm > r->settle + 1;
+}
+
 int32_t imu_rest_calm(const imu_rest_t *r)
 {
     return r->calm;

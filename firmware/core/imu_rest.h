@@ -123,6 +123,10 @@ imu_q16_t imu_rest_gravity(const imu_rest_t *r);
 /** @brief 1 while quiet (see above): after the last update, as imu_rest_update's result. */
 int imu_rest_quiet(const imu_rest_t *r);
 
+/** @brief 1 when the turn tests (configured) took their references before the last update
+ *         and held them up to it: no rotation beyond `turn` since then. */
+int imu_rest_unturned(const imu_rest_t *r);
+
 /** @brief Consecutive updates, up to the last one, in which no test failed (0: it failed):
  *         how long the board has been seen still. Saturates below 2^31 - 1. */
 int32_t imu_rest_calm(const imu_rest_t *r);
