@@ -80,7 +80,9 @@ def test_injected_broad_trial_is_bit_exact(broad_dir, filter_name):
                                 trial.profile)
     with EmulatedBoard("qemu", duration_s=1.0, profile=BROAD_PROFILE) as board:
         result = hil.inject(board.address, source, filter_name=filter_name)
-    assert result.answered == n and result.bit_exact, result.first_difference
+    assert result.answered == n and result.bit_exact, (f"{result.answers_lost} answers lost, "
+                                                       f"{result.filter_restarts} restarts after a timeout, "
+                                                       f"first difference {result.first_difference}")
 
 
 def test_the_image_states_its_sensor_profile_and_another_is_refused(qemu_board):
