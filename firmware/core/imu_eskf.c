@@ -865,8 +865,8 @@ static void heading_update(imu_eskf_t *f, const imu_q16_t mag[3], const imu_rota
      * and a disturbance whose direction changes with the orientation (a magnet on the
      * board, steel nearby) is no white noise: taught to the vertical bias, it tilted the
      * estimate once the board turned that axis away from the vertical (tools/eval_rough.py
-     * `attached-magnet`: inclination 0.32 deg, 0.23 deg so; VQF 0.15 deg). A down-weighted
-     * field still corrects the heading. */
+     * `attached-magnet`: inclination 0.32 deg with the bias from every field, 0.23 deg with
+     * this rule; VQF 0.15 deg). A down-weighted field still corrects the heading. */
     for (i = 0; i < 9; ++i) {
         h[i] = 0;
     }
