@@ -139,6 +139,16 @@ def test_a_slow_steady_rotation_is_not_learnt_as_gyro_bias(axis):
     assert error[data.t >= 20.0].max() < 0.1
 
 
+def _bias_jump_at_rest(step_dps, seed):
+    """80 s at rest, the gyro bias jumping by `step_dps` (deg/s, sensor axes) at 60 s: the data,
+    the ESKF's run and its gyro-bias error (deg/s) per sample."""
+    suite = sim.SensorSuite.default()
+    suite.gyro.bias_steps = [(60.0, np.radians(step_dps))]
+    data = sim.simulate(sim.static(80.0, RATE), suite, seed=seed)
+    run = core.run("eskf", data.gyr, data.acc, data.mag, RATE, "fixed")
+    return data, run, np.degrees(np.linalg.norm(run.gyro_bias - data.gyro_bias_true, axis=1))
+
+
 def test_a_gyro_bias_jump_at_rest_is_learnt_within_seconds():
     """A bias that jumps by 0.5 deg/s (a knock, a mount that shifted) while the board rests: a
     random walk makes no such jumps, and the rest updates learnt it with a time constant of
@@ -146,11 +156,7 @@ def test_a_gyro_bias_jump_at_rest_is_learnt_within_seconds():
     within 20 s. The jump test widens the bias's variance once the rotation the gyroscope
     reads would have turned gravity beyond the turn tests' limit (the tilt reaches 1 deg by
     then), and the attitude takes that rotation back."""
-    suite = sim.SensorSuite.default()
-    suite.gyro.bias_steps = [(60.0, np.radians([0.0, 0.5, 0.0]))]
-    data = sim.simulate(sim.static(80.0, RATE), suite, seed=3)
-    run = core.run("eskf", data.gyr, data.acc, data.mag, RATE, "fixed")
-    error = np.degrees(np.linalg.norm(run.gyro_bias - data.gyro_bias_true, axis=1))
+    data, run, error = _bias_jump_at_rest([0.0, 0.5, 0.0], seed=3)
     assert error[data.t >= 65.0].max() < 0.05
     inclination = np.abs(attitude_errors(run.quat, data.quat_true)["inclination"])  # deg
     assert inclination[data.t >= 60.0].max() < 1.2
@@ -161,11 +167,7 @@ def test_a_vertical_gyro_bias_jump_at_rest_is_told_by_the_field():
     """A jump about the vertical turns nothing but the field's direction (0.4 of the rotation
     at this dip): the field's turn test tells it from a slow turn after about 4 s, and the
     heading the gyroscope turned meanwhile (1.6-1.9 deg) is taken back."""
-    suite = sim.SensorSuite.default()
-    suite.gyro.bias_steps = [(60.0, np.radians([0.0, 0.0, 0.5]))]
-    data = sim.simulate(sim.static(80.0, RATE), suite, seed=5)
-    run = core.run("eskf", data.gyr, data.acc, data.mag, RATE, "fixed")
-    error = np.degrees(np.linalg.norm(run.gyro_bias - data.gyro_bias_true, axis=1))
+    data, run, error = _bias_jump_at_rest([0.0, 0.0, 0.5], seed=5)
     assert error[data.t >= 68.0].max() < 0.05
     heading = np.abs(attitude_errors(run.quat, data.quat_true)["heading"])  # deg
     assert heading[data.t >= 60.0].max() < 2.5
